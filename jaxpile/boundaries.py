@@ -1,0 +1,69 @@
+"""Flat walls and gravity (run-time values in `state.Boundaries`).
+
+A wall is the half-plane `normal . x >= offset`. It is a contact partner of zero
+radius and infinite mass (the rule of Lee & Herrmann 1993, sec. 2), evaluated with
+the same contact law as a disk pair, so every law works against every wall.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+
+from jaxpile.state import Boundaries
+
+GROUND, LEFT_WALL, RIGHT_WALL = 0, 1, 2
+
+
+def make_boundaries(
+    *,
+    left: float | None = None,
+    right: float | None = None,
+    ground: float = 0.0,
+    gravity: float = 1.0,
+    tilt_degrees: float = 0.0,
+    dtype=None,
+) -> Boundaries:
+    """The ground y = `ground` plus a left and a right wall.
+
+    Args:
+      left, right: x positions of the side walls; `None` creates the wall
+        switched off (it can be switched on at run time with `set_wall`).
+      ground: height of the ground.
+      gravity: magnitude g.
+      tilt_degrees: gravity rotated by this angle (counter-clockwise) from -y,
+        which is the same as tilting the whole set-up clockwise.
+    """
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    normal = jnp.array([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0]], dtype)
+    offset = jnp.array([ground, 0.0 if left is None else left, 0.0 if right is None else -right], dtype)
+    active = jnp.array([True, left is not None, right is not None])
+    return Boundaries(
+        gravity=gravity_vector(gravity, tilt_degrees, dtype),
+        wall_normal=normal,
+        wall_offset=offset,
+        wall_active=active,
+    )
+
+
+def gravity_vector(g: float, tilt_degrees: float, dtype=None):
+    """`[2]` gravity of magnitude g, rotated counter-clockwise by `tilt_degrees` from -y."""
+    t = math.radians(tilt_degrees)
+    return jnp.array([g * math.sin(t), -g * math.cos(t)], dtype)
+
+
+def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, position=None) -> Boundaries:
+    """Switches a wall on or off and/or moves it (x for side walls, y for the ground)."""
+    b = boundaries
+    if active is not None:
+        b = b.set(wall_active=b.wall_active.at[wall].set(active))
+    if position is not None:
+        sign = b.wall_normal[wall].sum()  # +1 for ground and left wall, -1 for right wall
+        b = b.set(wall_offset=b.wall_offset.at[wall].set(sign * position))
+    return b
+
+
+def wall_distance(boundaries: Boundaries, position):
+    """`[n, w]` signed distance of each centre from each wall plane (positive inside)."""
+    return position @ boundaries.wall_normal.T - boundaries.wall_offset[None, :]

@@ -1,0 +1,69 @@
+"""Saving states and results: npz for states, CSV for tables, JSON for summaries."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+
+import numpy as np
+
+from jaxpile.state import SimState
+
+
+def state_arrays(state: SimState) -> dict:
+    """A flat dict of numpy arrays describing the state (no neighbour list)."""
+    p, c, b = state.particles, state.contacts, state.boundaries
+    return {
+        **{f"particles.{k}": np.asarray(v) for k, v in vars(p).items()},
+        **{f"contacts.{k}": np.asarray(v) for k, v in vars(c).items()},
+        **{f"boundaries.{k}": np.asarray(v) for k, v in vars(b).items()},
+        "step": np.asarray(state.step),
+    }
+
+
+def save_state(path, state: SimState, **metadata) -> None:
+    """Writes the state's arrays (plus `metadata` as JSON) to an npz, atomically."""
+    arrays = state_arrays(state)
+    arrays["metadata"] = np.asarray(json.dumps(metadata, default=str))
+    _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+
+
+def load_arrays(path) -> dict:
+    with np.load(path, allow_pickle=False) as data:
+        return {k: data[k] for k in data.files}
+
+
+def write_csv(path, columns: dict) -> None:
+    names = list(columns)
+    table = np.column_stack([np.asarray(columns[n], float) for n in names]) if names else np.zeros((0, 0))
+    _atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g"),
+                  text=True)
+
+
+def read_csv(path) -> dict:
+    with open(path) as f:
+        names = f.readline().strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return {n: data[:, k] for k, n in enumerate(names)}
+
+
+def write_json(path, obj) -> None:
+    _atomic_write(path, lambda f: f.write(json.dumps(obj, indent=2, default=float) + "\n"), text=True)
+
+
+def _atomic_write(path, write, text: bool = False) -> None:
+    """Write to a temporary file in the same folder, fsync, then rename."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.splitext(path)[1])
+    try:
+        with os.fdopen(fd, "w" if text else "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

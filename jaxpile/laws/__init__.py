@@ -1,0 +1,20 @@
+"""Contact laws: one module per law, each a pure per-pair kernel plus a params pytree."""
+
+from __future__ import annotations
+
+from jaxpile.errors import InputError
+from jaxpile.laws import hooke
+from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
+
+LAWS = {"hooke": hooke}
+
+
+def get_law_module(name: str):
+    """The module of a law by its registry name (`hooke`, ...)."""
+    try:
+        return LAWS[name]
+    except KeyError:
+        raise InputError(f"unknown law {name!r}; known laws: {sorted(LAWS)}.") from None
+
+
+__all__ = ["ContactLaw", "PairForce", "PairGeometry", "LAWS", "get_law_module", "hooke"]

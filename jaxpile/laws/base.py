@@ -1,0 +1,113 @@
+"""What every contact law provides, and the geometry of one pair handed to it.
+
+A law is a *pure per-pair kernel*: it sees one pair's geometry and history and
+returns the force on particle i, the torque on i and the new history. The
+neighbour-slot axis and the batch axis are added by `vmap` around it (the habit
+of jax-md's `energy.py`). Walls reuse the same kernel with a partner of zero
+radius and infinite mass (Lee & Herrmann 1993, sec. 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, NamedTuple
+
+import jax.numpy as jnp
+
+Array = Any
+
+
+class PairGeometry(NamedTuple):
+    """One pair (i, j) as seen from particle i.
+
+    Attributes:
+      displacement: `[2]` x_i - x_j (for a wall: from the wall plane to x_i).
+      radius_i, radius_j: radii (radius_j = 0 for a wall).
+      velocity: `[2]` v_i - v_j.
+      angular_velocity_i, angular_velocity_j: counter-clockwise spins.
+      effective_mass: m_i m_j / (m_i + m_j), or m_i against a wall or fixed disk.
+    """
+
+    displacement: Array
+    radius_i: Array
+    radius_j: Array
+    velocity: Array
+    angular_velocity_i: Array
+    angular_velocity_j: Array
+    effective_mass: Array
+
+
+class PairForce(NamedTuple):
+    """What a kernel returns for one pair.
+
+    Attributes:
+      force: `[2]` force on i.
+      torque: torque on i (z component).
+      history: `[h]` the pair's new history (zero when not in contact).
+      normal: the normal force magnitude along +n (repulsive > 0), for analysis
+        and for Coulomb caps.
+      in_contact: bool.
+    """
+
+    force: Array
+    torque: Array
+    history: Array
+    normal: Array
+    in_contact: Array
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactLaw:
+    """A contact law: static configuration plus pure functions (hashable, so a jit
+    that closes over it compiles once).
+
+    Attributes:
+      name: registry name (`hooke`, ...).
+      history_size: h, the length of the per-pair history vector.
+      rotation: False freezes the angular degrees of freedom.
+      pair_force: `(params, PairGeometry, history[h], dt) -> PairForce`.
+      wall_params: `params -> params` used for walls (the `wall_*` values).
+      interaction_range: `(params, radius_i, radius_j) -> float`, the distance
+        below which a pair interacts (sizes the neighbour list).
+      stable_time_step: `(params, min_mass) -> float`, an estimate of the largest
+        stable explicit time step.
+      validate: `params -> None`, raises `InputError` on a bad value.
+      params_type: the params pytree class (for `--set NAME=VALUE`).
+    """
+
+    name: str
+    history_size: int
+    rotation: bool
+    pair_force: Callable[..., PairForce]
+    wall_params: Callable[[Any], Any]
+    interaction_range: Callable[..., float]
+    stable_time_step: Callable[..., float]
+    validate: Callable[[Any], None]
+    params_type: type
+
+
+def normal_and_distance(displacement):
+    """Unit normal n = d/|d| and |d|, safe at d = 0 (returns n = 0, r = 0) so that
+    padded slots give finite gradients (jax-md `safe_mask` habit)."""
+    r2 = jnp.sum(displacement**2)
+    positive = r2 > 0
+    r = jnp.sqrt(jnp.where(positive, r2, 1.0))
+    n = jnp.where(positive, displacement / r, 0.0)
+    return n, jnp.where(positive, r, 0.0)
+
+
+def safe_norm(v):
+    """|v| with a finite gradient at v = 0."""
+    s = jnp.sum(v**2)
+    positive = s > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, s, 1.0)), 0.0)
+
+
+def perp(n):
+    """z x n: the unit tangent t with z = n x t (counter-clockwise of n)."""
+    return jnp.stack([-n[..., 1], n[..., 0]], axis=-1)
+
+
+def cross2(a, b):
+    """z component of a x b."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]

@@ -1,0 +1,182 @@
+"""Linear spring-dashpot with a Cundall-Strack tangential spring: LAMMPS
+`pair_style gran/hooke/history` (and `fix wall/gran hooke/history`) in 2D.
+
+For a pair i, j with overlap delta = r_i + r_j - r, unit normal n = (x_i - x_j)/r,
+relative velocity of the contact points v_tr (including spins), effective mass
+m_eff = m_i m_j / (m_i + m_j) (m_i against a wall or a fixed disk):
+
+  normal:      F_n = k_n delta - m_eff gamma_n (v . n)               (along n)
+  shear:       s <- s + v_tr dt, then projected onto the tangent plane
+  tangential:  F_t = -(k_t s + m_eff gamma_t v_tr)
+  Coulomb:     if |F_t| > mu |F_n|: F_t <- F_t mu|F_n|/|F_t| and s is rescaled so
+               that k_t s + m_eff gamma_t v_tr matches (LAMMPS semantics: the cap
+               uses |F_n| including its damping part)
+  torque on i: -r_i (n x F_t)
+
+The shear displacement s is the per-pair history (a 2-vector, zeroed when the
+pair separates). Walls and the ground use `wall_kn, wall_kt, wall_gamma_n,
+wall_gamma_t, wall_mu`, each defaulting to the disk value when left `None`.
+
+The 1992 static-pile analysis (Liffman, Chan & Hughes, eqs. 42 and 44) assumes
+only normal forces between disks at rest; with this law that means disk-disk
+`mu = 0` and rotation off, and enough ground friction (`wall_mu`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+from jax_md import dataclasses
+
+from jaxpile.errors import InputError
+from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry, cross2, normal_and_distance, perp, safe_norm
+
+Array = Any
+NAME = "hooke"
+PARAM_NAMES = ("kn", "kt", "gamma_n", "gamma_t", "mu", "wall_kn", "wall_kt", "wall_gamma_n", "wall_gamma_t", "wall_mu")
+
+
+@dataclasses.dataclass
+class Params:
+    """Parameters of the `hooke` law (names as LAMMPS).
+
+    Attributes:
+      kn: normal stiffness (force / length), in mg / sigma.
+      kt: tangential stiffness.
+      gamma_n: normal damping rate (1 / time); force = m_eff gamma_n v_n.
+      gamma_t: tangential damping rate.
+      mu: Coulomb friction coefficient.
+      wall_kn, wall_kt, wall_gamma_n, wall_gamma_t, wall_mu: the same against the
+        ground and walls; `None` means "same as the disk value" (and then a
+        gradient with respect to the disk value flows into the walls too).
+    """
+
+    kn: Array
+    kt: Array
+    gamma_n: Array
+    gamma_t: Array
+    mu: Array
+    wall_kn: Array = None
+    wall_kt: Array = None
+    wall_gamma_n: Array = None
+    wall_gamma_t: Array = None
+    wall_mu: Array = None
+
+
+def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, dtype=None, **wall) -> Params:
+    """`hooke` parameters with LAMMPS's defaults for what is left out:
+    kt = 2/7 kn and gamma_t = gamma_n / 2; `wall_*` default to the disk values."""
+    unknown = set(wall) - set(PARAM_NAMES[5:])
+    if unknown:
+        raise InputError(f"unknown hooke parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
+    kt = 2.0 / 7.0 * kn if kt is None else kt
+    gamma_t = 0.5 * gamma_n if gamma_t is None else gamma_t
+    cast = (lambda x: None if x is None else jnp.asarray(x, dtype)) if dtype else (
+        lambda x: None if x is None else jnp.asarray(x, jnp.zeros(()).dtype))
+    values = dict(kn=kn, kt=kt, gamma_n=gamma_n, gamma_t=gamma_t, mu=mu, **wall)
+    return Params(**{k: cast(v) for k, v in values.items()})
+
+
+def wall_params(p: Params) -> Params:
+    """The parameters used against walls: each `wall_*` or, if None, its disk value."""
+    pick = lambda w, d: d if w is None else w
+    return Params(
+        kn=pick(p.wall_kn, p.kn), kt=pick(p.wall_kt, p.kt), gamma_n=pick(p.wall_gamma_n, p.gamma_n),
+        gamma_t=pick(p.wall_gamma_t, p.gamma_t), mu=pick(p.wall_mu, p.mu),
+    )
+
+
+def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
+    """One pair's force, torque and new shear history (see the module docstring)."""
+    n, r = normal_and_distance(g.displacement)
+    radsum = g.radius_i + g.radius_j
+    in_contact = (r < radsum) & (r > 0)
+
+    vn = jnp.dot(g.velocity, n)
+    spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
+    vtr = g.velocity - vn * n - spin * perp(n)  # relative velocity of the contact points
+
+    fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
+
+    shear = shear + vtr * dt
+    shear_magnitude = safe_norm(shear)
+    shear = shear - jnp.dot(shear, n) * n  # rotate into the current tangent plane
+    damping = g.effective_mass * p.gamma_t * vtr
+    ft = -(p.kt * shear + damping)
+    ft_magnitude = safe_norm(ft)
+    cap = p.mu * jnp.abs(fn)
+    sliding = ft_magnitude > cap
+    ratio = jnp.where(sliding, cap / jnp.where(sliding, ft_magnitude, 1.0), 1.0)
+    # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
+    safe_kt = jnp.where(p.kt > 0, p.kt, 1.0)
+    rescaled = jnp.where(p.kt > 0, ratio * (shear + damping / safe_kt) - damping / safe_kt, 0.0)
+    shear = jnp.where(sliding, rescaled, shear)
+    ft = jnp.where(sliding & (shear_magnitude == 0), 0.0, ratio * ft)
+
+    force = fn * n + ft
+    torque = -g.radius_i * cross2(n, ft)
+    zero = jnp.zeros_like(force)
+    return PairForce(
+        force=jnp.where(in_contact, force, zero),
+        torque=jnp.where(in_contact, torque, 0.0),
+        history=jnp.where(in_contact, shear, zero),
+        normal=jnp.where(in_contact, fn, 0.0),
+        in_contact=in_contact,
+    )
+
+
+def interaction_range(p: Params, radius_i, radius_j) -> float:
+    """Disks interact when they overlap."""
+    return radius_i + radius_j
+
+
+def stable_time_step(p: Params, min_mass: float) -> float:
+    """Estimate of the largest stable velocity-Verlet step.
+
+    The highest vibration frequency of a close-packed 2D lattice of springs k is
+    omega^2 = 6 k / m (hexagonal lattice, M point); we take 8 k / m to cover a
+    disk that also touches a wall. Damping adds the explicit-damping limit
+    gamma dt < 2 with gamma summed over about four contacts.
+    """
+    w = wall_params(p)
+    k = max(float(p.kn), float(p.kt), float(w.kn), float(w.kt))
+    gamma = max(float(p.gamma_n), float(p.gamma_t), float(w.gamma_n), float(w.gamma_t))
+    omega = math.sqrt(8.0 * k / min_mass)
+    limits = [2.0 / omega]
+    if gamma > 0:
+        limits.append(2.0 / (4.0 * gamma))
+    return min(limits)
+
+
+def validate(p: Params) -> None:
+    """Raises `InputError` on negative or non-finite parameters."""
+    for name in PARAM_NAMES:
+        value = getattr(p, name)
+        if value is None:
+            continue
+        v = jnp.asarray(value)
+        if not bool(jnp.all(jnp.isfinite(v))):
+            raise InputError(f"hooke parameter {name} must be finite; got {value}.")
+        if bool(jnp.any(v < 0)):
+            raise InputError(f"hooke parameter {name} must be >= 0; got {float(jnp.min(v))}.")
+    for name in ("kn", "wall_kn"):
+        value = getattr(p, name)
+        if value is not None and bool(jnp.any(jnp.asarray(value) <= 0)):
+            raise InputError(f"hooke parameter {name} must be > 0; got {value}.")
+
+
+def law(rotation: bool = True) -> ContactLaw:
+    """The `hooke` law; `rotation=False` freezes angular degrees of freedom."""
+    return ContactLaw(
+        name=NAME,
+        history_size=2,
+        rotation=bool(rotation),
+        pair_force=pair_force,
+        wall_params=wall_params,
+        interaction_range=interaction_range,
+        stable_time_step=stable_time_step,
+        validate=validate,
+        params_type=Params,
+    )

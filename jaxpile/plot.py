@@ -1,0 +1,80 @@
+"""Figures a person would rather look at than read: the pile with its force
+network, and base-force profiles with the papers' theory overlaid."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; never needs a display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import EllipseCollection, LineCollection  # noqa: E402
+
+
+def pile_figure(position, radius, network=None, *, active=None, title: str = "", path=None, max_width: float = 4.0):
+    """Disks, with each disk-disk contact drawn as a line between centres whose
+    width (and colour) is the normal force.
+
+    Args:
+      position: `[n, 2]`; radius: `[n]`.
+      network: optional `analysis.ContactNetwork` (forces in mg).
+      active: `[n]` bool, default all.
+    """
+    position, radius = np.asarray(position), np.asarray(radius)
+    active = np.ones(len(radius), bool) if active is None else np.asarray(active)
+    pos, rad = position[active], radius[active]
+    width = np.ptp(pos[:, 0]) + 2 * rad.max()
+    height = np.ptp(pos[:, 1]) + 2 * rad.max()
+    fig_w = 10.0
+    fig, ax = plt.subplots(figsize=(fig_w, max(3.0, fig_w * height / max(width, 1e-9)) + 0.6))
+    ax.add_collection(EllipseCollection(2 * rad, 2 * rad, 0.0, units="xy", offsets=pos, offset_transform=ax.transData,
+                                        facecolors="#e8e2d0", edgecolors="#9a927c", linewidths=0.3))
+    if network is not None and len(network.i):
+        f = np.abs(np.asarray(network.normal))
+        segments = np.stack([position[network.i], position[network.j]], axis=1)
+        scale = f / f.max() if f.max() > 0 else f
+        lines = LineCollection(segments, linewidths=0.2 + max_width * scale, cmap="inferno_r", array=f)
+        ax.add_collection(lines)
+        fig.colorbar(lines, ax=ax, label="contact normal force (mg)", shrink=0.7)
+    ax.set_xlim(pos[:, 0].min() - rad.max(), pos[:, 0].max() + rad.max())
+    ax.set_ylim(min(0.0, pos[:, 1].min() - rad.max()), pos[:, 1].max() + rad.max())
+    ax.axhline(0.0, color="k", lw=1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (diameters)")
+    ax.set_ylabel("y (diameters)")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def base_profile_figure(x, normal, horizontal, *, theory_normal=None, theory_horizontal=None, title: str = "", path=None):
+    """Normal and horizontal base forces against x / B (B the base width), with
+    theory curves (arrays on the same x) when given."""
+    x = np.asarray(x)
+    span = np.ptp(x) if len(x) > 1 else 1.0
+    u = (x - x.min()) / span if span > 0 else np.zeros_like(x)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for ax, sim, th, label in (
+        (axes[0], normal, theory_normal, "ground normal force N (mg)"),
+        (axes[1], horizontal, theory_horizontal, "horizontal force on ground H (mg)"),
+    ):
+        ax.plot(u, sim, "o", ms=4, mfc="none", label="jaxpile")
+        if th is not None:
+            ax.plot(u, th, "-", color="C3", lw=1.5, label="theory")
+        ax.set_xlabel("x / B")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def _finish(fig, path):
+    if path is not None:
+        fig.savefig(path, dpi=130)
+        plt.close(fig)
+        return path
+    return fig

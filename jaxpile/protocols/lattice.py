@@ -1,0 +1,127 @@
+"""The 1992 equilateral close-packed pile (Liffman, Chan & Hughes, Fig. 7).
+
+k layers of equal disks in hexagonal close packing standing on the flat ground:
+layer j (0 at the bottom) holds k - j disks, so the pile has k(k+1)/2 disks
+(k = 45: 1035) and its sides slope at 60 degrees.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jaxpile.boundaries import make_boundaries
+from jaxpile.errors import InputError
+from jaxpile.state import Boundaries, Particles, make_particles
+
+
+def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:
+    """`[k(k+1)/2, 2]` centres of a k-layer equilateral pile standing on y = 0.
+    Ordered bottom layer first, left to right; the bottom layer's disk i (1-based,
+    as in eq. 44) is row index i - 1.
+
+    Args:
+      gap: horizontal gap between neighbours on the same level, as a fraction of
+        the diameter. Diagonal neighbours always touch, so the lattice angle is
+        theta = asin((1 + gap) / 2) (pi/6 for gap = 0, see `lattice_angle`).
+    """
+    if int(layers) != layers or layers < 1:
+        raise InputError(f"layers must be a positive integer; got {layers!r}.")
+    if not 0.0 <= gap < 0.1:
+        raise InputError(f"gap must be in [0, 0.1) diameters; got {gap!r}.")
+    layers = int(layers)
+    x0 = diameter if x0 is None else x0
+    spacing = diameter * (1.0 + gap)
+    rise = math.sqrt(diameter**2 - (0.5 * spacing) ** 2)
+    rows = []
+    for j in range(layers):
+        i = np.arange(layers - j)
+        x = x0 + (i + 0.5 * j) * spacing
+        y = 0.5 * diameter + j * rise
+        rows.append(np.stack([x, np.full_like(x, y)], axis=1))
+    return np.concatenate(rows, axis=0)
+
+
+def lattice_angle(gap: float = 0.0) -> float:
+    """theta of the 1992 Fig. 5 (angle of the diagonals from the vertical)."""
+    return math.asin((1.0 + gap) / 2.0)
+
+
+def equilateral_pile(layers: int, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0,
+                     dtype=None) -> tuple[Particles, Boundaries]:
+    """Particles and boundaries (ground only, side walls off) of the k-layer pile."""
+    position = equilateral_positions(layers, diameter, gap=gap)
+    particles = make_particles(position, 0.5 * diameter, mass=mass, dtype=dtype)
+    return particles, make_boundaries(dtype=particles.position.dtype)
+
+
+def pile_count(layers: int) -> int:
+    """k(k+1)/2 disks in a k-layer pile."""
+    return layers * (layers + 1) // 2
+
+
+# The paper's setting (Liffman, Chan & Hughes 1992, eq. 46 and the analytic model's
+# assumptions) expressed for the hooke law: mg / (k_n sigma) = 1e-4, only normal
+# forces between disks (mu = 0, no rotation), and ground friction above
+# (k - 1) / (sqrt(3) (k + 1)) = 0.55 for k = 45.
+PAPER_SETTING = {
+    "layers": 45,
+    "rotation": False,
+    "dt": 1.0e-3,
+    "ramp_steps": 20_000,
+    "speed_tolerance": 1.0e-5,
+    "max_steps": 400_000,
+    "params": {"hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0}},
+}
+
+
+def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None):
+    """Loads the pile (gravity ramped in by `sim.schedule`) and runs it to rest.
+
+    Returns:
+      (state, RunInfo) with the steps of both phases.
+    """
+    from jaxpile.simulate import RunInfo
+
+    info = RunInfo()
+    ramp = min(ramp_steps, max_steps)
+    state = sim.run(params, state, ramp, progress=progress, info=info)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance,
+                                     max_steps=max_steps - ramp, progress=progress)
+    rest.steps += info.steps
+    rest.wall_seconds += info.wall_seconds
+    rest.compile_seconds += info.compile_seconds
+    rest.reallocations += info.reallocations
+    return state, rest
+
+
+def compare_with_theory(base, layers: int) -> dict:
+    """Ground forces of a relaxed k-layer pile against eqs. 42 and 44.
+
+    Args:
+      base: `analysis.BaseForces` (in mg), sorted by x.
+
+    Returns:
+      dict with the theory arrays and the largest relative deviations: of N from
+      (k + 1)/2 relative to it, and of H from eq. 44 relative to max |H|
+      (the paper's own measure, Figs. 8-9).
+    """
+    from jaxpile import theory
+
+    n_theory = theory.lattice_ground_normal_force(layers)
+    h_theory = theory.lattice_ground_horizontal_force(layers)
+    intact = len(base.x) == layers
+    if intact:
+        dev_n = float(np.max(np.abs(base.normal - n_theory)) / n_theory)
+        dev_h = float(np.max(np.abs(base.horizontal - h_theory)) / np.max(np.abs(h_theory)))
+    else:
+        dev_n = dev_h = float("nan")
+    return {
+        "base_contacts": int(len(base.x)),
+        "pile_intact": bool(intact),
+        "theory_normal": n_theory,
+        "theory_horizontal": h_theory,
+        "max_rel_dev_normal": dev_n,
+        "max_rel_dev_horizontal": dev_h,
+    }

@@ -1,0 +1,407 @@
+"""Pure steps and the chunked runner.
+
+`make_step(law, dt)` gives a pure `step(params, state) -> state`: law parameters
+are an explicit pytree argument (never closed over), so `jax.grad` and optax see
+them and changing them never recompiles. `Simulator` adds what needs the host:
+allocating the neighbour list, checking inputs, running in chunks of a
+`lax.fori_loop` with a progress bar, re-allocating and re-running a chunk when the
+neighbour list overflowed (no contact is ever dropped), NaN detection, and
+"run until at rest".
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+from jaxpile import neighbors as nb
+from jaxpile.errors import InputError, SimulationError
+from jaxpile.integrators import velocity_verlet
+from jaxpile.interactions import ContactForces, evaluate, external_force
+from jaxpile.laws.base import ContactLaw
+from jaxpile.state import Boundaries, Contacts, Particles, SimState
+
+Array = Any
+
+
+def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
+    """History re-aligned with `new_neighbors.idx` (identity when nothing moved)."""
+    c = state.contacts
+    idx = new_neighbors.idx
+    if idx.shape != c.partner.shape:
+        history = nb.remap_history(c.partner, c.history, idx)
+    else:
+        history = lax.cond(
+            jnp.any(idx != c.partner),
+            lambda: nb.remap_history(c.partner, c.history, idx),
+            lambda: c.history,
+        )
+    return c.set(partner=idx, history=history)
+
+
+def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None) -> Callable[[Any, SimState], SimState]:
+    """A pure, jittable `step(params, state) -> state` (velocity Verlet).
+
+    Args:
+      law: the contact law.
+      dt: the time step.
+      schedule: optional `state -> Boundaries`, the boundaries in force during
+        the step (e.g. `gravity_ramp`); it reads the stored boundaries and the
+        step count and leaves the stored boundaries as they are.
+    """
+
+    def step(params, state: SimState) -> SimState:
+        boundaries = state.boundaries if schedule is None else schedule(state)
+
+        def forces_at(p: Particles):
+            neighbors = state.neighbors.update(p.position)
+            contacts = _with_remapped_history(state, neighbors)
+            cf = evaluate(law, params, p, contacts, neighbors.idx, boundaries, dt)
+            contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
+            force = cf.force + external_force(p, boundaries)
+            return force, cf.torque, (neighbors, contacts)
+
+        particles, (neighbors, contacts) = velocity_verlet(state.particles, dt, law.rotation, forces_at)
+        return state.set(particles=particles, contacts=contacts, neighbors=neighbors, step=state.step + 1)
+
+    return step
+
+
+def gravity_ramp(steps: int) -> Callable[[SimState], Boundaries]:
+    """A schedule that switches gravity on smoothly over `steps` steps,
+    g(t) = g s(t / T) with s the C1 smoothstep 3u^2 - 2u^3.
+
+    Loading a pile quasi-statically matters: a pile that starts just touching
+    and feels full gravity at once bounces, its contacts unload completely at
+    the top of the first bounce, and frictional contacts that carry shear then
+    slip (the 45-layer lattice pile collapses that way)."""
+
+    def schedule(state: SimState) -> Boundaries:
+        u = jnp.clip(state.step.astype(state.boundaries.gravity.dtype) / steps, 0.0, 1.0)
+        return state.boundaries.set(gravity=state.boundaries.gravity * u * u * (3.0 - 2.0 * u))
+
+    return schedule
+
+
+@dataclass
+class RunInfo:
+    """What a run did (host-side numbers, for summaries and benchmarks)."""
+
+    steps: int = 0
+    wall_seconds: float = 0.0
+    compile_seconds: float = 0.0
+    reallocations: int = 0
+    at_rest: bool = False
+    max_speed: float = float("nan")
+    speed_history: list = field(default_factory=list)
+
+    @property
+    def particle_steps_per_second(self) -> float:
+        return self._n * self.steps / self.wall_seconds if self.wall_seconds > 0 else float("nan")
+
+    _n: int = 0
+
+
+def max_speed(state: SimState) -> Array:
+    """Largest translational or rim speed |v| + |omega| r over movable active disks."""
+    p = state.particles
+    speed = jnp.linalg.norm(p.velocity, axis=-1) + jnp.abs(p.angular_velocity) * p.radius
+    return jnp.max(jnp.where(p.movable, speed, 0.0), initial=0.0)
+
+
+def _is_concrete(tree) -> bool:
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
+
+
+class Simulator:
+    """A law, a time step and the host-side machinery around the pure step.
+
+    Example:
+      >>> import jaxpile
+      >>> from jaxpile.laws import hooke
+      >>> law = hooke.law(rotation=False)
+      >>> params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.0, wall_mu=1.0)
+      >>> particles, boundaries = jaxpile.protocols.lattice.equilateral_pile(3)
+      >>> sim = jaxpile.Simulator(law, dt=5e-4)
+      >>> state = sim.init(params, particles, boundaries)
+      >>> state = sim.run(params, state, 100, progress=False)
+
+    Args:
+      law: a `ContactLaw`.
+      dt: the time step.
+      schedule: optional `state -> Boundaries` in force at each step (see
+        `make_step`), e.g. `gravity_ramp(steps)`.
+      skin: neighbour-list skin (default: 20% of the largest diameter).
+      capacity_multiplier: head-room of the neighbour slots at allocation.
+      chunk_steps: steps per compiled chunk between host checks.
+      max_initial_overlap: largest allowed start overlap as a fraction of the
+        contact distance r_i + r_j (deeper means the start positions are wrong).
+    """
+
+    def __init__(
+        self,
+        law: ContactLaw,
+        dt: float,
+        *,
+        schedule: Callable | None = None,
+        skin: float | None = None,
+        capacity_multiplier: float = 1.5,
+        chunk_steps: int = 1000,
+        max_initial_overlap: float = 0.05,
+    ):
+        if not (dt > 0 and math.isfinite(dt)):
+            raise InputError(f"dt must be positive and finite; got {dt}.")
+        if chunk_steps < 1:
+            raise InputError(f"chunk_steps must be >= 1; got {chunk_steps}.")
+        self.law = law
+        self.dt = float(dt)
+        self.skin = skin
+        self.capacity_multiplier = capacity_multiplier
+        self.chunk_steps = int(chunk_steps)
+        self.max_initial_overlap = max_initial_overlap
+        self.schedule = schedule
+        self.step = make_step(law, self.dt, schedule)
+        self.jit_step = jax.jit(self.step)
+        self._advance_jit = jax.jit(self._advance)
+        self._compiled: dict = {}
+        self._neighbor_fns = None
+
+    # ------------------------------------------------------------------ set-up
+    def check_params(self, params, particles: Particles) -> None:
+        """Law-level checks and the time-step stability limit."""
+        if not _is_concrete(params):
+            return
+        self.law.validate(params)
+        movable = np.asarray(particles.movable)
+        masses = np.asarray(particles.mass)[movable] if movable.any() else np.asarray(particles.mass)
+        limit = self.law.stable_time_step(params, float(masses.min()))
+        if self.dt > limit:
+            raise InputError(
+                f"dt = {self.dt:g} is above the stability limit of the {self.law.name} law "
+                f"(about {limit:.3g} for the stiffest contact and lightest disk); use dt <= {limit / 5:.3g}."
+            )
+
+    def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None) -> SimState:
+        """Allocates the neighbour list, zeroes the contact history, checks the
+        inputs and evaluates the forces at t = 0.
+
+        Args:
+          box: `(width, height)` the neighbour cell list covers; default: the
+            bounding box of the disks and active walls, with a margin.
+        """
+        self.check_params(params, particles)
+        _check_finite(particles, step=0)
+        radius = np.asarray(particles.radius)
+        r_max = float(radius.max())
+        cutoff = float(self.law.interaction_range(params, r_max, r_max))
+        skin = 0.2 * 2 * r_max if self.skin is None else float(self.skin)
+        if box is None:
+            pos = np.asarray(particles.position)
+            extent = pos.max(axis=0) - np.minimum(pos.min(axis=0), 0.0)
+            box = tuple(float(e) + 2 * (cutoff + skin) for e in extent)
+        self._neighbor_fns = nb.neighbor_fn(tuple(box), cutoff, skin, self.capacity_multiplier)
+        neighbors = self._neighbor_fns.allocate(particles.position)
+        n, k = neighbors.idx.shape
+        h = self.law.history_size
+        w = boundaries.wall_normal.shape[0]
+        dtype = particles.position.dtype
+        contacts = Contacts(
+            partner=neighbors.idx,
+            history=jnp.zeros((n, k, h), dtype),
+            wall_history=jnp.zeros((n, w, h), dtype),
+        )
+        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32))
+        self._check_overlaps(params, state)
+        cf = self.contact_forces(params, state)
+        p = particles.set(force=cf.force + external_force(particles, boundaries), torque=cf.torque)
+        return state.set(particles=p)
+
+    def contact_forces(self, params, state: SimState) -> ContactForces:
+        """Every contact's force at the state as stored, without advancing history."""
+        return _evaluate_jit(self.law, params, state)
+
+    def _check_overlaps(self, params, state: SimState) -> None:
+        p = state.particles
+        idx = np.asarray(state.neighbors.idx)
+        n = idx.shape[0]
+        pos, rad = np.asarray(p.position), np.asarray(p.radius)
+        active = np.asarray(p.active)
+        i_idx = np.repeat(np.arange(n)[:, None], idx.shape[1], axis=1)
+        ok = (idx < n) & (idx > i_idx)
+        i, j = i_idx[ok], idx[ok]
+        both = active[i] & active[j]
+        i, j = i[both], j[both]
+        if len(i):
+            contact = rad[i] + rad[j]
+            overlap = (contact - np.linalg.norm(pos[i] - pos[j], axis=-1)) / contact
+            worst = int(np.argmax(overlap))
+            if overlap[worst] > self.max_initial_overlap:
+                raise InputError(
+                    f"particles {i[worst]} and {j[worst]} start overlapped by {overlap[worst]:.1%} of their "
+                    f"contact distance (allowed: {self.max_initial_overlap:.0%}); move them apart "
+                    "or raise max_initial_overlap."
+                )
+        d = np.asarray(state.boundaries.wall_normal) @ pos.T - np.asarray(state.boundaries.wall_offset)[:, None]
+        walls = np.asarray(state.boundaries.wall_active)[:, None] & active[None, :] & ~np.asarray(p.fixed)[None, :]
+        depth = np.where(walls, (rad[None, :] - d) / rad[None, :], -np.inf)
+        if depth.size and depth.max() > 2 * self.max_initial_overlap:
+            wall, i = np.unravel_index(int(np.argmax(depth)), depth.shape)
+            raise InputError(
+                f"particle {i} starts {depth[wall, i]:.1%} of its radius inside wall {wall}; "
+                "move it out of the wall."
+            )
+
+    # --------------------------------------------------------- pure rollouts
+    def rollout(self, params, state: SimState, n_steps: int, *, checkpoint: bool = False) -> SimState:
+        """`n_steps` steps as one `lax.scan`: pure and differentiable.
+
+        No overflow handling happens inside; check `state.neighbors.did_buffer_overflow`
+        on the result (or call `run` first to size the neighbour list).
+        `checkpoint=True` recomputes each step in the backward pass instead of
+        storing its intermediates.
+        """
+        body = jax.checkpoint(self.step) if checkpoint else self.step
+        state, _ = lax.scan(lambda s, _: (body(params, s), None), state, None, length=n_steps)
+        return state
+
+    def _advance(self, params, state: SimState, n_steps) -> SimState:
+        return lax.fori_loop(0, n_steps, lambda _, s: self.step(params, s), state)
+
+    def _compiled_advance(self, params, state: SimState, info: RunInfo):
+        leaves, treedef = jax.tree.flatten((params, state))
+        key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
+        fn = self._compiled.get(key)
+        if fn is None:
+            t0 = time.perf_counter()
+            fn = self._advance_jit.lower(params, state, jnp.int32(1)).compile()
+            info.compile_seconds += time.perf_counter() - t0
+            self._compiled[key] = fn
+        return fn
+
+    # ------------------------------------------------------------ host runs
+    def _reallocate(self, state: SimState, overflowed) -> SimState:
+        """A neighbour list with more slots (and cell capacity), history carried over."""
+        old = overflowed.neighbors.max_occupancy
+        extra = max(2, int(math.ceil(0.5 * old)))
+        neighbors = self._neighbor_fns.allocate(state.particles.position, extra_capacity=extra)
+        history = nb.remap_history(state.contacts.partner, state.contacts.history, neighbors.idx)
+        contacts = state.contacts.set(partner=neighbors.idx, history=history)
+        return state.set(neighbors=neighbors, contacts=contacts)
+
+    def _chunk(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
+        """n steps from `state`; on overflow, re-allocate and re-run from `state`."""
+        for _ in range(20):
+            fn = self._compiled_advance(params, state, info)
+            t0 = time.perf_counter()
+            new = fn(params, state, jnp.int32(n))
+            jax.block_until_ready(new)
+            info.wall_seconds += time.perf_counter() - t0
+            if not bool(new.neighbors.did_buffer_overflow):
+                return new
+            info.reallocations += 1
+            state = self._reallocate(state, new)
+        raise SimulationError("the neighbour list kept overflowing after 20 re-allocations.", state)
+
+    def run(
+        self,
+        params,
+        state: SimState,
+        n_steps: int,
+        *,
+        progress: bool | None = None,
+        info: RunInfo | None = None,
+        until: Callable[[SimState], bool] | None = None,
+    ) -> SimState:
+        """Advances `n_steps` in chunks, with overflow handling and NaN checks.
+
+        Args:
+          progress: show a progress bar (default: when stderr is a terminal).
+          info: a `RunInfo` to accumulate timings into.
+          until: optional host predicate checked after each chunk; the run stops
+            early when it returns True.
+        """
+        if self._neighbor_fns is None:
+            raise InputError("call Simulator.init(...) to build the state before running it.")
+        self.check_params(params, state.particles)
+        _check_finite(state.particles, step=int(state.step))
+        info = RunInfo() if info is None else info
+        info._n = state.particles.count
+        if progress is None:
+            progress = sys.stderr.isatty()
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_steps, disable=not progress, unit="step", leave=False, dynamic_ncols=True)
+        done = 0
+        try:
+            while done < n_steps:
+                n = min(self.chunk_steps, n_steps - done)
+                new = self._chunk(params, state, n, info)
+                _check_finite(new.particles, step=int(new.step), last_good=state)
+                state = new
+                done += n
+                info.steps += n
+                bar.update(n)
+                if until is not None and until(state):
+                    break
+        finally:
+            bar.close()
+        return state
+
+    def run_until_rest(
+        self,
+        params,
+        state: SimState,
+        *,
+        speed_tolerance: float = 1e-4,
+        max_steps: int = 1_000_000,
+        progress: bool | None = None,
+    ) -> tuple[SimState, RunInfo]:
+        """Runs until every movable disk is slower than `speed_tolerance`
+        (checked after each chunk) or `max_steps` have been taken."""
+        info = RunInfo()
+
+        def at_rest(s: SimState) -> bool:
+            speed = float(max_speed(s))
+            info.speed_history.append((int(s.step), speed))
+            return speed < speed_tolerance
+
+        state = self.run(params, state, max_steps, progress=progress, info=info, until=at_rest)
+        info.max_speed = float(max_speed(state))
+        info.at_rest = info.max_speed < speed_tolerance
+        return state, info
+
+
+def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
+    p = particles
+    bad = ~(
+        jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity)
+    )
+    if bool(jnp.any(bad)):
+        first = int(jnp.argmax(bad))
+        if last_good is None:
+            raise InputError(
+                f"particle {first} has a non-finite position or velocity in the input "
+                f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])})."
+            )
+        raise SimulationError(
+            f"non-finite position or velocity by step {step}: first offending particle {first} "
+            f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])}). "
+            "The last good state is in this error's `last_good_state`.",
+            last_good_state=last_good,
+            step=step,
+        )
+
+
+def _evaluate(law: ContactLaw, params, state: SimState) -> ContactForces:
+    return evaluate(law, params, state.particles, state.contacts, state.neighbors.idx, state.boundaries, 0.0)
+
+
+_evaluate_jit = jax.jit(_evaluate, static_argnums=0)

@@ -1,0 +1,202 @@
+"""State pytrees: what changes in time, kept apart from the contact-law parameters.
+
+Everything here is a frozen, registered pytree (``jax_md.dataclasses``), so a whole
+simulation state passes through ``jit``, ``scan``, ``vmap`` and ``grad`` untouched.
+Update with ``state.set(field=value)``.
+
+Units are reduced unless a paper preset says otherwise: lengths in the largest
+diameter sigma, masses in the disk mass m, gravity g = 1, forces in mg, time in
+sqrt(sigma / g).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jax_md import dataclasses
+from jax_md.partition import NeighborList
+
+from jaxpile.errors import InputError
+
+Array = Any
+
+
+@dataclasses.dataclass
+class Particles:
+    """The disks: kinematics, inertia and flags.
+
+    Attributes:
+      position: `[n, 2]` centres.
+      velocity: `[n, 2]`.
+      angle: `[n]` rotation angle (rad), counter-clockwise.
+      angular_velocity: `[n]` (rad / time), counter-clockwise.
+      force: `[n, 2]` total force at the current positions (contacts + gravity);
+        the velocity-Verlet integrator reuses it for the next half kick.
+      torque: `[n]` total torque at the current positions.
+      radius: `[n]`.
+      mass: `[n]` (finite even for fixed disks; `fixed` decides who moves).
+      inertia: `[n]` moment of inertia (m r^2 / 2 for a uniform disk).
+      fixed: `[n]` bool; fixed disks never move and count as infinitely heavy
+        partners in the contact laws' effective mass.
+      active: `[n]` bool; inactive disks exert and feel no force and do not move
+        (disks not yet poured exist from the start, parked, with `active=False`).
+    """
+
+    position: Array
+    velocity: Array
+    angle: Array
+    angular_velocity: Array
+    force: Array
+    torque: Array
+    radius: Array
+    mass: Array
+    inertia: Array
+    fixed: Array
+    active: Array
+
+    @property
+    def count(self) -> int:
+        return self.position.shape[-2]
+
+    @property
+    def movable(self) -> Array:
+        """`[n]` bool: disks the integrator moves."""
+        return self.active & ~self.fixed
+
+
+@dataclasses.dataclass
+class Contacts:
+    """Contact history as fixed-size padded arrays aligned with the neighbour slots.
+
+    Attributes:
+      partner: `[n, k]` int, the particle id each neighbour slot held when its
+        history was written (`n` marks an empty slot). Used to carry history
+        across a neighbour-list rebuild.
+      history: `[n, k, h]` per-pair history (for `hooke`: the accumulated shear
+        displacement vector). Non-zero only while the pair is in contact.
+      wall_history: `[n, w, h]` the same for each particle against each wall.
+    """
+
+    partner: Array
+    history: Array
+    wall_history: Array
+
+
+@dataclasses.dataclass
+class Boundaries:
+    """Run-time boundary settings: changing them never recompiles.
+
+    Walls are half-planes `normal . x >= offset`, with `normal` pointing into
+    the granular domain. The default set (see `jaxpile.boundaries.make_boundaries`)
+    is the ground y = 0 (wall 0), a left wall (1) and a right wall (2).
+
+    Attributes:
+      gravity: `[2]` acceleration vector (tilt it to tilt the pile).
+      wall_normal: `[w, 2]` unit normals.
+      wall_offset: `[w]` plane offsets.
+      wall_active: `[w]` bool; a wall switched off exerts no force and its
+        contact history is cleared.
+    """
+
+    gravity: Array
+    wall_normal: Array
+    wall_offset: Array
+    wall_active: Array
+
+
+@dataclasses.dataclass
+class SimState:
+    """A whole simulation at one instant.
+
+    Attributes:
+      particles: the disks.
+      contacts: the contact history.
+      boundaries: walls and gravity.
+      neighbors: the jax-md Dense neighbour list (full list: each pair appears
+        in both rows).
+      step: int scalar, steps taken since `init`.
+    """
+
+    particles: Particles
+    contacts: Contacts
+    boundaries: Boundaries
+    neighbors: NeighborList
+    step: Array
+
+
+def make_particles(
+    position,
+    radius,
+    *,
+    mass=None,
+    density: float | None = None,
+    velocity=None,
+    angular_velocity=None,
+    fixed=None,
+    active=None,
+    dtype=None,
+) -> Particles:
+    """Builds `Particles` with checked inputs.
+
+    Args:
+      position: `[n, 2]` centres.
+      radius: `[n]` or a scalar.
+      mass: `[n]` or a scalar; default: disks of uniform areal density `density`
+        (default chosen so that a disk of diameter 1 has mass 1).
+      density: areal density used when `mass` is not given.
+      velocity: `[n, 2]`, default zero.
+      angular_velocity: `[n]`, default zero.
+      fixed: `[n]` bool, default all False.
+      active: `[n]` bool, default all True.
+      dtype: float dtype (default: that of `position` if floating, else the
+        JAX default float, float64 when jaxpile is imported).
+
+    Raises:
+      InputError: on a non-positive radius or mass, a wrong shape, or NaN/inf.
+    """
+    position = np.asarray(position)
+    if dtype is None:
+        dtype = position.dtype if np.issubdtype(position.dtype, np.floating) else jnp.zeros(()).dtype
+    position = np.asarray(position, dtype=dtype)
+    if position.ndim != 2 or position.shape[1] != 2:
+        raise InputError(f"position must have shape [n, 2]; got {position.shape}.")
+    n = position.shape[0]
+    radius = np.broadcast_to(np.asarray(radius, dtype=dtype), (n,)).copy()
+    if np.any(~np.isfinite(radius)) or np.any(radius <= 0):
+        bad = int(np.flatnonzero(~(radius > 0) | ~np.isfinite(radius))[0])
+        raise InputError(
+            f"radius must be positive and finite; particle {bad} has radius {radius[bad]!r}."
+        )
+    if mass is None:
+        rho = (4.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
+        mass = rho * np.pi * radius**2
+    mass = np.broadcast_to(np.asarray(mass, dtype=dtype), (n,)).copy()
+    if np.any(~np.isfinite(mass)) or np.any(mass <= 0):
+        bad = int(np.flatnonzero(~(mass > 0) | ~np.isfinite(mass))[0])
+        raise InputError(f"mass must be positive and finite; particle {bad} has mass {mass[bad]!r}.")
+    velocity = np.zeros_like(position) if velocity is None else np.asarray(velocity, dtype=dtype)
+    if velocity.shape != position.shape:
+        raise InputError(f"velocity must have shape {position.shape}; got {velocity.shape}.")
+    omega = np.zeros(n, dtype) if angular_velocity is None else np.broadcast_to(
+        np.asarray(angular_velocity, dtype=dtype), (n,)).copy()
+    fixed = np.zeros(n, bool) if fixed is None else np.broadcast_to(np.asarray(fixed, bool), (n,)).copy()
+    active = np.ones(n, bool) if active is None else np.broadcast_to(np.asarray(active, bool), (n,)).copy()
+    for name, value in (("position", position), ("velocity", velocity), ("angular_velocity", omega)):
+        if not np.all(np.isfinite(value)):
+            bad = int(np.flatnonzero(~np.isfinite(value.reshape(n, -1)).all(axis=1))[0])
+            raise InputError(f"{name} of particle {bad} is not finite: {value[bad]!r}.")
+    return Particles(
+        position=jnp.asarray(position),
+        velocity=jnp.asarray(velocity),
+        angle=jnp.zeros(n, dtype),
+        angular_velocity=jnp.asarray(omega),
+        force=jnp.zeros_like(jnp.asarray(position)),
+        torque=jnp.zeros(n, dtype),
+        radius=jnp.asarray(radius),
+        mass=jnp.asarray(mass),
+        inertia=jnp.asarray(0.5 * mass * radius**2),
+        fixed=jnp.asarray(fixed),
+        active=jnp.asarray(active),
+    )

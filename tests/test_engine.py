@@ -1,0 +1,158 @@
+"""Engine invariants: Newton's third law, neighbour list == all pairs, history
+carried across rebuilds and cleared on separation, overflow re-runs, purity."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpile
+from jaxpile import interactions
+from jaxpile.laws import hooke
+from jaxpile.neighbors import remap_history
+from jaxpile.protocols import lattice
+from jaxpile.simulate import Simulator
+
+
+PARAMS = hooke.make_params(kn=2000.0, gamma_n=20.0, mu=0.4)
+
+
+@pytest.fixture(scope="module")
+def agitated():
+    """A squeezed 8-layer pile of unequal disks with random velocities and spins,
+    after 300 steps (so many contacts carry shear history)."""
+    rng = np.random.default_rng(2)
+    pos = lattice.equilateral_positions(8) * 0.99 + rng.normal(0, 0.003, (36, 2))
+    rad = rng.uniform(0.49, 0.5, 36)
+    particles = jaxpile.make_particles(pos, rad, velocity=rng.normal(0, 0.3, pos.shape),
+                                       angular_velocity=rng.normal(0, 1.0, len(rad)))
+    boundaries = jaxpile.make_boundaries(left=0.0, right=10.0)
+    sim = Simulator(hooke.law(), dt=2e-4, chunk_steps=100)
+    state = sim.init(PARAMS, particles, boundaries)
+    state = sim.run(PARAMS, state, 300, progress=False)
+    return sim, state
+
+
+def test_newton_third_law_pair_forces_sum_to_zero(agitated):
+    sim, state = agitated
+    cf = sim.contact_forces(PARAMS, state)
+    assert int(cf.pair.in_contact.sum()) > 20
+    total = np.asarray(cf.pair.force).sum(axis=(0, 1))
+    scale = np.abs(np.asarray(cf.pair.force)).sum()
+    assert np.all(np.abs(total) < 1e-13 * scale)
+
+
+def test_angular_momentum_about_contact_point(agitated):
+    """For every pair, the torques about each centre come from the same tangential
+    force applied at the contact point: tau_i / r_i == tau_j / r_j."""
+    sim, state = agitated
+    cf = sim.contact_forces(PARAMS, state)
+    idx = np.asarray(state.neighbors.idx)
+    n = idx.shape[0]
+    r = np.asarray(state.particles.radius)
+    tau = np.asarray(cf.pair.torque)
+    for i, k in zip(*np.nonzero(np.asarray(cf.pair.in_contact))):
+        j = idx[i, k]
+        kk = int(np.flatnonzero(idx[j] == i)[0])
+        assert tau[i, k] / r[i] == pytest.approx(tau[j, kk] / r[j], rel=1e-10, abs=1e-12)
+    assert n > 0
+
+
+def test_neighbor_list_forces_equal_all_pairs(agitated):
+    sim, state = agitated
+    p = state.particles
+    n = p.count
+    all_idx = jnp.asarray([[j for j in range(n) if j != i] for i in range(n)], jnp.int32)
+    history = remap_history(state.contacts.partner, state.contacts.history, all_idx)
+    contacts = state.contacts.set(partner=all_idx, history=history)
+    brute = interactions.evaluate(sim.law, PARAMS, p, contacts, all_idx, state.boundaries, 0.0)
+    listed = sim.contact_forces(PARAMS, state)
+    np.testing.assert_allclose(listed.force, brute.force, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(listed.torque, brute.torque, rtol=1e-12, atol=1e-12)
+
+
+def test_remap_history_follows_partner_ids():
+    old_partner = jnp.array([[3, 1, 4], [4, 4, 4], [0, 4, 4], [0, 4, 4]])
+    old_hist = jnp.arange(24.0).reshape(4, 3, 2)
+    new_idx = jnp.array([[1, 2, 3, 4], [4, 4, 4, 4], [4, 0, 4, 4], [0, 4, 4, 4]])
+    new = remap_history(old_partner, old_hist, new_idx)
+    np.testing.assert_array_equal(new[0, 0], old_hist[0, 1])  # partner 1 moved slot 1 -> 0
+    np.testing.assert_array_equal(new[0, 1], 0.0)  # partner 2 is new
+    np.testing.assert_array_equal(new[0, 2], old_hist[0, 0])  # partner 3 moved slot 0 -> 2
+    np.testing.assert_array_equal(new[2, 1], old_hist[2, 0])
+    np.testing.assert_array_equal(new[1], 0.0)
+
+
+def _sliding_pair(skin):
+    """A disk sliding over the top of a fixed disk under gravity, with huge
+    friction and a weak tangential spring: the shear keeps accumulating while
+    the pair stays in contact."""
+    pos = np.array([[5.0, 5.0], [5.0, 5.9999]])
+    particles = jaxpile.make_particles(pos, 0.5, velocity=[[0.0, 0.0], [0.3, 0.0]], fixed=[True, False])
+    boundaries = jaxpile.make_boundaries().set(wall_active=jnp.array([False, False, False]))
+    params = hooke.make_params(kn=1e4, kt=1.0, gamma_n=0.0, gamma_t=0.0, mu=1e6)
+    sim = Simulator(hooke.law(rotation=False), dt=1e-4, skin=skin, chunk_steps=50)
+    return sim, params, sim.init(params, particles, boundaries)
+
+
+def test_history_survives_neighbor_rebuilds_and_clears_on_separation():
+    # skin 2.0: no rebuild during the slide; skin 0.05: rebuild every 0.025 of travel.
+    results = {}
+    for skin in (2.0, 0.05):
+        sim, params, state = _sliding_pair(skin)
+        ref0 = np.asarray(state.neighbors.reference_position).copy()
+        state = sim.run(params, state, 2000, progress=False)
+        rebuilt = not np.array_equal(np.asarray(state.neighbors.reference_position), ref0)
+        row = np.asarray(state.contacts.history[1])
+        slot = int(np.flatnonzero(np.asarray(state.contacts.partner[1]) == 0)[0])
+        results[skin] = (rebuilt, row[slot].copy(), state, sim, params)
+    assert not results[2.0][0] and results[0.05][0]
+    shear_a, shear_b = results[2.0][1], results[0.05][1]
+    assert np.linalg.norm(shear_a) > 0.05  # accumulated displacement along the tangent
+    np.testing.assert_allclose(shear_b, shear_a, rtol=1e-10)
+    # pull the moving disk away: the contact opens and its history is cleared
+    _, _, state, sim, params = results[0.05]
+    p = state.particles
+    state = state.set(particles=p.set(velocity=jnp.array([[0.0, 0.0], [0.0, 5.0]])))
+    state = sim.run(params, state, 200, progress=False)
+    assert float(jnp.abs(state.contacts.history).max()) == 0.0
+
+
+def _falling_heap(capacity_multiplier):
+    """Disks in loose rows (two neighbours each at allocation) that fall into a
+    heap with four to six neighbours each."""
+    grid = np.stack(np.meshgrid(np.arange(6) * 1.1, np.arange(5) * 1.6), -1).reshape(-1, 2)
+    rng = np.random.default_rng(5)
+    pos = grid + [1.0, 0.6] + rng.uniform(-0.02, 0.02, grid.shape)
+    particles = jaxpile.make_particles(pos, 0.5)
+    boundaries = jaxpile.make_boundaries(left=0.3, right=7.2)
+    sim = Simulator(hooke.law(), dt=5e-4, capacity_multiplier=capacity_multiplier, chunk_steps=500)
+    state = sim.init(PARAMS, particles, boundaries)
+    info = jaxpile.RunInfo()
+    state = sim.run(PARAMS, state, 4000, progress=False, info=info)
+    return state, info
+
+
+def test_too_small_capacity_gives_the_same_result_as_ample_capacity():
+    tight, info_tight = _falling_heap(1.0)
+    ample, info_ample = _falling_heap(4.0)
+    assert info_tight.reallocations > 0 and info_ample.reallocations == 0
+    assert tight.neighbors.idx.shape[1] < ample.neighbors.idx.shape[1]
+    np.testing.assert_allclose(tight.particles.position, ample.particles.position, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(tight.particles.velocity, ample.particles.velocity, rtol=0, atol=1e-7)
+
+
+def test_second_call_of_jitted_step_does_not_recompile(agitated):
+    sim, state = agitated
+    traces = []
+
+    def counted(params, s):
+        traces.append(1)
+        return sim.step(params, s)
+
+    step = jax.jit(counted)
+    s1 = step(PARAMS, state)
+    s2 = step(PARAMS, s1)
+    # new parameter values do not recompile either: they are arguments, not constants
+    step(PARAMS.set(mu=jnp.asarray(0.1, PARAMS.mu.dtype)), s2)
+    assert len(traces) == 1
