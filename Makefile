@@ -20,7 +20,7 @@ $(STAMP): $(BIN)/python pyproject.toml
 # (mu = 0.1), whose base forces depend on how the pile was loaded.
 demo: $(STAMP)
 	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law hooke --out $(DEMO)/lattice
-	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law hooke --set mu=0.1 --rotation on --out $(DEMO)/lattice_mu0.1
+	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law hooke --set mu=0.1 --out $(DEMO)/lattice_mu0.1
 	$(BIN)/jaxpile compare $(DEMO)/lattice $(DEMO)/lattice_mu0.1
 
 test: $(STAMP)

@@ -89,7 +89,7 @@ class ContactLaw:
 def normal_and_distance(displacement):
     """Unit normal n = d/|d| and |d|, safe at d = 0 (returns n = 0, r = 0) so that
     padded slots give finite gradients (jax-md `safe_mask` habit)."""
-    r2 = jnp.sum(displacement**2)
+    r2 = dot2(displacement, displacement)
     positive = r2 > 0
     r = jnp.sqrt(jnp.where(positive, r2, 1.0))
     n = jnp.where(positive, displacement / r, 0.0)
@@ -98,7 +98,7 @@ def normal_and_distance(displacement):
 
 def safe_norm(v):
     """|v| with a finite gradient at v = 0."""
-    s = jnp.sum(v**2)
+    s = dot2(v, v)
     positive = s > 0
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, s, 1.0)), 0.0)
 
@@ -106,6 +106,12 @@ def safe_norm(v):
 def perp(n):
     """z x n: the unit tangent t with z = n x t (counter-clockwise of n)."""
     return jnp.stack([-n[..., 1], n[..., 0]], axis=-1)
+
+
+def dot2(a, b):
+    """a . b for 2-vectors, written out: inside vmap a `jnp.dot` becomes a batched
+    dot_general that XLA on CPU does not fuse with the elementwise kernel."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
 def cross2(a, b):

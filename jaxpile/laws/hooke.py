@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry, cross2, normal_and_distance, perp, safe_norm
+from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry, cross2, dot2, normal_and_distance, perp, safe_norm
 
 Array = Any
 NAME = "hooke"
@@ -94,7 +94,7 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
     radsum = g.radius_i + g.radius_j
     in_contact = (r < radsum) & (r > 0)
 
-    vn = jnp.dot(g.velocity, n)
+    vn = dot2(g.velocity, n)
     spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
     vtr = g.velocity - vn * n - spin * perp(n)  # relative velocity of the contact points
 
@@ -102,7 +102,7 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
 
     shear = shear + vtr * dt
     shear_magnitude = safe_norm(shear)
-    shear = shear - jnp.dot(shear, n) * n  # rotate into the current tangent plane
+    shear = shear - dot2(shear, n) * n  # rotate into the current tangent plane
     damping = g.effective_mass * p.gamma_t * vtr
     ft = -(p.kt * shear + damping)
     ft_magnitude = safe_norm(ft)
