@@ -30,10 +30,13 @@ class BaseForces(NamedTuple):
 
 
 def force_unit(state: SimState) -> float:
-    """mg: the mean mass of the active disks times |g|."""
+    """mg: the mean mass of the active movable disks times |g| (g taken as 1
+    when gravity is off, so forces are then in units of force)."""
     p = state.particles
-    m = float(jnp.mean(jnp.where(p.active, p.mass, jnp.nan)[p.active])) if bool(p.active.any()) else 1.0
-    return m * float(jnp.linalg.norm(state.boundaries.gravity))
+    movable = np.asarray(p.movable)
+    mass = np.asarray(p.mass)[movable].mean() if movable.any() else 1.0
+    g = float(jnp.linalg.norm(state.boundaries.gravity))
+    return float(mass) * (g if g > 0 else 1.0)
 
 
 def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> BaseForces:

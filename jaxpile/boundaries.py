@@ -11,6 +11,7 @@ import math
 
 import jax.numpy as jnp
 
+from jaxpile.errors import InputError
 from jaxpile.state import Boundaries
 
 GROUND, LEFT_WALL, RIGHT_WALL = 0, 1, 2
@@ -35,6 +36,10 @@ def make_boundaries(
       tilt_degrees: gravity rotated by this angle (counter-clockwise) from -y,
         which is the same as tilting the whole set-up clockwise.
     """
+    if left is not None and right is not None and not left < right:
+        raise InputError(f"the left wall (x = {left}) must be left of the right wall (x = {right}).")
+    if not (gravity >= 0 and math.isfinite(gravity)):
+        raise InputError(f"gravity must be a finite magnitude >= 0; got {gravity}.")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
     normal = jnp.array([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0]], dtype)
     offset = jnp.array([ground, 0.0 if left is None else left, 0.0 if right is None else -right], dtype)
@@ -54,13 +59,16 @@ def gravity_vector(g: float, tilt_degrees: float, dtype=None):
 
 
 def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, position=None) -> Boundaries:
-    """Switches a wall on or off and/or moves it (x for side walls, y for the ground)."""
+    """Switches a wall on or off and/or moves an axis-aligned wall to `position`
+    (x for a side wall, y for the ground). Pure: usable inside jit."""
     b = boundaries
     if active is not None:
         b = b.set(wall_active=b.wall_active.at[wall].set(active))
     if position is not None:
-        sign = b.wall_normal[wall].sum()  # +1 for ground and left wall, -1 for right wall
-        b = b.set(wall_offset=b.wall_offset.at[wall].set(sign * position))
+        normal = b.wall_normal[wall]
+        # offset = normal . (point on the wall); for an axis-aligned normal that
+        # is (n_x + n_y) * position
+        b = b.set(wall_offset=b.wall_offset.at[wall].set((normal[0] + normal[1]) * position))
     return b
 
 

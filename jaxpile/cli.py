@@ -85,6 +85,8 @@ def main(argv=None) -> int:
 def run_pile(args) -> dict:
     import jax.numpy as jnp
 
+    from jaxpile.errors import InputError
+
     import jaxpile  # noqa: F401  (turns on float64)
     from jaxpile import analysis, io, plot
     from jaxpile.laws import get_law_module
@@ -108,6 +110,10 @@ def run_pile(args) -> dict:
     particles, boundaries = lattice.equilateral_pile(layers, dtype=dtype)
     progress = None if not args.no_progress else False
 
+    if layers < 1:
+        raise InputError(f"--layers must be >= 1; got {layers}.")
+    if max_steps < 1:
+        raise InputError(f"--max-steps must be >= 1; got {max_steps}.")
     print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
           f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
     sim = Simulator(law, dt, schedule=gravity_ramp(ramp))
@@ -183,9 +189,14 @@ def _summary_lines(s: dict) -> str:
 
 
 def compare_table(dirs) -> str:
+    from jaxpile.errors import InputError
+
     rows = []
     for d in dirs:
-        with open(os.path.join(d, "summary.json")) as f:
+        path = os.path.join(d, "summary.json")
+        if not os.path.isfile(path):
+            raise InputError(f"{path} not found: give folders written by 'jaxpile pile --out DIR'.")
+        with open(path) as f:
             s = json.load(f)
         rows.append((d, s))
     head = f"{'run':32s} {'disks':>6s} {'mu':>5s} {'rot':>4s} {'steps':>8s} {'p-steps/s':>10s} {'dev N':>8s} {'dev H':>8s}"

@@ -2,9 +2,10 @@
 returns the contact forces at new positions (and advances the contact history).
 
 velocity_verlet: kick-drift-kick, the scheme of LAMMPS `run_style verlet` with
-`fix nve/sphere`: the velocity-dependent forces (damping, tangential history) are
-evaluated with the half-step velocities, exactly as LAMMPS does, so the two codes
-can be compared step for step. Second order for smooth conservative forces.
+`fix nve/sphere disc` (disks, I = m r^2 / 2): the velocity-dependent forces
+(damping, tangential history) are evaluated with the half-step velocities, as
+LAMMPS does, so the two codes can be compared step for step. Second order for
+smooth conservative forces.
 """
 
 from __future__ import annotations

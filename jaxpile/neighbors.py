@@ -9,12 +9,21 @@ checks `did_buffer_overflow` after each chunk and re-allocates (see `simulate`).
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 from jax_md import partition, space
 
 Array = Any
+
+
+class NeighborSettings(NamedTuple):
+    """Everything a neighbour list is built from (hashable: a static field)."""
+
+    box: tuple[float, float]
+    cutoff: float
+    skin: float
+    capacity_multiplier: float
 
 
 @functools.lru_cache(maxsize=64)
@@ -41,6 +50,22 @@ def neighbor_fn(box: tuple[float, float], cutoff: float, skin: float, capacity_m
         capacity_multiplier=capacity_multiplier,
         format=partition.Dense,
     )
+
+
+_CELL_LIST_FNS: dict = {}
+
+
+def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0):
+    """A new neighbour list (outside jit).
+
+    jax-md builds a new cell-list closure at every allocation, and that closure
+    is a static field of the list, so each new list would recompile every jitted
+    function it passes through. Lists with the same settings get one canonical
+    closure (it depends only on the box, cell size and multiplier)."""
+    nbrs = neighbor_fn(*settings).allocate(position, extra_capacity=extra_capacity)
+    if nbrs.cell_list_fn is not None:
+        nbrs = nbrs.set(cell_list_fn=_CELL_LIST_FNS.setdefault(settings, nbrs.cell_list_fn))
+    return nbrs
 
 
 def remap_history(old_partner: Array, old_history: Array, new_idx: Array) -> Array:

@@ -52,8 +52,8 @@ def base_profile_figure(x, normal, horizontal, *, theory_normal=None, theory_hor
     """Normal and horizontal base forces against x / B (B the base width), with
     theory curves (arrays on the same x) when given."""
     x = np.asarray(x)
-    span = np.ptp(x) if len(x) > 1 else 1.0
-    u = (x - x.min()) / span if span > 0 else np.zeros_like(x)
+    span = np.ptp(x) if len(x) > 1 else 1.0  # (no contacts: empty panels, not a crash)
+    u = (x - x.min()) / span if len(x) and span > 0 else np.zeros_like(x)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for ax, sim, th, label in (
         (axes[0], normal, theory_normal, "ground normal force N (mg)"),

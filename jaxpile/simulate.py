@@ -59,7 +59,8 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None) -> C
     """
 
     def step(params, state: SimState) -> SimState:
-        boundaries = state.boundaries if schedule is None else schedule(state)
+        # forces are evaluated at t + dt, under the boundaries scheduled for step + 1
+        boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + 1))
 
         def forces_at(p: Particles):
             neighbors = state.neighbors.update(p.position)
@@ -83,6 +84,8 @@ def gravity_ramp(steps: int) -> Callable[[SimState], Boundaries]:
     and feels full gravity at once bounces, its contacts unload completely at
     the top of the first bounce, and frictional contacts that carry shear then
     slip (the 45-layer lattice pile collapses that way)."""
+    if int(steps) != steps or steps < 1:
+        raise InputError(f"the gravity ramp needs a positive whole number of steps; got {steps!r}.")
 
     def schedule(state: SimState) -> Boundaries:
         u = jnp.clip(state.step.astype(state.boundaries.gravity.dtype) / steps, 0.0, 1.0)
@@ -161,6 +164,12 @@ class Simulator:
             raise InputError(f"dt must be positive and finite; got {dt}.")
         if chunk_steps < 1:
             raise InputError(f"chunk_steps must be >= 1; got {chunk_steps}.")
+        if skin is not None and not (skin >= 0 and math.isfinite(skin)):
+            raise InputError(f"skin must be >= 0 (a negative skin would drop contacts); got {skin}.")
+        if not capacity_multiplier >= 1:
+            raise InputError(f"capacity_multiplier must be >= 1; got {capacity_multiplier}.")
+        if not max_initial_overlap > 0:
+            raise InputError(f"max_initial_overlap must be > 0; got {max_initial_overlap}.")
         self.law = law
         self.dt = float(dt)
         self.skin = skin
@@ -169,10 +178,9 @@ class Simulator:
         self.max_initial_overlap = max_initial_overlap
         self.schedule = schedule
         self.step = make_step(law, self.dt, schedule)
-        self.jit_step = jax.jit(self.step)
         self._advance_jit = jax.jit(self._advance)
+        self._refresh_jit = jax.jit(self.refresh_forces)
         self._compiled: dict = {}
-        self._neighbor_fns = None
 
     # ------------------------------------------------------------------ set-up
     def check_params(self, params, particles: Particles) -> None:
@@ -195,7 +203,8 @@ class Simulator:
 
         Args:
           box: `(width, height)` the neighbour cell list covers; default: the
-            bounding box of the disks and active walls, with a margin.
+            bounding box of the disks (and the origin), with a margin of one
+            neighbour cutoff on each side.
         """
         self.check_params(params, particles)
         _check_finite(particles, step=0)
@@ -207,8 +216,8 @@ class Simulator:
             pos = np.asarray(particles.position)
             extent = pos.max(axis=0) - np.minimum(pos.min(axis=0), 0.0)
             box = tuple(float(e) + 2 * (cutoff + skin) for e in extent)
-        self._neighbor_fns = nb.neighbor_fn(tuple(box), cutoff, skin, self.capacity_multiplier)
-        neighbors = self._neighbor_fns.allocate(particles.position)
+        settings = nb.NeighborSettings(tuple(float(b) for b in box), cutoff, skin, float(self.capacity_multiplier))
+        neighbors = nb.allocate(settings, particles.position)
         n, k = neighbors.idx.shape
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
@@ -218,11 +227,21 @@ class Simulator:
             history=jnp.zeros((n, k, h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
-        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32))
+        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings)
         self._check_overlaps(params, state)
-        cf = self.contact_forces(params, state)
-        p = particles.set(force=cf.force + external_force(particles, boundaries), torque=cf.torque)
-        return state.set(particles=p)
+        return self._refresh_jit(params, state)
+
+    def boundaries_at(self, state: SimState) -> Boundaries:
+        """The boundaries in force at the state's step (the schedule applied)."""
+        return state.boundaries if self.schedule is None else self.schedule(state)
+
+    def refresh_forces(self, params, state: SimState) -> SimState:
+        """The state with `force`/`torque` re-evaluated from its positions and
+        velocities with these `params` (history not advanced). Pure."""
+        boundaries = self.boundaries_at(state)
+        p = state.particles
+        cf = evaluate(self.law, params, p, state.contacts, state.neighbors.idx, boundaries, 0.0)
+        return state.set(particles=p.set(force=cf.force + external_force(p, boundaries), torque=cf.torque))
 
     def contact_forces(self, params, state: SimState) -> ContactForces:
         """Every contact's force at the state as stored, without advancing history."""
@@ -237,7 +256,8 @@ class Simulator:
         i_idx = np.repeat(np.arange(n)[:, None], idx.shape[1], axis=1)
         ok = (idx < n) & (idx > i_idx)
         i, j = i_idx[ok], idx[ok]
-        both = active[i] & active[j]
+        fixed = np.asarray(p.fixed)
+        both = active[i] & active[j] & ~(fixed[i] & fixed[j])  # fixed pairs never interact
         i, j = i[both], j[both]
         if len(i):
             contact = rad[i] + rad[j]
@@ -260,14 +280,19 @@ class Simulator:
             )
 
     # --------------------------------------------------------- pure rollouts
-    def rollout(self, params, state: SimState, n_steps: int, *, checkpoint: bool = False) -> SimState:
+    def rollout(self, params, state: SimState, n_steps: int, *, checkpoint: bool = False,
+                refresh: bool = True) -> SimState:
         """`n_steps` steps as one `lax.scan`: pure and differentiable.
 
+        The starting force is first re-evaluated with `params` (`refresh=True`),
+        so that the whole rollout, and its gradient, depends on `params` alone.
         No overflow handling happens inside; check `state.neighbors.did_buffer_overflow`
         on the result (or call `run` first to size the neighbour list).
         `checkpoint=True` recomputes each step in the backward pass instead of
         storing its intermediates.
         """
+        if refresh:
+            state = self.refresh_forces(params, state)
         body = jax.checkpoint(self.step) if checkpoint else self.step
         state, _ = lax.scan(lambda s, _: (body(params, s), None), state, None, length=n_steps)
         return state
@@ -289,9 +314,9 @@ class Simulator:
     # ------------------------------------------------------------ host runs
     def _reallocate(self, state: SimState, overflowed) -> SimState:
         """A neighbour list with more slots (and cell capacity), history carried over."""
-        old = overflowed.neighbors.max_occupancy
-        extra = max(2, int(math.ceil(0.5 * old)))
-        neighbors = self._neighbor_fns.allocate(state.particles.position, extra_capacity=extra)
+        # at least double: a chunk that starts with few neighbours may end with many
+        extra = max(4, overflowed.neighbors.max_occupancy)
+        neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
         history = nb.remap_history(state.contacts.partner, state.contacts.history, neighbors.idx)
         contacts = state.contacts.set(partner=neighbors.idx, history=history)
         return state.set(neighbors=neighbors, contacts=contacts)
@@ -328,8 +353,10 @@ class Simulator:
           until: optional host predicate checked after each chunk; the run stops
             early when it returns True.
         """
-        if self._neighbor_fns is None:
-            raise InputError("call Simulator.init(...) to build the state before running it.")
+        if not isinstance(state, SimState):
+            raise InputError("run() takes a SimState; build one with Simulator.init(params, particles, boundaries).")
+        if int(n_steps) != n_steps or n_steps < 0:
+            raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
         self.check_params(params, state.particles)
         _check_finite(state.particles, step=int(state.step))
         info = RunInfo() if info is None else info
@@ -366,6 +393,8 @@ class Simulator:
     ) -> tuple[SimState, RunInfo]:
         """Runs until every movable disk is slower than `speed_tolerance`
         (checked after each chunk) or `max_steps` have been taken."""
+        if not speed_tolerance > 0:
+            raise InputError(f"speed_tolerance must be > 0; got {speed_tolerance}.")
         info = RunInfo()
 
         def at_rest(s: SimState) -> bool:

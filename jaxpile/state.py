@@ -117,6 +117,9 @@ class SimState:
       neighbors: the jax-md Dense neighbour list (full list: each pair appears
         in both rows).
       step: int scalar, steps taken since `init`.
+      neighbor_settings: static `neighbors.NeighborSettings` (box, cutoff,
+        skin, capacity multiplier) the list was built with, so a re-allocation
+        always uses this state's own settings.
     """
 
     particles: Particles
@@ -124,6 +127,7 @@ class SimState:
     boundaries: Boundaries
     neighbors: NeighborList
     step: Array
+    neighbor_settings: Any = dataclasses.static_field()
 
 
 def make_particles(
@@ -163,7 +167,16 @@ def make_particles(
     if position.ndim != 2 or position.shape[1] != 2:
         raise InputError(f"position must have shape [n, 2]; got {position.shape}.")
     n = position.shape[0]
-    radius = np.broadcast_to(np.asarray(radius, dtype=dtype), (n,)).copy()
+    if n == 0:
+        raise InputError("no particles: position is empty.")
+
+    def per_particle(name, value, dt):
+        value = np.asarray(value, dtype=dt)
+        if value.ndim > 1 or (value.ndim == 1 and value.shape[0] != n):
+            raise InputError(f"{name} must be a scalar or have one value per particle ({n}); got shape {value.shape}.")
+        return np.broadcast_to(value, (n,)).copy()
+
+    radius = per_particle("radius", radius, dtype)
     if np.any(~np.isfinite(radius)) or np.any(radius <= 0):
         bad = int(np.flatnonzero(~(radius > 0) | ~np.isfinite(radius))[0])
         raise InputError(
@@ -172,21 +185,27 @@ def make_particles(
     if mass is None:
         rho = (4.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
         mass = rho * np.pi * radius**2
-    mass = np.broadcast_to(np.asarray(mass, dtype=dtype), (n,)).copy()
+    mass = per_particle("mass", mass, dtype)
     if np.any(~np.isfinite(mass)) or np.any(mass <= 0):
         bad = int(np.flatnonzero(~(mass > 0) | ~np.isfinite(mass))[0])
         raise InputError(f"mass must be positive and finite; particle {bad} has mass {mass[bad]!r}.")
     velocity = np.zeros_like(position) if velocity is None else np.asarray(velocity, dtype=dtype)
     if velocity.shape != position.shape:
         raise InputError(f"velocity must have shape {position.shape}; got {velocity.shape}.")
-    omega = np.zeros(n, dtype) if angular_velocity is None else np.broadcast_to(
-        np.asarray(angular_velocity, dtype=dtype), (n,)).copy()
-    fixed = np.zeros(n, bool) if fixed is None else np.broadcast_to(np.asarray(fixed, bool), (n,)).copy()
-    active = np.ones(n, bool) if active is None else np.broadcast_to(np.asarray(active, bool), (n,)).copy()
+    omega = np.zeros(n, dtype) if angular_velocity is None else per_particle("angular_velocity", angular_velocity, dtype)
+    fixed = np.zeros(n, bool) if fixed is None else per_particle("fixed", fixed, bool)
+    active = np.ones(n, bool) if active is None else per_particle("active", active, bool)
     for name, value in (("position", position), ("velocity", velocity), ("angular_velocity", omega)):
         if not np.all(np.isfinite(value)):
             bad = int(np.flatnonzero(~np.isfinite(value.reshape(n, -1)).all(axis=1))[0])
             raise InputError(f"{name} of particle {bad} is not finite: {value[bad]!r}.")
+    moving_fixed = fixed & ((np.abs(velocity).sum(axis=1) > 0) | (omega != 0))
+    if moving_fixed.any():
+        bad = int(np.flatnonzero(moving_fixed)[0])
+        raise InputError(
+            f"fixed particle {bad} has a non-zero velocity or spin; fixed disks never move, "
+            "so give them zero velocity."
+        )
     return Particles(
         position=jnp.asarray(position),
         velocity=jnp.asarray(velocity),

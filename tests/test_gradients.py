@@ -24,8 +24,12 @@ def setup():
     particles = particles.set(velocity=jnp.asarray(rng.normal(0, 0.3, (6, 2))),
                               angular_velocity=jnp.asarray(rng.normal(0, 2.0, 6)))
     params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3)
-    sim = Simulator(hooke.law(rotation=True), dt=5e-4)
+    # a thin skin so the neighbour list is rebuilt inside the rollout
+    sim = Simulator(hooke.law(rotation=True), dt=5e-4, skin=0.01)
     state = sim.init(params, particles, boundaries)
+    final = sim.rollout(params, state, STEPS)
+    assert not np.array_equal(np.asarray(final.neighbors.reference_position),
+                              np.asarray(state.neighbors.reference_position))
 
     @jax.jit
     def loss(p):

@@ -95,3 +95,43 @@ def test_cli_unknown_parameter_and_law(tmp_path, capsys):
     assert "unknown parameter 'stiffness'" in capsys.readouterr().err
     assert main(["pile", "--layers", "3", "--law", "nope", "--out", str(tmp_path)]) == 2
     assert "unknown law 'nope'" in capsys.readouterr().err
+
+
+def test_negative_skin_and_small_capacity_multiplier():
+    with pytest.raises(InputError, match="skin"):
+        Simulator(hooke.law(), 1e-4, skin=-0.1)
+    with pytest.raises(InputError, match="capacity_multiplier"):
+        Simulator(hooke.law(), 1e-4, capacity_multiplier=0.5)
+
+
+def test_per_particle_arrays_of_the_wrong_length():
+    with pytest.raises(InputError, match="radius must be a scalar or have one value per particle"):
+        jaxpile.make_particles([[1.0, 1.0], [3.0, 1.0]], [0.5, 0.5, 0.5])
+    with pytest.raises(InputError, match="no particles"):
+        jaxpile.make_particles(np.zeros((0, 2)), 0.5)
+
+
+def test_fixed_disks_cannot_move():
+    with pytest.raises(InputError, match="fixed particle 0"):
+        jaxpile.make_particles([[1.0, 1.0]], 0.5, velocity=[[1.0, 0.0]], fixed=True)
+
+
+def test_walls_in_the_wrong_order_and_bad_ramp():
+    with pytest.raises(InputError, match="left wall"):
+        jaxpile.make_boundaries(left=5.0, right=0.0)
+    with pytest.raises(InputError, match="gravity ramp"):
+        jaxpile.simulate.gravity_ramp(0)
+
+
+def test_overlapping_fixed_disks_are_allowed():
+    p = jaxpile.make_particles([[1.0, 0.5], [1.5, 0.5]], 0.5, fixed=True)
+    Simulator(hooke.law(), 1e-4).init(hooke.make_params(), p, jaxpile.make_boundaries())
+
+
+def test_cli_error_paths(tmp_path, capsys):
+    assert main(["compare", str(tmp_path / "missing")]) == 2
+    assert "summary.json not found" in capsys.readouterr().err
+    assert main(["pile", "--layers", "3", "--ramp-steps", "0", "--out", str(tmp_path)]) == 2
+    assert "gravity ramp" in capsys.readouterr().err
+    assert main(["pile", "--layers", "3", "--speed-tol", "0", "--out", str(tmp_path)]) == 2
+    assert "speed_tolerance" in capsys.readouterr().err

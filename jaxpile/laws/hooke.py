@@ -112,8 +112,9 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
     # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
     safe_kt = jnp.where(p.kt > 0, p.kt, 1.0)
     rescaled = jnp.where(p.kt > 0, ratio * (shear + damping / safe_kt) - damping / safe_kt, 0.0)
-    shear = jnp.where(sliding, rescaled, shear)
-    ft = jnp.where(sliding & (shear_magnitude == 0), 0.0, ratio * ft)
+    has_shear = shear_magnitude > 0
+    shear = jnp.where(sliding & has_shear, rescaled, shear)
+    ft = jnp.where(sliding & ~has_shear, 0.0, ratio * ft)
 
     force = fn * n + ft
     torque = -g.radius_i * cross2(n, ft)
