@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--protocol", default="lattice", choices=["lattice"],
                       help="how the pile is built (lattice: the 1992 equilateral pile)")
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
-    pile.add_argument("--law", default="hooke", help="contact law (hooke)")
+    pile.add_argument("--law", default="hooke", help="contact law: hooke, lee-herrmann, baxter")
     pile.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a law parameter (repeatable)")
     pile.add_argument("--rotation", type=_on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")

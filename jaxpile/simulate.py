@@ -189,8 +189,10 @@ class Simulator:
             return
         self.law.validate(params)
         movable = np.asarray(particles.movable)
-        masses = np.asarray(particles.mass)[movable] if movable.any() else np.asarray(particles.mass)
-        limit = self.law.stable_time_step(params, float(masses.min()))
+        if not movable.any():
+            movable = np.ones_like(movable)
+        limit = self.law.stable_time_step(params, float(np.asarray(particles.mass)[movable].min()),
+                                          float(np.asarray(particles.radius)[movable].min()))
         if self.dt > limit:
             raise InputError(
                 f"dt = {self.dt:g} is above the stability limit of the {self.law.name} law "

@@ -14,6 +14,8 @@ from typing import Any, Callable, NamedTuple
 
 import jax.numpy as jnp
 
+from jaxpile.errors import InputError
+
 Array = Any
 
 
@@ -69,8 +71,8 @@ class ContactLaw:
       wall_params: `params -> params` used for walls (the `wall_*` values).
       interaction_range: `(params, radius_i, radius_j) -> float`, the distance
         below which a pair interacts (sizes the neighbour list).
-      stable_time_step: `(params, min_mass) -> float`, an estimate of the largest
-        stable explicit time step.
+      stable_time_step: `(params, min_mass, min_radius) -> float`, an estimate
+        of the largest stable explicit time step.
       validate: `params -> None`, raises `InputError` on a bad value.
       params_type: the params pytree class (for `--set NAME=VALUE`).
     """
@@ -84,6 +86,17 @@ class ContactLaw:
     stable_time_step: Callable[..., float]
     validate: Callable[[Any], None]
     params_type: type
+
+
+def contact_result(in_contact, force, torque, history, normal) -> PairForce:
+    """A `PairForce` that is zero (and has zero history) outside contact."""
+    return PairForce(
+        force=jnp.where(in_contact, force, jnp.zeros_like(force)),
+        torque=jnp.where(in_contact, torque, 0.0),
+        history=jnp.where(in_contact, history, jnp.zeros_like(history)),
+        normal=jnp.where(in_contact, normal, 0.0),
+        in_contact=in_contact,
+    )
 
 
 def normal_and_distance(displacement):
@@ -114,6 +127,28 @@ def dot2(a, b):
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1]
 
 
+def safe_sqrt(x):
+    """sqrt(max(x, 0)) with a zero (not infinite) gradient at x <= 0."""
+    positive = x > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, x, 1.0)), 0.0)
+
+
 def cross2(a, b):
     """z component of a x b."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def check_finite_nonnegative(law_name: str, params, names, positive=()) -> None:
+    """Raises `InputError` if a named parameter is non-finite or negative, or if
+    one of `positive` is not > 0 (`None` values are skipped)."""
+    for name in names:
+        value = getattr(params, name)
+        if value is None:
+            continue
+        v = jnp.asarray(value)
+        if not bool(jnp.all(jnp.isfinite(v))):
+            raise InputError(f"{law_name} parameter {name} must be finite; got {value}.")
+        if bool(jnp.any(v < 0)):
+            raise InputError(f"{law_name} parameter {name} must be >= 0; got {float(jnp.min(v))}.")
+        if name in positive and bool(jnp.any(v <= 0)):
+            raise InputError(f"{law_name} parameter {name} must be > 0; got {value}.")

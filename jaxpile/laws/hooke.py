@@ -31,7 +31,8 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry, cross2, dot2, normal_and_distance, perp, safe_norm
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, cross2, dot2,
+                               normal_and_distance, perp, safe_norm)
 
 Array = Any
 NAME = "hooke"
@@ -118,14 +119,7 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
 
     force = fn * n + ft
     torque = -g.radius_i * cross2(n, ft)
-    zero = jnp.zeros_like(force)
-    return PairForce(
-        force=jnp.where(in_contact, force, zero),
-        torque=jnp.where(in_contact, torque, 0.0),
-        history=jnp.where(in_contact, shear, zero),
-        normal=jnp.where(in_contact, fn, 0.0),
-        in_contact=in_contact,
-    )
+    return contact_result(in_contact, force, torque, shear, fn)
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:
@@ -133,7 +127,7 @@ def interaction_range(p: Params, radius_i, radius_j) -> float:
     return radius_i + radius_j
 
 
-def stable_time_step(p: Params, min_mass: float) -> float:
+def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
     """Estimate of the largest stable velocity-Verlet step.
 
     The highest vibration frequency of a close-packed 2D lattice of springs k is
@@ -152,20 +146,8 @@ def stable_time_step(p: Params, min_mass: float) -> float:
 
 
 def validate(p: Params) -> None:
-    """Raises `InputError` on negative or non-finite parameters."""
-    for name in PARAM_NAMES:
-        value = getattr(p, name)
-        if value is None:
-            continue
-        v = jnp.asarray(value)
-        if not bool(jnp.all(jnp.isfinite(v))):
-            raise InputError(f"hooke parameter {name} must be finite; got {value}.")
-        if bool(jnp.any(v < 0)):
-            raise InputError(f"hooke parameter {name} must be >= 0; got {float(jnp.min(v))}.")
-    for name in ("kn", "wall_kn"):
-        value = getattr(p, name)
-        if value is not None and bool(jnp.any(jnp.asarray(value) <= 0)):
-            raise InputError(f"hooke parameter {name} must be > 0; got {value}.")
+    """Raises `InputError` on a negative or non-finite parameter, or a non-positive stiffness."""
+    check_finite_nonnegative("hooke", p, PARAM_NAMES, positive=("kn", "wall_kn"))
 
 
 def law(rotation: bool = True) -> ContactLaw:

@@ -72,7 +72,15 @@ PAPER_SETTING = {
     "ramp_steps": 20_000,
     "speed_tolerance": 1.0e-5,
     "max_steps": 400_000,
-    "params": {"hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0}},
+    "params": {
+        "hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
+        # the same static set-up in reduced units: Hertz with a 4e-3 sigma base
+        # overlap; Baxter's n = 36 law, whose long tail makes same-level
+        # neighbours push apart with ~mg, needs disk friction for the lattice to
+        # stand (so it is not the 1992 frictionless analytic pile)
+        "lee-herrmann": {"kn": 1.0e5, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
+        "baxter": {"n": 36.0, "r0": 1.2, "mu": 1.0, "wall_mu": 1.0},
+    },
 }
 
 

@@ -1,0 +1,178 @@
+"""Baxter, Tuzun, Burnell & Heyes 1997: a continuous, long-tailed normal force
+with an accumulated tangential displacement.
+
+For disks i, j with mean diameter sigma_ij = a_i + a_j, centre distance r,
+n = (x_i - x_j) / r and t = z x n:
+
+  normal (eq. 3):  F^N = F_e^N(r) - C_N(r) (v . n),
+                   F_e^N(r) = mg (sigma_ij / r)^{n+1} for r < r0 sigma_ij, else 0
+  damping:         C_N = f 2 sqrt(m k(r)),  k(r) = -dF_e^N/dr = (n+1) F_e^N / r,
+                   f = 0.5 (50% of critical)
+  tangential (eqs. 4-5):
+                   F^T = -sign(delta_F) mu F_e^N [1 - (1 - |delta_F|/delta_max)^{3/2}]
+                         - C_T (v_t),
+  displacement (eq. 6): delta_F = integral of the contact points' relative
+                   tangential velocity since the pair engaged at r = r0 sigma_ij,
+  delta_max = alpha mu delta_N, delta_N = r0 sigma_ij - r, alpha = 1.214;
+                   at |delta_F| = delta_max the contact slides grossly:
+                   F^T = mu F_e^N and delta_F is held at +-delta_max,
+  stiffness (eq. 7): k_T = 3 mu F_e^N / (2 delta_max) (1 - |delta_F|/delta_max)^{1/2},
+  damping (eq. 8): C_T = f 2 sqrt(m k_T).
+
+Three readings of the printed equations, each needed for the law to make sense:
+- The exponent's sign. The text's form would give a force that grows with r. It
+  must fall with r and equal mg at r = sigma, so that two disks stacked under
+  gravity rest at exactly r = sigma.
+- The lever arm in eq. 6. It says (theta_i' + theta_j') r_ij. A contact at
+  distance r has lever arms r a_i / (a_i + a_j) and r a_j / (a_i + a_j) (r/2
+  each for equal disks), and those are used for both the displacement and the
+  torque (eq. 13).
+- The mass in C_c = 2 sqrt(m k). It is taken as 2 m_i m_j / (m_i + m_j) (the
+  paper's m for equal disks, and the same on both sides of a pair). Against a
+  wall or a fixed disk this gives 2 m_i.
+
+Walls act as partners of zero radius: sigma_ij = a_i, so a disk rests on the
+ground with its centre exactly a_i above it.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+from jax_md import dataclasses
+
+from jaxpile.errors import InputError
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, dot2,
+                               normal_and_distance, perp, safe_sqrt)
+
+Array = Any
+NAME = "baxter"
+PARAM_NAMES = ("n", "r0", "mu", "alpha", "damping_fraction", "weight", "wall_mu")
+
+
+@dataclasses.dataclass
+class Params:
+    """Parameters of eqs. 3-8.
+
+    Attributes:
+      n: the force-law index (float, so it can be fitted): F ~ r^{-(n+1)}.
+      r0: cut-off as a multiple of sigma_ij (1.2 in the paper; 1.047 with n = 144).
+      mu: friction coefficient.
+      alpha: delta_max = alpha mu delta_N (1.214 in the paper).
+      damping_fraction: fraction f of critical damping (0.5 in the paper).
+      weight: mg, the force at r = sigma_ij (1 in reduced units).
+      wall_mu: friction against walls (`None` = mu).
+    """
+
+    n: Array
+    r0: Array
+    mu: Array
+    alpha: Array
+    damping_fraction: Array
+    weight: Array
+    wall_mu: Array = None
+
+
+def make_params(n=36.0, r0=1.2, mu=0.5, alpha=1.214, damping_fraction=0.5, weight=1.0, *, wall_mu=None,
+                dtype=None) -> Params:
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    values = dict(n=n, r0=r0, mu=mu, alpha=alpha, damping_fraction=damping_fraction, weight=weight, wall_mu=wall_mu)
+    return Params(**{k: None if v is None else jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+def paper_params(n: float = 36.0, r0: float | None = None, mu: float = 0.5, dtype=None) -> Params:
+    """The paper's settings: n = 36 with r0 = 1.2 sigma; for n = 144 the paper's
+    short tail r0 = 1.047 sigma is the default (pass r0 = 1.2 for the long tail)."""
+    if r0 is None:
+        r0 = 1.047 if n == 144 else 1.2
+    return make_params(n=n, r0=r0, mu=mu, dtype=dtype)
+
+
+def wall_params(p: Params) -> Params:
+    return p.set(mu=p.mu if p.wall_mu is None else p.wall_mu, wall_mu=None)
+
+
+def normal_force(p: Params, r, sigma):
+    """F_e^N(r) = mg (sigma / r)^{n+1} inside the cut-off, 0 beyond (eq. 3)."""
+    inside = (r < p.r0 * sigma) & (r > 0)
+    ratio = sigma / jnp.where(inside, r, sigma)
+    return jnp.where(inside, p.weight * jnp.exp((p.n + 1.0) * jnp.log(ratio)), 0.0)
+
+
+def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+    """Eqs. 3-8 for one pair; `history[0]` is delta_F."""
+    n_hat, r = normal_and_distance(g.displacement)
+    sigma = g.radius_i + g.radius_j
+    cutoff = p.r0 * sigma
+    engaged = (r < cutoff) & (r > 0)
+    t_hat = perp(n_hat)
+    m_ref = 2.0 * g.effective_mass
+
+    f_elastic = normal_force(p, r, sigma)
+    stiffness = (p.n + 1.0) * f_elastic / jnp.where(engaged, r, 1.0)
+    v_n = dot2(g.velocity, n_hat)
+    f_n = f_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * stiffness) * v_n  # (3)
+
+    # contact lever arms: the contact point divides r in the ratio of the radii
+    lever_i = r * g.radius_i / sigma
+    lever_j = r * g.radius_j / sigma
+    v_t = dot2(g.velocity, t_hat) - (g.angular_velocity_i * lever_i + g.angular_velocity_j * lever_j)  # (6)
+
+    delta_max = p.alpha * p.mu * jnp.maximum(cutoff - r, 0.0)
+    delta = jnp.clip(history[0] + v_t * dt, -delta_max, delta_max)  # gross sliding holds it at delta_max
+    reserve = jnp.where(delta_max > 0, 1.0 - jnp.abs(delta) / jnp.where(delta_max > 0, delta_max, 1.0), 0.0)
+    mobilised = 1.0 - reserve * safe_sqrt(reserve)
+    f_t_elastic = -jnp.sign(delta) * p.mu * f_elastic * mobilised  # (5)
+    k_t = 1.5 * p.mu * f_elastic / jnp.where(delta_max > 0, delta_max, 1.0) * safe_sqrt(reserve)  # (7)
+    f_t = f_t_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * k_t) * v_t  # (4), (8)
+
+    force = f_n * n_hat + f_t * t_hat
+    torque = -lever_i * f_t  # (-lever_i n) x (f_t t)
+    return contact_result(engaged, force, torque, delta[None], f_n)
+
+
+def hooke_equivalent(n: float, r0: float, r_min: float, sigma: float = 1.0, weight: float = 1.0) -> float:
+    """Eq. 14: the Hooke constant k doing the same work between r0 and the
+    smallest separation r_min as F_e^N, 0.5 k (sigma - r_min)^2 = int_{r_min}^{r0} F_e^N dr.
+    (The printed integral runs from r0 to r_i; the work is positive this way.)
+
+    Args:
+      n, r0: the law (r0 as a multiple of sigma).
+      r_min: smallest separation observed (< sigma).
+    """
+    if not 0 < r_min < sigma:
+        raise InputError(f"r_min must be between 0 and sigma = {sigma}; got {r_min}.")
+    work = weight * sigma / n * ((sigma / r_min) ** n - (1.0 / r0) ** n)
+    return 2.0 * work / (sigma - r_min) ** 2
+
+
+def interaction_range(p: Params, radius_i, radius_j) -> float:
+    return float(p.r0) * (radius_i + radius_j)
+
+
+def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
+    """Estimate with the force law's stiffness k(r) at r = 0.95 sigma (a deep
+    overlap for n = 36) and the lattice factor 8 k / m; damping is at most
+    critical, which the undamped limit already covers to within a factor 2."""
+    r = 0.95
+    k = (float(p.n) + 1.0) * float(p.weight) * r ** (-(float(p.n) + 2.0)) / (2.0 * min_radius)
+    return 2.0 / math.sqrt(8.0 * k / min_mass) / 2.0
+
+
+def validate(p: Params) -> None:
+    check_finite_nonnegative(NAME, p, PARAM_NAMES)
+    if bool(jnp.any(jnp.asarray(p.n) <= 0)):
+        raise InputError(f"{NAME} parameter n must be > 0; got {p.n}.")
+    if bool(jnp.any(jnp.asarray(p.r0) <= 1)):
+        raise InputError(f"{NAME} parameter r0 must be > 1 (a cut-off beyond contact); got {p.r0}.")
+    if bool(jnp.any(jnp.asarray(p.weight) <= 0)):
+        raise InputError(f"{NAME} parameter weight must be > 0; got {p.weight}.")
+
+
+def law(rotation: bool = True) -> ContactLaw:
+    """The Baxter et al. law (disks rotate, eqs. 10, 12, 13)."""
+    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=pair_force,
+                      wall_params=wall_params, interaction_range=interaction_range,
+                      stable_time_step=stable_time_step, validate=validate, params_type=Params)

@@ -1,0 +1,139 @@
+"""Lee & Herrmann 1993: Hertzian repulsion with Cundall-Strack static friction.
+
+For disks i, j (radii a_i, a_j), r = R_i - R_j, n = r / |r|, s = n rotated by
+pi/2 clockwise, relative velocity v = V_i - V_j and effective mass
+m_e = m_i m_j / (m_i + m_j), the force on i is F = F_n n + F_s s (eq. 1) with
+
+  F_n = k_n (a_i + a_j - r)^{3/2} - gamma_n m_e (v . n)                      (2a)
+  F_s = -gamma_s m_e (v . s) - sign(delta_s) min(k_s |delta_s|, mu F_n)      (2b)
+
+delta_s is the total shear displacement since the contact formed (the integral of
+v . s over the contact's life), removed when the contact breaks. As the paper
+writes it, delta_s keeps growing while the pair slides (only the force is capped
+at mu F_n); a reversal must first undo that displacement. The cap uses
+max(F_n, 0): the paper does not say what happens when damping makes F_n < 0.
+
+Walls have the same form with a_j = 0 and m_j = infinity (m_e = m_i), with their
+own stiffness (`wall_kn`, 2e6 in the paper). The paper's particles do not rotate:
+`law()` freezes rotation by default; with `rotation=True` the spins enter the
+contact velocity and F_s exerts a torque, as for the other laws.
+
+Units: the paper's values (`paper_params`) are in its own units (cgs-like: radii
+around 0.1). It gives neither g nor the density; the protocols using this preset
+state their choice.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+from jax_md import dataclasses
+
+from jaxpile.errors import InputError
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, dot2,
+                               normal_and_distance, perp, safe_sqrt)
+
+Array = Any
+NAME = "lee-herrmann"
+PARAM_NAMES = ("kn", "ks", "gamma_n", "gamma_s", "mu", "wall_kn", "wall_ks", "wall_gamma_n", "wall_gamma_s", "wall_mu")
+
+
+@dataclasses.dataclass
+class Params:
+    """Parameters of eqs. 2a-2b.
+
+    Attributes:
+      kn: Hertzian stiffness (force / length^{3/2}).
+      ks: shear spring stiffness (force / length).
+      gamma_n, gamma_s: damping rates (1 / time), force = gamma m_e v.
+      mu: Coulomb friction coefficient.
+      wall_*: the same against walls; `None` = the disk value.
+    """
+
+    kn: Array
+    ks: Array
+    gamma_n: Array
+    gamma_s: Array
+    mu: Array
+    wall_kn: Array = None
+    wall_ks: Array = None
+    wall_gamma_n: Array = None
+    wall_gamma_s: Array = None
+    wall_mu: Array = None
+
+
+def make_params(kn=1.0e6, ks=None, gamma_n=5.0e2, gamma_s=None, mu=0.2, *, dtype=None, **wall) -> Params:
+    """Parameters, with the paper's ratios for what is left out: k_s = k_n / 100
+    and gamma_s = gamma_n / 100."""
+    unknown = set(wall) - set(PARAM_NAMES[5:])
+    if unknown:
+        raise InputError(f"unknown {NAME} parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    values = dict(kn=kn, ks=kn / 100.0 if ks is None else ks, gamma_n=gamma_n,
+                  gamma_s=gamma_n / 100.0 if gamma_s is None else gamma_s, mu=mu, **wall)
+    return Params(**{k: None if v is None else jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+def paper_params(dtype=None) -> Params:
+    """Lee & Herrmann 1993, sec. 3: k_n = 1e6, k_s = 1e4, gamma_n = 5e2,
+    gamma_s = gamma_n / 100, mu = 0.2, walls k_n = 2e6 (paper units)."""
+    return make_params(kn=1.0e6, ks=1.0e4, gamma_n=5.0e2, gamma_s=5.0, mu=0.2, wall_kn=2.0e6, dtype=dtype)
+
+
+def wall_params(p: Params) -> Params:
+    pick = lambda w, d: d if w is None else w
+    return Params(kn=pick(p.wall_kn, p.kn), ks=pick(p.wall_ks, p.ks), gamma_n=pick(p.wall_gamma_n, p.gamma_n),
+                  gamma_s=pick(p.wall_gamma_s, p.gamma_s), mu=pick(p.wall_mu, p.mu))
+
+
+def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+    """Eqs. 1, 2a, 2b for one pair; `history[0]` is delta_s."""
+    n, r = normal_and_distance(g.displacement)
+    overlap = g.radius_i + g.radius_j - r
+    in_contact = (overlap > 0) & (r > 0)
+    s = -perp(n)  # n rotated by pi/2 clockwise
+    spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
+    v_n = dot2(g.velocity, n)
+    v_s = dot2(g.velocity, s) + spin  # contact points' relative velocity along s
+
+    compression = jnp.where(in_contact, overlap, 0.0)
+    f_n = p.kn * compression * safe_sqrt(compression) - p.gamma_n * g.effective_mass * v_n  # (2a)
+    delta_s = history[0] + v_s * dt
+    static = jnp.minimum(p.ks * jnp.abs(delta_s), p.mu * jnp.maximum(f_n, 0.0))
+    f_s = -p.gamma_s * g.effective_mass * v_s - jnp.sign(delta_s) * static  # (2b)
+
+    force = f_n * n + f_s * s
+    torque = g.radius_i * f_s  # (-a_i n) x (f_s s), z component
+    return contact_result(in_contact, force, torque, delta_s[None], f_n)
+
+
+def interaction_range(p: Params, radius_i, radius_j) -> float:
+    return radius_i + radius_j
+
+
+def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
+    """Velocity-Verlet limit estimated with the Hertz contact's tangent stiffness
+    1.5 k_n sqrt(delta) at a deep overlap delta = 5% of the smallest radius, and
+    the lattice factor 8 k / m of the hooke law."""
+    w = wall_params(p)
+    delta = 0.05 * min_radius
+    k = max(1.5 * max(float(p.kn), float(w.kn)) * math.sqrt(delta), float(p.ks), float(w.ks))
+    gamma = max(float(p.gamma_n), float(p.gamma_s), float(w.gamma_n), float(w.gamma_s))
+    limits = [2.0 / math.sqrt(8.0 * k / min_mass)]
+    if gamma > 0:
+        limits.append(2.0 / (4.0 * gamma))
+    return min(limits)
+
+
+def validate(p: Params) -> None:
+    """Raises `InputError` on a negative or non-finite parameter, or a non-positive stiffness."""
+    check_finite_nonnegative(NAME, p, PARAM_NAMES, positive=("kn", "wall_kn"))
+
+
+def law(rotation: bool = False) -> ContactLaw:
+    """The Lee-Herrmann law; the paper's disks do not rotate (default)."""
+    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=pair_force,
+                      wall_params=wall_params, interaction_range=interaction_range,
+                      stable_time_step=stable_time_step, validate=validate, params_type=Params)
