@@ -16,12 +16,14 @@ $(STAMP): $(BIN)/python pyproject.toml
 	touch $(STAMP)
 
 # The main job: the 1992 equilateral pile (45 layers, 1035 disks) relaxed with the hooke
-# law and checked against eqs. 42 and 44; then the same pile with disk-disk friction
-# (mu = 0.1), whose base forces depend on how the pile was loaded.
+# law and checked against eqs. 42 and 44; the same pile with disk-disk friction
+# (mu = 0.1), whose base forces depend on how the pile was loaded; and the pile with
+# the paper's own law (viscous friction, static well at the ground).
 demo: $(STAMP)
 	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law hooke --out $(DEMO)/lattice
 	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law hooke --set mu=0.1 --out $(DEMO)/lattice_mu0.1
-	$(BIN)/jaxpile compare $(DEMO)/lattice $(DEMO)/lattice_mu0.1
+	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law liffman --out $(DEMO)/lattice_liffman
+	$(BIN)/jaxpile compare $(DEMO)/lattice $(DEMO)/lattice_mu0.1 $(DEMO)/lattice_liffman
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

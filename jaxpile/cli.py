@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--protocol", default="lattice", choices=["lattice"],
                       help="how the pile is built (lattice: the 1992 equilateral pile)")
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
-    pile.add_argument("--law", default="hooke", help="contact law: hooke, lee-herrmann, baxter")
+    pile.add_argument("--law", default="hooke", help="contact law: hooke, liffman, lee-herrmann, baxter")
     pile.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a law parameter (repeatable)")
     pile.add_argument("--rotation", type=_on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
@@ -158,7 +158,8 @@ def run_pile(args) -> dict:
     io.write_csv(os.path.join(out, "base_forces.csv"), {"x": base.x, "normal": base.normal, "horizontal": base.horizontal})
     io.save_state(os.path.join(out, "state.npz"), state, law=law.name, params=summary["params"], dt=dt,
                   rotation=rotation, precision=args.precision)
-    title = f"{layers}-layer lattice pile, {law.name} law, mu = {summary['params'].get('mu', float('nan')):g}"
+    mu = summary["params"].get("mu")
+    title = f"{layers}-layer lattice pile, {law.name} law" + ("" if mu is None else f", mu = {mu:g}")
     plot.pile_figure(state.particles.position, state.particles.radius, network, title=title,
                      path=os.path.join(out, "pile.png"))
     h_theory = check["theory_horizontal"] if check["pile_intact"] else None
@@ -199,11 +200,12 @@ def compare_table(dirs) -> str:
         with open(path) as f:
             s = json.load(f)
         rows.append((d, s))
-    head = f"{'run':32s} {'disks':>6s} {'mu':>5s} {'rot':>4s} {'steps':>8s} {'p-steps/s':>10s} {'dev N':>8s} {'dev H':>8s}"
+    head = (f"{'run':32s} {'law':>12s} {'disks':>6s} {'mu':>5s} {'rot':>4s} {'steps':>8s} {'p-steps/s':>10s} "
+            f"{'dev N':>8s} {'dev H':>8s}")
     lines = [head, "-" * len(head)]
     for d, s in rows:
         lines.append(
-            f"{d:32s} {s['n_particles']:6d} {s['params'].get('mu', float('nan')):5.2f} "
+            f"{d:32s} {s['law']:>12s} {s['n_particles']:6d} {s['params'].get('mu', float('nan')):5.2f} "
             f"{'on' if s['rotation'] else 'off':>4s} {s['steps']:8d} {s['particle_steps_per_second']:10.3g} "
             f"{s['max_rel_dev_normal']:8.2%} {s['max_rel_dev_horizontal']:8.2%}"
         )

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 from jaxpile.errors import InputError
-from jaxpile.laws import baxter, hooke, lee_herrmann
+from jaxpile.laws import baxter, hooke, lee_herrmann, liffman
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
 
-LAWS = {"hooke": hooke, "lee-herrmann": lee_herrmann, "baxter": baxter}
+LAWS = {"hooke": hooke, "liffman": liffman, "lee-herrmann": lee_herrmann, "baxter": baxter}
 
 
 def get_law_module(name: str):
@@ -17,4 +17,4 @@ def get_law_module(name: str):
         raise InputError(f"unknown law {name!r}; known laws: {sorted(LAWS)}.") from None
 
 
-__all__ = ["ContactLaw", "PairForce", "PairGeometry", "LAWS", "baxter", "get_law_module", "hooke", "lee_herrmann"]
+__all__ = ["ContactLaw", "PairForce", "PairGeometry", "LAWS", "baxter", "get_law_module", "hooke", "lee_herrmann", "liffman"]

@@ -78,6 +78,9 @@ PAPER_SETTING = {
         # overlap; Baxter's n = 36 law, whose long tail makes same-level
         # neighbours push apart with ~mg, needs disk friction for the lattice to
         # stand (so it is not the 1992 frictionless analytic pile)
+        # the paper's own law: K_s from eq. 46; disk friction is viscous, so it
+        # vanishes at rest and the ground's static well holds the base
+        "liffman": {"ks": 1.0e4, "mu_static": 1.0},
         "lee-herrmann": {"kn": 1.0e5, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
         "baxter": {"n": 36.0, "r0": 1.2, "mu": 1.0, "wall_mu": 1.0},
     },

@@ -1,0 +1,146 @@
+"""Liffman, Chan & Hughes 1992: linear spring with viscous sliding friction,
+rolling friction and a static-friction well at the ground (soft contacts).
+
+For disks 1, 2 with n = (x_1 - x_2) / r (Fig. 3) and t = z x n (eqs. 34-35):
+
+  normal (eqs. 23-26):  F_n = K_s (a_1 + a_2 - r) - K_D V_norm,  V_norm = (v_1 - v_2) . n
+  sliding (eqs. 27-28): F_slip = -K_slip v_tang,
+                        v_tang = (v_1 - v_2) . t - r_1 w_1 - r_2 w_2
+  rolling (eq. 29):     F_roll = -mu_roll |F_n| sign(v_tang)
+  tangential (eq. 32):  F_t = the smaller in magnitude of F_slip and F_roll
+  torque (eq. 36):      tau_1 = -r_1 F_slip (the paper's sigma F_slip / 2 with our
+                        counter-clockwise sign convention)
+  ground (eqs. 30, 33): F_t += -(mu_static N / a) (x - x_0) while |x - x_0| <= a,
+                        N = max(F_n, 0), x_0 the disk's position when it came to rest
+                        on the ground; beyond a the well breaks (no force) until
+                        the disk rests again.
+
+The paper's normal spring uses the time-averaged separation (r_{k+1} + r_k)/2
+(eq. 24), solved implicitly; this kernel is the explicit form K_s (sigma - r_k).
+The time-averaged implicit integrator is not implemented yet.
+
+The well is per-contact history of each disk against each wall:
+`[anchored, x - x_0]`. A disk anchors when it touches the wall with a centre speed
+along the wall below `rest_speed`. x - x_0 then integrates the centre's velocity
+along the wall, not the contact point's. The paper has the well at the ground
+only; here it acts at every wall, which is the same for its set-ups. Disk pairs
+carry no history.
+
+Only K_s is given in the paper (eq. 46: mg / (K_s sigma) = 1e-4). `paper_params`
+takes our choices for the rest, and says so.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+from jax_md import dataclasses
+
+from jaxpile.errors import InputError
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, dot2,
+                               normal_and_distance, perp)
+
+Array = Any
+NAME = "liffman"
+PARAM_NAMES = ("ks", "kd", "k_slip", "mu_roll", "mu_static", "well_width", "rest_speed")
+
+
+@dataclasses.dataclass
+class Params:
+    """Parameters of eqs. 25-33.
+
+    Attributes:
+      ks: K_s, normal spring constant (mg / sigma).
+      kd: K_D, normal damping constant (force / velocity, not mass-scaled).
+      k_slip: K_slip, viscous sliding friction constant (force / velocity).
+      mu_roll: rolling friction coefficient.
+      mu_static: static friction coefficient of the ground well.
+      well_width: a, half-width of the well (sigma).
+      rest_speed: a disk touching a wall anchors its well when its centre moves
+        along the wall slower than this (sqrt(g sigma)).
+    """
+
+    ks: Array
+    kd: Array
+    k_slip: Array
+    mu_roll: Array
+    mu_static: Array
+    well_width: Array
+    rest_speed: Array
+
+
+def make_params(ks=1.0e4, kd=50.0, k_slip=50.0, mu_roll=0.1, mu_static=1.0, well_width=0.05, rest_speed=1.0e-3,
+                *, dtype=None) -> Params:
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    values = dict(ks=ks, kd=kd, k_slip=k_slip, mu_roll=mu_roll, mu_static=mu_static, well_width=well_width,
+                  rest_speed=rest_speed)
+    return Params(**{k: jnp.asarray(v, dtype) for k, v in values.items()})
+
+
+def paper_params(dtype=None) -> Params:
+    """K_s from eq. 46 (mg / (K_s sigma) = 1e-4). The paper gives no values for
+    K_D, K_slip, mu_roll, mu_static or a: ours are K_D = K_slip = 50 mg/sqrt(g sigma)
+    (about 0.35 of critical for a disk pair), mu_roll = 0.1, mu_static = 1 (the
+    45-layer pile needs more than 0.55) and a = 0.05 sigma."""
+    return make_params(dtype=dtype)
+
+
+def wall_params(p: Params) -> Params:
+    return p
+
+
+def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+    """Eqs. 25-33 for one pair; against a wall (radius_j = 0) with the well."""
+    n, r = normal_and_distance(g.displacement)
+    in_contact = (r < g.radius_i + g.radius_j) & (r > 0)
+    t = perp(n)
+    f_n = p.ks * (g.radius_i + g.radius_j - r) - p.kd * dot2(g.velocity, n)  # (25)
+    v_centre = dot2(g.velocity, t)
+    v_tang = v_centre - g.radius_i * g.angular_velocity_i - g.radius_j * g.angular_velocity_j  # (28)
+    f_slip = -p.k_slip * v_tang  # (27)
+    f_roll = -p.mu_roll * jnp.abs(f_n) * jnp.sign(v_tang)  # (29)
+    f_t = jnp.where(jnp.abs(f_slip) <= jnp.abs(f_roll), f_slip, f_roll)  # (32)
+
+    # the static well (eqs. 30, 33), only against walls
+    wall = g.radius_j == 0
+    anchored = history[0] > 0.5
+    anchored = anchored | (wall & in_contact & (jnp.abs(v_centre) < p.rest_speed))
+    offset = jnp.where(anchored & (history[0] > 0.5), history[1] + v_centre * dt, 0.0)
+    inside = wall & anchored & (jnp.abs(offset) <= p.well_width)
+    f_static = jnp.where(inside, -p.mu_static * jnp.maximum(f_n, 0.0) / p.well_width * offset, 0.0)
+    f_t = f_t + f_static  # (33)
+    new_history = jnp.stack([jnp.where(inside, 1.0, 0.0), jnp.where(inside, offset, 0.0)])
+
+    force = f_n * n + f_t * t  # (34)-(35)
+    torque = -g.radius_i * f_slip  # (36)
+    return contact_result(in_contact, force, torque, new_history, f_n)
+
+
+def interaction_range(p: Params, radius_i, radius_j) -> float:
+    return radius_i + radius_j
+
+
+def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
+    """The hooke estimate with K_s, and K_D, K_slip as damping rates per unit mass."""
+    omega = math.sqrt(8.0 * float(p.ks) / min_mass)
+    gamma = max(float(p.kd), float(p.k_slip)) / min_mass
+    limits = [2.0 / omega]
+    if gamma > 0:
+        limits.append(2.0 / (4.0 * gamma))
+    return min(limits)
+
+
+def validate(p: Params) -> None:
+    check_finite_nonnegative(NAME, p, PARAM_NAMES, positive=("ks", "well_width"))
+
+
+def law(rotation: bool = True) -> ContactLaw:
+    """The 1992 soft-contact law (two history values per contact: the well)."""
+    return ContactLaw(name=NAME, history_size=2, rotation=bool(rotation), pair_force=pair_force,
+                      wall_params=wall_params, interaction_range=interaction_range,
+                      stable_time_step=stable_time_step, validate=validate, params_type=Params)
+
+
+__all__ = ["NAME", "PARAM_NAMES", "Params", "law", "make_params", "paper_params", "pair_force"]
