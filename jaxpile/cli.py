@@ -54,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--rotation", type=_on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
     pile.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
+    pile.add_argument("--integrator", default="velocity_verlet", choices=["velocity_verlet", "leapfrog"],
+                      help="time integrator (leapfrog: Baxter et al. 1997 eqs. 9-12)")
     pile.add_argument("--seed", type=int, default=0, help="random seed (the lattice pile is deterministic)")
     pile.add_argument("--max-steps", type=int, default=None, help="step budget for loading and relaxing")
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
@@ -116,7 +118,7 @@ def run_pile(args) -> dict:
         raise InputError(f"--max-steps must be >= 1; got {max_steps}.")
     print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
           f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
-    sim = Simulator(law, dt, schedule=gravity_ramp(ramp))
+    sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator)
     state = sim.init(params, particles, boundaries)
     t0 = time.perf_counter()
     state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
@@ -134,6 +136,7 @@ def run_pile(args) -> dict:
         "n_particles": int(particles.count),
         "params": {k: float(v) for k, v in vars(params).items() if v is not None},
         "dt": dt,
+        "integrator": args.integrator,
         "precision": args.precision,
         "seed": args.seed,
         "steps": int(info.steps),

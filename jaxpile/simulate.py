@@ -24,7 +24,7 @@ from jax import lax
 
 from jaxpile import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.integrators import velocity_verlet
+from jaxpile.integrators import INTEGRATORS
 from jaxpile.interactions import ContactForces, evaluate, external_force
 from jaxpile.laws.base import ContactLaw
 from jaxpile.state import Boundaries, Contacts, Particles, SimState
@@ -47,8 +47,9 @@ def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
     return c.set(partner=idx, history=history)
 
 
-def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None) -> Callable[[Any, SimState], SimState]:
-    """A pure, jittable `step(params, state) -> state` (velocity Verlet).
+def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
+              integrator: str = "velocity_verlet") -> Callable[[Any, SimState], SimState]:
+    """A pure, jittable `step(params, state) -> state`.
 
     Args:
       law: the contact law.
@@ -56,11 +57,17 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None) -> C
       schedule: optional `state -> Boundaries`, the boundaries in force during
         the step (e.g. `gravity_ramp`); it reads the stored boundaries and the
         step count and leaves the stored boundaries as they are.
+      integrator: `velocity_verlet` (forces at t + dt) or `leapfrog` (Baxter et
+        al. 1997 eqs. 9-12, forces at t); see `jaxpile.integrators`.
     """
+    if integrator not in INTEGRATORS:
+        raise InputError(f"unknown integrator {integrator!r}; known: {sorted(INTEGRATORS)}.")
+    advance = INTEGRATORS[integrator]
+    # velocity Verlet evaluates forces at t + dt, leapfrog at t
+    force_step = 1 if integrator == "velocity_verlet" else 0
 
     def step(params, state: SimState) -> SimState:
-        # forces are evaluated at t + dt, under the boundaries scheduled for step + 1
-        boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + 1))
+        boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + force_step))
 
         def forces_at(p: Particles):
             neighbors = state.neighbors.update(p.position)
@@ -70,7 +77,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None) -> C
             force = cf.force + external_force(p, boundaries)
             return force, cf.torque, (neighbors, contacts)
 
-        particles, (neighbors, contacts) = velocity_verlet(state.particles, dt, law.rotation, forces_at)
+        particles, (neighbors, contacts) = advance(state.particles, dt, law.rotation, forces_at)
         return state.set(particles=particles, contacts=contacts, neighbors=neighbors, step=state.step + 1)
 
     return step
@@ -142,6 +149,7 @@ class Simulator:
       dt: the time step.
       schedule: optional `state -> Boundaries` in force at each step (see
         `make_step`), e.g. `gravity_ramp(steps)`.
+      integrator: `velocity_verlet` (default) or `leapfrog`.
       skin: neighbour-list skin (default: 20% of the largest diameter).
       capacity_multiplier: head-room of the neighbour slots at allocation.
       chunk_steps: steps per compiled chunk between host checks.
@@ -155,6 +163,7 @@ class Simulator:
         dt: float,
         *,
         schedule: Callable | None = None,
+        integrator: str = "velocity_verlet",
         skin: float | None = None,
         capacity_multiplier: float = 1.5,
         chunk_steps: int = 1000,
@@ -177,7 +186,8 @@ class Simulator:
         self.chunk_steps = int(chunk_steps)
         self.max_initial_overlap = max_initial_overlap
         self.schedule = schedule
-        self.step = make_step(law, self.dt, schedule)
+        self.integrator = integrator
+        self.step = make_step(law, self.dt, schedule, integrator)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
         self._compiled: dict = {}
@@ -231,7 +241,10 @@ class Simulator:
         )
         state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings)
         self._check_overlaps(params, state)
-        return self._refresh_jit(params, state)
+        state = self._refresh_jit(params, state)
+        if self.integrator == "leapfrog":
+            state = _half_kick_back(state, self.dt, self.law.rotation)
+        return state
 
     def boundaries_at(self, state: SimState) -> Boundaries:
         """The boundaries in force at the state's step (the schedule applied)."""
@@ -408,6 +421,16 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
+
+
+def _half_kick_back(state: SimState, dt: float, rotation: bool) -> SimState:
+    """Leapfrog start: the velocities given for t = 0 become v(-dt/2) = v(0) - F(0) dt / 2m."""
+    p = state.particles
+    inv_m = jnp.where(p.movable, 1.0 / p.mass, 0.0)
+    p = p.set(velocity=p.velocity - 0.5 * dt * p.force * inv_m[:, None])
+    if rotation:
+        p = p.set(angular_velocity=p.angular_velocity - 0.5 * dt * p.torque * jnp.where(p.movable, 1.0 / p.inertia, 0.0))
+    return state.set(particles=p)
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:

@@ -14,10 +14,10 @@ from jaxpile.simulate import Simulator
 from conftest import random_disks
 
 
-def _disk_on_ground(y, *, params, dt, tilt=0.0, rotation=True):
+def _disk_on_ground(y, *, params, dt, tilt=0.0, rotation=True, integrator="velocity_verlet"):
     particles = jaxpile.make_particles([[3.0, y]], 0.5)
     boundaries = jaxpile.make_boundaries(tilt_degrees=tilt)
-    sim = Simulator(hooke.law(rotation=rotation), dt=dt, chunk_steps=500)
+    sim = Simulator(hooke.law(rotation=rotation), dt=dt, chunk_steps=500, integrator=integrator)
     return sim, sim.init(params, particles, boundaries)
 
 
@@ -29,8 +29,10 @@ def test_disk_resting_on_ground_sinks_by_mg_over_kn():
     assert 0.5 - float(state.particles.position[0, 1]) == pytest.approx(1.0 / 1e4, rel=1e-6)
 
 
-def test_velocity_verlet_error_shrinks_as_dt_squared():
-    """A disk oscillating on the ground spring (never leaving it): y(t) = y_eq + A cos(w t)."""
+@pytest.mark.parametrize("integrator", ["velocity_verlet", "leapfrog"])
+def test_integrator_error_shrinks_as_dt_squared(integrator):
+    """A disk oscillating on the ground spring (never leaving it): y(t) = y_eq + A cos(w t).
+    Velocity Verlet and the leapfrog of Baxter et al. 1997 (eqs. 9-12) are both second order."""
     kn = 1e4
     params = hooke.make_params(kn=kn, gamma_n=0.0, mu=0.0)
     y_eq = 0.5 - 1.0 / kn
@@ -39,7 +41,7 @@ def test_velocity_verlet_error_shrinks_as_dt_squared():
     errors = []
     dts = [8e-4, 4e-4, 2e-4, 1e-4]
     for dt in dts:
-        sim, state = _disk_on_ground(y_eq + amplitude, params=params, dt=dt)
+        sim, state = _disk_on_ground(y_eq + amplitude, params=params, dt=dt, integrator=integrator)
         state = sim.run(params, state, int(round(t_end / dt)), progress=False)
         exact = y_eq + amplitude * math.cos(math.sqrt(kn) * t_end)
         errors.append(abs(float(state.particles.position[0, 1]) - exact))
@@ -121,3 +123,15 @@ def test_disk_rolls_down_tilted_plane_with_two_thirds_g_sin_theta():
     v = float(state.particles.velocity[0, 0])
     w = float(state.particles.angular_velocity[0])
     assert v == pytest.approx(-w * 0.5, rel=1e-3)  # rolling: v = -omega r (clockwise spin)
+
+
+def test_leapfrog_and_velocity_verlet_agree_on_a_settled_disk():
+    """Both integrators bring a damped disk to the same rest height mg/kn below r."""
+    params = hooke.make_params(kn=1e4, gamma_n=80.0)
+    heights = []
+    for integrator in ("velocity_verlet", "leapfrog"):
+        sim, state = _disk_on_ground(0.5, params=params, dt=1e-3, integrator=integrator)
+        state, info = sim.run_until_rest(params, state, speed_tolerance=1e-9, max_steps=20_000, progress=False)
+        heights.append(float(state.particles.position[0, 1]))
+    assert heights[0] == pytest.approx(heights[1], abs=1e-10)
+    assert 0.5 - heights[0] == pytest.approx(1e-4, rel=1e-6)

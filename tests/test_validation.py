@@ -135,3 +135,8 @@ def test_cli_error_paths(tmp_path, capsys):
     assert "gravity ramp" in capsys.readouterr().err
     assert main(["pile", "--layers", "3", "--speed-tol", "0", "--out", str(tmp_path)]) == 2
     assert "speed_tolerance" in capsys.readouterr().err
+
+
+def test_unknown_integrator():
+    with pytest.raises(InputError, match="unknown integrator 'gear3'"):
+        Simulator(hooke.law(), 1e-4, integrator="gear3")
