@@ -208,7 +208,8 @@ def compare_table(dirs) -> str:
     lines = [head, "-" * len(head)]
     for d, s in rows:
         lines.append(
-            f"{d:32s} {s['law']:>12s} {s['n_particles']:6d} {s['params'].get('mu', float('nan')):5.2f} "
+            f"{d:32s} {s['law']:>12s} {s['n_particles']:6d} "
+            f"{('%5.2f' % s['params']['mu']) if 'mu' in s['params'] else '    -'} "
             f"{'on' if s['rotation'] else 'off':>4s} {s['steps']:8d} {s['particle_steps_per_second']:10.3g} "
             f"{s['max_rel_dev_normal']:8.2%} {s['max_rel_dev_horizontal']:8.2%}"
         )
