@@ -22,13 +22,31 @@ import jax.numpy as jnp
 from jaxpile.state import Particles
 
 
+def kick(p: Particles, force, torque, h, rotation: bool) -> Particles:
+    """Velocities (and spins) of the movable disks advanced by h F / m (h tau / I)."""
+    movable = p.movable
+    p = p.set(velocity=p.velocity + h * force * jnp.where(movable, 1.0 / p.mass, 0.0)[:, None])
+    if rotation:
+        p = p.set(angular_velocity=p.angular_velocity + h * torque * jnp.where(movable, 1.0 / p.inertia, 0.0))
+    return p
+
+
+def drift(p: Particles, dt, rotation: bool) -> Particles:
+    """Positions (and angles) of the movable disks advanced by dt v (dt omega)."""
+    movable = p.movable
+    p = p.set(position=jnp.where(movable[:, None], p.position + dt * p.velocity, p.position))
+    if rotation:
+        p = p.set(angle=jnp.where(movable, p.angle + dt * p.angular_velocity, p.angle))
+    return p
+
+
 def velocity_verlet(
     particles: Particles,
     dt,
     rotation: bool,
     forces_at: Callable[[Particles], tuple],
 ) -> tuple[Particles, object]:
-    """One velocity-Verlet step with rotation.
+    """One velocity-Verlet step with rotation: kick dt/2, drift dt, forces, kick dt/2.
 
     Args:
       particles: the state at t, with `force`/`torque` evaluated at t.
@@ -39,22 +57,10 @@ def velocity_verlet(
     Returns:
       (particles at t + dt, aux from `forces_at`).
     """
-    p = particles
-    movable = p.movable
-    inv_m = jnp.where(movable, 1.0 / p.mass, 0.0)[:, None]
-    v_half = p.velocity + 0.5 * dt * p.force * inv_m
-    x_new = jnp.where(movable[:, None], p.position + dt * v_half, p.position)
-    if rotation:
-        inv_i = jnp.where(movable, 1.0 / p.inertia, 0.0)
-        w_half = p.angular_velocity + 0.5 * dt * p.torque * inv_i
-        angle = jnp.where(movable, p.angle + dt * w_half, p.angle)
-    else:
-        inv_i, w_half, angle = None, p.angular_velocity, p.angle
-    drifted = p.set(position=x_new, velocity=v_half, angular_velocity=w_half, angle=angle)
-    force, torque, aux = forces_at(drifted)
-    v_new = v_half + 0.5 * dt * force * inv_m
-    w_new = w_half + 0.5 * dt * torque * inv_i if rotation else w_half
-    return drifted.set(velocity=v_new, angular_velocity=w_new, force=force, torque=torque), aux
+    p = drift(kick(particles, particles.force, particles.torque, 0.5 * dt, rotation), dt, rotation)
+    force, torque, aux = forces_at(p)
+    p = kick(p, force, torque, 0.5 * dt, rotation)
+    return p.set(force=force, torque=torque), aux
 
 
 def leapfrog(
@@ -63,7 +69,8 @@ def leapfrog(
     rotation: bool,
     forces_at: Callable[[Particles], tuple],
 ) -> tuple[Particles, object]:
-    """One leapfrog step (Baxter et al. 1997, eqs. 9-12).
+    """One leapfrog step (Baxter et al. 1997, eqs. 9-12): forces at t, kick dt
+    (eqs. 11-12), drift dt (eqs. 9-10).
 
     Args:
       particles: positions at t, velocities and spins at t - dt/2.
@@ -73,19 +80,9 @@ def leapfrog(
     Returns:
       (particles with x(t + dt), v(t + dt/2) and `force`/`torque` = F(t), aux).
     """
-    p = particles
-    movable = p.movable
-    force, torque, aux = forces_at(p)
-    inv_m = jnp.where(movable, 1.0 / p.mass, 0.0)[:, None]
-    v_new = p.velocity + dt * force * inv_m  # (11)
-    x_new = jnp.where(movable[:, None], p.position + dt * v_new, p.position)  # (9)
-    if rotation:
-        w_new = p.angular_velocity + dt * torque * jnp.where(movable, 1.0 / p.inertia, 0.0)  # (12)
-        angle = jnp.where(movable, p.angle + dt * w_new, p.angle)  # (10)
-    else:
-        w_new, angle = p.angular_velocity, p.angle
-    return p.set(position=x_new, velocity=v_new, angular_velocity=w_new, angle=angle, force=force,
-                 torque=torque), aux
+    force, torque, aux = forces_at(particles)
+    p = drift(kick(particles, force, torque, dt, rotation), dt, rotation)
+    return p.set(force=force, torque=torque), aux
 
 
 INTEGRATORS = {"velocity_verlet": velocity_verlet, "leapfrog": leapfrog}

@@ -24,7 +24,7 @@ from jax import lax
 
 from jaxpile import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.integrators import INTEGRATORS
+from jaxpile.integrators import INTEGRATORS, kick
 from jaxpile.interactions import ContactForces, evaluate, external_force
 from jaxpile.laws.base import ContactLaw
 from jaxpile.state import Boundaries, Contacts, Particles, SimState
@@ -426,11 +426,7 @@ class Simulator:
 def _half_kick_back(state: SimState, dt: float, rotation: bool) -> SimState:
     """Leapfrog start: the velocities given for t = 0 become v(-dt/2) = v(0) - F(0) dt / 2m."""
     p = state.particles
-    inv_m = jnp.where(p.movable, 1.0 / p.mass, 0.0)
-    p = p.set(velocity=p.velocity - 0.5 * dt * p.force * inv_m[:, None])
-    if rotation:
-        p = p.set(angular_velocity=p.angular_velocity - 0.5 * dt * p.torque * jnp.where(p.movable, 1.0 / p.inertia, 0.0))
-    return state.set(particles=p)
+    return state.set(particles=kick(p, p.force, p.torque, -0.5 * dt, rotation))
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
