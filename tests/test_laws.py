@@ -295,3 +295,32 @@ def test_eq30_liffman_static_well_holds_then_breaks():
         out = liffman.pair_force(p, g(1.0), history, 1e-3)
         history = out.history
     assert float(history[0]) == 0.0 and float(out.force[1]) == 0.0  # moved past a: the well broke
+
+
+HISTORY_LAWS = {
+    "lee-herrmann": (lee_herrmann.law(), lee_herrmann.make_params(kn=1e5, ks=1.0, gamma_n=0.0, gamma_s=0.0, mu=1e6)),
+    "baxter": (baxter.law(rotation=False), baxter.make_params(mu=1e3, damping_fraction=0.0)),
+}
+
+
+@pytest.mark.parametrize("name", list(HISTORY_LAWS))
+def test_shear_history_survives_neighbor_rebuilds(name):
+    """A disk sliding over a fixed disk: the accumulated shear displacement
+    (delta_s of eq. 2b, delta_F of eq. 6) is the same whether or not the
+    neighbour list was rebuilt on the way (skin 2.0: never; 0.05: several times)."""
+    law, params = HISTORY_LAWS[name]
+    histories = []
+    for skin in (2.0, 0.05):
+        top = 6.0 - (1e-5 ** (2 / 3) if name == "lee-herrmann" else 0.0)
+        particles = jaxpile.make_particles([[5.0, 5.0], [5.0, top]], 0.5, velocity=[[0.0, 0.0], [0.3, 0.0]],
+                                           fixed=[True, False])
+        sim = Simulator(law, dt=1e-4, skin=skin, chunk_steps=500)
+        state = sim.init(params, particles, jaxpile.make_boundaries().set(wall_active=NO_WALLS))
+        reference = np.asarray(state.neighbors.reference_position).copy()
+        state = sim.run(params, state, 2000, progress=False)
+        rebuilt = not np.array_equal(np.asarray(state.neighbors.reference_position), reference)
+        assert rebuilt == (skin < 1.0)
+        slot = int(np.flatnonzero(np.asarray(state.contacts.partner[1]) == 0)[0])
+        histories.append(float(state.contacts.history[1, slot, 0]))
+    assert abs(histories[0]) > 0.02
+    assert histories[1] == pytest.approx(histories[0], rel=1e-10)
