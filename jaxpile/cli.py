@@ -90,7 +90,7 @@ def run_pile(args) -> dict:
     from jaxpile.errors import InputError
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import analysis, io, plot
+    from jaxpile import analysis, io, plot, theory
     from jaxpile.laws import get_law_module
     from jaxpile.protocols import lattice
     from jaxpile.simulate import Simulator, gravity_ramp
@@ -153,7 +153,7 @@ def run_pile(args) -> dict:
         "theory_normal_mg": check["theory_normal"],
         "max_rel_dev_normal": check["max_rel_dev_normal"],
         "max_rel_dev_horizontal": check["max_rel_dev_horizontal"],
-        "ground_friction_needed": lattice_friction_needed(layers),
+        "ground_friction_needed": theory.lattice_ground_friction_needed(layers),
     }
     out = args.out
     os.makedirs(out, exist_ok=True)
@@ -173,12 +173,6 @@ def run_pile(args) -> dict:
     print(_summary_lines(summary), flush=True)
     print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, state.npz, pile.png, profile.png")
     return summary
-
-
-def lattice_friction_needed(layers: int) -> float:
-    from jaxpile import theory
-
-    return theory.lattice_ground_friction_needed(layers)
 
 
 def _summary_lines(s: dict) -> str:

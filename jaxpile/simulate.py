@@ -240,7 +240,7 @@ class Simulator:
             wall_history=jnp.zeros((n, w, h), dtype),
         )
         state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings)
-        self._check_overlaps(params, state)
+        self._check_overlaps(state)
         state = self._refresh_jit(params, state)
         if self.integrator == "leapfrog":
             state = _half_kick_back(state, self.dt, self.law.rotation)
@@ -262,7 +262,7 @@ class Simulator:
         """Every contact's force at the state as stored, without advancing history."""
         return _evaluate_jit(self.law, params, state)
 
-    def _check_overlaps(self, params, state: SimState) -> None:
+    def _check_overlaps(self, state: SimState) -> None:
         p = state.particles
         idx = np.asarray(state.neighbors.idx)
         n = idx.shape[0]

@@ -74,10 +74,9 @@ def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, dtype=
         raise InputError(f"unknown hooke parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
     kt = 2.0 / 7.0 * kn if kt is None else kt
     gamma_t = 0.5 * gamma_n if gamma_t is None else gamma_t
-    cast = (lambda x: None if x is None else jnp.asarray(x, dtype)) if dtype else (
-        lambda x: None if x is None else jnp.asarray(x, jnp.zeros(()).dtype))
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
     values = dict(kn=kn, kt=kt, gamma_n=gamma_n, gamma_t=gamma_t, mu=mu, **wall)
-    return Params(**{k: cast(v) for k, v in values.items()})
+    return Params(**{k: None if v is None else jnp.asarray(v, dtype) for k, v in values.items()})
 
 
 def wall_params(p: Params) -> Params:
