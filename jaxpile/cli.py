@@ -41,6 +41,21 @@ def _on_off(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected on or off, got {text!r}")
 
 
+def _parse_hard_collisions(text):
+    from jaxpile.collisions import HardCollisions
+    from jaxpile.errors import InputError
+
+    if text is None:
+        return None
+    try:
+        eps, mu = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--hard-collisions takes EPS,MU (e.g. 0.5,0.3); got {text!r}.") from None
+    hard = HardCollisions(restitution=eps, mu=mu)
+    hard.check()
+    return hard
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -54,8 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--rotation", type=_on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
     pile.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
-    pile.add_argument("--integrator", default="velocity_verlet", choices=["velocity_verlet", "leapfrog"],
-                      help="time integrator (leapfrog: Baxter et al. 1997 eqs. 9-12)")
+    pile.add_argument("--integrator", default="velocity_verlet",
+                      choices=["velocity_verlet", "leapfrog", "gear", "implicit_midpoint"],
+                      help="time integrator (leapfrog: Baxter et al. 1997 eqs. 9-12; gear: fifth-order "
+                           "predictor-corrector, Lee & Herrmann 1993; implicit_midpoint: Liffman et al. 1992 eq. 24)")
+    pile.add_argument("--hard-collisions", metavar="EPS,MU", default=None,
+                      help="fast approaches collide impulsively with restitution EPS and friction MU "
+                           "(Liffman et al. 1992 eqs. 1-22); default off")
     pile.add_argument("--seed", type=int, default=0, help="random seed (the lattice pile is deterministic)")
     pile.add_argument("--max-steps", type=int, default=None, help="step budget for loading and relaxing")
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
@@ -118,7 +138,11 @@ def run_pile(args) -> dict:
         raise InputError(f"--max-steps must be >= 1; got {max_steps}.")
     print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
           f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
-    sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator)
+    hard = _parse_hard_collisions(args.hard_collisions)
+    if hard is not None:
+        print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g}); "
+              "contacts switch to the soft law by eq. 22", flush=True)
+    sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator, hard_collisions=hard)
     state = sim.init(params, particles, boundaries)
     t0 = time.perf_counter()
     state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
@@ -137,6 +161,7 @@ def run_pile(args) -> dict:
         "params": {k: float(v) for k, v in vars(params).items() if v is not None},
         "dt": dt,
         "integrator": args.integrator,
+        "hard_collisions": None if hard is None else hard._asdict(),
         "precision": args.precision,
         "seed": args.seed,
         "steps": int(info.steps),

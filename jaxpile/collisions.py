@@ -11,9 +11,11 @@ either Coulomb sliding (SLIP, eq. 7) or sticking (NOSLIP, eq. 8) by eq. (19).
 to hand over to the soft (force-based) contact law, i.e. when a particle is
 pushed into a surface so hard that within one time step it would go through.
 
-Nothing here is wired into the time stepper yet: a later integration step
-calls `collide` for approaching pairs. The kernel is pure and works on a single
-pair (vmap it for a batch); `check_collision_inputs` is the host-side guard.
+`collide` is pure and works on a single pair (vmap it for a batch);
+`check_collision_inputs` is the host-side guard. `HardCollisions` switches the
+operator on in the time stepper (`Simulator(..., hard_collisions=...)`), see
+`hard_collision_velocities` for how pairs are picked and handed over to the
+soft law by eq. (22).
 
 Sign conventions (Fig. 1 of the paper; all derived, see the report/tests):
   * `n = (x2 - x1) / |x2 - x1|` points from disk 1 to disk 2, `t = (-n_y, n_x)`
@@ -37,10 +39,13 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile.boundaries import wall_distance
 from jaxpile.errors import InputError
+from jaxpile.laws.base import safe_norm
 
 Array = Any
 
@@ -190,3 +195,106 @@ def check_collision_inputs(m1, m2, I1, I2, r1, r2, restitution, mu) -> None:
         a = np.asarray(value, dtype=float)
         if not np.all(ok(a)):  # NaN fails every comparison
             raise InputError(f"{name} must be {rule}; got {value!r}.")
+
+
+class HardCollisions(NamedTuple):
+    """Settings of the hard-disk operator in the time stepper (Liffman et al.
+    1992, sec. 2.1): restitution epsilon (eq. 4) and friction mu (eq. 7),
+    the same for disk pairs and disk-wall pairs."""
+
+    restitution: float = 0.5
+    mu: float = 0.5
+
+    def check(self) -> None:
+        check_collision_inputs(1.0, 1.0, 1.0, 1.0, 0.5, 0.5, self.restitution, self.mu)
+
+
+def hard_collision_velocities(particles, neighbor_idx, boundaries, dt, settings: HardCollisions,
+                              rotation: bool):
+    """Velocities and spins after the hard collisions due in the coming step.
+
+    A pair (or a disk and a wall) collides hard when, all at once:
+      * it is not in soft contact now (r >= r_i + r_j: a contact that is already
+        soft stays soft until it opens),
+      * it approaches, and moving ballistically it would touch within dt,
+      * after the collision it would separate faster than the forces on the
+        two can bring it back within dt. Otherwise eq. (22) holds for the
+        post-collision motion (v.n >= 0 but dt |F.n| / m > |v.n|: the disk would
+        be pushed through in one step) and the pair is left to the soft law.
+        So a bouncing disk loses speed by epsilon per bounce, hard, until its
+        rebound is slower than g dt, and then rests on the soft spring.
+    The impulses of all colliding pairs are computed from the same
+    pre-collision velocities and summed (a Jacobi sweep): exact for isolated
+    binary collisions, the paper's situation; a disk hit by two partners in the
+    same step gets both impulses at once. Walls are partners of infinite mass
+    at the foot of the normal. With `rotation` off the spins are held (the
+    disks collide as if their moment of inertia were infinite).
+
+    Args:
+      particles: `Particles` at the start of the step, `force` the total force.
+      neighbor_idx: `[n, k]` neighbour slots (empty = n).
+      boundaries: walls in force.
+      dt: time step.
+      settings: `HardCollisions`.
+      rotation: whether spins take part.
+
+    Returns:
+      `(velocity [n, 2], angular_velocity [n], collided [n] bool)`.
+    """
+    p = particles
+    n = p.count
+    eps = jnp.asarray(settings.restitution, p.position.dtype)
+    mu = jnp.asarray(settings.mu, p.position.dtype)
+    inf = jnp.asarray(jnp.inf, p.position.dtype)
+    mass = jnp.where(p.fixed, inf, p.mass)
+    inertia = jnp.where(p.fixed | (not rotation), inf, p.inertia)
+    accel = jnp.where(p.movable[:, None], p.force / p.mass[:, None], 0.0)
+    omega = p.angular_velocity if rotation else jnp.zeros_like(p.angular_velocity)
+
+    def one(m1, m2, i1, i2, r1, r2, x1, x2, c1, c2, w1, w2, a1, a2):
+        d = x2 - x1
+        gap_now = safe_norm(d) - (r1 + r2)
+        touch = safe_norm(d + dt * (c2 - c1)) < r1 + r2  # ballistic over the step
+        out = collide(m1, m2, i1, i2, r1, r2, x1, x2, c1, c2, w1, w2, eps, mu)
+        # eq. (22) on the motion after the collision: disk 1 against the surface of
+        # disk 2, whose normal points from 2 to 1 (-n), relative velocity and acceleration
+        soft = needs_soft_contact(out.c1 - out.c2, a1 - a2, 1.0, -_safe_unit(d), dt)
+        hard = (gap_now >= 0) & touch & (jnp.sum(out.impulse * out.impulse) > 0) & ~soft
+        zero = jnp.zeros_like(out.impulse)
+        return jnp.where(hard, out.impulse, zero), hard
+
+    valid = neighbor_idx < n
+    j = jnp.where(valid, neighbor_idx, 0)
+    both = valid & p.active[:, None] & p.active[j] & ~(p.fixed[:, None] & p.fixed[j]) & (j != jnp.arange(n)[:, None])
+    per_slot = jax.vmap(jax.vmap(one, (None, 0, None, 0, None, 0, None, 0, None, 0, None, 0, None, 0)),
+                        (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
+    impulse, hard = per_slot(mass, mass[j], inertia, inertia[j], p.radius, p.radius[j], p.position, p.position[j],
+                             p.velocity, p.velocity[j], omega, omega[j], accel, accel[j])
+    hard = hard & both
+    impulse = jnp.where(hard[..., None], impulse, 0.0)  # [n, k, 2] on i
+
+    # walls: the partner sits at the foot of the normal, at rest, infinitely heavy
+    dist = wall_distance(boundaries, p.position)  # [n, w]
+    foot = p.position[:, None, :] - dist[..., None] * boundaries.wall_normal[None]
+    per_wall = jax.vmap(jax.vmap(one, (None, None, None, None, None, None, None, 0, None, None, None, None, None, None)),
+                        (0, None, 0, None, 0, None, 0, 0, 0, None, 0, None, 0, None))
+    w_impulse, w_hard = per_wall(mass, inf, inertia, inf, p.radius, jnp.zeros((), p.position.dtype), p.position, foot,
+                                 p.velocity, jnp.zeros(2, p.position.dtype), omega, jnp.zeros((), p.position.dtype),
+                                 accel, jnp.zeros(2, p.position.dtype))
+    w_hard = w_hard & boundaries.wall_active[None, :] & p.movable[:, None]
+    w_impulse = jnp.where(w_hard[..., None], w_impulse, 0.0)
+
+    # P is the impulse on disk 1 (= i): velocity and, with the lever r_i along +n, spin (eq. 13)
+    total = impulse.sum(1) + w_impulse.sum(1)
+    n_ij = jax.vmap(jax.vmap(_safe_unit))(p.position[j] - p.position[:, None, :])
+    n_iw = jax.vmap(jax.vmap(_safe_unit))(foot - p.position[:, None, :])
+    t_ij = jnp.stack([-n_ij[..., 1], n_ij[..., 0]], -1)
+    t_iw = jnp.stack([-n_iw[..., 1], n_iw[..., 0]], -1)
+    pt = (impulse * t_ij).sum(-1).sum(1) + (w_impulse * t_iw).sum(-1).sum(1)
+    movable = p.movable
+    velocity = jnp.where(movable[:, None], p.velocity + total / p.mass[:, None], p.velocity)
+    spin = p.angular_velocity
+    if rotation:
+        spin = jnp.where(movable, spin + p.radius * pt / p.inertia, spin)
+    collided = hard.any(1) | w_hard.any(1)
+    return velocity, spin, collided

@@ -55,6 +55,7 @@ def evaluate(
     neighbor_idx: Array,
     boundaries: Boundaries,
     dt,
+    step_positions=None,
 ) -> ContactForces:
     """Forces, torques and new history of every contact.
 
@@ -67,6 +68,9 @@ def evaluate(
       neighbor_idx: `[n, k]` neighbour slots (empty = n).
       boundaries: walls and gravity.
       dt: time step used to advance the history (0 evaluates without advancing).
+      step_positions: optional `(x_k, x_{k+1})`, each `[n, 2]`, from the implicit
+        midpoint integrator (`particles.position` is then their midpoint); the
+        kernels receive the pair displacements at both steps.
     """
     p = particles
     n = p.count
@@ -86,6 +90,8 @@ def evaluate(
         angular_velocity_i=jnp.broadcast_to(omega[:, None], shape),
         angular_velocity_j=omega[j],
         effective_mass=m_eff,
+        step_displacements=None if step_positions is None else jnp.stack(
+            [x[:, None, :] - x[j] for x in step_positions], axis=-2),
     )
     kernel = _kernel_over_slots(law)
     pair = kernel(params, pair_geometry, contacts.history, dt)
@@ -94,18 +100,17 @@ def evaluate(
 
     # Walls: partners of zero radius and infinite mass at the foot of the normal.
     w = boundaries.wall_normal.shape[0]
-    distance = wall_distance(boundaries, p.position)  # [n, w]
-    # A centre pushed through a wall keeps the wall's normal (never flips it).
-    distance = jnp.maximum(distance, 1e-6 * p.radius[:, None])
     wshape = (n, w)
     wall_geometry = PairGeometry(
-        displacement=distance[..., None] * boundaries.wall_normal[None, :, :],
+        displacement=_wall_displacement(boundaries, p.position, p.radius),
         radius_i=jnp.broadcast_to(p.radius[:, None], wshape),
         radius_j=jnp.zeros(wshape, p.radius.dtype),
         velocity=jnp.broadcast_to(p.velocity[:, None, :], wshape + (2,)),
         angular_velocity_i=jnp.broadcast_to(omega[:, None], wshape),
         angular_velocity_j=jnp.zeros(wshape, omega.dtype),
         effective_mass=jnp.broadcast_to(p.mass[:, None], wshape),
+        step_displacements=None if step_positions is None else jnp.stack(
+            [_wall_displacement(boundaries, x, p.radius) for x in step_positions], axis=-2),
     )
     wall = kernel(law.wall_params(params), wall_geometry, contacts.wall_history, dt)
     wall_mask = boundaries.wall_active[None, :] & (p.active & ~p.fixed)[:, None]
@@ -116,6 +121,14 @@ def evaluate(
     if not law.rotation:
         torque = jnp.zeros_like(torque)
     return ContactForces(pair=pair, wall=wall, force=force, torque=torque)
+
+
+def _wall_displacement(boundaries: Boundaries, position, radius):
+    """`[n, w, 2]` from each wall plane to each centre along the wall normal."""
+    distance = wall_distance(boundaries, position)  # [n, w]
+    # A centre pushed through a wall keeps the wall's normal (never flips it).
+    distance = jnp.maximum(distance, 1e-6 * radius[:, None])
+    return distance[..., None] * boundaries.wall_normal[None, :, :]
 
 
 def external_force(particles: Particles, boundaries: Boundaries) -> Array:

@@ -12,13 +12,16 @@ from jaxpile.state import SimState
 
 
 def state_arrays(state: SimState) -> dict:
-    """A flat dict of numpy arrays describing the state (no neighbour list)."""
+    """A flat dict of numpy arrays describing the state (no neighbour list),
+    with the integrator's carried state (Gear's higher derivatives) when it has one."""
     p, c, b = state.particles, state.contacts, state.boundaries
     return {
         **{f"particles.{k}": np.asarray(v) for k, v in vars(p).items()},
         **{f"contacts.{k}": np.asarray(v) for k, v in vars(c).items()},
         **{f"boundaries.{k}": np.asarray(v) for k, v in vars(b).items()},
         "step": np.asarray(state.step),
+        **({} if state.integrator_state is None else
+           {f"integrator_state.{k}": np.asarray(v) for k, v in vars(state.integrator_state).items()}),
     }
 
 

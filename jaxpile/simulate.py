@@ -23,8 +23,9 @@ import numpy as np
 from jax import lax
 
 from jaxpile import neighbors as nb
+from jaxpile.collisions import HardCollisions, hard_collision_velocities
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.integrators import INTEGRATORS, kick
+from jaxpile.integrators import Integrator, get_integrator
 from jaxpile.interactions import ContactForces, evaluate, external_force
 from jaxpile.laws.base import ContactLaw
 from jaxpile.state import Boundaries, Contacts, Particles, SimState
@@ -48,7 +49,8 @@ def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
 
 
 def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
-              integrator: str = "velocity_verlet") -> Callable[[Any, SimState], SimState]:
+              integrator: str | Integrator = "velocity_verlet",
+              hard_collisions: HardCollisions | None = None) -> Callable[[Any, SimState], SimState]:
     """A pure, jittable `step(params, state) -> state`.
 
     Args:
@@ -57,28 +59,36 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
       schedule: optional `state -> Boundaries`, the boundaries in force during
         the step (e.g. `gravity_ramp`); it reads the stored boundaries and the
         step count and leaves the stored boundaries as they are.
-      integrator: `velocity_verlet` (forces at t + dt) or `leapfrog` (Baxter et
-        al. 1997 eqs. 9-12, forces at t); see `jaxpile.integrators`.
+      integrator: a name in `jaxpile.integrators.INTEGRATORS` (`velocity_verlet`,
+        `leapfrog`, `gear`, `implicit_midpoint`) or an `Integrator`. The state
+        must have been prepared by `Simulator.init` with the same integrator.
+      hard_collisions: optional `collisions.HardCollisions`: pairs that meet fast
+        collide impulsively (Liffman et al. 1992, eqs. 1-21) before the step,
+        and hand over to the soft law by eq. 22 (see
+        `collisions.hard_collision_velocities`). Off by default.
     """
-    if integrator not in INTEGRATORS:
-        raise InputError(f"unknown integrator {integrator!r}; known: {sorted(INTEGRATORS)}.")
-    advance = INTEGRATORS[integrator]
-    # velocity Verlet evaluates forces at t + dt, leapfrog at t
-    force_step = 1 if integrator == "velocity_verlet" else 0
+    integ = get_integrator(integrator)
 
     def step(params, state: SimState) -> SimState:
-        boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + force_step))
+        boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + integ.force_step))
 
-        def forces_at(p: Particles):
+        def forces_at(p: Particles, step_positions=None):
             neighbors = state.neighbors.update(p.position)
             contacts = _with_remapped_history(state, neighbors)
-            cf = evaluate(law, params, p, contacts, neighbors.idx, boundaries, dt)
+            cf = evaluate(law, params, p, contacts, neighbors.idx, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)
             return force, cf.torque, (neighbors, contacts)
 
-        particles, (neighbors, contacts) = advance(state.particles, dt, law.rotation, forces_at)
-        return state.set(particles=particles, contacts=contacts, neighbors=neighbors, step=state.step + 1)
+        particles = state.particles
+        if hard_collisions is not None:
+            velocity, spin, _ = hard_collision_velocities(particles, state.neighbors.idx, boundaries, dt,
+                                                          hard_collisions, law.rotation)
+            particles = particles.set(velocity=velocity, angular_velocity=spin)
+        particles, extra, (neighbors, contacts) = integ.advance(
+            particles, state.integrator_state, dt, law.rotation, forces_at)
+        return state.set(particles=particles, contacts=contacts, neighbors=neighbors, step=state.step + 1,
+                         integrator_state=extra)
 
     return step
 
@@ -149,7 +159,13 @@ class Simulator:
       dt: the time step.
       schedule: optional `state -> Boundaries` in force at each step (see
         `make_step`), e.g. `gravity_ramp(steps)`.
-      integrator: `velocity_verlet` (default) or `leapfrog`.
+      integrator: `velocity_verlet` (default), `leapfrog` (Baxter et al. 1997),
+        `gear` (fifth-order predictor-corrector, Lee & Herrmann 1993),
+        `implicit_midpoint` (Liffman et al. 1992, eq. 24), or an `Integrator`
+        (e.g. `integrators.implicit_midpoint(relaxation=0.6, iterations=12)`).
+      hard_collisions: optional `collisions.HardCollisions(restitution, mu)`:
+        fast approaches collide impulsively (Liffman et al. 1992, eqs. 1-22);
+        off by default (every contact is soft).
       skin: neighbour-list skin (default: 20% of the largest diameter).
       capacity_multiplier: head-room of the neighbour slots at allocation.
       chunk_steps: steps per compiled chunk between host checks.
@@ -163,7 +179,8 @@ class Simulator:
         dt: float,
         *,
         schedule: Callable | None = None,
-        integrator: str = "velocity_verlet",
+        integrator: str | Integrator = "velocity_verlet",
+        hard_collisions: HardCollisions | None = None,
         skin: float | None = None,
         capacity_multiplier: float = 1.5,
         chunk_steps: int = 1000,
@@ -186,10 +203,14 @@ class Simulator:
         self.chunk_steps = int(chunk_steps)
         self.max_initial_overlap = max_initial_overlap
         self.schedule = schedule
-        self.integrator = integrator
-        self.step = make_step(law, self.dt, schedule, integrator)
+        self.integrator = get_integrator(integrator)
+        if hard_collisions is not None:
+            hard_collisions.check()
+        self.hard_collisions = hard_collisions
+        self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
+        self._start_jit = jax.jit(self._start)
         self._compiled: dict = {}
 
     # ------------------------------------------------------------------ set-up
@@ -203,10 +224,12 @@ class Simulator:
             movable = np.ones_like(movable)
         limit = self.law.stable_time_step(params, float(np.asarray(particles.mass)[movable].min()),
                                           float(np.asarray(particles.radius)[movable].min()))
+        limit *= self.integrator.stability_factor
         if self.dt > limit:
             raise InputError(
-                f"dt = {self.dt:g} is above the stability limit of the {self.law.name} law "
-                f"(about {limit:.3g} for the stiffest contact and lightest disk); use dt <= {limit / 5:.3g}."
+                f"dt = {self.dt:g} is above the stability limit of the {self.law.name} law with the "
+                f"{self.integrator.name} integrator (about {limit:.3g} for the stiffest contact and "
+                f"lightest disk); use dt <= {limit / 5:.3g}."
             )
 
     def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None) -> SimState:
@@ -242,9 +265,19 @@ class Simulator:
         state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings)
         self._check_overlaps(state)
         state = self._refresh_jit(params, state)
-        if self.integrator == "leapfrog":
-            state = _half_kick_back(state, self.dt, self.law.rotation)
-        return state
+        return self._start_jit(params, state)
+
+    def _start(self, params, state: SimState) -> SimState:
+        """The integrator's own preparation (half kick back, Gear derivatives)."""
+        boundaries = self.boundaries_at(state)
+
+        def force_fn(position, velocity, angular_velocity):
+            p = state.particles.set(position=position, velocity=velocity, angular_velocity=angular_velocity)
+            cf = evaluate(self.law, params, p, state.contacts, state.neighbors.idx, boundaries, 0.0)
+            return cf.force + external_force(p, boundaries), cf.torque
+
+        particles, extra = self.integrator.start(state.particles, self.dt, self.law.rotation, force_fn)
+        return state.set(particles=particles, integrator_state=extra)
 
     def boundaries_at(self, state: SimState) -> Boundaries:
         """The boundaries in force at the state's step (the schedule applied)."""
@@ -421,12 +454,6 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
-
-
-def _half_kick_back(state: SimState, dt: float, rotation: bool) -> SimState:
-    """Leapfrog start: the velocities given for t = 0 become v(-dt/2) = v(0) - F(0) dt / 2m."""
-    p = state.particles
-    return state.set(particles=kick(p, p.force, p.torque, -0.5 * dt, rotation))
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:

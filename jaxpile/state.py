@@ -120,6 +120,8 @@ class SimState:
       neighbor_settings: static `neighbors.NeighborSettings` (box, cutoff,
         skin, capacity multiplier) the list was built with, so a re-allocation
         always uses this state's own settings.
+      integrator_state: what the integrator carries between steps (None for
+        velocity Verlet and leapfrog; `integrators.GearDerivatives` for Gear).
     """
 
     particles: Particles
@@ -128,6 +130,7 @@ class SimState:
     neighbors: NeighborList
     step: Array
     neighbor_settings: Any = dataclasses.static_field()
+    integrator_state: Any = None
 
 
 def make_particles(

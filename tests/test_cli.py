@@ -29,3 +29,15 @@ def test_pile_command_writes_summary_csv_state_and_figures(tmp_path, capsys):
         assert (out / name).stat().st_size > 10_000
     assert main(["compare", str(out)]) == 0
     assert "dev N" in capsys.readouterr().out
+
+
+def test_pile_command_with_gear_and_hard_collisions(tmp_path):
+    """The 1992 law with the 1993 integrator and the 1992 hard-collision switch, from the CLI."""
+    out = tmp_path / "gear"
+    rc = main(["pile", "--layers", "3", "--law", "liffman", "--integrator", "gear", "--hard-collisions", "0.5,0.3",
+               "--dt", "5e-4", "--ramp-steps", "4000", "--max-steps", "60000", "--no-progress", "--out", str(out)])
+    assert rc == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["integrator"] == "gear" and summary["hard_collisions"] == {"restitution": 0.5, "mu": 0.3}
+    assert summary["at_rest"] and summary["max_rel_dev_normal"] < 0.01
+    assert load_arrays(out / "state.npz")["integrator_state.position"].shape == (3, 6, 2)

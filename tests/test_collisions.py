@@ -5,6 +5,8 @@ products in 3D with numpy from the position vectors r_i = x_i - Q of the paper,
 and the printed eqs. (12) and (16) with eqs. (17)-(18).
 """
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -309,3 +311,91 @@ def test_good_inputs_pass_check():
     check_collision_inputs(**GOOD)
     check_collision_inputs(**{**GOOD, "m2": np.inf, "I2": np.inf, "r2": 0.0, "restitution": 1.0, "mu": 0.0})
     check_collision_inputs(**{**GOOD, "m1": np.array([1.0, 2.0])})
+
+
+# ---------------------------------------------------------------- in the stepper
+from jaxpile.collisions import HardCollisions  # noqa: E402
+from jaxpile.laws import liffman  # noqa: E402
+from jaxpile.simulate import Simulator  # noqa: E402
+
+SOFT = liffman.make_params(ks=1e4, kd=20.0, k_slip=50.0, mu_roll=0.1)
+
+
+def _drop(hard, *, height=1.0, vx=0.0, spin=0.0, steps=3000, every=10):
+    particles = jaxpile.make_particles([[3.0, 0.5 + height]], 0.5, velocity=[[vx, 0.0]], angular_velocity=spin)
+    sim = Simulator(liffman.law(), dt=1e-3, chunk_steps=every, hard_collisions=hard)
+    state = sim.init(SOFT, particles, jaxpile.make_boundaries())
+    track = []
+    for _ in range(steps // every):
+        state = sim.run(SOFT, state, every, progress=False)
+        track.append((float(state.particles.position[0, 1]), float(state.particles.velocity[0, 0]),
+                      float(state.particles.angular_velocity[0])))
+    return state, np.array(track)
+
+
+def test_eq4_eq22_hard_bounces_keep_epsilon_squared_of_the_height_then_rest_soft():
+    """A disk dropped on the ground with hard collisions rebounds to eps^2 of its
+    fall height, bounce after bounce (the soft law alone gives its own ~0.54),
+    and when the rebound is slower than g dt, eq. 22 hands it to the soft spring:
+    it ends at rest mg / K_s below its radius."""
+    state, track = _drop(HardCollisions(restitution=0.3, mu=0.5), steps=6000)
+    y = track[:, 0] - 0.5
+    apex = [y[i] for i in range(1, len(y) - 1) if y[i] >= y[i - 1] and y[i] > y[i + 1] and y[i] > 1e-4]
+    assert apex[0] == pytest.approx(0.09, rel=0.02)
+    assert apex[1] / apex[0] == pytest.approx(0.09, rel=0.05)
+    assert 0.5 - float(state.particles.position[0, 1]) == pytest.approx(1e-4, rel=1e-6)
+    assert abs(float(state.particles.velocity[0, 1])) < 1e-9
+    _, soft_only = _drop(None, steps=3000)
+    ys = soft_only[:, 0] - 0.5
+    first = max(ys[np.argmin(ys):][:900])
+    assert first > 0.4  # the soft law's own restitution is far from 0.3
+
+
+def test_eq19_oblique_bounce_on_the_ground_slip_and_noslip_in_the_stepper():
+    """Falling with v_x = 1 and no spin: with mu = 1 the impact sticks (NOSLIP,
+    contact point stops: v_x + w r = 0, v_x = 2/3 of 1 for I = m r^2 / 2); with
+    mu = 0.05 it slides (SLIP, v_x drops by mu (1 + eps) |v_y|)."""
+    v_impact = math.sqrt(2 * 1.0 * 0.5)
+    for mu in (1.0, 0.05):
+        _, track = _drop(HardCollisions(restitution=0.5, mu=mu), height=0.5, vx=1.0, steps=1100, every=1)
+        k = int(np.argmax(track[:, 2] != 0))  # first step with spin: the impact
+        vx, w = track[k, 1], track[k, 2]
+        if mu == 1.0:
+            assert vx + 0.5 * w == pytest.approx(0.0, abs=1e-12)
+            assert vx == pytest.approx(2 / 3, rel=1e-12)
+        else:
+            assert vx == pytest.approx(1.0 - 0.05 * 1.5 * v_impact, rel=1e-3)
+
+
+def test_eq1_pair_collision_in_the_stepper_conserves_momentum_with_restitution():
+    """Unequal disks meeting head-on in free space: the soft spring never
+    engages, the relative velocity is reversed and scaled by eps exactly, and
+    the total momentum is unchanged."""
+    particles = jaxpile.make_particles([[2.0, 5.0], [3.5, 5.0]], [0.5, 0.4], velocity=[[1.0, 0.0], [-0.5, 0.0]])
+    sim = Simulator(liffman.law(), dt=1e-3, chunk_steps=100, hard_collisions=HardCollisions(0.6, 0.3))
+    state = sim.init(SOFT, particles, jaxpile.make_boundaries(gravity=0.0, ground=-10.0))
+    p0 = np.sum(np.asarray(particles.mass)[:, None] * np.asarray(particles.velocity), axis=0)
+    state = sim.run(SOFT, state, 1000, progress=False)
+    v = np.asarray(state.particles.velocity)
+    assert v[0, 0] - v[1, 0] == pytest.approx(-0.6 * 1.5, rel=1e-12)
+    np.testing.assert_allclose(np.sum(np.asarray(state.particles.mass)[:, None] * v, axis=0), p0, atol=1e-14)
+    assert np.all(v[:, 1] == 0)
+
+
+def test_eq22_a_disk_resting_on_the_ground_stays_soft():
+    """Resting contacts never turn hard: with the operator on, a disk at rest on
+    the ground evolves exactly as without it."""
+    particles = jaxpile.make_particles([[3.0, 0.5 - 1e-4]], 0.5)
+    out = []
+    for hard in (None, HardCollisions(0.3, 0.5)):
+        sim = Simulator(liffman.law(), dt=1e-3, chunk_steps=200, hard_collisions=hard)
+        state = sim.init(SOFT, particles, jaxpile.make_boundaries())
+        out.append(np.asarray(sim.run(SOFT, state, 200, progress=False).particles.position))
+    np.testing.assert_array_equal(out[0], out[1])
+
+
+def test_hard_collision_settings_are_checked():
+    with pytest.raises(InputError, match="restitution"):
+        Simulator(liffman.law(), dt=1e-3, hard_collisions=HardCollisions(restitution=1.5))
+    with pytest.raises(InputError, match="mu"):
+        Simulator(liffman.law(), dt=1e-3, hard_collisions=HardCollisions(mu=-0.1))

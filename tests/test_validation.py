@@ -135,6 +135,10 @@ def test_cli_error_paths(tmp_path, capsys):
     assert "gravity ramp" in capsys.readouterr().err
     assert main(["pile", "--layers", "3", "--speed-tol", "0", "--out", str(tmp_path)]) == 2
     assert "speed_tolerance" in capsys.readouterr().err
+    assert main(["pile", "--layers", "3", "--hard-collisions", "0.5", "--out", str(tmp_path)]) == 2
+    assert "EPS,MU" in capsys.readouterr().err
+    assert main(["pile", "--layers", "3", "--hard-collisions", "1.5,0.2", "--out", str(tmp_path)]) == 2
+    assert "restitution" in capsys.readouterr().err
 
 
 def test_unknown_integrator():

@@ -28,6 +28,10 @@ class PairGeometry(NamedTuple):
       velocity: `[2]` v_i - v_j.
       angular_velocity_i, angular_velocity_j: counter-clockwise spins.
       effective_mass: m_i m_j / (m_i + m_j), or m_i against a wall or fixed disk.
+      step_displacements: `[2, 2]` the displacement at steps k and k + 1, given
+        only by the implicit midpoint integrator (then `displacement` is their
+        midpoint), for laws with a time-averaged spring (Liffman et al. 1992,
+        eq. 24); None otherwise.
     """
 
     displacement: Array
@@ -37,6 +41,7 @@ class PairGeometry(NamedTuple):
     angular_velocity_i: Array
     angular_velocity_j: Array
     effective_mass: Array
+    step_displacements: Array | None = None
 
 
 class PairForce(NamedTuple):

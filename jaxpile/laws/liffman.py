@@ -15,9 +15,14 @@ For disks 1, 2 with n = (x_1 - x_2) / r (Fig. 3) and t = z x n (eqs. 34-35):
                         on the ground; beyond a the well breaks (no force) until
                         the disk rests again.
 
-The paper's normal spring uses the time-averaged separation (r_{k+1} + r_k)/2
-(eq. 24), solved implicitly; this kernel is the explicit form K_s (sigma - r_k).
-The time-averaged implicit integrator is not implemented yet.
+The paper's normal spring is time-discretised (eq. 24):
+f_k = -[V(r_{k+1}) - V(r_k)] / (r_{k+1} - r_k) = K_s [sigma - (r_{k+1} + r_k) / 2],
+solved implicitly. With the `implicit_midpoint` integrator the kernel receives
+the displacements d_k, d_{k+1} and applies exactly that difference quotient
+along (d_k + d_{k+1}) / (r_k + r_{k+1}), which makes the spring's work over a
+step equal to minus the change of V (eq. 23): energy is conserved to the
+solver's tolerance, contact entry and exit included. With the explicit
+integrators it is the plain K_s (sigma - r).
 
 The well is per-contact history of each disk against each wall:
 `[anchored, x - x_0]`. A disk anchors when it touches the wall with a centre speed
@@ -91,12 +96,34 @@ def wall_params(p: Params) -> Params:
     return p
 
 
+def _time_averaged_spring(ks, sigma, d0, d1):
+    """Eq. 24: the spring force vector -[V(r_1) - V(r_0)] / (r_1 - r_0) (d_0 + d_1) / (r_0 + r_1)
+    for V = K_s (sigma - r)^2 / 2 inside contact (eq. 23), and whether either end
+    is in contact. Both inside: K_s [sigma - (r_0 + r_1) / 2] exactly."""
+    _, r0 = normal_and_distance(d0)
+    _, r1 = normal_and_distance(d1)
+    a0, a1 = jnp.maximum(sigma - r0, 0.0), jnp.maximum(sigma - r1, 0.0)
+    both = (a0 > 0) & (a1 > 0)
+    gap = r0 - r1  # nonzero whenever exactly one end is inside
+    safe_gap = jnp.where(gap == 0, 1.0, gap)
+    quotient = 0.5 * ks * jnp.where(both, a0 + a1, jnp.where(gap == 0, 0.0, (a1 * a1 - a0 * a0) / safe_gap))
+    span = r0 + r1
+    direction = (d0 + d1) / jnp.where(span > 0, span, 1.0)[..., None]
+    return quotient * direction, (a0 > 0) | (a1 > 0)
+
+
 def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
-    """Eqs. 25-33 for one pair; against a wall (radius_j = 0) with the well."""
+    """Eqs. 24-33 for one pair; against a wall (radius_j = 0) with the well."""
     n, r = normal_and_distance(g.displacement)
-    in_contact = (r < g.radius_i + g.radius_j) & (r > 0)
+    sigma = g.radius_i + g.radius_j
     t = perp(n)
-    f_n = p.ks * (g.radius_i + g.radius_j - r) - p.kd * dot2(g.velocity, n)  # (25)
+    if g.step_displacements is None:
+        spring = p.ks * (sigma - r) * n  # (25) with the explicit spring
+        in_contact = (r < sigma) & (r > 0)
+    else:
+        spring, in_contact = _time_averaged_spring(p.ks, sigma, g.step_displacements[0], g.step_displacements[1])
+        in_contact = in_contact & (r > 0)
+    f_n = dot2(spring, n) - p.kd * dot2(g.velocity, n)  # (25)
     v_centre = dot2(g.velocity, t)
     v_tang = v_centre - g.radius_i * g.angular_velocity_i - g.radius_j * g.angular_velocity_j  # (28)
     f_slip = -p.k_slip * v_tang  # (27)
@@ -113,7 +140,7 @@ def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
     f_t = f_t + f_static  # (33)
     new_history = jnp.stack([jnp.where(inside, 1.0, 0.0), jnp.where(inside, offset, 0.0)])
 
-    force = f_n * n + f_t * t  # (34)-(35)
+    force = spring - p.kd * dot2(g.velocity, n) * n + f_t * t  # (34)-(35)
     torque = -g.radius_i * f_slip  # (36)
     return contact_result(in_contact, force, torque, new_history, f_n)
 
