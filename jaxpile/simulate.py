@@ -50,7 +50,8 @@ def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
 
 def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
               integrator: str | Integrator = "velocity_verlet",
-              hard_collisions: HardCollisions | None = None) -> Callable[[Any, SimState], SimState]:
+              hard_collisions: HardCollisions | None = None,
+              driver: Callable | None = None) -> Callable[[Any, SimState], SimState]:
     """A pure, jittable `step(params, state) -> state`.
 
     Args:
@@ -66,10 +67,17 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         collide impulsively (Liffman et al. 1992, eqs. 1-21) before the step,
         and hand over to the soft law by eq. 22 (see
         `collisions.hard_collision_velocities`). Off by default.
+      driver: optional `state -> state` applied at the start of every step,
+        inside the compiled loop, whose changes persist: what a protocol does
+        while it runs (activate the next parked disk, remove a wall, tilt
+        gravity), with its own carried data in `state.protocol_state`. It must
+        keep every array's shape and dtype.
     """
     integ = get_integrator(integrator)
 
     def step(params, state: SimState) -> SimState:
+        if driver is not None:
+            state = driver(state)
         boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + integ.force_step))
 
         def forces_at(p: Particles, step_positions=None):
@@ -163,6 +171,9 @@ class Simulator:
         `gear` (fifth-order predictor-corrector, Lee & Herrmann 1993),
         `implicit_midpoint` (Liffman et al. 1992, eq. 24), or an `Integrator`
         (e.g. `integrators.implicit_midpoint(relaxation=0.6, iterations=12)`).
+      driver: optional `state -> state` run at the start of every step inside
+        the compiled loop (see `make_step`): protocols insert disks, remove
+        walls and tilt gravity with it.
       hard_collisions: optional `collisions.HardCollisions(restitution, mu)`:
         fast approaches collide impulsively (Liffman et al. 1992, eqs. 1-22);
         off by default (every contact is soft).
@@ -181,6 +192,7 @@ class Simulator:
         schedule: Callable | None = None,
         integrator: str | Integrator = "velocity_verlet",
         hard_collisions: HardCollisions | None = None,
+        driver: Callable | None = None,
         skin: float | None = None,
         capacity_multiplier: float = 1.5,
         chunk_steps: int = 1000,
@@ -207,7 +219,8 @@ class Simulator:
         if hard_collisions is not None:
             hard_collisions.check()
         self.hard_collisions = hard_collisions
-        self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions)
+        self.driver = driver
+        self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions, driver)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
         self._start_jit = jax.jit(self._start)
@@ -232,7 +245,8 @@ class Simulator:
                 f"lightest disk); use dt <= {limit / 5:.3g}."
             )
 
-    def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None) -> SimState:
+    def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None,
+             protocol_state=None) -> SimState:
         """Allocates the neighbour list, zeroes the contact history, checks the
         inputs and evaluates the forces at t = 0.
 
@@ -240,6 +254,8 @@ class Simulator:
           box: `(width, height)` the neighbour cell list covers; default: the
             bounding box of the disks (and the origin), with a margin of one
             neighbour cutoff on each side.
+          protocol_state: the driver's carried data (any pytree), stored in
+            `state.protocol_state`.
         """
         self.check_params(params, particles)
         _check_finite(particles, step=0)
@@ -262,7 +278,8 @@ class Simulator:
             history=jnp.zeros((n, k, h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
-        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings)
+        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings,
+                         protocol_state=protocol_state)
         self._check_overlaps(state)
         state = self._refresh_jit(params, state)
         return self._start_jit(params, state)

@@ -122,6 +122,8 @@ class SimState:
         always uses this state's own settings.
       integrator_state: what the integrator carries between steps (None for
         velocity Verlet and leapfrog; `integrators.GearDerivatives` for Gear).
+      protocol_state: what a protocol's driver carries between steps (e.g. the
+        next disk to insert, a log of measurements); None when there is none.
     """
 
     particles: Particles
@@ -131,6 +133,7 @@ class SimState:
     step: Array
     neighbor_settings: Any = dataclasses.static_field()
     integrator_state: Any = None
+    protocol_state: Any = None
 
 
 def make_particles(

@@ -99,3 +99,39 @@ def test_fixed_disk_is_an_infinitely_heavy_partner_like_the_ground():
     v_ground = float(g.particles.velocity[0, 1])
     assert 0.1 < v_ground < 1.0  # rebounded, with a restitution below one
     assert float(d.particles.velocity[1, 1]) == pytest.approx(v_ground, rel=1e-9)
+
+
+def test_driver_pours_disks_and_removes_a_wall_inside_one_compiled_chunk():
+    """A driver (persistent `state -> state` before every step) activates a
+    parked disk every 200 steps above the first and switches the right wall off
+    at step 500, all inside one compiled chunk: the active disks and the wall
+    follow the driver, and parked disks stay where they were parked."""
+    from jaxpile.protocols import drivers
+
+    n = 4
+    parked = np.stack([np.arange(n) * 3.0 + 20.0, np.full(n, 30.0)], axis=1)
+    parked[0] = [3.0, 0.5]
+    active = np.zeros(n, bool)
+    active[0] = True
+    particles = jaxpile.make_particles(parked, 0.5, active=active)
+    boundaries = jaxpile.make_boundaries(left=0.0, right=6.0)
+
+    def pour(state):
+        index, any_left = drivers.next_inactive(state)
+        due = (state.step % 200 == 0) & (state.step > 0) & any_left
+        drop = jnp.stack([jnp.asarray(3.0), 0.6 + 1.2 * index])  # above the ones already in
+        return drivers.activate(state, index, drop, when=due)
+
+    sim = Simulator(hooke.law(), dt=5e-4, chunk_steps=1000,
+                    driver=drivers.compose(pour, drivers.switch_wall_at(500, jaxpile.boundaries.RIGHT_WALL)))
+    state = sim.init(PARAMS, particles, boundaries, box=(40.0, 40.0))
+    state = sim.run(PARAMS, state, 1000, progress=False)
+    p = state.particles
+    assert np.asarray(p.active).tolist() == [True, True, True, True]
+    assert not bool(state.boundaries.wall_active[jaxpile.boundaries.RIGHT_WALL])
+    assert bool(state.boundaries.wall_active[jaxpile.boundaries.LEFT_WALL])
+    y = np.asarray(p.position)[:, 1]
+    assert np.all(np.diff(y[:3]) < 1.3)  # the first three landed on one another
+    assert float(p.velocity[3, 1]) < -0.1  # the last one, poured at step 600, is falling
+    never_poured = drivers.activate(state, 0, jnp.zeros(2), when=False)
+    np.testing.assert_array_equal(never_poured.particles.position, p.position)
