@@ -1,0 +1,420 @@
+"""A pile built by dropping disks one at a time (Liffman, Chan & Hughes 1992, Fig. 20).
+
+"A particulate pile consisting of 968 particles, which have been assembled by
+dropping one particle at a time from a height of two particle diameters above the
+highest point in the pile" (Fig. 20 caption); "we can create a pile of 'soft'
+particles by dropping one particle at a time ... other random piles that we have
+created in a similar fashion show no depression in the middle of the normal force
+distribution" (text below Fig. 17). The paper measures the base normal force
+profile (Fig. 20(b)) and finds, in one pile, a slight central dip.
+
+How this protocol reads it:
+
+* Where: the paper does not say where across the pile a disk is dropped. Its
+  piles are single heaps, so we drop every disk over one point, the pile's axis,
+  shifted by a small random amount, uniform in +-`jitter` (default 0.1 sigma)
+  drawn from the seed. Without it the disks would balance on one another on the
+  axis (an exact, if unstable, equilibrium that floating point keeps); the paper
+  calls its piles random and says they differ from one another, so the seed
+  makes them differ.
+* How high: the dropped disk's lowest point starts `drop_height` = 2 sigma above
+  the highest point of the disks already in (the top of the highest disk, or
+  the ground for the first), at rest.
+* When: "one at a time" means each disk meets a pile that has (nearly) stopped
+  moving. The next disk is inserted once every disk in has been slower than
+  `settle_speed` (default 0.05 sqrt(g sigma), 2.5% of the 2 sqrt(g sigma) a
+  disk reaches falling 2 sigma) for `quiet_time` in a row (default 0.25
+  sqrt(sigma/g)). The window must be longer than settle_speed / g, the time a
+  newly released disk is still slower than the threshold, and longer than the
+  2 settle_speed / g a bouncing disk spends below it around the top of a
+  bounce, so neither counts as settled. A disk that never settles (a slow creep
+  on the slope) does not stall the pile: after `max_interval` (default 10
+  sqrt(sigma/g), five fall times) the next disk goes in anyway.
+  All of this runs in the driver, inside the compiled loop; disks not yet
+  dropped are parked inactive on a grid above the pile, 2.5 sigma apart.
+* After the last disk is in, the pile is relaxed to rest (`speed_tolerance`,
+  within `relax_steps`; lee-herrmann's frictionless disks rattle longest,
+  ~450 000 steps for 15 disks).
+
+Laws and parameters (`SETTING`): the lattice protocol's paper setting
+(`lattice.PAPER_SETTING`), disks that do not spin, on a frictional ground:
+hooke and lee-herrmann with frictionless disks (mu = 0, wall_mu = 1), the
+paper's own law (`liffman`, eq. 46's K_s; its disk friction is viscous, so it
+vanishes at rest, and the ground's static well holds the base), and baxter
+(n = 36, r0 = 1.2) with mu = 0 and wall_mu = 1. Why no spin and no static disk
+friction: on the flat ground a spinning disk rolls without slip, which none of
+the laws dissipates (liffman's eq. 29 acts on the slip too), so the first
+disks would roll away for ever; and disks that cannot spin but hold each other
+by Coulomb friction stack into a vertical tower (a disk landing within
+sin(atan mu) of the top disk's axis sticks: with mu = 0.5 or 1, measured, all
+30 disks stood in one column). Frictionless-at-rest disks on a frictional
+ground are the 1992 analytic model's assumption and what the paper's own law
+gives at rest; they slide off until they find a pocket and build a heap
+(measured on 30 disks: 9-19 disks on the ground, height 2.7-4.4 diameters).
+Pass `rotation=True` or `params={"mu": ...}` to `run` to try otherwise.
+
+Cost: a drop takes about 4-7 sqrt(sigma/g) (the fall, then the disk sliding off
+and the pile coming to rest), 4000-7000 steps at dt = 1e-3, so 968 disks need
+about 6e6 steps over all 968 disks (inactive ones included): an accelerator's
+job; tests use 20.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile.boundaries import GROUND, make_boundaries
+from jaxpile.errors import InputError
+from jaxpile.protocols import lattice
+from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.drivers import activate, next_inactive
+from jaxpile.protocols.sloped import law_and_params
+from jaxpile.state import SimState, make_particles
+
+Array = Any
+SQRT3 = math.sqrt(3.0)
+
+SETTING = {
+    "n": 968,
+    "rotation": False,
+    "dt": 1.0e-3,
+    "drop_height": 2.0,
+    "jitter": 0.1,
+    "settle_speed": 0.05,
+    "quiet_time": 0.25,
+    "max_interval": 10.0,
+    "speed_tolerance": 1.0e-5,
+    "relax_steps": 1_000_000,
+    "params": {**lattice.PAPER_SETTING["params"],
+               "baxter": {"n": 36.0, "r0": 1.2, "mu": 0.0, "wall_mu": 1.0}},
+}
+
+PARK_SPACING = 2.5  # diameters between parked disks: beyond any law's cut-off plus the skin
+
+
+class DropState(NamedTuple):
+    """What the drop driver carries between steps (`SimState.protocol_state`).
+
+    Attributes:
+      drop_x: `[n]` the x each disk is dropped at (axis + jitter).
+      last_insert: int scalar, the step of the last insertion.
+      quiet_steps: int scalar, consecutive steps with every disk slower than
+        `settle_speed` (reset by an insertion).
+      inserted: int scalar, disks dropped so far.
+      forced: int scalar, of those, the drops made at `max_interval` before the
+        pile had settled.
+    """
+
+    drop_x: Array
+    last_insert: Array
+    quiet_steps: Array
+    inserted: Array
+    forced: Array
+
+
+def _positive(name, value) -> float:
+    value = float(value)
+    if not (value > 0 and math.isfinite(value)):
+        raise InputError(f"{name} must be positive and finite; got {value!r}.")
+    return value
+
+
+def _steps(name, time_value, dt) -> int:
+    return max(1, int(math.ceil(_positive(name, time_value) / dt - 1e-9)))
+
+
+def layout(n: int, diameter: float = 1.0, drop_height: float = 2.0):
+    """Where the pile stands and where the waiting disks are parked.
+
+    Returns:
+      `(axis_x, parked, box)`: the x of the pile's axis, `[n, 2]` parked
+      centres on a grid `PARK_SPACING` diameters apart, and the neighbour-list
+      box `(width, height)`. The grid's lowest row is above the highest a pile
+      of n close-packed disks can stand (a 60-deg triangle, with 50% head-room)
+      plus the drop height, so a disk is never dropped into the parked ones.
+    """
+    columns = int(math.ceil(math.sqrt(n)))
+    rows = int(math.ceil(n / columns))
+    base_60 = math.sqrt(2.0 * SQRT3 * n / SQRT3)  # base of an n-disk 60-deg pile
+    base_10 = math.sqrt(2.0 * SQRT3 * n / math.tan(math.radians(10.0)))  # a flat one
+    top = 1.5 * (0.5 * SQRT3 * base_60) + drop_height + 2.0 + PARK_SPACING
+    width = max(base_10, (columns - 1) * PARK_SPACING) + 10.0
+    axis = 0.5 * width
+    i = np.arange(n)
+    parked = np.stack([axis + (i % columns - 0.5 * (columns - 1)) * PARK_SPACING,
+                       top + (i // columns) * PARK_SPACING], axis=1)
+    box = (width * diameter, (top + rows * PARK_SPACING + 5.0) * diameter)
+    return axis * diameter, parked * diameter, box
+
+
+def make_driver(*, drop_height: float, settle_speed: float, quiet_steps: int, max_interval_steps: int):
+    """The insertion driver (a pure `state -> state`, see `drivers`).
+
+    Each step: counts the steps in a row with every active disk slower than
+    `settle_speed`; when `quiet_steps` are reached, or `max_interval_steps` have
+    passed since the last insertion, activates the next parked disk at rest,
+    its lowest point `drop_height` above the highest active disk's top (or the
+    ground), at its `drop_x`."""
+    from jaxpile.simulate import max_speed
+
+    def driver(state: SimState) -> SimState:
+        ps: DropState = state.protocol_state
+        p = state.particles
+        dtype = p.position.dtype
+        quiet = jnp.where(max_speed(state) < settle_speed, ps.quiet_steps + 1, 0)
+        since = state.step - ps.last_insert
+        index, any_left = next_inactive(state)
+        settled = quiet >= quiet_steps
+        due = any_left & (settled | (since >= max_interval_steps))
+        ground = state.boundaries.wall_offset[GROUND]
+        top = jnp.maximum(jnp.max(jnp.where(p.active, p.position[:, 1] + p.radius, ground)), ground)
+        position = jnp.stack([ps.drop_x[index], top + drop_height + p.radius[index]]).astype(dtype)
+        state = activate(state, index, position, when=due)
+        return state.set(protocol_state=DropState(
+            drop_x=ps.drop_x,
+            last_insert=jnp.where(due, state.step, ps.last_insert),
+            quiet_steps=jnp.where(due, 0, quiet).astype(ps.quiet_steps.dtype),
+            inserted=ps.inserted + due.astype(ps.inserted.dtype),
+            forced=ps.forced + (due & ~settled).astype(ps.forced.dtype),
+        ))
+
+    return driver
+
+
+def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
+             drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
+             settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
+             max_interval: float = SETTING["max_interval"], diameter: float = 1.0, mass: float = 1.0,
+             dtype=None) -> Protocol:
+    """The 1992 Fig. 20 drop pile: n equal disks dropped one by one on the ground.
+
+    Args:
+      n: number of disks (968 in the paper).
+      seed: draws each disk's lateral offset, uniform in +-`jitter`.
+      dt: the time step the run will use (turns the times below into steps).
+      drop_height: gap between a dropped disk's lowest point and the pile's
+        highest point, in diameters (2 in the paper).
+      jitter: half-width of the uniform lateral offset, in diameters.
+      settle_speed: the pile counts as settled once every disk has been slower
+        than this (in sqrt(g sigma)) for `quiet_time` (in sqrt(sigma/g)).
+      max_interval: the longest wait between two drops (sqrt(sigma/g)).
+
+    Returns:
+      `Protocol` with every disk parked inactive, the drop driver and its
+      `DropState`, the neighbour-list box and `info` (counts, axis, step rules).
+    """
+    if int(n) != n or n < 1:
+        raise InputError(f"n (the number of disks to drop) must be a positive whole number; got {n!r}.")
+    n = int(n)
+    dt = _positive("dt", dt)
+    diameter = _positive("diameter", diameter)
+    drop_height = _positive("drop_height", drop_height)
+    settle_speed = _positive("settle_speed", settle_speed)
+    quiet_steps = _steps("quiet_time", quiet_time, dt)
+    max_interval_steps = _steps("max_interval", max_interval, dt)
+    if max_interval_steps <= quiet_steps:
+        raise InputError(f"max_interval ({max_interval}) must be longer than quiet_time ({quiet_time}).")
+    jitter = float(jitter)
+    if not 0.0 <= jitter < 1.0:
+        raise InputError(f"jitter must be in [0, 1) diameters; got {jitter!r}.")
+    axis, parked, box = layout(n, diameter, drop_height)
+    particles = make_particles(parked, 0.5 * diameter, mass=mass, active=np.zeros(n, bool), dtype=dtype)
+    dtype = particles.position.dtype
+    rng = np.random.default_rng(seed)
+    drop_x = axis + diameter * rng.uniform(-jitter, jitter, n)
+    state = DropState(
+        drop_x=jnp.asarray(drop_x, dtype),
+        last_insert=jnp.asarray(-max_interval_steps, jnp.int32),
+        quiet_steps=jnp.asarray(quiet_steps, jnp.int32),  # the first disk drops at once
+        inserted=jnp.asarray(0, jnp.int32),
+        forced=jnp.asarray(0, jnp.int32),
+    )
+    driver = make_driver(drop_height=drop_height * diameter, settle_speed=settle_speed, quiet_steps=quiet_steps,
+                         max_interval_steps=max_interval_steps)
+    info = {
+        "n_particles": n,
+        "axis_x": axis,
+        "drop_height": drop_height,
+        "jitter": jitter,
+        "seed": int(seed),
+        "settle_speed": settle_speed,
+        "quiet_steps": quiet_steps,
+        "max_interval_steps": max_interval_steps,
+    }
+    return Protocol(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=driver,
+                    protocol_state=state, box=box, info=info)
+
+
+class NormalProfile(NamedTuple):
+    """The base normal force binned across the pile (Fig. 20(b)).
+
+    Attributes:
+      x: `[b]` bin centres relative to the pile's centre (x - x_mid), length.
+      x_over_base: `[b]` the same over the base length B (contact span + one diameter).
+      force: `[b]` total normal force in each bin, in mg.
+      normalised: `[b]` force / its maximum.
+      centre: x_mid, the centre of the normal force (the pile's centre of mass).
+      base: B.
+    """
+
+    x: np.ndarray
+    x_over_base: np.ndarray
+    force: np.ndarray
+    normalised: np.ndarray
+    centre: float
+    base: float
+
+
+def normal_profile(base_forces, bins: int = 15, diameter: float = 1.0) -> NormalProfile:
+    """Bins the ground's normal forces into `bins` equal bins (odd, so one is
+    centred) spanning the base symmetrically about its centre of force. Bins
+    are at least 2 diameters wide: fewer bins on a small pile."""
+    if int(bins) != bins or bins < 1:
+        raise InputError(f"bins must be a positive whole number; got {bins!r}.")
+    x = np.asarray(base_forces.x, dtype=float)
+    normal = np.asarray(base_forces.normal, dtype=float)
+    if len(x) == 0 or normal.sum() <= 0:
+        raise InputError("no disk presses on the ground: there is no base force profile.")
+    centre = float(np.sum(x * normal) / np.sum(normal))
+    half = float(np.max(np.abs(x - centre))) + 0.5 * diameter
+    bins = max(1, min(int(bins), int(2 * half / (2.0 * diameter))))
+    bins -= 1 - bins % 2  # odd
+    edges = np.linspace(-half, half, bins + 1)
+    force, _ = np.histogram(x - centre, bins=edges, weights=normal)
+    mids = 0.5 * (edges[1:] + edges[:-1])
+    base = float(x.max() - x.min()) + diameter
+    return NormalProfile(x=mids, x_over_base=mids / base, force=force, normalised=force / force.max(),
+                         centre=centre, base=base)
+
+
+def central_dip(profile: NormalProfile) -> float:
+    """1 - F(centre bin) / min(max F left of it, max F right of it): > 0 when the
+    centre carries less than the highest bins on both sides (a dip), <= 0 when
+    the centre is the peak. NaN with fewer than 3 bins."""
+    f = np.asarray(profile.force)
+    if len(f) < 3:
+        return float("nan")
+    mid = len(f) // 2
+    shoulder = min(f[:mid].max(), f[mid + 1:].max())
+    return float(1.0 - f[mid] / shoulder) if shoulder > 0 else float("nan")
+
+
+def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rotation: bool | None = None,
+        dt: float = SETTING["dt"], drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
+        settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
+        max_interval: float = SETTING["max_interval"], speed_tolerance: float = SETTING["speed_tolerance"],
+        relax_steps: int = SETTING["relax_steps"], bins: int = 15, dip_threshold: float = 0.05,
+        integrator: str = "velocity_verlet", hard_collisions=None, dtype=None, progress: bool | None = False,
+        chunk_steps: int = 1000):
+    """Drops n disks one at a time, relaxes the pile to rest and measures it.
+
+    Args:
+      law: a law name or module (default `liffman`, the paper's own law).
+      params: None for `SETTING["params"][law]`, a dict of overrides, or a
+        params pytree.
+      rotation: integrate spins (default off; see the module docstring).
+      relax_steps: step budget for the final relaxation.
+      bins: bins of the base normal force profile.
+      dip_threshold: a central dip is reported when `central_dip` exceeds it.
+      integrator, hard_collisions, chunk_steps: passed to `Simulator`.
+      Other arguments as in `protocol`.
+
+    Returns:
+      `(state, measurements)`; measurements holds `n_particles` (disks in),
+      `all_inserted`, `at_rest`, the binned profile (`profile_x_over_base`,
+      `profile_normal` in mg, `profile_normalised`), `central_dip`,
+      `has_central_dip`, `total_normal` and `weight_balance` (total / n - 1),
+      `base_contacts`, `base_width`, `height` (highest disk top), the angles of
+      repose of each flank (Lee & Herrmann 1993 method 3, NaN when a flank is
+      too small to fit), and step counts and times.
+    """
+    from jaxpile.simulate import RunInfo, Simulator
+
+    _, contact_law, params = law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+    if int(relax_steps) != relax_steps or relax_steps < 1:
+        raise InputError(f"relax_steps must be a positive whole number; got {relax_steps!r}.")
+    p = protocol(n, seed=seed, dt=dt, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed,
+                 quiet_time=quiet_time, max_interval=max_interval, dtype=dtype)
+    sim = Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
+                    chunk_steps=chunk_steps)
+    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    t0 = time.perf_counter()
+    fill = RunInfo()
+    budget = n * p.info["max_interval_steps"] + chunk_steps
+    state = sim.run(params, state, budget, progress=progress, info=fill,
+                    until=lambda s: bool(np.asarray(s.particles.active).all()))
+    fill_steps = int(state.step)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=relax_steps,
+                                     progress=progress)
+    total = time.perf_counter() - t0
+    active = np.asarray(state.particles.active)
+    measurements = {
+        "protocol": "drop",
+        "law": contact_law.name,
+        "n_particles": int(active.sum()),
+        "n_requested": int(n),
+        "all_inserted": bool(active.all()),
+        "seed": int(seed),
+        "fill_steps": fill_steps,
+        "mean_steps_per_drop": fill_steps / n,
+        "forced_drops": int(state.protocol_state.forced),
+        "steps": int(state.step),
+        "wall_seconds": fill.wall_seconds + rest.wall_seconds,
+        "compile_seconds": fill.compile_seconds + rest.compile_seconds,
+        "total_seconds": total,
+        "at_rest": bool(rest.at_rest),
+        "final_max_speed": rest.max_speed,
+        "speed_tolerance": speed_tolerance,
+    }
+    measurements.update(measure(sim, params, state, bins=bins, dip_threshold=dip_threshold))
+    return state, measurements
+
+
+def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: float = 0.05) -> dict:
+    """The drop pile's measurements at `state` (see `run`)."""
+    from jaxpile import analysis
+
+    base = analysis.base_forces(sim, params, state)
+    n_in = int(np.asarray(state.particles.movable).sum())
+    out = {
+        "base_contacts": int(len(base.x)),
+        "total_normal": float(base.normal.sum()),
+        "weight_balance": float(base.normal.sum()) / max(n_in, 1) - 1.0,
+        "total_horizontal": float(base.horizontal.sum()),
+    }
+    p = state.particles
+    active = np.asarray(p.active)
+    pos, radius = np.asarray(p.position), np.asarray(p.radius)
+    out["height"] = float(np.max((pos[:, 1] + radius)[active])) if active.any() else 0.0
+    try:
+        profile = normal_profile(base, bins)
+    except InputError:
+        profile = None
+    if profile is not None:
+        dip = central_dip(profile)
+        out.update(
+            base_width=profile.base,
+            centre_x=profile.centre,
+            profile_x_over_base=profile.x_over_base.tolist(),
+            profile_normal=profile.force.tolist(),
+            profile_normalised=profile.normalised.tolist(),
+            central_dip=dip,
+            has_central_dip=bool(dip > dip_threshold),
+        )
+    for flank in ("left", "right"):
+        try:
+            surface = analysis.surface_profile(pos, radius, active)
+            angle = analysis.repose_angles(surface, flank=flank).cumulative_parabola
+        except InputError:
+            angle = float("nan")
+        out[f"repose_angle_{flank}"] = angle
+    return out
+
+
+__all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "layout", "make_driver",
+           "measure", "normal_profile", "protocol", "run"]

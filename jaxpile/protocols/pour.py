@@ -1,0 +1,706 @@
+"""Heaps poured onto a rough base (Baxter, Tuzun, Burnell & Heyes 1997).
+
+The paper's procedure (sec. II, last two paragraphs; sec. III):
+
+* the base is "a static substrate consisting of a row of equally spaced
+  particles, interacting with the dynamic grains with the same interaction
+  laws"; a flat structureless floor gave no stable heap. Here: fixed disks of
+  diameter sigma, centres a distance `spacing` = S apart (S = 1.1 sigma, where the
+  paper's angle of repose reaches its plateau), standing on the line y = 0
+  (centres at y = sigma / 2). No wall is active: the row is the only support;
+* the grains "fall under gravity in the y direction onto the substrate from an
+  initial height of ~100 sigma with initial lateral x coordinates chosen from a
+  uniform random distribution in an interval +-3 sigma": released at rest,
+  `release_height` = 100 sigma above the substrate's centre line, x uniform in
+  the middle of the row +-3 sigma;
+* the rate is not printed. Fig. 2's caption fixes it: 869 disks deposited at
+  1.40e3 time units, 900 at 1.45e3, 931 at 1.50e3, 1334 at 2.15e3 (Fig. 1). With
+  one disk every Delta from t = 0 the four counts need 1.6117 < Delta <= 1.6129:
+  one disk every 1.612 time units (0.62 per time unit), i.e. every 1612 steps at
+  the paper's dt = 1e-3 (sigma/g)^(1/2). Released at rest, a disk is then
+  g Delta^2 / 2 = 1.30 sigma below the next one when that is released, just
+  beyond the law's reach (1.2 sigma), so falling disks never meet;
+* monodisperse, or delta% polydisperse: diameters uniform in ((1 - delta) sigma, sigma)
+  (delta = 5%, 10% in the paper). Masses follow the area (uniform areal density:
+  a disk of diameter sigma has mass m = 1); the paper does not say;
+* 1334 disks (Fig. 1; 1000 in Figs. 5-8), then left to come to rest.
+
+Everything happens inside the compiled loop with fixed shapes: all disks exist
+from the start, parked inactive on a grid above the release point (2.5 sigma
+apart, so they never interact); `driver` releases the next one every `interval`
+and takes a disk that falls off an end of the row out of play (parked again,
+inactive, and counted in `PourState.lost`). It reads everything it needs from
+`SimState.protocol_state`, so one `Simulator` serves every pour set-up.
+
+The free fall from 100 sigma is long (14 time units, 14000 steps). `insert_height`
+is an exact shortcut for small runs: disks then appear at that height moving down
+with the speed sqrt(2 g (release_height - insert_height)) they would have after
+falling from `release_height`, so every disk hits the heap as in a release from
+`release_height` (gravity is uniform and there is no air drag; only the
+arrival times shift, all by the same amount). It is an option, not the default.
+
+Measurements (`measure`): the forces between the heap and the substrate
+(`substrate_forces`, the paper's base force F_B/mg of Figs. 3(b), 5(b), 7), their
+binned normalised profile (x/B, F/F_max) and its M shape (flank maxima over the
+central value; the paper: 20-30% above the centre for n = 36, r0 = 1.2 sigma), the
+angle of repose of each flank by the three methods of Lee & Herrmann 1993
+(paper: 35 +- 5 deg), and the voidage map (Figs. 2, 5, 6, 8).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import analysis
+from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
+from jaxpile.errors import InputError
+from jaxpile.protocols import drivers
+from jaxpile.protocols.base import Protocol
+from jaxpile.state import SimState, make_particles
+
+Array = Any
+
+PARK_SPACING = 2.5
+"""Distance between parked disks (sigma): more than any law's reach plus skin."""
+
+LOST_DEPTH = 1.5
+"""A disk whose centre falls this far (sigma) below the substrate's centres has
+left the row and is taken out of play."""
+
+MIN_RELEASE_GAP = 1.25
+"""The least height (sigma) between a disk just released and the one released
+before it: beyond the longest reach of the laws' pour settings (baxter: r0 sigma
+= 1.2 sigma), so falling disks never meet in the air (their vertical separation
+only grows). The paper's rate leaves g interval^2 / 2 = 1.30 sigma."""
+
+# The paper's setting and, for the laws the paper does not use, our choices.
+PAPER_SETTING = {
+    "n": 1334,  # Fig. 1 (1000 in Figs. 5-8)
+    "spacing": 1.1,  # S, sec. III: the plateau of the angle of repose
+    "release_height": 100.0,  # "~100 sigma", sec. II
+    "spread": 3.0,  # x uniform in +-3 sigma, sec. II
+    "interval": 1.612,  # time units between releases, from Fig. 2's caption
+    "dt": 1.0e-3,  # sec. II: "typically 0.001 sigma^(1/2) g^(-1/2)"
+    "integrator": "leapfrog",  # eqs. 9-12
+    "speed_tolerance": 1.0e-4,  # "near rest"; ours, (sigma g)^(1/2): the base then carries the weight to ~1e-6
+    "max_settle_steps": 2_000_000,
+    "params": {
+        # the paper's law: n = 36, r0 = 1.2 sigma, alpha = 1.214, 50% of critical
+        # damping (paper_params), mu = 0.5 in the middle of its 0.4-0.6
+        "baxter": {"n": 36.0, "r0": 1.2, "mu": 0.5},
+        # the paper's equivalent Hooke law (Fig. 5: k = 500 mg / sigma); dashpot at
+        # the paper's 50% of 2 sqrt(m k) for a pair of equal disks: m_eff gamma_n =
+        # sqrt(m k), m_eff = m / 2, so gamma_n = 2 sqrt(k / m) = 44.7; kt = 2 k / 7
+        # and gamma_t = gamma_n / 2 (LAMMPS defaults); mu = 0.5 as for baxter
+        "hooke": {"kn": 500.0, "gamma_n": 2.0 * math.sqrt(500.0), "mu": 0.5},
+        # ours: k_n = 1e4 mg / sigma^(3/2) (0.2% sigma overlap under 1 mg, 2-3%
+        # at the base of a 1334-disk heap), gamma_n = 50 / time (between 2/3 and
+        # 1/3 of critical over those overlaps), the paper's k_s = k_n / 100 and
+        # gamma_s = gamma_n / 100, and mu = 0.5 as for baxter; no rotation (the
+        # law's default, as in Lee & Herrmann 1993)
+        "lee-herrmann": {"kn": 1.0e4, "gamma_n": 50.0, "mu": 0.5},
+        # Liffman et al.'s values (K_s from their eq. 46, the rest as in
+        # liffman.paper_params); its disk-disk friction is viscous only, so its
+        # heaps are flatter
+        "liffman": {},
+    },
+}
+
+
+class PourState(NamedTuple):
+    """What the pouring driver carries (`SimState.protocol_state`).
+
+    Attributes:
+      poured: int scalar, disks released so far.
+      total: int scalar, disks to release.
+      first: int scalar, index of the first pourable disk (the substrate comes first).
+      interval: int scalar, steps between releases (the first at step 0).
+      release_position: `[n, 2]` where each disk is released (rows of the
+        substrate unused).
+      release_velocity: `[2]` velocity at release ((0, 0) unless `insert_height`
+        is used).
+      park_position: `[n, 2]` where each disk waits (and returns to when lost).
+      lost: `[n]` bool, disks that fell off the substrate's ends.
+      lost_below: scalar, the centre height below which a disk is lost.
+    """
+
+    poured: Array
+    total: Array
+    first: Array
+    interval: Array
+    release_position: Array
+    release_velocity: Array
+    park_position: Array
+    lost: Array
+    lost_below: Array
+
+
+def driver(state: SimState) -> SimState:
+    """The pouring driver (run before every step inside the compiled loop).
+
+    Takes out of play every active disk whose centre fell below `lost_below`
+    (it falls off an end of the substrate row: parked again, inactive, counted in
+    `lost`), then on steps `0, interval, 2 interval, ...` releases the next disk
+    at its `release_position` with `release_velocity` and with its force set to
+    its weight, so the first half kick is the free fall's.
+    """
+    ps: PourState = state.protocol_state
+    p = state.particles
+    fell = p.active & ~p.fixed & (p.position[:, 1] < ps.lost_below)
+    p = p.set(
+        active=p.active & ~fell,
+        position=jnp.where(fell[:, None], ps.park_position, p.position),
+        velocity=jnp.where(fell[:, None], 0.0, p.velocity),
+        angular_velocity=jnp.where(fell, 0.0, p.angular_velocity),
+        force=jnp.where(fell[:, None], 0.0, p.force),
+        torque=jnp.where(fell, 0.0, p.torque),
+    )
+    state = state.set(particles=p)
+
+    due = (state.step % ps.interval == 0) & (ps.poured < ps.total)
+    index = ps.first + jnp.minimum(ps.poured, ps.total - 1)
+    state = drivers.activate(state, index, ps.release_position[index], ps.release_velocity, when=due)
+    p = state.particles
+    hit = (jnp.arange(p.count) == index) & due
+    p = p.set(force=jnp.where(hit[:, None], p.mass[:, None] * state.boundaries.gravity[None, :], p.force))
+    ps = ps._replace(poured=ps.poured + due.astype(ps.poured.dtype), lost=ps.lost | fell)
+    return state.set(particles=p, protocol_state=ps)
+
+
+def substrate_size(n: int, spacing: float, min_angle: float = 15.0) -> int:
+    """Disks in a row long enough for the heap of n disks at any angle above
+    `min_angle` degrees: base B = 2 sqrt(A / tan(angle)) for a triangular heap of
+    area A = n (pi/4) / 0.8 (packing fraction 0.8), plus 5 sigma at each end."""
+    area = n * (math.pi / 4.0) / 0.8
+    base = 2.0 * math.sqrt(area / math.tan(math.radians(min_angle))) + 10.0
+    return int(math.ceil(base / spacing)) + 1
+
+
+def steepest_heap_height(n: int) -> float:
+    """Height of a 45-degree heap of n disks (packing fraction 0.8), the
+    steepest these laws build: insertion must start above it."""
+    return math.sqrt(n * (math.pi / 4.0) / 0.8)
+
+
+def pour(
+    n: int = PAPER_SETTING["n"],
+    *,
+    spacing: float = PAPER_SETTING["spacing"],
+    polydispersity: float = 0.0,
+    release_height: float = PAPER_SETTING["release_height"],
+    insert_height: float | None = None,
+    spread: float = PAPER_SETTING["spread"],
+    interval: float = PAPER_SETTING["interval"],
+    dt: float = PAPER_SETTING["dt"],
+    substrate_disks: int | None = None,
+    seed: int = 0,
+    dtype=None,
+) -> Protocol:
+    """The 1997 pouring set-up: a fixed row of disks and n disks to pour onto it.
+
+    Units: sigma (the largest diameter) = 1, g = 1, a disk of diameter sigma has
+    mass 1; time in (sigma / g)^(1/2). Heights are measured from the substrate's
+    centre line y = sigma / 2.
+
+    Args:
+      n: disks to pour (1334 in the paper's Fig. 1).
+      spacing: S, centre-to-centre distance of the substrate disks (diameter
+        sigma); 1.1 sigma in the paper. Must leave a gap narrower than the
+        smallest disk, so nothing falls through.
+      polydispersity: delta (a fraction, 0.05 for the paper's 5%): diameters
+        uniform in ((1 - delta) sigma, sigma); 0 = monodisperse.
+      release_height: where disks start at rest (100 sigma in the paper).
+      insert_height: optional lower height where disks appear, moving down at
+        the free-fall speed from `release_height` (an exact shortcut, see the
+        module docstring). Must be above the steepest heap (45 deg) + 3 sigma.
+      spread: release x uniform in +-spread around the middle of the row.
+      interval: time between releases (1.612, the paper's rate). It must leave
+        `MIN_RELEASE_GAP` between a disk just released and the previous one.
+      dt: the time step the run will use (to turn `interval` into steps).
+      substrate_disks: disks in the row; default `substrate_size(n, spacing)`
+        (room for a 15-degree heap).
+      seed: draws the radii and release x (the protocol is a pure function of it).
+      dtype: float dtype (default float64).
+
+    Returns:
+      `Protocol` whose `protocol_state` is a `PourState`; the substrate is
+      particles `0 .. m-1` (fixed), the poured disks `m .. m+n-1` in release
+      order. `info` holds the set-up's numbers, including `pour_steps`
+      (n x interval steps: the last disk has one interval to fall).
+
+    Raises:
+      InputError: on a bad count, spacing, polydispersity, height, spread, interval or dt.
+    """
+    if int(n) != n or n < 1:
+        raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
+    n = int(n)
+    if not 0.0 <= polydispersity < 0.5:
+        raise InputError(f"polydispersity must be a fraction in [0, 0.5) (0.05 for 5%); got {polydispersity!r}.")
+    smallest = 1.0 - polydispersity
+    if not (1.0 <= spacing < 1.0 + smallest) or not math.isfinite(spacing):
+        raise InputError(
+            f"spacing S must be at least one diameter (1 sigma) and leave a gap narrower than the smallest "
+            f"disk ({smallest:g} sigma), i.e. 1 <= S < {1.0 + smallest:g}; got {spacing!r}.")
+    if not (spread >= 0 and math.isfinite(spread)):
+        raise InputError(f"spread must be >= 0 and finite; got {spread!r}.")
+    if not (dt > 0 and math.isfinite(dt)):
+        raise InputError(f"dt must be positive and finite; got {dt!r}.")
+    if not (interval > 0 and math.isfinite(interval)):
+        raise InputError(f"interval must be a positive time; got {interval!r}.")
+    interval_steps = max(1, int(round(interval / dt)))
+    lowest = steepest_heap_height(n) + 3.0
+    if not (math.isfinite(release_height) and release_height >= lowest):
+        raise InputError(
+            f"release_height must be at least {lowest:.1f} sigma for {n} disks (a 45-degree heap plus "
+            f"3 sigma); got {release_height!r}.")
+    if insert_height is None:
+        insert_height = release_height
+    if not (math.isfinite(insert_height) and lowest <= insert_height <= release_height):
+        raise InputError(
+            f"insert_height must lie between {lowest:.1f} sigma (above a 45-degree heap of {n} disks) and "
+            f"release_height = {release_height:g}; got {insert_height!r}.")
+    speed = math.sqrt(2.0 * (release_height - insert_height))
+    gap = speed * interval_steps * dt + 0.5 * (interval_steps * dt) ** 2
+    if gap < MIN_RELEASE_GAP:
+        raise InputError(
+            f"interval {interval!r} is too short: when a disk is released the previous one is only {gap:.2f} sigma "
+            f"below it and they could touch in the air; the interval must leave at least {MIN_RELEASE_GAP} sigma "
+            "(the paper's 1.612 leaves 1.30 sigma).")
+    rows = substrate_size(n, spacing) if substrate_disks is None else substrate_disks
+    if int(rows) != rows or rows < 3:
+        raise InputError(f"substrate_disks must be a whole number >= 3; got {substrate_disks!r}.")
+    rows = int(rows)
+    if substrate_disks is not None and rows * spacing < 2.0 * spread + 2.0:
+        raise InputError(f"a row of {rows} disks ({rows * spacing:g} sigma) is narrower than the pouring "
+                         f"interval +-{spread:g} sigma.")
+
+    rng = np.random.default_rng(seed)
+    diameter = 1.0 - polydispersity * rng.uniform(0.0, 1.0, n) if polydispersity > 0 else np.ones(n)
+    base_y = 0.5
+    x_substrate = spacing * np.arange(rows)
+    middle = 0.5 * float(x_substrate[-1])
+    drop_x = middle + rng.uniform(-spread, spread, n)
+
+    columns = max(4, int(math.ceil(math.sqrt(n))))
+    park_y0 = base_y + release_height + 2.0 * PARK_SPACING
+    k = np.arange(n)
+    park = np.stack([middle + PARK_SPACING * (k % columns - 0.5 * (columns - 1)),
+                     park_y0 + PARK_SPACING * (k // columns)], axis=1)
+
+    position = np.concatenate([np.stack([x_substrate, np.full(rows, base_y)], axis=1), park])
+    radius = np.concatenate([np.full(rows, 0.5), 0.5 * diameter])
+    fixed = np.arange(rows + n) < rows
+    particles = make_particles(position, radius, fixed=fixed, active=fixed, dtype=dtype)
+    dtype = particles.position.dtype
+
+    boundaries = make_boundaries(dtype=dtype)
+    for wall in (GROUND, LEFT_WALL, RIGHT_WALL):
+        boundaries = set_wall(boundaries, wall, active=False)
+
+    release = np.concatenate([np.zeros((rows, 2)),
+                              np.stack([drop_x, np.full(n, base_y + insert_height)], axis=1)])
+    state = PourState(
+        poured=jnp.asarray(0, jnp.int32),
+        total=jnp.asarray(n, jnp.int32),
+        first=jnp.asarray(rows, jnp.int32),
+        interval=jnp.asarray(interval_steps, jnp.int32),
+        release_position=jnp.asarray(release, dtype),
+        release_velocity=jnp.asarray([0.0, -speed], dtype),
+        park_position=jnp.asarray(position, dtype),
+        lost=jnp.zeros(rows + n, bool),
+        lost_below=jnp.asarray(base_y - LOST_DEPTH, dtype),
+    )
+    info = {
+        "protocol": "pour",
+        "n_poured": n,
+        "n_substrate": rows,
+        "spacing": float(spacing),
+        "substrate_length": float(x_substrate[-1] + 1.0),
+        "centre_x": middle,
+        "base_y": base_y,
+        "polydispersity": float(polydispersity),
+        "release_height": float(release_height),
+        "insert_height": float(insert_height),
+        "insert_speed": speed,
+        "spread": float(spread),
+        "interval": interval_steps * dt,
+        "interval_steps": interval_steps,
+        "dt": float(dt),
+        "pour_steps": n * interval_steps,
+        "seed": int(seed),
+    }
+    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state, info=info)
+
+
+# -------------------------------------------------------------------- forces
+class SubstrateForces(NamedTuple):
+    """Every contact between a poured disk and a substrate disk, sorted by x,
+    in mg (`analysis.force_unit`: the mean poured mass times g). The fields of
+    `analysis.BaseForces`, plus the substrate partner.
+
+    Attributes:
+      x: `[c]` x of the contact point (on the centre line, dividing it in the
+        ratio of the radii).
+      normal: `[c]` force of the substrate on the heap normal to the base
+        (upwards, along -g): the paper's F_B.
+      horizontal: `[c]` force the heap disk exerts on the substrate along the
+        base (+x; the sign convention of `analysis.base_forces`).
+      particle: `[c]` poured disk ids.
+      substrate: `[c]` the substrate disk ids.
+    """
+
+    x: np.ndarray
+    normal: np.ndarray
+    horizontal: np.ndarray
+    particle: np.ndarray
+    substrate: np.ndarray
+
+
+def substrate_forces(sim, params, state: SimState) -> SubstrateForces:
+    """The base forces of a poured heap: contacts of movable disks with fixed ones."""
+    cf = sim.contact_forces(params, state)
+    idx = np.asarray(state.neighbors.idx)
+    n = idx.shape[0]
+    p = state.particles
+    fixed, movable = np.asarray(p.fixed), np.asarray(p.movable)
+    rows = np.repeat(np.arange(n)[:, None], idx.shape[1], axis=1)
+    valid = idx < n
+    partner = np.where(valid, idx, 0)
+    keep = np.asarray(cf.pair.in_contact) & valid & movable[rows] & fixed[partner]
+    i, j = rows[keep], idx[keep]
+    force = np.asarray(cf.pair.force)[keep]  # substrate on heap disk
+    pos, rad = np.asarray(p.position), np.asarray(p.radius)
+    x = pos[j, 0] + (pos[i, 0] - pos[j, 0]) * rad[j] / (rad[i] + rad[j])
+    g = np.asarray(state.boundaries.gravity)
+    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 1.0])
+    along = np.array([up[1], -up[0]])
+    unit = analysis.force_unit(state)
+    order = np.argsort(x, kind="stable")
+    return SubstrateForces(x=x[order], normal=(force @ up)[order] / unit,
+                           horizontal=-(force @ along)[order] / unit, particle=i[order], substrate=j[order])
+
+
+class BaseProfile(NamedTuple):
+    """The base force binned along the heap's base (the papers' x/B, F/F_max).
+
+    Attributes:
+      x_over_b: `[b]` bin centres, (x - x_left) / B, in (0, 1).
+      force: `[b]` total normal force in each bin (mg).
+      normalised: `[b]` force / its maximum.
+      x_left: left end of the base.
+      width: B, the base length.
+    """
+
+    x_over_b: np.ndarray
+    force: np.ndarray
+    normalised: np.ndarray
+    x_left: float
+    width: float
+
+
+def base_profile(forces, *, extent=None, bins: int | None = None, spacing: float = 1.1) -> BaseProfile:
+    """Bins the base normal force over the heap's base.
+
+    Args:
+      forces: `SubstrateForces` (or any `x`, `normal` arrays).
+      extent: `(x_left, x_right)` of the base; default: the span of the contacts.
+      bins: number of bins, made odd so one bin sits under the middle; default
+        about one bin per 4 substrate disks (at least 5).
+      spacing: substrate spacing, for the default bin count.
+    """
+    x, f = np.asarray(forces.x, float), np.asarray(forces.normal, float)
+    if x.size == 0:
+        raise InputError("no base contacts: nothing rests on the substrate.")
+    x_left, x_right = (float(x.min()), float(x.max())) if extent is None else (float(e) for e in extent)
+    width = x_right - x_left
+    if not width > 0:
+        raise InputError(f"the base extent must have x_left < x_right; got ({x_left}, {x_right}).")
+    if bins is None:
+        bins = max(5, int(round(width / (4.0 * spacing))))
+    if int(bins) != bins or bins < 3:
+        raise InputError(f"bins must be a whole number >= 3; got {bins!r}.")
+    bins = int(bins) | 1
+    u = (x - x_left) / width
+    inside = (u >= 0) & (u <= 1)
+    which = np.minimum((u[inside] * bins).astype(int), bins - 1)
+    total = np.bincount(which, weights=f[inside], minlength=bins)
+    peak = total.max()
+    return BaseProfile(x_over_b=(np.arange(bins) + 0.5) / bins, force=total,
+                       normalised=total / peak if peak > 0 else np.zeros_like(total),
+                       x_left=x_left, width=width)
+
+
+class MShape(NamedTuple):
+    """Flank maxima of the base force against its central value (1997 Fig. 3(b):
+    maxima "some 20-30% greater than that in the centre").
+
+    Attributes:
+      left_ratio, right_ratio: the largest bin left (right) of the central bin
+        over the central bin.
+      ratio: their mean.
+      m_shaped: both flank maxima exceed the centre by more than `threshold`.
+    """
+
+    left_ratio: float
+    right_ratio: float
+    ratio: float
+    m_shaped: bool
+
+
+def m_shape(profile: BaseProfile, threshold: float = 0.1) -> MShape:
+    """Whether the binned base force has the M shape (a dip under the apex)."""
+    f = np.asarray(profile.force, float)
+    if f.size < 3 or f.size % 2 == 0:
+        raise InputError(f"the M shape needs an odd number (>= 3) of bins; got {f.size}.")
+    c = f.size // 2
+    centre = f[c]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        left, right = np.max(f[:c]) / centre, np.max(f[c + 1:]) / centre
+    left, right = float(left), float(right)
+    return MShape(left_ratio=left, right_ratio=right, ratio=0.5 * (left + right),
+                  m_shaped=bool(left > 1.0 + threshold and right > 1.0 + threshold))
+
+
+# -------------------------------------------------------------- measurements
+def heap_mask(state: SimState) -> np.ndarray:
+    """`[n]` bool: the poured disks in play (active and not fixed)."""
+    return np.asarray(state.particles.movable)
+
+
+def _contiguous_columns(profile: analysis.SurfaceProfile) -> tuple[float, float]:
+    """x range (column centres) of the run of non-empty columns holding the apex."""
+    filled = ~np.isnan(profile.height)
+    top = int(np.nanargmax(profile.height))
+    lo = top
+    while lo > 0 and filled[lo - 1]:
+        lo -= 1
+    hi = top
+    while hi < len(filled) - 1 and filled[hi + 1]:
+        hi += 1
+    return float(profile.x[lo]), float(profile.x[hi])
+
+
+def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_cell: float = 3.0,
+            m_threshold: float = 0.1) -> dict:
+    """The 1997 measurements of a poured heap.
+
+    Returns a dict with:
+      `counts`: poured, in play (on the substrate), lost (fell off an end), still
+        parked, and `strays` (in play but outside the heap's contiguous columns);
+      `substrate_forces` (`SubstrateForces`), `base_profile` (`BaseProfile` over
+        the heap's base), `m_shape` (`MShape`);
+      `weight` (mg, of the disks in play), `substrate_normal_total` (mg) and
+        `force_balance` = total / weight - 1 (zero at rest);
+      `surface` (`analysis.SurfaceProfile` of the disks in play, columns one
+        substrate spacing wide centred on the notches of the row), `apex_x`,
+        `height` (apex centre height above the substrate's centre line),
+        `base_width` B, `angles` {"left", "right"}: `analysis.ReposeAngles` of each
+        flank (the contiguous columns only), `angle_height_base` = atan(2 h / B),
+        `asymmetry`: apex and centre-of-mass offsets from the pouring centre;
+      `voidage` (`analysis.VoidageMap` over the heap, cells `voidage_cell` sigma)
+        and `core_packing_fraction` (a rectangle B/4 wide and h/2 high under the apex).
+    """
+    ps: PourState = state.protocol_state
+    p = state.particles
+    in_play = heap_mask(state)
+    first = int(ps.first)
+    poured = int(ps.poured)
+    lost = int(np.asarray(ps.lost).sum())
+    parked = int((~np.asarray(p.active) & ~np.asarray(p.fixed)).sum()) - lost
+    pos, rad = np.asarray(p.position), np.asarray(p.radius)
+    base_y = float(pos[0, 1])
+    spacing = float(pos[1, 0] - pos[0, 0])
+    centre_x = 0.5 * float(pos[first - 1, 0] + pos[0, 0])
+
+    out: dict = {"counts": {"poured": poured, "in_play": int(in_play.sum()), "lost": lost, "parked": parked,
+                            "total": int(p.count) - first}}
+    forces = substrate_forces(sim, params, state)
+    unit = analysis.force_unit(state)
+    weight = float(np.asarray(p.mass)[in_play].sum() * np.linalg.norm(np.asarray(state.boundaries.gravity)) / unit)
+    total = float(forces.normal.sum())
+    out.update(substrate_forces=forces, weight=weight, substrate_normal_total=total,
+               force_balance=total / weight - 1.0 if weight > 0 else float("nan"))
+    if not in_play.any():
+        return out
+
+    # columns one substrate spacing wide, each centred on a notch of the row: with
+    # the mean diameter (Lee & Herrmann's choice) every tenth column of a
+    # one-disk-high toe would be empty, as its disks sit in notches S apart
+    rows = first
+    surface = analysis.surface_profile(pos[in_play], rad[in_play], x_min=float(pos[0, 0]),
+                                       width=float(pos[rows - 1, 0] - pos[0, 0]), column_width=spacing)
+    lo, hi = _contiguous_columns(surface)
+    half = 0.5 * surface.column_width
+    heap_cols = (pos[in_play, 0] >= lo - half) & (pos[in_play, 0] <= hi + half)
+    out["counts"]["strays"] = int((~heap_cols).sum())
+    apex = analysis.apex_x(surface)
+    height = float(np.nanmax(surface.height)) - base_y
+    x_left, x_right = lo - half, hi + half
+    width = x_right - x_left
+    angles = {}
+    for flank in ("left", "right"):
+        try:
+            angles[flank] = analysis.repose_angles(surface, flank=flank, x_range=(lo, hi), apex=apex)
+        except InputError:
+            angles[flank] = None  # fewer than 3 columns on that side
+    heap_x = pos[in_play, 0][heap_cols]
+    heap_m = np.asarray(p.mass)[in_play][heap_cols]
+    out.update(surface=surface, apex_x=apex, height=height, base_width=width, extent=(x_left, x_right),
+               angles=angles, angle_height_base=math.degrees(math.atan2(2.0 * height, width)),
+               asymmetry={"apex_offset": apex - centre_x,
+                          "mass_centre_offset": float(np.sum(heap_m * heap_x) / np.sum(heap_m)) - centre_x})
+    if forces.x.size:
+        profile = base_profile(forces, extent=(x_left, x_right), bins=bins, spacing=spacing)
+        out["base_profile"] = profile
+        out["m_shape"] = m_shape(profile, m_threshold)
+    top = float(np.max(pos[in_play, 1] + rad[in_play]))
+    region = (x_left, x_right, base_y, top)
+    out["voidage"] = analysis.voidage_map(pos[in_play], rad[in_play], voidage_cell, region=region)
+    core = (apex - width / 8.0, apex + width / 8.0, base_y + 0.5, base_y + 0.5 + max(height / 2.0, 1.0))
+    out["core_packing_fraction"] = analysis.packing_fraction(pos[in_play], rad[in_play], core)
+    return out
+
+
+def summary(measurements: dict) -> dict:
+    """The scalar measurements as plain JSON-friendly numbers (for `summary.json`)."""
+    m = measurements
+    out = {"counts": dict(m["counts"]), "weight_mg": m["weight"],
+           "substrate_normal_total_mg": m["substrate_normal_total"], "force_balance": m["force_balance"]}
+    for key in ("apex_x", "height", "base_width", "angle_height_base", "core_packing_fraction"):
+        if key in m:
+            out[key] = float(m[key])
+    if "asymmetry" in m:
+        out["asymmetry"] = {k: float(v) for k, v in m["asymmetry"].items()}
+    if "angles" in m:
+        out["angle_of_repose"] = {
+            flank: None if a is None else {"endpoints": a.endpoints, "least_squares": a.least_squares,
+                                           "cumulative_parabola": a.cumulative_parabola}
+            for flank, a in m["angles"].items()}
+    if "m_shape" in m:
+        out["m_shape"] = {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
+                          for k, v in m["m_shape"]._asdict().items()}
+    if "base_profile" in m:
+        prof = m["base_profile"]
+        out["base_profile"] = {"x_over_b": prof.x_over_b.tolist(), "normalised": prof.normalised.tolist(),
+                               "force_mg": prof.force.tolist(), "width": prof.width}
+    return out
+
+
+# ----------------------------------------------------------------------- runs
+def law_params(law: str, dtype=None, **overrides):
+    """The pour setting's parameters of a law (`PAPER_SETTING["params"]`), with overrides."""
+    from jaxpile.laws import get_law_module
+
+    module = get_law_module(law)
+    values = {**PAPER_SETTING["params"].get(module.NAME, {}), **overrides}
+    return module.make_params(dtype=dtype, **values)
+
+
+def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
+                   integrator: str = PAPER_SETTING["integrator"], chunk_steps: int = 2000, **kwargs):
+    """A `Simulator` running the pouring driver with a law by name (its own
+    default rotation unless given). One simulator serves every `pour` set-up with
+    this dt (the driver reads the set-up from the state)."""
+    from jaxpile.laws import get_law_module
+    from jaxpile.simulate import Simulator
+
+    module = get_law_module(law)
+    contact_law = module.law() if rotation is None else module.law(rotation=rotation)
+    return Simulator(contact_law, dt, integrator=integrator, driver=driver, chunk_steps=chunk_steps, **kwargs)
+
+
+def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
+            max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None):
+    """Pours every disk (`info["pour_steps"]` steps) and runs until at rest.
+
+    Returns:
+      (state, RunInfo): the run's steps and timings over both phases, `at_rest`
+      and the final `max_speed` from the settling phase.
+    """
+    from jaxpile.simulate import RunInfo
+
+    if abs(sim.dt - protocol.info["dt"]) > 1e-12 * protocol.info["dt"]:
+        raise InputError(f"the protocol was set up for dt = {protocol.info['dt']:g} but the simulator "
+                         f"uses dt = {sim.dt:g}; pass the same dt to both.")
+    if int(max_settle_steps) != max_settle_steps or max_settle_steps < 1:
+        raise InputError(f"max_settle_steps must be a whole number >= 1; got {max_settle_steps!r}.")
+    state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
+                     protocol_state=protocol.protocol_state)
+    info = RunInfo()
+    state = sim.run(params, state, protocol.info["pour_steps"], progress=progress, info=info)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance,
+                                     max_steps=int(max_settle_steps), progress=progress)
+    rest.steps += info.steps
+    rest.wall_seconds += info.wall_seconds
+    rest.compile_seconds += info.compile_seconds
+    rest.reallocations += info.reallocations
+    rest._n = state.particles.count
+    return state, rest
+
+
+def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: float = PAPER_SETTING["dt"],
+        rotation: bool | None = None, integrator: str = PAPER_SETTING["integrator"],
+        speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
+        max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, bins: int | None = None,
+        voidage_cell: float = 3.0, dtype=None, **options):
+    """Pours a heap with a law by name and measures it (the paper's run by default:
+    1334 disks from 100 sigma on S = 1.1 sigma with baxter n = 36, r0 = 1.2 sigma).
+
+    Args:
+      law: `baxter`, `hooke`, `lee-herrmann` or `liffman`.
+      n: disks to pour.
+      params: the law's parameters; default `law_params(law)` (PAPER_SETTING).
+      dt, rotation, integrator: for the `Simulator` (leapfrog, eqs. 9-12, by default).
+      speed_tolerance, max_settle_steps: the rest criterion after pouring.
+      bins, voidage_cell: for `measure`.
+      **options: for `pour` (spacing, polydispersity, release_height,
+        insert_height, spread, interval, substrate_disks, seed).
+
+    Returns:
+      (final state, measurements): `measure`'s dict plus `run` (steps, timings,
+      at_rest, final max speed), `info` (the set-up) and `summary` (plain numbers).
+    """
+    protocol = pour(n, dt=dt, dtype=dtype, **options)
+    if params is None:
+        params = law_params(law, dtype=protocol.particles.position.dtype)
+    sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator)
+    t0 = time.perf_counter()
+    state, info = execute(sim, params, protocol, speed_tolerance=speed_tolerance,
+                          max_settle_steps=max_settle_steps, progress=progress)
+    total = time.perf_counter() - t0
+    result = measure(sim, params, state, bins=bins, voidage_cell=voidage_cell)
+    result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
+                     "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
+                     "total_seconds": total, "neighbor_reallocations": info.reallocations}
+    result["info"] = dict(protocol.info)
+    result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
+    return state, result
+
+
+__all__ = [
+    "MIN_RELEASE_GAP",
+    "PAPER_SETTING",
+    "BaseProfile",
+    "MShape",
+    "PourState",
+    "SubstrateForces",
+    "base_profile",
+    "driver",
+    "execute",
+    "heap_mask",
+    "law_params",
+    "m_shape",
+    "make_simulator",
+    "measure",
+    "pour",
+    "run",
+    "substrate_forces",
+    "steepest_heap_height",
+    "substrate_size",
+    "summary",
+]

@@ -1,0 +1,364 @@
+"""The 1992 close-packed pile of any slope (Liffman, Chan & Hughes, Figs. 12-16).
+
+Equal disks in hexagonal close packing fill an isosceles triangle of base B and
+side angle alpha < 60 deg standing on the ground ("Because the pile is made of
+discrete particles, the sides are composed of a number of sloping steps",
+Fig. 12). Row j (0 at the bottom) is the strip j sqrt(3)/2 <= y <= (j + 1) sqrt(3)/2
+of the lattice; it holds the whole number of disks n_j closest to the width of the
+triangle at the strip's mid-height, w_j = B - (2j + 1) sqrt(3) / (2 tan alpha),
+centred on the pile's axis. Adjacent rows differ by an odd number of disks, which
+keeps them on one hexagonal lattice, so every row is the one below shortened at
+both ends (by 1.5 disks per side per row at 30 deg) and the row ends follow the
+slope. The rows' cells (area sqrt(3)/2 each) then cover the triangle's area
+B^2 tan(alpha) / 4 to within the stepped edges, which is the pile the continuum
+theory (eqs. 49-59) describes: the left foot is at x = 0, the right at x = B.
+With alpha = 60 deg and B = k + 1 the rows are k, k - 1, ..., 1: the lattice pile.
+
+The pile is loaded by a gravity ramp and relaxed to rest as the lattice protocol
+does (`lattice.relax`), with the same per-law setting (`lattice.PAPER_SETTING`:
+hooke with frictionless disks, mu = 0, on a frictional ground, wall_mu = 1, is
+the paper's analytic assumption). Its base forces are compared with eqs. 54-59,
+in particular the slope dH/dx of eq. 57 between x_c and B - x_c.
+
+Paper sizes (`PAPER_PILES`): alpha = 30, 45, 50, 55 deg with about 360 disks
+(Figs. 13-14) and 30 deg with 5490 disks (Fig. 15); `base_for_count` picks B.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from jaxpile.boundaries import make_boundaries
+from jaxpile.errors import InputError
+from jaxpile.protocols import lattice
+from jaxpile.protocols.base import Protocol
+from jaxpile.state import Boundaries, Particles, make_particles
+
+SQRT3 = math.sqrt(3.0)
+
+# (alpha in degrees, disks) of the paper's piles: Figs. 12-14 and Fig. 15
+PAPER_PILES = ((30.0, 360), (45.0, 360), (50.0, 360), (55.0, 360), (30.0, 5490))
+
+# The lattice protocol's loading and per-law parameters (Liffman et al. 1992,
+# eq. 46: mg / (k sigma) = 1e-4; frictionless disks on a frictional ground for
+# hooke and lee-herrmann, the analytic model's assumptions); the pile is given by
+# its slope and size instead of a number of layers.
+SETTING = {
+    **{k: v for k, v in lattice.PAPER_SETTING.items() if k != "layers"},
+    "alpha_degrees": 30.0,
+    "n": 360,
+}
+
+
+def _check_alpha(alpha_degrees) -> float:
+    alpha = float(alpha_degrees)
+    if not 0.0 < alpha < 60.0 + 1e-9:
+        raise InputError(
+            f"alpha must be in (0, 60] degrees (a close-packed pile cannot be steeper than its "
+            f"lattice's 60 deg; 60 is the lattice protocol); got {alpha_degrees!r}.")
+    return min(alpha, 60.0)
+
+
+def _check_base(base) -> float:
+    b = float(base)
+    if not (b > 0 and math.isfinite(b)):
+        raise InputError(f"the base B must be a positive, finite number of diameters; got {base!r}.")
+    return b
+
+
+def row_lengths(base: float, alpha_degrees: float) -> list[int]:
+    """Disks per row, bottom row first, of the pile of base `base` (diameters)
+    and slope `alpha_degrees`.
+
+    Row j holds the count closest to w_j = B - (2j + 1) sqrt(3) / (2 tan alpha)
+    (ties rounded down) whose parity differs from row j - 1's, and at most one
+    fewer than row j - 1. Rows stop at the first that would be empty.
+    """
+    alpha = math.radians(_check_alpha(alpha_degrees))
+    base = _check_base(base)
+    per_row = SQRT3 / math.tan(alpha)  # width lost per row (both ends together)
+    rows: list[int] = []
+    j = 0
+    while True:
+        width = base - (j + 0.5) * per_row
+        if j == 0:
+            count = math.ceil(width - 0.5 - 1e-9)
+        else:
+            parity = (rows[-1] - 1) % 2
+            count = parity + 2 * math.ceil((width - parity) / 2.0 - 0.5 - 1e-9)
+            count = min(count, rows[-1] - 1)
+        if count < 1:
+            return rows
+        rows.append(int(count))
+        j += 1
+
+
+def pile_count(base: float, alpha_degrees: float) -> int:
+    """Number of disks in the pile of base `base` and slope `alpha_degrees`."""
+    return sum(row_lengths(base, alpha_degrees))
+
+
+def base_for_count(n: int, alpha_degrees: float) -> float:
+    """The base B (diameters) whose pile holds the disk count closest to `n`.
+
+    B^2 tan(alpha) / (2 sqrt 3) disks fill the continuum triangle (area
+    B^2 tan(alpha) / 4, sqrt(3)/2 per disk); B is searched on a 0.01 grid around
+    that estimate, ties going to the B nearest the estimate. E.g. 360 disks:
+    B = 46.5 at 30 deg, 29.5 at 55 deg; 5490 disks at 30 deg: B = 181.5.
+    """
+    if int(n) != n or n < 1:
+        raise InputError(f"the disk count must be a positive whole number; got {n!r}.")
+    alpha = math.radians(_check_alpha(alpha_degrees))
+    estimate = math.sqrt(2.0 * SQRT3 * n / math.tan(alpha))
+    best = None
+    for spread in (0.02, 0.2):  # the estimate is good to ~1%; widen only if no exact hit
+        half = spread * estimate + 2.0
+        grid = np.round(np.arange(max(1.0, estimate - half), estimate + half, 0.01), 2)
+        counts = np.array([pile_count(b, alpha_degrees) for b in grid])
+        score = np.abs(counts - n) * 1e3 + np.abs(grid - estimate)
+        best = float(grid[int(np.argmin(score))])
+        if counts.min() <= n <= counts.max() and np.any(counts == n):
+            break
+    return best
+
+
+def sloped_positions(base: float, alpha_degrees: float, diameter: float = 1.0) -> np.ndarray:
+    """`[n, 2]` centres of the pile standing on y = 0 with its left foot at x = 0,
+    bottom row first, left to right. Neighbours touch (no overlap, no gap).
+    `base` is in diameters; positions are in length units (times `diameter`)."""
+    if not (diameter > 0 and math.isfinite(diameter)):
+        raise InputError(f"diameter must be positive and finite; got {diameter!r}.")
+    rows = row_lengths(base, alpha_degrees)
+    if not rows:
+        raise InputError(f"a pile of base {base!r} diameters at {alpha_degrees!r} deg holds no disk; "
+                         "use a larger base.")
+    out = []
+    for j, count in enumerate(rows):
+        x = 0.5 * base + np.arange(count) - 0.5 * (count - 1)
+        y = np.full(count, 0.5 + j * SQRT3 / 2.0)
+        out.append(np.stack([x, y], axis=1))
+    return np.concatenate(out, axis=0) * diameter
+
+
+def sloped_pile(base: float, alpha_degrees: float, *, diameter: float = 1.0, mass: float = 1.0,
+                dtype=None) -> tuple[Particles, Boundaries]:
+    """Particles and boundaries (ground only, side walls off) of the pile."""
+    position = sloped_positions(base, alpha_degrees, diameter)
+    particles = make_particles(position, 0.5 * diameter, mass=mass, dtype=dtype)
+    return particles, make_boundaries(dtype=particles.position.dtype)
+
+
+def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None = SETTING["n"],
+             base: float | None = None, ramp_steps: int = SETTING["ramp_steps"], seed: int = 0,
+             dtype=None) -> Protocol:
+    """The sloped pile of Liffman et al. 1992, Figs. 12-16, ready to run.
+
+    Args:
+      alpha_degrees: the side angle, 0 < alpha < 60 (60 gives the lattice pile).
+      n: target number of disks; B is chosen by `base_for_count`. Ignored when
+        `base` is given.
+      base: the base B in diameters (overrides `n`).
+      ramp_steps: steps of the gravity ramp that loads the pile.
+      seed: unused (the pile is deterministic); kept for a uniform signature.
+
+    Returns:
+      `Protocol` with a gravity-ramp schedule and no driver; `info` holds the
+      slope, B, the row lengths, the disk count and x_c (eq. 49's text).
+    """
+    from jaxpile import theory
+    from jaxpile.simulate import gravity_ramp
+
+    alpha = _check_alpha(alpha_degrees)
+    if base is None:
+        if n is None:
+            raise InputError("give either n (a target disk count) or base (in diameters).")
+        base = base_for_count(n, alpha)
+    base = _check_base(base)
+    particles, boundaries = sloped_pile(base, alpha, dtype=dtype)
+    rows = row_lengths(base, alpha)
+    info = {
+        "alpha_degrees": alpha,
+        "base": base,
+        "rows": rows,
+        "n_particles": int(particles.count),
+        "critical_distance": theory.continuum_critical_distance(math.radians(alpha), base),
+    }
+    return Protocol(particles=particles, boundaries=boundaries, schedule=gravity_ramp(ramp_steps), info=info)
+
+
+def _slope(x, y) -> float:
+    if len(x) < 2:
+        return float("nan")
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def compare_with_theory(base_forces, alpha_degrees: float, base: float, *, n_particles: int | None = None) -> dict:
+    """Base forces of a relaxed sloped pile against eqs. 54-59.
+
+    x is measured from the pile's left foot (x = 0 where it was built), B in
+    diameters, line weight chi g = mg / sigma (eq. 60), forces in mg per ground
+    disk. The central region is x_c < x < B - x_c.
+
+    Args:
+      base_forces: `analysis.BaseForces` (in mg), sorted by x.
+      n_particles: disks in the pile, for the weight balance (optional).
+
+    Returns:
+      dict of plain numbers:
+        `central_slope_horizontal` and `theory_central_slope_horizontal`: dH/dx
+        from a least-squares line through the central contacts, and eq. 57's
+        sin(a) / (sqrt 3 sin(2 pi/3 - a)); `central_slope_rel_dev` their relative
+        difference; `central_normal_mean` against eq. 56's plateau
+        (`theory_central_normal`, `central_normal_rel_dev`); `central_normal_slope`
+        (0 in theory; a dip would show as curvature, reported as
+        `central_normal_dip`: mean of the central region's outer quarters minus
+        the middle half, over eq. 56); `max_dev_normal` / `max_dev_horizontal`:
+        the largest |simulation - theory| over the whole base, over the theory's
+        maximum; `asymmetry_normal`, `asymmetry_horizontal`: largest mirror
+        mismatch N(x) - N(B - x) and H(x) + H(B - x) over max |N| and max |H|;
+        `total_normal` and (with `n_particles`) `weight_balance` = total / n - 1.
+    """
+    from jaxpile import theory
+
+    alpha_deg = _check_alpha(alpha_degrees)
+    alpha = math.radians(alpha_deg)
+    base = _check_base(base)
+    x = np.asarray(base_forces.x, dtype=float)
+    normal = np.asarray(base_forces.normal, dtype=float)
+    horizontal = np.asarray(base_forces.horizontal, dtype=float)
+    n_theory = theory.continuum_ground_normal_force(x, alpha, base)
+    h_theory = theory.continuum_ground_horizontal_force(x, alpha, base)
+    xc = theory.continuum_critical_distance(alpha, base)
+    central = (x > xc) & (x < base - xc)
+    plateau = float(theory.continuum_ground_normal_force(0.5 * base, alpha, base))
+    slope_theory = math.sin(alpha) / (SQRT3 * math.sin(2.0 * math.pi / 3.0 - alpha))
+    slope = _slope(x[central], horizontal[central])
+    xs = x[central]
+    if len(xs) >= 4:
+        half = 0.25 * (xs.max() - xs.min())
+        middle = np.abs(xs - 0.5 * base) <= half
+        dip = float((normal[central][~middle].mean() - normal[central][middle].mean()) / plateau)
+    else:
+        dip = float("nan")
+    mirrored = len(x) > 0 and np.allclose(x + x[::-1], x[0] + x[-1], atol=0.05)
+    h_scale = max(float(np.max(np.abs(horizontal))) if len(x) else 0.0, 1e-300)
+    n_scale = max(float(np.max(np.abs(normal))) if len(x) else 0.0, 1e-300)
+    out = {
+        "alpha_degrees": alpha_deg,
+        "base": base,
+        "critical_distance": xc,
+        "base_contacts": int(len(x)),
+        "central_contacts": int(central.sum()),
+        "total_normal": float(normal.sum()),
+        "total_horizontal": float(horizontal.sum()),
+        "central_slope_horizontal": slope,
+        "theory_central_slope_horizontal": slope_theory,
+        "central_slope_rel_dev": slope / slope_theory - 1.0,
+        "central_normal_mean": float(normal[central].mean()) if central.any() else float("nan"),
+        "theory_central_normal": plateau,
+        "central_normal_slope": _slope(x[central], normal[central]),
+        "central_normal_dip": dip,
+        "max_normal": float(normal.max()) if len(x) else float("nan"),
+        "max_dev_normal": float(np.max(np.abs(normal - n_theory)) / plateau) if len(x) else float("nan"),
+        "max_dev_horizontal": (float(np.max(np.abs(horizontal - h_theory)) / np.max(np.abs(h_theory)))
+                               if len(x) else float("nan")),
+        "asymmetry_normal": float(np.max(np.abs(normal - normal[::-1])) / n_scale) if mirrored else float("nan"),
+        "asymmetry_horizontal": (float(np.max(np.abs(horizontal + horizontal[::-1])) / h_scale)
+                                 if mirrored else float("nan")),
+    }
+    out["central_normal_rel_dev"] = out["central_normal_mean"] / plateau - 1.0
+    if n_particles is not None:
+        out["weight_balance"] = out["total_normal"] / n_particles - 1.0
+    return out
+
+
+def law_and_params(law, params=None, rotation=None, *, setting: dict = SETTING, dtype=None):
+    """`(law module, ContactLaw, params)` for a protocol run.
+
+    Args:
+      law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`) or module.
+      params: None (the setting's values for that law), a dict of overrides on
+        top of them, or a ready params pytree of that law.
+      rotation: integrate spins; None for `setting["rotation"]`.
+      setting: a protocol setting with `"params"` (per law name) and `"rotation"`.
+    """
+    from jaxpile.laws import get_law_module
+
+    lawmod = get_law_module(law) if isinstance(law, str) else law
+    if params is None or isinstance(params, dict):
+        values = {**setting["params"].get(lawmod.NAME, {}), **(params or {})}
+        unknown = set(values) - set(lawmod.PARAM_NAMES)
+        if unknown:
+            raise InputError(f"unknown {lawmod.NAME} parameter(s) {sorted(unknown)}; "
+                             f"known: {list(lawmod.PARAM_NAMES)}.")
+        params = lawmod.make_params(dtype=dtype, **values)
+    elif not isinstance(params, lawmod.Params):
+        raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or {lawmod.NAME}.make_params(...); "
+                         f"got {type(params).__name__}.")
+    rotation = setting["rotation"] if rotation is None else bool(rotation)
+    return lawmod, lawmod.law(rotation=rotation), params
+
+
+def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None = SETTING["n"],
+        base: float | None = None, params=None, rotation: bool | None = None, dt: float = SETTING["dt"],
+        ramp_steps: int = SETTING["ramp_steps"], speed_tolerance: float = SETTING["speed_tolerance"],
+        max_steps: int = SETTING["max_steps"], integrator: str = "velocity_verlet", hard_collisions=None,
+        dtype=None, progress: bool | None = False, seed: int = 0):
+    """Builds the sloped pile, loads and relaxes it, and compares its base forces
+    with eqs. 54-59.
+
+    Args:
+      law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`) or module.
+      params: None for `SETTING["params"][law]` (the lattice protocol's paper
+        setting: hooke / lee-herrmann frictionless disks on a wall_mu = 1 ground,
+        liffman's eq. 46 K_s, baxter n = 36, r0 = 1.2 with mu = 1), a dict of
+        overrides on top of it, or a ready params pytree.
+      rotation: integrate spins (default off, the 1992 static analysis).
+      integrator, hard_collisions: passed to `Simulator`.
+      Other arguments as in `protocol` and `lattice.relax`.
+
+    Returns:
+      `(state, measurements)`: the final state and a dict of plain numbers:
+      `compare_with_theory`'s comparison plus the run's steps, times, whether it
+      ended at rest, the disk count and the pile's geometry.
+
+    Example:
+      >>> state, m = run("hooke", 30.0, n=40, ramp_steps=2000)       # doctest: +SKIP
+      >>> m["central_slope_horizontal"], m["theory_central_slope_horizontal"]  # doctest: +SKIP
+    """
+    from jaxpile import analysis
+    from jaxpile.simulate import Simulator
+
+    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
+    p = protocol(alpha_degrees, n=n, base=base, ramp_steps=ramp_steps, seed=seed, dtype=dtype)
+    sim = Simulator(contact_law, dt, schedule=p.schedule, integrator=integrator, hard_collisions=hard_collisions)
+    state = sim.init(params, p.particles, p.boundaries, box=p.box)
+    t0 = time.perf_counter()
+    state, info = lattice.relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
+                                max_steps=max_steps, progress=progress)
+    total = time.perf_counter() - t0
+    base_f = analysis.base_forces(sim, params, state)
+    n_particles = int(np.asarray(state.particles.active).sum())
+    measurements = compare_with_theory(base_f, p.info["alpha_degrees"], p.info["base"], n_particles=n_particles)
+    measurements.update(
+        protocol="sloped",
+        law=contact_law.name,
+        n_particles=n_particles,
+        rows=len(p.info["rows"]),
+        bottom_row=int(p.info["rows"][0]),
+        steps=int(info.steps),
+        wall_seconds=info.wall_seconds,
+        compile_seconds=info.compile_seconds,
+        total_seconds=total,
+        at_rest=bool(info.at_rest),
+        final_max_speed=info.max_speed,
+        speed_tolerance=speed_tolerance,
+    )
+    return state, measurements
+
+
+__all__ = ["PAPER_PILES", "SETTING", "base_for_count", "compare_with_theory", "law_and_params", "pile_count",
+           "protocol", "row_lengths", "run", "sloped_pile", "sloped_positions"]

@@ -1,0 +1,263 @@
+"""The 1997 pouring protocol (Baxter, Tuzun, Burnell & Heyes): small heaps poured at
+the paper's rate onto a row of fixed disks, with the baxter law and with hooke."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpile
+from jaxpile.errors import InputError
+from jaxpile.protocols import pour
+
+N = 48  # disks per test heap (the paper: 1334)
+RELEASE = 14.0  # sigma above the substrate (the paper: 100; the smallest allowed for N is 10.4)
+TOLERANCE = 1.0e-4  # rest: every disk slower than this, (sigma g)^(1/2)
+
+
+def _heap(law, polydispersity, seed):
+    sim = pour.make_simulator(law)
+    params = pour.law_params(law)
+    protocol = pour.pour(N, release_height=RELEASE, polydispersity=polydispersity, seed=seed)
+    state, info = pour.execute(sim, params, protocol, speed_tolerance=TOLERANCE, max_settle_steps=150_000,
+                               progress=False)
+    return sim, params, protocol, state, info, pour.measure(sim, params, state)
+
+
+@pytest.fixture(scope="module")
+def baxter_heap():
+    """Monodisperse, the paper's law (n = 36, r0 = 1.2 sigma, mu = 0.5)."""
+    return _heap("baxter", 0.0, seed=1)
+
+
+@pytest.fixture(scope="module")
+def hooke_heap():
+    """10% polydisperse, the paper's equivalent Hooke law (k = 500 mg / sigma)."""
+    return _heap("hooke", 0.1, seed=2)
+
+
+# ----------------------------------------------------------------- the set-up
+def test_setup_follows_the_paper():
+    p = pour.pour(N, release_height=RELEASE, seed=3)
+    info, ps, part = p.info, p.protocol_state, p.particles
+    rows = info["n_substrate"]
+    assert part.count == rows + N
+    fixed, active = np.asarray(part.fixed), np.asarray(part.active)
+    assert fixed[:rows].all() and active[:rows].all()  # the substrate: fixed, in play
+    assert not fixed[rows:].any() and not active[rows:].any()  # the rest parked
+    assert not np.asarray(p.boundaries.wall_active).any()  # the row is the only support
+    pos = np.asarray(part.position)
+    np.testing.assert_allclose(np.diff(pos[:rows, 0]), 1.1)  # S = 1.1 sigma
+    np.testing.assert_allclose(pos[:rows, 1], 0.5)
+    # parked disks far from each other and from the release point
+    parked = pos[rows:]
+    gaps = np.linalg.norm(parked[:, None] - parked[None], axis=-1) + 1e9 * np.eye(N)
+    assert gaps.min() >= pour.PARK_SPACING - 1e-9
+    release = np.asarray(ps.release_position)[rows:]
+    assert parked[:, 1].min() > release[:, 1].max() + 4.0
+    # released at rest at 14 sigma, x uniform in +-3 sigma about the row's middle
+    np.testing.assert_allclose(release[:, 1], 0.5 + RELEASE)
+    assert np.all(np.abs(release[:, 0] - info["centre_x"]) <= 3.0)
+    assert np.ptp(release[:, 0]) > 4.0
+    np.testing.assert_array_equal(np.asarray(ps.release_velocity), [0.0, 0.0])
+    # the paper's rate: one disk every 1.612 time units = 1612 steps of 1e-3
+    assert info["interval_steps"] == 1612 and int(ps.interval) == 1612
+    # the row is long enough for a 15-degree heap
+    assert info["substrate_length"] > 2 * math.sqrt(N * math.pi / 4 / 0.8 / math.tan(math.radians(15)))
+    np.testing.assert_allclose(np.asarray(part.radius)[rows:], 0.5)  # monodisperse by default
+
+
+def test_polydisperse_diameters_are_uniform_in_the_paper_range():
+    """delta% polydisperse: diameters uniform in ((1 - delta) sigma, sigma)."""
+    for delta in (0.05, 0.1):
+        p = pour.pour(400, release_height=40.0, polydispersity=delta, seed=4)
+        d = 2 * np.asarray(p.particles.radius)[p.info["n_substrate"]:]
+        assert d.min() >= 1 - delta and d.max() <= 1.0
+        assert d.min() < 1 - 0.97 * delta and d.max() > 1 - 0.03 * delta  # fills the range
+        assert abs(d.mean() - (1 - delta / 2)) < 0.1 * delta  # mean (1 - delta/2) sigma, as the paper says
+        m = np.asarray(p.particles.mass)[p.info["n_substrate"]:]
+        np.testing.assert_allclose(m, d**2)  # uniform areal density, sigma-disk of mass 1
+
+
+def test_bad_arguments_raise_input_errors():
+    with pytest.raises(InputError, match="n must be"):
+        pour.pour(0)
+    with pytest.raises(InputError, match="polydispersity"):
+        pour.pour(10, release_height=20, polydispersity=5)  # 5 meant as 5%
+    with pytest.raises(InputError, match="spacing"):
+        pour.pour(10, release_height=20, spacing=2.05)  # disks would fall through the gaps
+    with pytest.raises(InputError, match="release_height"):
+        pour.pour(400, release_height=10)  # inside the heap
+    with pytest.raises(InputError, match="insert_height"):
+        pour.pour(10, release_height=20, insert_height=30)
+    with pytest.raises(InputError, match="interval"):
+        pour.pour(10, release_height=20, interval=0)
+    with pytest.raises(InputError, match="touch in the air"):
+        pour.pour(10, release_height=20, interval=1.0)  # the previous disk only 0.5 sigma below
+    with pytest.raises(InputError, match="substrate_disks"):
+        pour.pour(10, release_height=20, substrate_disks=2)
+    with pytest.raises(InputError, match="narrower"):
+        pour.pour(10, release_height=20, substrate_disks=4, spread=3.0)
+    with pytest.raises(InputError, match="dt"):
+        pour.execute(pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
+                     pour.pour(10, release_height=20))
+    with pytest.raises(InputError, match="unknown law"):
+        pour.run("sand", 10)
+
+
+# ------------------------------------------------------------- the poured heaps
+def _check_heap(heap, angle_range):
+    sim, params, protocol, state, info, m = heap
+    counts = m["counts"]
+    # every disk poured, none lost off the row's ends, none left behind: all on the heap
+    assert counts["poured"] == N and counts["total"] == N
+    assert counts["in_play"] == N and counts["lost"] == 0 and counts["parked"] == 0
+    assert counts["strays"] == 0
+    assert state.particles.count == protocol.particles.count
+    np.testing.assert_array_equal(state.particles.fixed, protocol.particles.fixed)
+    pos = np.asarray(state.particles.position)
+    rows = protocol.info["n_substrate"]
+    np.testing.assert_array_equal(pos[:rows], np.asarray(protocol.particles.position)[:rows])  # never moved
+    assert pos[rows:, 1].min() > 0.5  # on top of the row, none wedged in it
+    # at rest
+    assert info.at_rest and float(jaxpile.max_speed(state)) < TOLERANCE
+    assert info.steps >= protocol.info["pour_steps"]
+    # the substrate carries the whole heap
+    mass = np.asarray(state.particles.mass)[rows:]
+    assert m["weight"] == pytest.approx(N)  # in mg, m the mean poured mass
+    assert m["substrate_normal_total"] * mass.mean() == pytest.approx(mass.sum(), rel=1e-4)
+    assert abs(m["force_balance"]) < 1e-4
+    assert np.all(m["substrate_forces"].normal > -1e-6)  # the base only pushes
+    # a heap, roughly symmetric about the pouring point
+    width, height = m["base_width"], m["height"]
+    assert 3.0 < height < width / 2
+    assert abs(m["asymmetry"]["apex_offset"]) < width / 6
+    assert abs(m["asymmetry"]["mass_centre_offset"]) < width / 10
+    lo, hi = angle_range
+    for flank in ("left", "right"):
+        a = m["angles"][flank]
+        assert lo < a.least_squares < hi and lo < a.cumulative_parabola < hi, (flank, a)
+    left, right = m["angles"]["left"], m["angles"]["right"]
+    assert abs(left.least_squares - right.least_squares) < 12.0
+    assert lo < m["angle_height_base"] < hi
+    assert m["angles"]["left"].slopes[1] > 0 > m["angles"]["right"].slopes[1]  # rising, then falling
+    # the base profile: normalised, over (0, 1), and the voidage map of a dense heap
+    prof = m["base_profile"]
+    assert prof.normalised.max() == pytest.approx(1.0) and len(prof.force) % 2 == 1
+    assert prof.force.sum() == pytest.approx(m["substrate_normal_total"], rel=1e-9)
+    assert 0.0 < prof.x_over_b.min() and prof.x_over_b.max() < 1.0
+    assert m["m_shape"].ratio > 0
+    assert 0.75 < m["core_packing_fraction"] < 0.95
+    vm = m["voidage"]
+    assert vm.packing_fraction.max() < 1.0 and vm.packing_fraction.max() > 0.7
+    return m
+
+
+def test_baxter_heap_stands_at_rest_on_the_substrate(baxter_heap):
+    """The paper's law: the paper's angle is 35 +- 5 deg; a 48-disk heap lies near it."""
+    m = _check_heap(baxter_heap, (20.0, 45.0))
+    s = pour.summary(m)
+    assert s["counts"]["in_play"] == N and isinstance(s["m_shape"]["m_shaped"], bool)
+
+
+def test_hooke_polydisperse_heap_stands_at_rest_on_the_substrate(hooke_heap):
+    m = _check_heap(hooke_heap, (10.0, 45.0))
+    sim, params, protocol, state, info, _ = hooke_heap
+    d = 2 * np.asarray(state.particles.radius)[protocol.info["n_substrate"]:]
+    assert d.min() >= 0.9 and d.max() <= 1.0 and np.ptp(d) > 0.07
+
+
+def test_substrate_forces_are_the_contacts_with_fixed_disks(baxter_heap):
+    """Against a hand sum over the neighbour slots: each heap-substrate contact
+    once, sorted by x, between its two centres; the horizontal forces balance
+    (no net push along the base at rest)."""
+    sim, params, protocol, state, info, m = baxter_heap
+    f = m["substrate_forces"]
+    rows = protocol.info["n_substrate"]
+    assert np.all(np.diff(f.x) >= 0)
+    assert np.all(f.substrate < rows) and np.all(f.particle >= rows)
+    pairs = set(zip(f.particle.tolist(), f.substrate.tolist()))
+    assert len(pairs) == len(f.x)
+    pos = np.asarray(state.particles.position)
+    assert np.all((f.x - pos[f.substrate, 0]) * (f.x - pos[f.particle, 0]) <= 1e-12)
+    cf = sim.contact_forces(params, state)
+    up = np.asarray(cf.force)[rows:, 1] + np.asarray(state.particles.mass)[rows:] * -1.0
+    assert abs(up.sum()) < 1e-3  # net force on the heap ~ 0 at rest
+    assert abs(f.horizontal.sum()) < 1e-3 * N
+
+
+def test_release_rate_and_free_fall_shortcut(baxter_heap):
+    """Disks are released every 1612 steps inside one compiled chunk, and the
+    `insert_height` shortcut gives them the speed of the fall from `release_height`."""
+    sim, params, _, _, _, _ = baxter_heap
+    shortcut = pour.pour(N, release_height=RELEASE, insert_height=11.0, seed=1)
+    assert shortcut.info["insert_speed"] == pytest.approx(math.sqrt(2 * (RELEASE - 11.0)))
+    state = sim.init(params, shortcut.particles, shortcut.boundaries, protocol_state=shortcut.protocol_state)
+    rows = shortcut.info["n_substrate"]
+    state = sim.run(params, state, 1612 + 1, progress=False)
+    active = np.asarray(state.particles.active)[rows:]
+    assert active.sum() == 2 and active[:2].all() and int(state.protocol_state.poured) == 2
+    # the first disk, 1613 steps after appearing at 11 sigma with the speed of a
+    # fall from 14 sigma, is still falling, at the speed of a free fall from 14 sigma
+    y = float(state.particles.position[rows, 1]) - 0.5
+    v = -float(state.particles.velocity[rows, 1])
+    assert 1.5 < y < 11.0 - 4.0
+    assert v == pytest.approx(math.sqrt(2 * (RELEASE - y)), rel=2e-3)
+    state = sim.run(params, state, 1612, progress=False)
+    active = np.asarray(state.particles.active)[rows:]
+    assert active.sum() == 3 and active[:3].all() and int(state.protocol_state.poured) == 3
+
+
+def test_a_disk_that_leaves_the_row_is_counted_lost(baxter_heap):
+    """A disk whose centre falls below the row is taken out of play, parked, and
+    counted lost: poured = in play + lost, inside the compiled loop."""
+    sim, params, protocol, state, _, _ = baxter_heap
+    rows = protocol.info["n_substrate"]
+    top = rows + int(np.argmax(np.asarray(state.particles.position)[rows:, 1]))
+    p = state.particles
+    state = state.set(particles=p.set(position=p.position.at[top].set(jnp.array([-20.0, -5.0]))))
+    state = sim.run(params, state, 1, progress=False)
+    m = pour.measure(sim, params, state)
+    assert m["counts"]["lost"] == 1 and m["counts"]["in_play"] == N - 1 and m["counts"]["poured"] == N
+    assert not bool(state.particles.active[top]) and bool(state.protocol_state.lost[top])
+    np.testing.assert_allclose(state.particles.position[top], protocol.particles.position[top])
+
+
+def test_m_shape_and_base_profile_on_synthetic_forces():
+    """The M-shape ratio is flank maximum over the central bin."""
+    x = np.linspace(0.05, 9.95, 100)
+    m_profile = 1.0 + 0.25 * np.sin(np.pi * x / 10) ** 2 - 0.25 * np.exp(-((x - 5) / 1.0) ** 2) * 2
+    forces = pour.SubstrateForces(x=x, normal=m_profile, horizontal=0 * x, particle=0 * x, substrate=0 * x)
+    prof = pour.base_profile(forces, extent=(0.0, 10.0), bins=11)
+    assert prof.width == 10.0 and len(prof.force) == 11
+    np.testing.assert_allclose(prof.x_over_b, (np.arange(11) + 0.5) / 11)
+    shape = pour.m_shape(prof)
+    assert shape.m_shaped and shape.left_ratio > 1.2 and shape.right_ratio > 1.2
+    flat = pour.base_profile(forces._replace(normal=np.ones_like(x)), extent=(0.0, 10.0), bins=10)
+    assert len(flat.force) == 11  # made odd
+    assert not pour.m_shape(flat).m_shaped
+    tent = pour.base_profile(forces._replace(normal=5 - np.abs(x - 5)), extent=(0.0, 10.0), bins=11)
+    assert pour.m_shape(tent).ratio < 1.0
+
+
+@pytest.mark.parametrize("law", ["lee-herrmann", "liffman"])
+def test_pours_with_every_law(law):
+    """The other two laws with their pour settings: disks are released, fall and
+    land on the row with nothing lost or non-finite (a short pour)."""
+    sim = pour.make_simulator(law)
+    params = pour.law_params(law)
+    protocol = pour.pour(4, release_height=5.0)
+    state = sim.init(params, protocol.particles, protocol.boundaries, protocol_state=protocol.protocol_state)
+    state = sim.run(params, state, protocol.info["pour_steps"], progress=False)
+    state, info = sim.run_until_rest(params, state, speed_tolerance=1e-2, max_steps=30_000, progress=False)
+    assert info.at_rest
+    m = pour.measure(sim, params, state)
+    assert m["counts"]["poured"] == 4 and m["counts"]["in_play"] == 4 and m["counts"]["lost"] == 0
+    y = np.asarray(state.particles.position)[protocol.info["n_substrate"]:, 1]
+    assert np.all(np.isfinite(y)) and y.max() < 4.0 and y.min() > 0.5  # landed, none through the row
+    # each one rests on something: a contact with the row or another disk
+    cf = sim.contact_forces(params, state)
+    rows = protocol.info["n_substrate"]
+    assert np.asarray(cf.pair.in_contact)[rows:].any(axis=1).all()
+    assert m["substrate_normal_total"] > 0
