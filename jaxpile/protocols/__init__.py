@@ -3,8 +3,8 @@
 (schedule, driver); each module also has a `run(...)` that takes it to its end
 and returns the final state and the protocol's measurements."""
 
-from jaxpile.protocols import drop, lattice, pour, sloped
+from jaxpile.protocols import box, drop, flux, lattice, pour, sloped, tilt
 
-PROTOCOLS = {"lattice": lattice, "sloped": sloped, "drop": drop, "pour": pour}
+PROTOCOLS = {"lattice": lattice, "sloped": sloped, "drop": drop, "box": box, "tilt": tilt, "flux": flux, "pour": pour}
 
-__all__ = ["drop", "lattice", "pour", "sloped", "PROTOCOLS"]
+__all__ = ["box", "drop", "flux", "lattice", "pour", "sloped", "tilt", "PROTOCOLS"]

@@ -1,0 +1,473 @@
+"""A pile fed one disk at a time (Lee & Herrmann 1993, sec. 5, Fig. 5).
+
+The paper: "Consider an empty box without a right wall and put one layer of
+particles at the bottom. We monitor the maximum velocity of the particles. If
+the maximum velocity is smaller than certain value v_cut, then we insert a new
+particle at the upper left corner of the pile. Once the particle is added, we
+then wait until the maximum velocity of the particles is again smaller than
+v_cut, then add a new particle. [...] we show the angle of the pile just before
+a new particle is inserted. Here mu = 0.2, W = H = 4.0 and v_cut = 0.1." The
+angle rises from zero and then fluctuates; its largest values estimate the
+angle of marginal stability theta_MS, above theta_R.
+
+Design (everything inside the compiled loop, fixed shapes):
+
+* The bottom layer: disks with the paper's Gaussian radii side by side on the
+  floor from the left wall to x = W, *fixed* (our reading of "put one layer of
+  particles at the bottom": a rough floor that the pile cannot push away;
+  `fixed_base=False` makes them ordinary disks).
+* A pool of disks waits parked and inactive above the box. Every step the
+  driver takes out of play the disks that passed the floor's end (x > W: they
+  left the box, as in `box`), parking them again, so they return to the pool;
+  a long run needs only as many disks as are ever in play at once (`pool`).
+* Insertion (`drivers.when`, a `lax.cond`): when the largest speed has been
+  below v_cut (after the last inserted disk moved at all), the first waiting disk
+  (`drivers.next_inactive`) is put at rest (`drivers.activate`) `gap` above
+  the highest disk under it, at a random distance between 0 and `spread` (one
+  mean diameter) from the left wall: the top of the pile is there. (Dropped
+  always touching the wall, the disks stack into a tower against it.)
+* "The angle of the pile just before a new particle is inserted": fitting lines
+  inside the loop is needless; just before each insertion the driver writes the
+  pile's surface h(x) (the highest active centre in each column one mean
+  diameter wide over [0, W], the definition of `analysis.surface_profile`) and
+  the step into fixed arrays of `FluxState`. The host turns each record into
+  the three angles of sec. 3 afterwards (`angles`), so one record gives every
+  method and the loop stays free of fits.
+* The run ends when every insertion is done and the pile is at rest again.
+
+Units as in `box` (the paper's cm, s for lee-herrmann; reduced units for the
+other laws, speeds Froude-scaled). With the lee-herrmann law at the paper's
+gamma_s, some disk keeps rocking faster than v_cut (see the known problem in
+`box`) and the insertions stop; `rest_measure="rms"` or gamma_s = gamma_n / 10
+gets past it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import analysis
+from jaxpile.boundaries import RIGHT_WALL, make_boundaries, set_wall
+from jaxpile.errors import InputError
+from jaxpile.protocols import box as boxes
+from jaxpile.protocols import drivers
+from jaxpile.protocols.base import Protocol
+from jaxpile.state import SimState, make_particles
+
+Array = Any
+
+SETTING = {
+    "width": 4.0,  # W (cm), sec. 5
+    "v_cut": 0.1,  # cm/s, sec. 5 (0.01 and 0.001 gave "no essential difference")
+    "rest_measure": "max",  # "We monitor the maximum velocity of the particles"
+    "hold_time": 0.0,  # insert as soon as the speed is below v_cut
+    "gap": 0.01,  # cm between the new disk and the disk below it (5% of a diameter)
+    "insertions": 300,  # the paper's angle levels off after ~4e5 iterations (~80 disks here)
+    "max_time": 60.0,  # s: give up
+    "steepest_slope_degrees": 35.0,  # sizes the default pool
+}
+
+
+class FluxState(NamedTuple):
+    """What the flux driver carries (`SimState.protocol_state`); scalars unless said.
+
+    Attributes:
+      edge, park: the floor's end (W) and the `[n, 2]` parking places.
+      v_cut: insertion threshold on the speed (`box.motion`).
+      use_max: the speed is `max_speed` (True, the paper's) or `box.rms_speed`.
+      hold: steps the speed must stay below `v_cut` (at least 1).
+      fallback: steps after which a pile that never reached `v_cut` counts as at rest.
+      quiet, armed: the rest detector (`box.rest_detector`).
+      gap: height of the new disk's bottom above the disk below it.
+      x_min, column_width: the surface columns (`[x_min, x_min + W]`).
+      total: insertions to make (int).
+      inserted: insertions made so far (int).
+      due: an insertion happens at this step (set by the watcher).
+      insert_step: `[total]` step of each insertion (-1 before).
+      in_play: `[total]` disks in play (movable, active) just before each insertion.
+      profile: `[total, c]` h(x) of each column just before each insertion
+        (-inf for an empty column).
+      left: disks that left past the floor's end (int).
+      starved: steps at which an insertion was due but every pool disk was in play (int).
+      settled_at: step at which the pile was at rest after the last insertion (-1 before).
+    """
+
+    edge: Array
+    park: Array
+    v_cut: Array
+    use_max: Array
+    hold: Array
+    fallback: Array
+    quiet: Array
+    armed: Array
+    gap: Array
+    spread: Array
+    key: Array
+    x_min: Array
+    column_width: Array
+    total: Array
+    inserted: Array
+    due: Array
+    insert_step: Array
+    in_play: Array
+    profile: Array
+    left: Array
+    starved: Array
+    settled_at: Array
+
+
+def column_heights(state: SimState, x_min, column_width, columns: int) -> Array:
+    """`[columns]` the highest active centre in each column of `[x_min, x_min +
+    columns * column_width)` (`analysis.surface_profile`'s h(x)), -inf if empty."""
+    p = state.particles
+    column = jnp.floor((p.position[:, 0] - x_min) / column_width).astype(jnp.int32)
+    counted = p.active & (column >= 0) & (column < columns)
+    height = jnp.where(counted, p.position[:, 1], -jnp.inf)
+    return jax.ops.segment_max(height, jnp.where(counted, column, 0), num_segments=columns)
+
+
+def _watch(state: SimState) -> SimState:
+    """Outflow, the rest detector, and whether to insert now / whether the run is over."""
+    ps: FluxState = state.protocol_state
+    state, gone = boxes.take_out(state, ps.edge, ps.park)
+    quiet, armed, rested = boxes.rest_detector(boxes.motion(state, ps.use_max), ps.v_cut, ps.quiet, ps.armed,
+                                               ps.hold, ps.fallback)
+    _, available = drivers.next_inactive(state)
+    want = rested & (ps.inserted < ps.total)
+    done = rested & (ps.inserted >= ps.total) & (ps.settled_at < 0)
+    ps = ps._replace(quiet=quiet, armed=armed, due=want & available, left=ps.left + gone,
+                     starved=ps.starved + (want & ~available).astype(ps.starved.dtype),
+                     settled_at=jnp.where(done, state.step, ps.settled_at))
+    return state.set(protocol_state=ps)
+
+
+def _insert(state: SimState) -> SimState:
+    """Records the surface, then puts the next waiting disk at the upper left of the pile."""
+    ps: FluxState = state.protocol_state
+    p = state.particles
+    index, _ = drivers.next_inactive(state)
+    k = jnp.minimum(ps.inserted, ps.total - 1)
+    heights = column_heights(state, ps.x_min, ps.column_width, ps.profile.shape[1])
+    r = p.radius[index]
+    key, draw = jax.random.split(ps.key)
+    x = ps.x_min + r * (1.0 + 1e-6) + ps.spread * jax.random.uniform(draw, (), r.dtype)
+    under = p.active & (jnp.abs(p.position[:, 0] - x) < p.radius + r)
+    top = jnp.max(jnp.where(under, p.position[:, 1] + p.radius, 0.0))
+    y = top + ps.gap + r
+    state = drivers.activate(state, index, jnp.stack([x, y]))
+    p = state.particles
+    hit = jnp.arange(p.count) == index
+    # the first half kick of velocity Verlet is the free fall's
+    p = p.set(force=jnp.where(hit[:, None], p.mass[:, None] * state.boundaries.gravity[None, :], p.force))
+    in_play = jnp.sum(p.movable) - 1  # before this insertion
+    ps = ps._replace(
+        key=key,
+        inserted=ps.inserted + 1,
+        insert_step=ps.insert_step.at[k].set(state.step),
+        in_play=ps.in_play.at[k].set(in_play.astype(ps.in_play.dtype)),
+        profile=ps.profile.at[k].set(heights),
+        quiet=jnp.zeros_like(ps.quiet),
+        armed=jnp.zeros_like(ps.armed),
+        due=jnp.zeros_like(ps.due),
+    )
+    return state.set(particles=p, protocol_state=ps)
+
+
+driver = drivers.compose(_watch, drivers.when(lambda s: s.protocol_state.due, _insert))
+"""The flux driver (before every step, inside the compiled loop): `_watch`, then
+`_insert` under a `lax.cond` on the steps where an insertion is due."""
+
+
+def pool_size(width: float, *, slope_degrees: float = SETTING["steepest_slope_degrees"],
+              radius: dict | None = None, packing_fraction: float = 0.82) -> int:
+    """Disks enough for a pile of slope `slope_degrees` on a floor of width W
+    leaning on the left wall (triangle W^2 tan / 2 at `packing_fraction`), plus half
+    again for disks rolling down and out (the paper's units)."""
+    width = boxes._check_positive("width", width)
+    if not 0 < slope_degrees < 90:
+        raise InputError(f"slope_degrees must be in (0, 90); got {slope_degrees!r}.")
+    area = 0.5 * width**2 * math.tan(math.radians(slope_degrees))
+    disk = math.pi * boxes.mean_square_radius(*boxes._radius_law(radius))
+    return int(math.ceil(1.5 * packing_fraction * area / disk)) + 10
+
+
+def base_layer(radius, width: float) -> np.ndarray:
+    """`[m]` x of disks with the given radii laid side by side on the floor from
+    x = 0, as many as fit in [0, width] (m <= len(radius))."""
+    right, out = 0.0, []
+    for r in np.asarray(radius, dtype=np.float64):
+        centre = right + r
+        if centre + r > width:
+            break
+        out.append(centre)
+        right = centre + r
+    return np.asarray(out)
+
+
+def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", width: float = SETTING["width"],
+             pool: int | None = None, fixed_base: bool = True, radius: dict | None = None,
+             v_cut: float = SETTING["v_cut"], rest_measure: str = SETTING["rest_measure"],
+             hold_time: float = SETTING["hold_time"], gap: float = SETTING["gap"], dt: float | None = None,
+             seed: int = 0, dtype=None) -> Protocol:
+    """The constant-flux pile of Lee & Herrmann 1993, Fig. 5, ready to run with `driver`.
+
+    Lengths, speeds and times in the paper's units (cm, cm/s, s), converted with
+    `box.units(law)`.
+
+    Args:
+      insertions: how many disks to insert.
+      law: the law the run will use (units and default dt).
+      width: W, the floor from the left wall to its end.
+      pool: disks that take turns (default `min(insertions, pool_size(width))`);
+        disks that leave return to it.
+      fixed_base: the bottom layer is fixed (default) or free.
+      radius: overrides of the radius distribution (see `box.gaussian_radii`).
+      v_cut: insert when the speed is below this (0.1 cm/s in the paper).
+      rest_measure: `"max"` (`max_speed`, the paper's) or `"rms"` (`box.rms_speed`).
+      hold_time: how long the speed must stay below v_cut (0: one step).
+      gap: drop height of the new disk above the disk under it.
+      dt: the run's time step (default the law's).
+      seed: draws the radii and the drop positions.
+      dtype: float dtype (default float64).
+
+    Returns:
+      `Protocol` with `driver` and a `FluxState`: the base layer first
+      (`info["n_base"]` disks), then the pool, all parked and inactive; the
+      right wall is off.
+
+    Raises:
+      InputError: on a bad count, size, speed, gap or time.
+    """
+    if int(insertions) != insertions or insertions < 1:
+        raise InputError(f"insertions must be a positive whole number; got {insertions!r}.")
+    insertions = int(insertions)
+    u = boxes.units(law)
+    dt = float(boxes.law_setting(law)["dt"]) if dt is None else boxes._check_positive("dt", dt)
+    width = boxes._check_positive("width", width)
+    v_cut = boxes._check_positive("v_cut", v_cut)
+    gap = boxes._check_positive("gap", gap)
+    if not (hold_time >= 0 and math.isfinite(hold_time)):
+        raise InputError(f"hold_time must be >= 0 and finite; got {hold_time!r}.")
+    mean, spread, low, high = boxes._radius_law(radius)
+    if 2 * high > width:
+        raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
+    if pool is None:
+        pool = min(insertions, pool_size(width, radius=radius))
+    if int(pool) != pool or pool < 1:
+        raise InputError(f"pool must be a positive whole number; got {pool!r}.")
+    pool = int(pool)
+
+    rng = np.random.default_rng(seed)
+    base_radius = boxes.gaussian_radii(int(width / (2 * low)) + 2, rng, mean=mean, width=spread, low=low, high=high)
+    base_x = base_layer(base_radius, width)
+    base_radius = base_radius[: base_x.size]
+    pool_radius = boxes.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
+
+    s = u.scale
+    radius_all = np.concatenate([base_radius, pool_radius]) * s
+    base = np.stack([base_x, base_radius], axis=1) * s
+    spacing = boxes.PARK_SPACING * 2.0 * high * s
+    park = np.concatenate([base, boxes.parking_grid(pool, spacing, (2.0 * width + 4.0 * high) * s, spacing)])
+    m = base_x.size
+    fixed = np.arange(m + pool) < m if fixed_base else np.zeros(m + pool, bool)
+    active = np.arange(m + pool) < m
+    mass = None if u.sphere_density is None else 4.0 / 3.0 * math.pi * u.sphere_density * radius_all**3
+    particles = make_particles(park, radius_all, mass=mass, fixed=fixed, active=active, dtype=dtype)
+    dtype = particles.position.dtype
+    boundaries = set_wall(make_boundaries(left=0.0, right=width * s, gravity=u.gravity, dtype=dtype),
+                          RIGHT_WALL, active=False)
+
+    column_width_wanted = 2.0 * float(np.mean(radius_all))
+    columns = max(1, int(round(width * s / column_width_wanted)))
+    hold = max(1, int(round(hold_time * u.time / dt)))
+    fall_steps = int(math.ceil(math.sqrt(2.0 * gap * s / u.gravity) / dt))
+    state = FluxState(
+        edge=jnp.asarray(width * s, dtype),
+        park=jnp.asarray(park, dtype),
+        v_cut=jnp.asarray(v_cut * u.speed, dtype),
+        use_max=jnp.asarray(boxes._measure_flag(rest_measure)),
+        hold=jnp.asarray(hold, jnp.int32),
+        fallback=jnp.asarray(max(4 * hold, 10 * fall_steps), jnp.int32),
+        quiet=jnp.asarray(0, jnp.int32),
+        armed=jnp.asarray(True),  # the bottom layer starts at rest: insert at once
+        gap=jnp.asarray(gap * s, dtype),
+        spread=jnp.asarray(2.0 * mean * s, dtype),
+        key=jax.random.PRNGKey(seed),
+        x_min=jnp.asarray(0.0, dtype),
+        column_width=jnp.asarray(width * s / columns, dtype),
+        total=jnp.asarray(insertions, jnp.int32),
+        inserted=jnp.asarray(0, jnp.int32),
+        due=jnp.asarray(False),
+        insert_step=jnp.full(insertions, -1, jnp.int32),
+        in_play=jnp.zeros(insertions, jnp.int32),
+        profile=jnp.full((insertions, columns), -jnp.inf, dtype),
+        left=jnp.asarray(0, jnp.int32),
+        starved=jnp.asarray(0, jnp.int32),
+        settled_at=jnp.asarray(-1, jnp.int32),
+    )
+    info = {
+        "protocol": "flux",
+        "law": boxes.law_name(law),
+        "insertions": insertions,
+        "n": int(m + pool),
+        "n_base": int(m),
+        "pool": pool,
+        "fixed_base": bool(fixed_base),
+        "width": width * s,
+        "length_scale": s,
+        "gravity": u.gravity,
+        "time_scale": u.time,
+        "speed_scale": u.speed,
+        "sphere_density": u.sphere_density,
+        "v_cut": v_cut * u.speed,
+        "rest_measure": rest_measure,
+        "hold_steps": hold,
+        "gap": gap * s,
+        "columns": columns,
+        "column_width": width * s / columns,
+        "dt": dt,
+        "seed": int(seed),
+    }
+    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
+                    box=boxes.neighbor_box(park, radius_all), info=info)
+
+
+def _fill_gaps(height: np.ndarray) -> np.ndarray:
+    """Empty columns between filled ones get the linear interpolation of their
+    neighbours (a bottom-layer column can hold no disk centre); empty columns
+    at the ends stay empty."""
+    h = np.array(height, dtype=np.float64)
+    h[~np.isfinite(h)] = np.nan
+    filled = np.flatnonzero(~np.isnan(h))
+    if filled.size >= 2:
+        inside = np.arange(filled[0], filled[-1] + 1)
+        h[inside] = np.interp(inside, filled, h[filled])
+    return h
+
+
+def angles(x_min: float, column_width: float, heights) -> dict:
+    """The three angles of sec. 3 (degrees) of each recorded surface.
+
+    Args:
+      x_min, column_width: the columns.
+      heights: `[k, c]` recorded h(x) (-inf or NaN for an empty column).
+
+    Returns:
+      dict of `[k]` lists `endpoints`, `least_squares`, `cumulative_parabola`
+      (NaN where a surface has fewer than 3 columns).
+    """
+    heights = np.atleast_2d(np.asarray(heights, dtype=np.float64))
+    x = x_min + column_width * (np.arange(heights.shape[1]) + 0.5)
+    out = {"endpoints": [], "least_squares": [], "cumulative_parabola": []}
+    for row in heights:
+        h = _fill_gaps(row)
+        profile = analysis.SurfaceProfile(x=x, height=h, count=(~np.isnan(h)).astype(np.int64),
+                                          particle=np.full(h.size, -1), column_width=float(column_width))
+        try:
+            a = analysis.repose_angles(profile)
+            values = (a.endpoints, a.least_squares, a.cumulative_parabola)
+        except InputError:
+            values = (float("nan"),) * 3
+        for key, value in zip(out, values):
+            out[key].append(float(value))
+    return out
+
+
+def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
+                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
+    """A `Simulator` running the flux `driver` (see `box.make_simulator`)."""
+    return boxes.make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, chunk_steps=chunk_steps,
+                                driver=driver, **kwargs)
+
+
+def execute(sim, params, p: Protocol, *, max_steps: int, progress=None):
+    """Runs the flux protocol until every insertion is made and the pile is at
+    rest (`FluxState.settled_at`), or `max_steps`. Returns as `box.run_sampled`."""
+    boxes.check_dt(sim, p)
+    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    return boxes.run_sampled(sim, params, state, max_steps=max_steps, progress=progress,
+                             finished=lambda s: int(s.protocol_state.settled_at) >= 0)
+
+
+def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
+        dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"],
+        chunk_steps: int | None = None, progress=False, dtype=None, **options):
+    """Feeds the pile `insertions` disks at the paper's rule and measures the
+    angle before each insertion (Fig. 5).
+
+    Args:
+      law: `lee-herrmann` (the paper's, in cgs), `hooke`, `baxter` or `liffman`.
+      insertions: disks to insert.
+      params: None (`box.PAPER_SETTING`), a dict of overrides, or a params pytree.
+      max_time: give up after this many paper seconds.
+      **options: for `protocol` (width, pool, fixed_base, radius, v_cut,
+        rest_measure, hold_time, gap, seed).
+
+    Returns:
+      `(state, measurements)`: per insertion its `insert_step`, `in_play` and
+      the angle by each method (`angle_*`); `steady_*`: the mean and standard
+      deviation of the method-3 angle over the second half of the insertions
+      (the paper's level and the dotted lines of Fig. 5) and its largest value;
+      the final pile's angles (`repose_*`), counts, the kinetic energy per chunk
+      and timings.
+    """
+    from jaxpile import theory
+
+    _, _, params = boxes.law_and_params(law, params, rotation, dtype)
+    p = protocol(insertions, law=law, dt=dt, dtype=dtype, **options)
+    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
+    t0 = time.perf_counter()
+    state, info, samples = execute(sim, params, p, max_steps=boxes.max_steps_for(law, p.info["dt"], max_time),
+                                   progress=progress)
+    ps = state.protocol_state
+    done = int(ps.inserted)
+    record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
+    main = np.asarray(record["cumulative_parabola"])
+    late = main[done // 2:]
+    late = late[np.isfinite(late)]
+    mu = boxes.friction_coefficient(params)
+    nan = float("nan")
+    out = {
+        "protocol": "flux",
+        "law": p.info["law"],
+        "mu": mu,
+        "inserted": done,
+        "insert_step": np.asarray(ps.insert_step)[:done].tolist(),
+        "in_play": np.asarray(ps.in_play)[:done].tolist(),
+        **{f"angle_{k}": v for k, v in record.items()},
+        "steady_mean": float(np.mean(late)) if late.size else nan,
+        "steady_std": float(np.std(late)) if late.size else nan,
+        "steady_max": float(np.max(late)) if late.size else nan,
+        "theta_ms_theory": nan if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
+        **boxes.repose(state, p.info["width"]),
+        "settled_step": int(ps.settled_at),
+        "at_rest": int(ps.settled_at) >= 0,
+        "n_left": int(ps.left),
+        "starved_steps": int(ps.starved),
+        **boxes.count_check(state),
+        "kinetic_energy": samples,
+        **boxes.run_record(info, t0),
+        "info": dict(p.info),
+    }
+    return state, out
+
+
+__all__ = [
+    "SETTING",
+    "FluxState",
+    "angles",
+    "base_layer",
+    "column_heights",
+    "driver",
+    "execute",
+    "make_simulator",
+    "pool_size",
+    "protocol",
+    "run",
+]

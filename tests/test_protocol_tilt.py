@@ -1,0 +1,121 @@
+"""Tilting a settled pile until it moves (Lee & Herrmann 1993, sec. 4, Fig. 4),
+at a small size and a fast tilt (0.02 deg per step instead of the paper's 1e-3).
+
+The pile is built by the box protocol with the lee-herrmann law at
+gamma_s = gamma_n / 10 (see tests/test_protocol_box.py for why not the paper's
+gamma_n / 100)."""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpile import theory
+from jaxpile.errors import InputError
+from jaxpile.protocols import box, tilt
+
+LH_TEST_PARAMS = {"gamma_s": 50.0}
+RATE = 0.02  # degrees per step
+
+
+@pytest.fixture(scope="module")
+def pile():
+    state, m = box.run("lee-herrmann", params=LH_TEST_PARAMS, width=2.0, height=1.4, seed=2, max_time=2.0)
+    assert m["at_rest"]
+    return state, m
+
+
+@pytest.fixture(scope="module")
+def frictional(pile):
+    return tilt.run("lee-herrmann", pile=pile[0], params=LH_TEST_PARAMS, rate_degrees=RATE)
+
+
+@pytest.fixture(scope="module")
+def frictionless(pile):
+    return tilt.run("lee-herrmann", pile=pile[0], params={**LH_TEST_PARAMS, "mu": 0.0}, rate_degrees=RATE)
+
+
+def _check_counts_and_gravity(pile_state, state, m):
+    counts = box.count_check(state)
+    assert counts["n_total"] == pile_state.particles.count
+    assert counts["n_in_play"] + counts["n_out_of_play"] == counts["n_total"]
+    assert counts["n_out_of_play"] == m["n_left"] >= int(pile_state.protocol_state.left)
+    g = np.asarray(state.boundaries.gravity)
+    g0 = np.asarray(pile_state.boundaries.gravity)
+    assert np.linalg.norm(g) == pytest.approx(np.linalg.norm(g0), rel=1e-12)
+    # gravity turned counter-clockwise (the box clockwise) by the tilt held at the end
+    assert math.degrees(math.atan2(g[0], -g[1])) == pytest.approx(m["tilt_held"], abs=1e-9)
+    assert m["tilt_held"] >= m["theta_t"]
+
+
+def test_a_frictional_pile_holds_for_a_finite_tilt_then_moves(pile, frictional):
+    state, m = frictional
+    _check_counts_and_gravity(pile[0], state, m)
+    assert m["moved"] and m["mu"] == pytest.approx(0.2)
+    assert 0.5 < m["theta_t"] < 20.0
+    assert m["theta_t"] == pytest.approx(RATE * m["onset_step"])
+    assert 0 <= m["onset_step"] < m["moved_step"]
+    # the motion that made it fail: well above the rest level at the end
+    assert float(box.rms_speed(state)) > m["info"]["rest_speed"]
+    # its own angle of repose and the theory of sec. 6
+    assert m["theta_r"] == pytest.approx(pile[1]["repose_cumulative_parabola"])
+    assert m["theta_ms_theory"] == pytest.approx(math.degrees(math.atan(0.6)))
+    assert m["theta_r_plus_theta_t"] == pytest.approx(m["theta_r"] + m["theta_t"])
+    expected = math.degrees(theory.tilting_angle(math.radians(m["theta_r"]), 0.2))
+    assert m["theta_t_theory"] == pytest.approx(expected)
+
+
+def test_a_frictionless_pile_moves_at_once(pile, frictional, frictionless):
+    state, m = frictionless
+    _check_counts_and_gravity(pile[0], state, m)
+    assert m["moved"] and m["theta_t"] < 0.3
+    assert m["moved_step"] < frictional[1]["moved_step"] / 3
+    assert m["theta_t"] < frictional[1]["theta_t"] / 3
+    # eq. 3: theta_MS = 0 without friction, and eq. 4 has no answer
+    assert m["theta_ms_theory"] == 0.0 and math.isnan(m["theta_t_theory"]) and "theory_note" in m
+
+
+def test_a_pile_tilted_less_than_its_tilting_angle_stays_put():
+    """Another law (hooke, reduced units): with the tilt capped at 0.2 deg the
+    frictional pile never moves; the run gives up and says so."""
+    state, m = box.run("hooke", width=1.6, height=1.2, seed=0, max_time=1.5)
+    assert m["at_rest"]
+    s2, t = tilt.run("hooke", pile=state, rate_degrees=0.05, max_tilt_degrees=0.2)
+    assert not t["moved"] and math.isnan(t["theta_t"])
+    assert t["tilt_held"] == pytest.approx(0.2)
+    g = np.asarray(s2.boundaries.gravity)
+    assert math.degrees(math.atan2(g[0], -g[1])) == pytest.approx(0.2, abs=1e-9)
+    np.testing.assert_array_equal(np.asarray(s2.particles.active), np.asarray(state.particles.active))
+    assert float(box.rms_speed(s2)) < t["info"]["move_speed"]
+    moved = np.linalg.norm(np.asarray(s2.particles.position - state.particles.position), axis=1)
+    assert np.quantile(moved, 0.9) < 1e-3 and moved.max() < 0.1  # in mean diameters
+
+
+def test_the_tilt_schedule_is_linear_in_steps_and_capped():
+    ps = tilt.TiltState(*([None] * len(tilt.TiltState._fields)))._replace(
+        rate=jnp.asarray(math.radians(1e-3)), start=jnp.asarray(100), max_tilt=jnp.asarray(math.radians(2.0)))
+    assert float(tilt.tilt_at(ps, jnp.asarray(50))) == 0.0
+    assert math.degrees(float(tilt.tilt_at(ps, jnp.asarray(1100)))) == pytest.approx(1.0)
+    assert math.degrees(float(tilt.tilt_at(ps, jnp.asarray(10_000)))) == pytest.approx(2.0)
+
+
+def test_bad_arguments_raise_input_error(pile):
+    state = pile[0]
+    with pytest.raises(InputError, match="SimState"):
+        tilt.protocol(state.particles)
+    with pytest.raises(InputError, match="rate_degrees"):
+        tilt.protocol(state, rate_degrees=0.0)
+    with pytest.raises(InputError, match="below move_speed"):
+        tilt.protocol(state, rest_speed=2.0, move_speed=1.0)
+    with pytest.raises(InputError, match="max_tilt_degrees"):
+        tilt.protocol(state, max_tilt_degrees=95.0)
+    tilted = state.set(boundaries=state.boundaries.set(gravity=jnp.asarray([1.0, -981.0])))
+    with pytest.raises(InputError, match="straight down"):
+        tilt.protocol(tilted)
+    with pytest.raises(InputError, match="edge"):
+        tilt.protocol(state.set(protocol_state=None))
+    p = tilt.protocol(state, rate_degrees=RATE)
+    with pytest.raises(InputError, match="not the state"):
+        tilt.execute(tilt.make_simulator("lee-herrmann"), box.law_and_params("lee-herrmann")[2], p,
+                     pile=state.set(step=state.step + 1))
