@@ -260,41 +260,35 @@ def hard_collision_velocities(particles, neighbor_idx, boundaries, dt, settings:
         # disk 2, whose normal points from 2 to 1 (-n), relative velocity and acceleration
         soft = needs_soft_contact(out.c1 - out.c2, a1 - a2, 1.0, -_safe_unit(d), dt)
         hard = (gap_now >= 0) & touch & (jnp.sum(out.impulse * out.impulse) > 0) & ~soft
-        zero = jnp.zeros_like(out.impulse)
-        return jnp.where(hard, out.impulse, zero), hard
+        # the changes of disk 1's velocity (eq. 6) and spin (eq. 13) by this collision
+        return jnp.where(hard, out.c1 - c1, 0.0), jnp.where(hard, out.w1 - w1, 0.0), hard
 
     valid = neighbor_idx < n
     j = jnp.where(valid, neighbor_idx, 0)
     both = valid & p.active[:, None] & p.active[j] & ~(p.fixed[:, None] & p.fixed[j]) & (j != jnp.arange(n)[:, None])
     per_slot = jax.vmap(jax.vmap(one, (None, 0, None, 0, None, 0, None, 0, None, 0, None, 0, None, 0)),
                         (0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0))
-    impulse, hard = per_slot(mass, mass[j], inertia, inertia[j], p.radius, p.radius[j], p.position, p.position[j],
-                             p.velocity, p.velocity[j], omega, omega[j], accel, accel[j])
+    dv, dw, hard = per_slot(mass, mass[j], inertia, inertia[j], p.radius, p.radius[j], p.position, p.position[j],
+                            p.velocity, p.velocity[j], omega, omega[j], accel, accel[j])
     hard = hard & both
-    impulse = jnp.where(hard[..., None], impulse, 0.0)  # [n, k, 2] on i
 
     # walls: the partner sits at the foot of the normal, at rest, infinitely heavy
     dist = wall_distance(boundaries, p.position)  # [n, w]
     foot = p.position[:, None, :] - dist[..., None] * boundaries.wall_normal[None]
     per_wall = jax.vmap(jax.vmap(one, (None, None, None, None, None, None, None, 0, None, None, None, None, None, None)),
                         (0, None, 0, None, 0, None, 0, 0, 0, None, 0, None, 0, None))
-    w_impulse, w_hard = per_wall(mass, inf, inertia, inf, p.radius, jnp.zeros((), p.position.dtype), p.position, foot,
-                                 p.velocity, jnp.zeros(2, p.position.dtype), omega, jnp.zeros((), p.position.dtype),
-                                 accel, jnp.zeros(2, p.position.dtype))
+    zero = jnp.zeros((), p.position.dtype)
+    w_dv, w_dw, w_hard = per_wall(mass, inf, inertia, inf, p.radius, zero, p.position, foot, p.velocity,
+                                  jnp.zeros(2, p.position.dtype), omega, zero, accel, jnp.zeros(2, p.position.dtype))
     w_hard = w_hard & boundaries.wall_active[None, :] & p.movable[:, None]
-    w_impulse = jnp.where(w_hard[..., None], w_impulse, 0.0)
 
-    # P is the impulse on disk 1 (= i): velocity and, with the lever r_i along +n, spin (eq. 13)
-    total = impulse.sum(1) + w_impulse.sum(1)
-    n_ij = jax.vmap(jax.vmap(_safe_unit))(p.position[j] - p.position[:, None, :])
-    n_iw = jax.vmap(jax.vmap(_safe_unit))(foot - p.position[:, None, :])
-    t_ij = jnp.stack([-n_ij[..., 1], n_ij[..., 0]], -1)
-    t_iw = jnp.stack([-n_iw[..., 1], n_iw[..., 0]], -1)
-    pt = (impulse * t_ij).sum(-1).sum(1) + (w_impulse * t_iw).sum(-1).sum(1)
+    # impulses from the same pre-collision velocities, summed (Jacobi)
     movable = p.movable
-    velocity = jnp.where(movable[:, None], p.velocity + total / p.mass[:, None], p.velocity)
+    total_dv = jnp.where(hard[..., None], dv, 0.0).sum(1) + jnp.where(w_hard[..., None], w_dv, 0.0).sum(1)
+    total_dw = jnp.where(hard, dw, 0.0).sum(1) + jnp.where(w_hard, w_dw, 0.0).sum(1)
+    velocity = jnp.where(movable[:, None], p.velocity + total_dv, p.velocity)
     spin = p.angular_velocity
     if rotation:
-        spin = jnp.where(movable, spin + p.radius * pt / p.inertia, spin)
+        spin = jnp.where(movable, spin + total_dw, spin)
     collided = hard.any(1) | w_hard.any(1)
     return velocity, spin, collided

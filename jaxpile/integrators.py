@@ -312,11 +312,16 @@ class Integrator(NamedTuple):
     stability_factor: float = 1.0
 
 
+def implicit_midpoint(relaxation: float = 0.9, iterations: int = 10) -> Integrator:
+    """The implicit midpoint integrator with a chosen relaxation and sweep count."""
+    return Integrator("implicit_midpoint", implicit_midpoint_with(relaxation, iterations), _no_start, 1)
+
+
 INTEGRATORS = {
     "velocity_verlet": Integrator("velocity_verlet", velocity_verlet, _no_start, 1),
     "leapfrog": Integrator("leapfrog", leapfrog, _leapfrog_start, 0),
     "gear": Integrator("gear", gear, _gear_start, 1, 0.075),
-    "implicit_midpoint": Integrator("implicit_midpoint", implicit_midpoint_with(), _no_start, 1),
+    "implicit_midpoint": implicit_midpoint(),
 }
 
 
@@ -327,8 +332,3 @@ def get_integrator(integrator) -> Integrator:
     if integrator not in INTEGRATORS:
         raise InputError(f"unknown integrator {integrator!r}; known: {sorted(INTEGRATORS)}.")
     return INTEGRATORS[integrator]
-
-
-def implicit_midpoint(relaxation: float = 0.9, iterations: int = 10) -> Integrator:
-    """The implicit midpoint integrator with a chosen relaxation and sweep count."""
-    return Integrator("implicit_midpoint", implicit_midpoint_with(relaxation, iterations), _no_start, 1)

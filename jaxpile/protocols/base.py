@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Any, Callable, NamedTuple
 
+from jaxpile.errors import InputError
 from jaxpile.state import Boundaries, Particles
 
 
@@ -37,3 +38,30 @@ class Protocol(NamedTuple):
     protocol_state: Any = None
     box: tuple | None = None
     info: dict = {}
+
+
+def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):
+    """`(law module, ContactLaw, params)` for a protocol run.
+
+    Args:
+      law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`) or module.
+      params: None (the setting's values for that law), a dict of overrides on
+        top of them, or a ready params pytree of that law.
+      rotation: integrate spins; None for `setting["rotation"]`.
+      setting: a protocol setting with `"params"` (per law name) and `"rotation"`.
+    """
+    from jaxpile.laws import get_law_module
+
+    lawmod = get_law_module(law) if isinstance(law, str) else law
+    if params is None or isinstance(params, dict):
+        values = {**setting["params"].get(lawmod.NAME, {}), **(params or {})}
+        unknown = set(values) - set(lawmod.PARAM_NAMES)
+        if unknown:
+            raise InputError(f"unknown {lawmod.NAME} parameter(s) {sorted(unknown)}; "
+                             f"known: {list(lawmod.PARAM_NAMES)}.")
+        params = lawmod.make_params(dtype=dtype, **values)
+    elif not isinstance(params, lawmod.Params):
+        raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or {lawmod.NAME}.make_params(...); "
+                         f"got {type(params).__name__}.")
+    rotation = setting["rotation"] if rotation is None else bool(rotation)
+    return lawmod, lawmod.law(rotation=rotation), params

@@ -81,6 +81,7 @@ from jaxpile import analysis
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.simulate import max_speed
 from jaxpile.state import SimState, make_particles
 
@@ -176,17 +177,9 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
         or a ready params pytree of that law.
       rotation: integrate spins; default off (the paper's disks do not rotate).
     """
-    from jaxpile.laws import get_law_module
-
-    module = get_law_module(law_name(law))
-    if params is None or isinstance(params, dict):
-        values = {**law_setting(module.NAME)["params"], **(params or {})}
-        params = module.make_params(dtype=dtype, **values)
-    elif not isinstance(params, module.Params):
-        raise InputError(f"params must be None, a dict of {module.NAME} parameters, or "
-                         f"{module.NAME}.make_params(...); got {type(params).__name__}.")
-    rotation = PAPER_SETTING["rotation"] if rotation is None else bool(rotation)
-    return module, module.law(rotation=rotation), params
+    name = law_name(law)
+    setting = {"params": {name: law_setting(name)["params"]}, "rotation": PAPER_SETTING["rotation"]}
+    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype)
 
 
 def friction_coefficient(params) -> float | None:
