@@ -10,6 +10,7 @@ import pytest
 
 import jaxpile
 from jaxpile.boundaries import GROUND
+from jaxpile.errors import InputError
 from jaxpile.laws import baxter, hooke, lee_herrmann, liffman
 from jaxpile.laws.base import PairGeometry
 from jaxpile.protocols import lattice
@@ -122,20 +123,63 @@ def test_head_on_restitution_matches_the_law(name):
     assert e == pytest.approx(expected, rel=5e-3)
 
 
-def test_eq2b_lee_herrmann_shear_spring_then_coulomb_cap():
+@pytest.mark.parametrize("slip", ["cundall-strack", "literal"])
+def test_eq2b_lee_herrmann_shear_spring_then_coulomb_cap(slip):
     p = lee_herrmann.make_params(kn=1e5, ks=1e3, gamma_n=0.0, gamma_s=0.0, mu=0.3)
+    pair_force = lee_herrmann.law(slip=slip).pair_force
     g = _geometry((-0.99, 0.0), v=(0.0, 0.2))  # i left of j; s = (n_y, -n_x) = (0, 1)
-    delta = jnp.zeros(1)
-    forces = []
-    for _ in range(3000):
-        out = lee_herrmann.pair_force(p, g, delta, 1e-3)
-        delta = out.history
-        forces.append(float(out.force[1]))
-    forces = np.array(forces)
+
+    def step(delta, _):
+        out = pair_force(p, g, delta, 1e-3)
+        return out.history, out.force[1]
+
+    delta, forces = jax.lax.scan(step, jnp.zeros(1), None, length=3000)
+    forces = np.asarray(forces)
     fn = 1e5 * 0.01**1.5
     np.testing.assert_allclose(forces[:5], -1e3 * 0.2e-3 * np.arange(1, 6), rtol=1e-12)  # -k_s delta_s
     np.testing.assert_allclose(forces[-1], -0.3 * fn, rtol=1e-12)  # -mu F_n
-    assert float(delta[0]) == pytest.approx(3000 * 0.2e-3)  # keeps accumulating while sliding (eq. 2b as written)
+    if slip == "literal":
+        assert float(delta[0]) == pytest.approx(3000 * 0.2e-3)  # keeps accumulating while sliding
+    else:
+        assert float(delta[0]) == pytest.approx(0.3 * fn / 1e3, rel=1e-12)  # the spring slipped at mu F_n / k_s
+    # Reverse the motion: Cundall-Strack friction reverses within a step; the
+    # literal law keeps pushing the old way until delta_s is undone.
+    back = g._replace(velocity=-g.velocity)
+    out = pair_force(p, back, delta, 1e-3)
+    if slip == "literal":
+        assert float(out.force[1]) == pytest.approx(-0.3 * fn, rel=1e-12)
+    else:
+        assert float(out.force[1]) == pytest.approx(-0.3 * fn + 1e3 * 0.2e-3, rel=1e-12)
+
+
+def test_eq2b_lee_herrmann_cundall_strack_slip_dissipates_mu_fn_per_unit_slide():
+    """A contact driven back and forth beyond the slip limit: the Cundall-Strack
+    law takes ~ 2 mu F_n A per half cycle (A the amplitude), the literal law
+    gives back what it took."""
+    p = lee_herrmann.make_params(kn=1e5, ks=1e5, gamma_n=0.0, gamma_s=0.0, mu=0.3)
+    fn = 1e5 * 0.01**1.5
+    dt, steps, amplitude = 1e-3, 4000, 0.05  # 0.05 >> the slip distance mu F_n / k_s = 3e-4 (F_n = 100)
+    t = np.arange(steps) * dt
+    omega = 2 * np.pi / 2.0  # two full periods
+    speeds = jnp.asarray(amplitude * omega * np.cos(omega * t))
+    work = {}
+    for slip in ("cundall-strack", "literal"):
+        pair_force = lee_herrmann.law(slip=slip).pair_force
+
+        def step(delta, v, pair_force=pair_force):
+            out = pair_force(p, _geometry((-0.99, 0.0), v=jnp.stack([0.0, v])), delta, dt)
+            return out.history, out.force[1] * v * dt  # work done on i by the contact
+
+        _, w = jax.lax.scan(step, jnp.zeros(1), speeds)
+        work[slip] = float(jnp.sum(w))
+    slid = 2 * 2 * 2 * amplitude  # 2 periods x 2 half cycles x 2A
+    assert -work["cundall-strack"] == pytest.approx(0.3 * fn * slid, rel=0.02)
+    assert abs(work["literal"]) < 0.01 * 0.3 * fn * slid
+
+
+def test_lee_herrmann_unknown_slip_mode_is_an_input_error():
+    with pytest.raises(InputError, match="slip"):
+        lee_herrmann.law(slip="sticky")
 
 
 def test_eq5_baxter_tangential_force_mobilises_to_mu_fn_at_delta_max():

@@ -1,10 +1,8 @@
 """The 1993 box pile (Lee & Herrmann, sec. 3, Fig. 1) at a small size: filled,
 right wall removed inside the compiled loop, settled again, angle measured.
 
-The lee-herrmann runs use gamma_s = gamma_n / 10 instead of the paper's
-gamma_n / 100: with the law's literal shear displacement (it keeps growing
-while a contact slides) sliding dissipates nothing, and with the paper's
-gamma_s a pile never comes to rest (see the box module's notes)."""
+The lee-herrmann runs use the paper's parameters (gamma_s = gamma_n / 100) with
+the law's default Cundall-Strack slip."""
 
 import math
 
@@ -18,12 +16,11 @@ from jaxpile.errors import InputError
 from jaxpile.protocols import box
 
 WIDTH, HEIGHT = 2.0, 1.4  # the paper's units (cm); about 72 disks
-LH_TEST_PARAMS = {"gamma_s": 50.0}
 
 
 @pytest.fixture(scope="module")
 def lh_box():
-    return box.run("lee-herrmann", params=LH_TEST_PARAMS, width=WIDTH, height=HEIGHT, seed=0, max_time=2.0)
+    return box.run("lee-herrmann", width=WIDTH, height=HEIGHT, seed=0, max_time=2.0)
 
 
 @pytest.fixture(scope="module")

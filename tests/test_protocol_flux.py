@@ -2,9 +2,8 @@
 disks inserted at the upper left inside the compiled loop whenever the pile is
 at rest, the surface recorded before each insertion.
 
-The lee-herrmann run uses gamma_s = gamma_n / 10 and the rms speed for the
-rest test: with the law's literal shear displacement and the paper's gamma_s
-some disk keeps rocking faster than v_cut (see tests/test_protocol_box.py)."""
+The lee-herrmann run uses the paper's parameters and its rest test (the
+largest speed below v_cut)."""
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ WIDTH = 1.6  # the paper's units (cm): 8 columns
 
 @pytest.fixture(scope="module")
 def lh_flux():
-    return flux.run("lee-herrmann", 20, params={"gamma_s": 50.0}, rest_measure="rms", width=WIDTH, max_time=6.0)
+    return flux.run("lee-herrmann", 20, width=WIDTH, max_time=6.0)
 
 
 @pytest.fixture(scope="module")

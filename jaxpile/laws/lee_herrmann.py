@@ -7,11 +7,19 @@ m_e = m_i m_j / (m_i + m_j), the force on i is F = F_n n + F_s s (eq. 1) with
   F_n = k_n (a_i + a_j - r)^{3/2} - gamma_n m_e (v . n)                      (2a)
   F_s = -gamma_s m_e (v . s) - sign(delta_s) min(k_s |delta_s|, mu F_n)      (2b)
 
-delta_s is the total shear displacement since the contact formed (the integral of
-v . s over the contact's life), removed when the contact breaks. As the paper
-writes it, delta_s keeps growing while the pair slides (only the force is capped
-at mu F_n); a reversal must first undo that displacement. The cap uses
+delta_s is the shear displacement since the contact formed (the integral of
+v . s over the contact's life), removed when the contact breaks. The cap uses
 max(F_n, 0): the paper does not say what happens when damping makes F_n < 0.
+
+Sliding (`law(slip=...)`). The paper says it uses the scheme of Cundall & Strack
+1979, in which the shear spring slips: while k_s |delta_s| exceeds mu F_n,
+delta_s is set back to sign(delta_s) mu F_n / k_s, so a reversal of the motion
+reverses the friction at once and sliding dissipates mu F_n |v_s| (the default,
+`slip="cundall-strack"`). Eq. 2b read literally (`slip="literal"`) caps only the
+force: delta_s keeps growing while the pair slides and a reversal must first
+undo it, so a contact rocking back and forth in the slip regime returns the
+work it took, and with the paper's gamma_s = gamma_n / 100 piles never come to
+rest (measured; see `protocols.box`).
 
 Walls have the same form with a_j = 0 and m_j = infinity (m_e = m_i), with their
 own stiffness (`wall_kn`, 2e6 in the paper). The paper's particles do not rotate:
@@ -89,7 +97,17 @@ def wall_params(p: Params) -> Params:
 
 
 def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
-    """Eqs. 1, 2a, 2b for one pair; `history[0]` is delta_s."""
+    """Eqs. 1, 2a, 2b for one pair with the Cundall-Strack slip of the shear
+    spring; `history[0]` is delta_s."""
+    return _pair_force(p, g, history, dt, slip=True)
+
+
+def pair_force_literal(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+    """Eqs. 1, 2a, 2b as written: delta_s keeps growing while the pair slides."""
+    return _pair_force(p, g, history, dt, slip=False)
+
+
+def _pair_force(p: Params, g: PairGeometry, history: Array, dt, slip: bool) -> PairForce:
     n, r = normal_and_distance(g.displacement)
     overlap = g.radius_i + g.radius_j - r
     in_contact = (overlap > 0) & (r > 0)
@@ -103,6 +121,9 @@ def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
     delta_s = history[0] + v_s * dt
     static = jnp.minimum(p.ks * jnp.abs(delta_s), p.mu * jnp.maximum(f_n, 0.0))
     f_s = -p.gamma_s * g.effective_mass * v_s - jnp.sign(delta_s) * static  # (2b)
+    if slip:  # the spring slips: keep k_s |delta_s| <= mu F_n (Cundall & Strack 1979)
+        safe_ks = jnp.where(p.ks > 0, p.ks, 1.0)
+        delta_s = jnp.where(p.ks > 0, jnp.sign(delta_s) * jnp.minimum(jnp.abs(delta_s), static / safe_ks), delta_s)
 
     force = f_n * n + f_s * s
     torque = g.radius_i * f_s  # (-a_i n) x (f_s s), z component
@@ -132,8 +153,19 @@ def validate(p: Params) -> None:
     check_finite_nonnegative(NAME, p, PARAM_NAMES, positive=("kn", "wall_kn"))
 
 
-def law(rotation: bool = False) -> ContactLaw:
-    """The Lee-Herrmann law; the paper's disks do not rotate (default)."""
-    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=pair_force,
+SLIP_MODES = {"cundall-strack": pair_force, "literal": pair_force_literal}
+
+
+def law(rotation: bool = False, slip: str = "cundall-strack") -> ContactLaw:
+    """The Lee-Herrmann law; the paper's disks do not rotate (default).
+
+    Args:
+      rotation: let the disks rotate (the paper's do not).
+      slip: `"cundall-strack"` (default) lets the shear spring slip at mu F_n;
+        `"literal"` caps only the force (see the module docstring).
+    """
+    if slip not in SLIP_MODES:
+        raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {sorted(SLIP_MODES)}.")
+    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=SLIP_MODES[slip],
                       wall_params=wall_params, interaction_range=interaction_range,
                       stable_time_step=stable_time_step, validate=validate, params_type=Params)
