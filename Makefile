@@ -25,8 +25,11 @@ demo: $(STAMP)
 	$(BIN)/jaxpile pile --protocol lattice --layers 45 --law liffman --out $(DEMO)/lattice_liffman
 	$(BIN)/jaxpile compare $(DEMO)/lattice $(DEMO)/lattice_mu0.1 $(DEMO)/lattice_liffman
 
+# Test workers: one per core, at most 4 (each holds its own JAX compile cache).
+JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$n)
+
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache

@@ -1,13 +1,22 @@
 """The `jaxpile` command.
 
   jaxpile pile --protocol lattice --layers 45 --law hooke --out DIR [--set NAME=VALUE ...]
+  jaxpile pile --protocol sloped --slope 45 --n 360 --out DIR
+  jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
   jaxpile compare DIR [DIR ...]
+
+Every protocol writes summary.json (the set-up and the protocol's measurements),
+base_forces.csv, state.npz, pile.png and profile.png; box and tilt add
+energy.png (kinetic energy per disk, Lee & Herrmann 1993 Fig. 1(b)), flux adds
+angles.png (Fig. 5) and pour adds heap_profile.png (the binned base force of
+Baxter et al. 1997).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -56,15 +65,85 @@ def _parse_hard_collisions(text):
     return hard
 
 
+PROTOCOL_HELP = {
+    "lattice": "the 1992 equilateral pile (--layers)",
+    "sloped": "the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)",
+    "drop": "disks dropped one at a time (1992 Fig. 20)",
+    "box": "a box filled, its right wall removed (1993 Fig. 1)",
+    "tilt": "a box pile tilted until it moves (1993 Fig. 4)",
+    "flux": "disks fed at the upper left whenever the pile rests (1993 Fig. 5)",
+    "pour": "a heap poured onto a row of fixed disks (1997)",
+}
+DEFAULT_LAW = {"lattice": "hooke", "sloped": "hooke", "drop": "liffman", "box": "lee-herrmann", "tilt": "lee-herrmann",
+               "flux": "lee-herrmann", "pour": "baxter"}
+# The run() keyword each generic flag maps to, per protocol (absent: the flag is refused).
+_SIZE_ARG = {"sloped": "n", "drop": "n", "box": "n", "tilt": "n", "flux": "insertions", "pour": "n"}
+_FLAG_ARGS = {
+    "sloped": {"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
+               "hard_collisions": "hard_collisions", "seed": "seed"},
+    "drop": {"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
+             "seed": "seed"},
+    "box": {"seed": "seed"},
+    "tilt": {},
+    "flux": {"seed": "seed"},
+    "pour": {"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
+}
+
+
+def _parse_options(items) -> dict:
+    """`--option NAME=VALUE`: ints, floats, on/off, or text."""
+    from jaxpile.errors import InputError
+
+    options = {}
+    for item in items or []:
+        if "=" not in item:
+            raise InputError(f"--option takes NAME=VALUE; got {item!r}.")
+        name, text = (part.strip() for part in item.split("=", 1))
+        for convert in (int, float):
+            try:
+                value = convert(text)
+                break
+            except ValueError:
+                continue
+        else:
+            lowered = text.lower()
+            value = {"on": True, "true": True, "off": False, "false": False}.get(lowered, text)
+        options[name.replace("-", "_")] = value
+    return options
+
+
+def _accepted_options(module) -> set:
+    """Keyword arguments `--option` may set: those of the protocol's `run`, plus
+    those of its set-up function where `run` forwards `**options` to it."""
+    import inspect
+
+    run_params = inspect.signature(module.run).parameters
+    names = {k for k, v in run_params.items() if v.kind is inspect.Parameter.KEYWORD_ONLY or
+             v.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD}
+    if any(v.kind is inspect.Parameter.VAR_KEYWORD for v in run_params.values()):
+        setup = module.pour if module.__name__.endswith("pour") else module.protocol
+        names |= set(inspect.signature(setup).parameters)
+    reserved = {"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "insertions", "pile",
+                "alpha_degrees", "hard_collisions", "pile_params", "box_options"}
+    return names - reserved
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     pile = sub.add_parser("pile", help="build a pile, relax it, measure its base forces and draw it")
-    pile.add_argument("--protocol", default="lattice", choices=["lattice"],
-                      help="how the pile is built (lattice: the 1992 equilateral pile)")
+    pile.add_argument("--protocol", default="lattice", choices=list(PROTOCOL_HELP),
+                      help="how the pile is built: " + "; ".join(f"{k}: {v}" for k, v in PROTOCOL_HELP.items()))
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
-    pile.add_argument("--law", default="hooke", help="contact law: hooke, liffman, lee-herrmann, baxter")
+    pile.add_argument("--n", type=int, default=None,
+                      help="disks (sloped, drop, box, tilt, pour) or insertions (flux); default: the paper's")
+    pile.add_argument("--slope", type=float, default=None, metavar="DEG",
+                      help="side angle of the sloped pile in degrees (< 60; default 30)")
+    pile.add_argument("--option", action="append", metavar="NAME=VALUE",
+                      help="a protocol option, e.g. width=4 (box), polydispersity=0.05 (pour) (repeatable)")
+    pile.add_argument("--law", default=None,
+                      help="contact law: hooke, liffman, lee-herrmann, baxter (default: the protocol's paper's law)")
     pile.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a law parameter (repeatable)")
     pile.add_argument("--rotation", type=_on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
@@ -76,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--hard-collisions", metavar="EPS,MU", default=None,
                       help="fast approaches collide impulsively with restitution EPS and friction MU "
                            "(Liffman et al. 1992 eqs. 1-22); default off")
-    pile.add_argument("--seed", type=int, default=0, help="random seed (the lattice pile is deterministic)")
+    pile.add_argument("--seed", type=int, default=0, help="random seed (the lattice and sloped piles are deterministic)")
     pile.add_argument("--max-steps", type=int, default=None, help="step budget for loading and relaxing")
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
     pile.add_argument("--speed-tol", type=float, default=None, help="max disk speed that counts as at rest")
@@ -91,11 +170,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    os.environ.setdefault("MPLBACKEND", "Agg")  # figures go to files; never open a window
     from jaxpile.errors import InputError, SimulationError
 
     try:
         if args.command == "pile":
-            run_pile(args)
+            if args.protocol == "lattice":
+                run_pile(args)
+            else:
+                run_protocol(args)
         elif args.command == "compare":
             print(compare_table(args.dirs))
     except (InputError, SimulationError) as err:
@@ -116,7 +199,10 @@ def run_pile(args) -> dict:
     from jaxpile.simulate import Simulator, gravity_ramp
 
     setting = lattice.PAPER_SETTING
-    lawmod = get_law_module(args.law)
+    for flag in ("n", "slope", "option"):
+        if getattr(args, flag) is not None:
+            raise InputError(f"--{flag} is not used by the lattice protocol (its size is --layers).")
+    lawmod = get_law_module(args.law or "hooke")
     layers = setting["layers"] if args.layers is None else args.layers
     rotation = setting["rotation"] if args.rotation is None else args.rotation
     dt = setting["dt"] if args.dt is None else args.dt
@@ -200,6 +286,208 @@ def run_pile(args) -> dict:
     return summary
 
 
+def run_protocol(args) -> dict:
+    """`jaxpile pile --protocol P` for every protocol but the lattice: runs the
+    protocol's `run`, then writes the same files as the lattice run plus the
+    protocol's own figure."""
+    import jax.numpy as jnp
+
+    import jaxpile  # noqa: F401  (turns on float64)
+    from jaxpile import analysis, io
+    from jaxpile.errors import InputError
+    from jaxpile.laws import get_law_module
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.simulate import Simulator
+
+    name = args.protocol
+    module = PROTOCOLS[name]
+    if args.layers is not None:
+        raise InputError(f"--layers is for the lattice protocol; the {name} protocol's size is --n.")
+    if args.slope is not None and name != "sloped":
+        raise InputError(f"--slope is for the sloped protocol, not {name}.")
+    lawmod = get_law_module(args.law or DEFAULT_LAW[name])
+    dtype = jnp.float64 if args.precision == "float64" else jnp.float32
+    overrides = _parse_set(args.set, lawmod.PARAM_NAMES)
+    _, contact_law, params = module.law_and_params(lawmod.NAME, overrides, args.rotation, dtype=dtype)
+
+    kwargs = dict(params=params, rotation=args.rotation, integrator=args.integrator, dtype=dtype,
+                  progress=False if args.no_progress else None)
+    if args.dt is not None:
+        kwargs["dt"] = args.dt
+    if args.n is not None:
+        kwargs[_SIZE_ARG[name]] = args.n
+    if args.slope is not None:
+        kwargs["alpha_degrees"] = args.slope
+    flags = {"ramp_steps": args.ramp_steps, "max_steps": args.max_steps, "speed_tol": args.speed_tol,
+             "hard_collisions": _parse_hard_collisions(args.hard_collisions),
+             "seed": args.seed if args.seed != 0 or name == "tilt" else None}
+    for flag, value in flags.items():
+        if value is None:
+            continue
+        if flag == "seed" and name == "tilt":
+            kwargs["box_options"] = {"seed": value}
+        elif flag in _FLAG_ARGS[name]:
+            kwargs[_FLAG_ARGS[name][flag]] = value
+        else:
+            raise InputError(f"--{flag.replace('_', '-')} is not used by the {name} protocol.")
+    options = _parse_options(args.option)
+    unknown = set(options) - _accepted_options(module)
+    if unknown:
+        raise InputError(f"unknown --option {sorted(unknown)} for the {name} protocol; known: "
+                         f"{', '.join(sorted(_accepted_options(module)))}.")
+    kwargs.update(options)
+
+    print(f"jaxpile: {name} pile ({PROTOCOL_HELP[name]}), law {contact_law.name} "
+          f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)
+    if kwargs.get("hard_collisions") is not None:
+        hard = kwargs["hard_collisions"]
+        print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g})", flush=True)
+    t0 = time.perf_counter()
+    state, m = module.run(lawmod.NAME, **kwargs)
+    total = time.perf_counter() - t0
+
+    dt = args.dt if args.dt is not None else _protocol_dt(module, m)
+    sim = Simulator(contact_law, dt)
+    if name == "pour":
+        base = m["substrate_forces"]
+    elif name == "flux":  # the pile stands on a fixed layer of disks: its base forces are the contacts with it
+        from jaxpile.protocols import pour
+
+        base = pour.substrate_forces(sim, params, state)
+    else:
+        base = analysis.base_forces(sim, params, state)
+    network = analysis.contact_network(sim, params, state)
+    p = state.particles
+    active = np.asarray(p.active)
+    run = m.get("run", m)
+    steps, wall = int(run.get("steps", 0)), float(run.get("wall_seconds", 0.0))
+    summary = {
+        "protocol": name,
+        "law": contact_law.name,
+        "rotation": bool(contact_law.rotation),
+        "params": {k: float(v) for k, v in vars(params).items() if v is not None},
+        "dt": dt,
+        "integrator": args.integrator,
+        "precision": args.precision,
+        "seed": args.seed,
+        "options": options,
+        "n_particles": int(active.sum()),
+        "particle_steps_per_second": steps * int(active.sum()) / wall if wall > 0 else None,
+        "cli_total_seconds": total,
+        # pour's own `summary` is its measurements as plain numbers (the rest are maps and arrays)
+        **(m["summary"] if name == "pour" else _plain(m)),
+    }
+    summary["protocol"], summary["law"] = name, contact_law.name
+    out = args.out
+    os.makedirs(out, exist_ok=True)
+    io.write_json(os.path.join(out, "summary.json"), summary)
+    io.write_csv(os.path.join(out, "base_forces.csv"),
+                 {"x": np.asarray(base.x), "normal": np.asarray(base.normal), "horizontal": np.asarray(base.horizontal)})
+    io.save_state(os.path.join(out, "state.npz"), state, law=contact_law.name, params=summary["params"], dt=dt,
+                  rotation=summary["rotation"], precision=args.precision, protocol=name)
+    written = ["summary.json", "base_forces.csv", "state.npz"] + _protocol_figures(name, m, state, base, network,
+                                                                                   contact_law.name, out)
+    print(_headline(name, summary), flush=True)
+    print(f"jaxpile: wrote {out}/" + ", ".join(written))
+    return summary
+
+
+def _protocol_dt(module, m) -> float:
+    info = m.get("info") or {}
+    if "dt" in info:
+        return float(info["dt"])
+    setting = getattr(module, "SETTING", None) or module.PAPER_SETTING
+    return float(setting["dt"])
+
+
+def _plain(value):
+    """Measurements as JSON: arrays to lists, named tuples to dicts."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if hasattr(value, "_asdict"):
+        return {k: _plain(v) for k, v in value._asdict().items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if hasattr(value, "shape") and hasattr(value, "tolist"):
+        return np.asarray(value).tolist()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
+
+
+# What `jaxpile pile` prints at the end of each protocol: its headline numbers.
+HEADLINES = {
+    "sloped": ("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
+               "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
+    "drop": ("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance"),
+    "box": ("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
+            "repose_cumulative_parabola", "theta_ms_theory"),
+    "tilt": ("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
+    "flux": ("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
+    "pour": ("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
+             "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
+             "m_shape.ratio", "m_shape.m_shaped"),
+}
+
+
+def _headline(name: str, summary: dict) -> str:
+    parts = []
+    for key in HEADLINES.get(name, ()):
+        v = summary
+        for part in key.split("."):  # dotted keys reach into nested dicts
+            v = v.get(part) if isinstance(v, dict) else None
+        if v is not None:
+            parts.append(f"{key} = {v:.4g}" if isinstance(v, float) else f"{key} = {v}")
+    rate = summary.get("particle_steps_per_second")
+    timing = f"{rate:.3g} particle-steps/s" if rate else ""
+    return "  " + ", ".join(parts) + (f"\n  {timing}" if timing else "")
+
+
+def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
+    """pile.png and profile.png for every protocol, and the protocol's own figure."""
+    from jaxpile import plot, theory
+
+    p = state.particles
+    title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} disks"
+    cgs = name in ("box", "tilt", "flux") and law_name == "lee-herrmann"  # the 1993 setting is in the paper's cm
+    plot.pile_figure(p.position, p.radius, network, active=np.asarray(p.active), title=title,
+                     length_unit="cm" if cgs else "diameters", path=os.path.join(out, "pile.png"))
+    th_n = th_h = None
+    if name == "sloped" and len(base.x):
+        alpha, width = math.radians(m["alpha_degrees"]), m["base"]
+        th_n = theory.continuum_ground_normal_force(np.asarray(base.x), alpha, width)
+        th_h = theory.continuum_ground_horizontal_force(np.asarray(base.x), alpha, width)
+    plot.base_profile_figure(base.x, base.normal, base.horizontal, theory_normal=th_n, theory_horizontal=th_h,
+                             title=title + (" vs Liffman et al. 1992 eqs. 54-59" if th_n is not None else ""),
+                             path=os.path.join(out, "profile.png"))
+    written = ["pile.png", "profile.png"]
+    if name in ("box", "tilt") and m.get("kinetic_energy"):
+        ke = m["kinetic_energy"]
+        energy = np.maximum(np.asarray(ke["kinetic_energy"], dtype=float), 1e-300)
+        plot.series_figure(ke["time"], {"kinetic energy per disk": energy}, xlabel="time", ylabel="E_kin per disk",
+                           logy=True, title=title + " (Lee & Herrmann 1993 Fig. 1b)",
+                           path=os.path.join(out, "energy.png"))
+        written.append("energy.png")
+    if name == "flux" and m.get("inserted"):
+        k = np.arange(1, m["inserted"] + 1)
+        series = {f"method {i}": m[f"angle_{key}"] for i, key in
+                  enumerate(("endpoints", "least_squares", "cumulative_parabola"), start=1)}
+        plot.series_figure(k, series, xlabel="insertion", ylabel="pile angle (deg)",
+                           hlines={"theta_MS (eq. 3)": m.get("theta_ms_theory"), "steady mean": m.get("steady_mean")},
+                           title=title + " (Lee & Herrmann 1993 Fig. 5)", path=os.path.join(out, "angles.png"))
+        written.append("angles.png")
+    if name == "pour" and m.get("base_profile") is not None:
+        prof = m["base_profile"]
+        plot.series_figure(prof.x_over_b, {"F / F_max": prof.normalised}, xlabel="x / B",
+                           ylabel="binned base normal force / max",
+                           title=title + " (Baxter et al. 1997 Figs. 3b, 5b, 7)",
+                           path=os.path.join(out, "heap_profile.png"))
+        written.append("heap_profile.png")
+    return written
+
+
 def _summary_lines(s: dict) -> str:
     return (
         f"  steps {s['steps']}, run {s['wall_seconds']:.1f} s, compile {s['compile_seconds']:.1f} s, "
@@ -222,18 +510,22 @@ def compare_table(dirs) -> str:
         with open(path) as f:
             s = json.load(f)
         rows.append((d, s))
-    head = (f"{'run':32s} {'law':>12s} {'disks':>6s} {'mu':>5s} {'rot':>4s} {'steps':>8s} {'p-steps/s':>10s} "
-            f"{'dev N':>8s} {'dev H':>8s}")
+    head = (f"{'run':32s} {'protocol':>8s} {'law':>12s} {'disks':>6s} {'mu':>5s} {'steps':>8s} {'p-steps/s':>10s}  "
+            "result")
     lines = [head, "-" * len(head)]
     for d, s in rows:
-        lines.append(
-            f"{d:32s} {s['law']:>12s} {s['n_particles']:6d} "
-            f"{('%5.2f' % s['params']['mu']) if 'mu' in s['params'] else '    -'} "
-            f"{'on' if s['rotation'] else 'off':>4s} {s['steps']:8d} {s['particle_steps_per_second']:10.3g} "
-            f"{s['max_rel_dev_normal']:8.2%} {s['max_rel_dev_horizontal']:8.2%}"
-        )
+        protocol = s.get("protocol", "lattice")
+        steps = s.get("steps", (s.get("run") or {}).get("steps", 0))
+        rate = s.get("particle_steps_per_second") or 0.0
+        mu = s.get("params", {}).get("mu")
+        if protocol == "lattice":
+            result = f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}"
+        else:
+            result = _headline(protocol, s).strip().splitlines()[0]
+        lines.append(f"{d:32s} {protocol:>8s} {s['law']:>12s} {s['n_particles']:6d} "
+                     f"{('%5.2f' % mu) if mu is not None else '    -'} {steps:8d} {rate:10.3g}  {result}")
     lines.append(
-        "dev N, dev H: largest deviation of the ground forces from Liffman et al. 1992 eqs. 42 and 44.\n"
+        "dev N, dev H (lattice): largest deviation of the ground forces from Liffman et al. 1992 eqs. 42 and 44.\n"
         "The analytic forces assume frictionless disks at rest; with disk-disk friction the base forces\n"
         "depend on how the pile was loaded (tangential springs lock in shear), so mu > 0 departs from them."
     )

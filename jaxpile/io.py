@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import warnings
 
 import numpy as np
 
@@ -47,7 +48,11 @@ def write_csv(path, columns: dict) -> None:
 def read_csv(path) -> dict:
     with open(path) as f:
         names = f.readline().strip().split(",")
-    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # a table with no rows is valid: empty columns
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    if data.size == 0:
+        return {n: np.zeros(0) for n in names}
     return {n: data[:, k] for k, n in enumerate(names)}
 
 

@@ -3,15 +3,15 @@ network, and base-force profiles with the papers' theory overlaid."""
 
 from __future__ import annotations
 
-import matplotlib
+# No backend is forced here, so notebooks draw inline; the CLI picks the
+# file-only Agg backend itself, and matplotlib falls back to it without a display.
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import EllipseCollection, LineCollection
 
-matplotlib.use("Agg")  # files only; never needs a display
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import EllipseCollection, LineCollection  # noqa: E402
 
-
-def pile_figure(position, radius, network=None, *, active=None, title: str = "", path=None, max_width: float = 4.0):
+def pile_figure(position, radius, network=None, *, active=None, title: str = "", path=None, max_width: float = 4.0,
+                length_unit: str = "diameters"):
     """Disks, with each disk-disk contact drawn as a line between centres whose
     width (and colour) is the normal force.
 
@@ -19,6 +19,7 @@ def pile_figure(position, radius, network=None, *, active=None, title: str = "",
       position: `[n, 2]`; radius: `[n]`.
       network: optional `analysis.ContactNetwork` (forces in mg).
       active: `[n]` bool, default all.
+      length_unit: the axes' unit label.
     """
     position, radius = np.asarray(position), np.asarray(radius)
     active = np.ones(len(radius), bool) if active is None else np.asarray(active)
@@ -40,8 +41,8 @@ def pile_figure(position, radius, network=None, *, active=None, title: str = "",
     ax.set_ylim(min(0.0, pos[:, 1].min() - rad.max()), pos[:, 1].max() + rad.max())
     ax.axhline(0.0, color="k", lw=1)
     ax.set_aspect("equal")
-    ax.set_xlabel("x (diameters)")
-    ax.set_ylabel("y (diameters)")
+    ax.set_xlabel(f"x ({length_unit})")
+    ax.set_ylabel(f"y ({length_unit})")
     if title:
         ax.set_title(title)
     fig.tight_layout()
@@ -68,6 +69,30 @@ def base_profile_figure(x, normal, horizontal, *, theory_normal=None, theory_hor
         ax.legend()
     if title:
         fig.suptitle(title)
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def series_figure(x, series: dict, *, xlabel: str, ylabel: str, title: str = "", logy: bool = False,
+                  hlines: dict | None = None, path=None):
+    """One or more named series against a common x (e.g. the kinetic energy per
+    disk against time, Lee & Herrmann 1993 Fig. 1(b); the pile angle before each
+    insertion, Fig. 5), with optional labelled horizontal reference lines."""
+    x = np.asarray(x, dtype=float)
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for label, y in series.items():
+        ax.plot(x, np.asarray(y, dtype=float), "-o" if len(x) < 60 else "-", ms=3, lw=1, label=label)
+    for k, (label, value) in enumerate((hlines or {}).items()):
+        if value is not None and np.isfinite(value):
+            ax.axhline(value, ls="--", lw=1, color=f"C{k + len(series)}", label=label)
+    if logy:
+        ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title)
     fig.tight_layout()
     return _finish(fig, path)
 

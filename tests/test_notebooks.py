@@ -4,14 +4,12 @@ so the notebooks never rot."""
 import pathlib
 
 import nbformat
-import pytest
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((pathlib.Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
-def test_notebook_runs_to_the_end(path, monkeypatch, tmp_path):
+def _run_to_the_end(path, monkeypatch, tmp_path):
     monkeypatch.setenv("JAXPILE_NOTEBOOK_SIZE", "small")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(path, as_version=4)
@@ -22,3 +20,23 @@ def test_notebook_runs_to_the_end(path, monkeypatch, tmp_path):
     outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "verdict" in outputs  # reached the closing table
     nbformat.write(nb, tmp_path / path.name)
+
+
+# One test class per notebook: `make test` distributes the suite with
+# `pytest -n N --dist loadscope`, which schedules each class as a unit, so the
+# notebooks run side by side on different workers.
+def _notebook_class(path):
+    def test_runs_to_the_end(self, monkeypatch, tmp_path):
+        _run_to_the_end(path, monkeypatch, tmp_path)
+
+    name = "TestNotebook_" + path.stem
+    return name, type(name, (), {"test_runs_to_the_end": test_runs_to_the_end, "__doc__": f"notebooks/{path.name}"})
+
+
+for _path in NOTEBOOKS:
+    _name, _cls = _notebook_class(_path)
+    globals()[_name] = _cls
+
+
+def test_every_notebook_has_a_test_class():
+    assert NOTEBOOKS and all(("TestNotebook_" + p.stem) in globals() for p in NOTEBOOKS)

@@ -73,7 +73,7 @@ from jaxpile.errors import InputError
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
-from jaxpile.protocols.sloped import law_and_params
+from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.state import SimState, make_particles
 
 Array = Any
@@ -304,6 +304,11 @@ def central_dip(profile: NormalProfile) -> float:
     return float(1.0 - f[mid] / shoulder) if shoulder > 0 else float("nan")
 
 
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+    """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
+    return sloped_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+
+
 def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rotation: bool | None = None,
         dt: float = SETTING["dt"], drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
         settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
@@ -335,7 +340,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
     """
     from jaxpile.simulate import RunInfo, Simulator
 
-    _, contact_law, params = law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
     if int(relax_steps) != relax_steps or relax_steps < 1:
         raise InputError(f"relax_steps must be a positive whole number; got {relax_steps!r}.")
     p = protocol(n, seed=seed, dt=dt, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed,
@@ -416,5 +421,5 @@ def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: floa
     return out
 
 
-__all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "layout", "make_driver",
-           "measure", "normal_profile", "protocol", "run"]
+__all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "law_and_params", "layout",
+           "make_driver", "measure", "normal_profile", "protocol", "run"]

@@ -36,10 +36,9 @@ Design (everything inside the compiled loop, fixed shapes):
 * The run ends when every insertion is done and the pile is at rest again.
 
 Units as in `box` (the paper's cm, s for lee-herrmann; reduced units for the
-other laws, speeds Froude-scaled). With the lee-herrmann law at the paper's
-gamma_s, some disk keeps rocking faster than v_cut (see the known problem in
-`box`) and the insertions stop; `rest_measure="rms"` or gamma_s = gamma_n / 10
-gets past it.
+other laws, speeds Froude-scaled). With `lee_herrmann.law(slip="literal")`
+and the paper's gamma_s some disk keeps rocking faster than v_cut (see `box`)
+and the insertions stop.
 """
 
 from __future__ import annotations
@@ -395,6 +394,9 @@ def execute(sim, params, p: Protocol, *, max_steps: int, progress=None):
                              finished=lambda s: int(s.protocol_state.settled_at) >= 0)
 
 
+law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+
+
 def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
         dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"],
         chunk_steps: int | None = None, progress=False, dtype=None, **options):
@@ -459,6 +461,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
 
 
 __all__ = [
+    "law_and_params",
     "SETTING",
     "FluxState",
     "angles",

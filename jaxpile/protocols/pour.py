@@ -601,6 +601,19 @@ def law_params(law: str, dtype=None, **overrides):
     return module.make_params(dtype=dtype, **values)
 
 
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+    """`(law module, ContactLaw, params)` with the pour setting: params None (the
+    setting's values), a dict of overrides on top of them, or a params pytree;
+    rotation None keeps the law's own default."""
+    from jaxpile.laws import get_law_module
+    from jaxpile.protocols.base import law_and_params as base_law_and_params
+
+    module = get_law_module(law) if isinstance(law, str) else law
+    default_rotation = module.law().rotation
+    setting = {"params": PAPER_SETTING["params"], "rotation": default_rotation}
+    return base_law_and_params(module, params, rotation, setting=setting, dtype=dtype)
+
+
 def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
                    integrator: str = PAPER_SETTING["integrator"], chunk_steps: int = 2000, **kwargs):
     """A `Simulator` running the pouring driver with a law by name (its own
@@ -654,7 +667,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
     Args:
       law: `baxter`, `hooke`, `lee-herrmann` or `liffman`.
       n: disks to pour.
-      params: the law's parameters; default `law_params(law)` (PAPER_SETTING).
+      params: None (`law_params(law)`, PAPER_SETTING), a dict of overrides, or a params pytree.
       dt, rotation, integrator: for the `Simulator` (leapfrog, eqs. 9-12, by default).
       speed_tolerance, max_settle_steps: the rest criterion after pouring.
       bins, voidage_cell: for `measure`.
@@ -666,8 +679,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       at_rest, final max speed), `info` (the set-up) and `summary` (plain numbers).
     """
     protocol = pour(n, dt=dt, dtype=dtype, **options)
-    if params is None:
-        params = law_params(law, dtype=protocol.particles.position.dtype)
+    _, _, params = law_and_params(law, params, rotation, dtype=protocol.particles.position.dtype)
     sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator)
     t0 = time.perf_counter()
     state, info = execute(sim, params, protocol, speed_tolerance=speed_tolerance,
@@ -693,6 +705,7 @@ __all__ = [
     "driver",
     "execute",
     "heap_mask",
+    "law_and_params",
     "law_params",
     "m_shape",
     "make_simulator",

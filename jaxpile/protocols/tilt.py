@@ -308,6 +308,9 @@ def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: floa
     return out
 
 
+law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+
+
 def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = None, params=None,
         pile_params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str = "velocity_verlet", settle: bool = False, settle_time: float = SETTING["settle_time"],
@@ -385,6 +388,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
 
 
 __all__ = [
+    "law_and_params",
     "SETTING",
     "TiltState",
     "compare_with_theory",

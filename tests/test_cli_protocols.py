@@ -1,0 +1,70 @@
+"""`jaxpile pile --protocol P` for every protocol besides the lattice (which
+tests/test_cli.py covers): each writes the lattice run's files plus its own
+measurements and figure, at the smallest size that still builds a pile."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxpile.cli import main
+from jaxpile.io import load_arrays, read_csv, write_csv
+
+# protocol -> (extra arguments, summary keys the protocol must report, its own figure)
+CASES = {
+    "sloped": (["--slope", "45", "--n", "21", "--max-steps", "40000"],
+               ("central_slope_horizontal", "theory_central_slope_horizontal", "alpha_degrees"), None),
+    "drop": (["--n", "6", "--seed", "1"], ("central_dip", "all_inserted", "weight_balance"), None),
+    "box": (["--n", "30", "--option", "width=1.2", "--option", "height=1.0"],
+            ("repose_cumulative_parabola", "theta_ms_theory", "wall_removed_step"), "energy.png"),
+    "tilt": (["--n", "30", "--option", "rate_degrees=0.05"], ("theta_t", "theta_t_theory", "theta_r"), "energy.png"),
+    "flux": (["--n", "4", "--option", "width=1.0"], ("steady_mean", "angle_cumulative_parabola"), "angles.png"),
+    "pour": (["--n", "12", "--option", "release_height=8", "--option", "substrate_disks=15", "--speed-tol", "1e-3"],
+             ("counts", "height", "weight_mg"), None),
+}
+
+
+@pytest.mark.parametrize("protocol", list(CASES))
+def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_path, capsys):
+    extra, keys, figure = CASES[protocol]
+    out = tmp_path / protocol
+    assert main(["pile", "--protocol", protocol, *extra, "--no-progress", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["protocol"] == protocol and summary["n_particles"] > 0
+    for key in keys:
+        assert key in summary, key
+    table = read_csv(out / "base_forces.csv")
+    assert set(table) == {"x", "normal", "horizontal"} and len(table["x"]) > 0
+    assert np.all(np.asarray(table["normal"]) > 0)  # the base pushes up
+    state = load_arrays(out / "state.npz")
+    assert state["particles.position"].shape[1] == 2
+    for name in ("pile.png", "profile.png") + ((figure,) if figure else ()):
+        assert (out / name).stat().st_size > 10_000, name
+    printed = capsys.readouterr().out
+    assert f"{protocol} pile" in printed and "wrote" in printed
+    assert main(["compare", str(out)]) == 0
+    assert protocol in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--protocol", "box", "--slope", "30"], "--slope"),
+    (["--protocol", "box", "--layers", "5"], "--layers"),
+    (["--protocol", "lattice", "--n", "5"], "--n"),
+    (["--protocol", "box", "--option", "colour=red"], "unknown --option"),
+    (["--protocol", "box", "--option", "width"], "NAME=VALUE"),
+    (["--protocol", "box", "--hard-collisions", "0.5,0.3"], "--hard-collisions"),
+    (["--protocol", "pour", "--set", "stiffness=3"], "unknown parameter"),
+    (["--protocol", "flux", "--law", "coulomb"], "unknown law"),
+])
+def test_pile_command_refuses_flags_a_protocol_does_not_use(argv, message, tmp_path, capsys):
+    assert main(["pile", *argv, "--no-progress", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert not (tmp_path / "x").exists()  # refused before anything ran or was written
+
+
+def test_a_base_force_table_with_no_contacts_reads_back_as_empty_columns(tmp_path):
+    path = tmp_path / "empty.csv"
+    write_csv(path, {"x": [], "normal": [], "horizontal": []})
+    table = read_csv(path)
+    assert set(table) == {"x", "normal", "horizontal"} and all(len(v) == 0 for v in table.values())
