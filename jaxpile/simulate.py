@@ -242,7 +242,7 @@ class Simulator:
             raise InputError(
                 f"dt = {self.dt:g} is above the stability limit of the {self.law.name} law with the "
                 f"{self.integrator.name} integrator (about {limit:.3g} for the stiffest contact and "
-                f"lightest disk); use dt <= {limit / 5:.3g}."
+                f"lightest disk); use dt <= {limit:.3g}, or about {limit / 5:.3g} for accurate collisions."
             )
 
     def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None,
