@@ -345,8 +345,9 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
         raise InputError(f"relax_steps must be a positive whole number; got {relax_steps!r}.")
     p = protocol(n, seed=seed, dt=dt, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed,
                  quiet_time=quiet_time, max_interval=max_interval, dtype=dtype)
+    # capacity: the list is allocated with the disks parked apart (see `pour.make_simulator`)
     sim = Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
-                    chunk_steps=chunk_steps)
+                    capacity_multiplier=4.0, chunk_steps=chunk_steps)
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     t0 = time.perf_counter()
     fill = RunInfo()

@@ -380,7 +380,9 @@ def angles(x_min: float, column_width: float, heights) -> dict:
 
 def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
                    integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
-    """A `Simulator` running the flux `driver` (see `box.make_simulator`)."""
+    """A `Simulator` running the flux `driver` (see `box.make_simulator`), with
+    neighbour head-room for the disks inserted later (see `pour.make_simulator`)."""
+    kwargs.setdefault("capacity_multiplier", 4.0)
     return boxes.make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, chunk_steps=chunk_steps,
                                 driver=driver, **kwargs)
 

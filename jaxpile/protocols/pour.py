@@ -624,6 +624,10 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
 
     module = get_law_module(law)
     contact_law = module.law() if rotation is None else module.law(rotation=rotation)
+    # The list is allocated while the disks to pour are parked far apart; head-room
+    # for the packed heap saves a re-allocation and a recompile per heap (measured:
+    # 48 disks, 21.5 s -> 15.6 s).
+    kwargs.setdefault("capacity_multiplier", 4.0)
     return Simulator(contact_law, dt, integrator=integrator, driver=driver, chunk_steps=chunk_steps, **kwargs)
 
 
