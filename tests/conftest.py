@@ -45,3 +45,10 @@ def random_disks(n, seed=0, box=6.0, radius=(0.4, 0.5), overlap=0.02):
             pos.append(p)
             rad.append(r)
     return np.array(pos), np.array(rad)
+
+
+def pytest_collection_modifyitems(config, items):
+    """The notebooks (the longest single tests, about a minute each) first: under
+    `pytest -n` they then start at once on separate workers instead of leaving
+    one worker running a notebook alone at the end."""
+    items.sort(key=lambda item: 0 if item.nodeid.startswith("tests/test_notebooks.py") else 1)  # stable
