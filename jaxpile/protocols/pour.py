@@ -594,11 +594,7 @@ def summary(measurements: dict) -> dict:
 # ----------------------------------------------------------------------- runs
 def law_params(law: str, dtype=None, **overrides):
     """The pour setting's parameters of a law (`PAPER_SETTING["params"]`), with overrides."""
-    from jaxpile.laws import get_law_module
-
-    module = get_law_module(law)
-    values = {**PAPER_SETTING["params"].get(module.NAME, {}), **overrides}
-    return module.make_params(dtype=dtype, **values)
+    return law_and_params(law, overrides, dtype=dtype)[2]
 
 
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
