@@ -71,6 +71,55 @@ def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> 
     )
 
 
+class SubstrateForces(NamedTuple):
+    """Every contact between a movable disk and a fixed (substrate) disk, sorted
+    by x, in mg (`force_unit`: the mean movable mass times g). The fields of
+    `BaseForces`, plus the substrate partner.
+
+    Attributes:
+      x: `[c]` x of the contact point (on the centre line, dividing it in the
+        ratio of the radii).
+      normal: `[c]` force of the substrate on the heap normal to the base
+        (upwards, along -g): the paper's F_B.
+      horizontal: `[c]` force the heap disk exerts on the substrate along the
+        base (+x; the sign convention of `analysis.base_forces`).
+      particle: `[c]` the movable disk ids.
+      substrate: `[c]` the substrate disk ids.
+    """
+
+    x: np.ndarray
+    normal: np.ndarray
+    horizontal: np.ndarray
+    particle: np.ndarray
+    substrate: np.ndarray
+
+
+def substrate_forces(sim, params, state: SimState) -> SubstrateForces:
+    """Forces at every contact of a movable disk with a fixed one (a row of base
+    disks: the poured heap of Baxter et al. 1997, the flux pile of Lee & Herrmann
+    1993), in mg, with "normal" along -g."""
+    cf = sim.contact_forces(params, state)
+    idx = np.asarray(state.neighbors.idx)
+    n = idx.shape[0]
+    p = state.particles
+    fixed, movable = np.asarray(p.fixed), np.asarray(p.movable)
+    rows = np.repeat(np.arange(n)[:, None], idx.shape[1], axis=1)
+    valid = idx < n
+    partner = np.where(valid, idx, 0)
+    keep = np.asarray(cf.pair.in_contact) & valid & movable[rows] & fixed[partner]
+    i, j = rows[keep], idx[keep]
+    force = np.asarray(cf.pair.force)[keep]  # substrate on heap disk
+    pos, rad = np.asarray(p.position), np.asarray(p.radius)
+    x = pos[j, 0] + (pos[i, 0] - pos[j, 0]) * rad[j] / (rad[i] + rad[j])
+    g = np.asarray(state.boundaries.gravity)
+    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 1.0])
+    along = np.array([up[1], -up[0]])
+    unit = force_unit(state)
+    order = np.argsort(x, kind="stable")
+    return SubstrateForces(x=x[order], normal=(force @ up)[order] / unit,
+                           horizontal=-(force @ along)[order] / unit, particle=i[order], substrate=j[order])
+
+
 class ContactNetwork(NamedTuple):
     """Each disk-disk contact once (i < j) with its force, in mg."""
 

@@ -121,8 +121,7 @@ def _accepted_options(module) -> set:
     names = {k for k, v in run_params.items() if v.kind is inspect.Parameter.KEYWORD_ONLY or
              v.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD}
     if any(v.kind is inspect.Parameter.VAR_KEYWORD for v in run_params.values()):
-        setup = module.pour if module.__name__.endswith("pour") else module.protocol
-        names |= set(inspect.signature(setup).parameters)
+        names |= set(inspect.signature(module.protocol).parameters)
     reserved = {"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "insertions", "pile",
                 "alpha_degrees", "hard_collisions", "pile_params", "box_options"}
     return names - reserved
@@ -351,9 +350,7 @@ def run_protocol(args) -> dict:
     if name == "pour":
         base = m["substrate_forces"]
     elif name == "flux":  # the pile stands on a fixed layer of disks: its base forces are the contacts with it
-        from jaxpile.protocols import pour
-
-        base = pour.substrate_forces(sim, params, state)
+        base = analysis.substrate_forces(sim, params, state)
     else:
         base = analysis.base_forces(sim, params, state)
     network = analysis.contact_network(sim, params, state)

@@ -338,51 +338,10 @@ def pour(
 
 
 # -------------------------------------------------------------------- forces
-class SubstrateForces(NamedTuple):
-    """Every contact between a poured disk and a substrate disk, sorted by x,
-    in mg (`analysis.force_unit`: the mean poured mass times g). The fields of
-    `analysis.BaseForces`, plus the substrate partner.
-
-    Attributes:
-      x: `[c]` x of the contact point (on the centre line, dividing it in the
-        ratio of the radii).
-      normal: `[c]` force of the substrate on the heap normal to the base
-        (upwards, along -g): the paper's F_B.
-      horizontal: `[c]` force the heap disk exerts on the substrate along the
-        base (+x; the sign convention of `analysis.base_forces`).
-      particle: `[c]` poured disk ids.
-      substrate: `[c]` the substrate disk ids.
-    """
-
-    x: np.ndarray
-    normal: np.ndarray
-    horizontal: np.ndarray
-    particle: np.ndarray
-    substrate: np.ndarray
-
-
-def substrate_forces(sim, params, state: SimState) -> SubstrateForces:
-    """The base forces of a poured heap: contacts of movable disks with fixed ones."""
-    cf = sim.contact_forces(params, state)
-    idx = np.asarray(state.neighbors.idx)
-    n = idx.shape[0]
-    p = state.particles
-    fixed, movable = np.asarray(p.fixed), np.asarray(p.movable)
-    rows = np.repeat(np.arange(n)[:, None], idx.shape[1], axis=1)
-    valid = idx < n
-    partner = np.where(valid, idx, 0)
-    keep = np.asarray(cf.pair.in_contact) & valid & movable[rows] & fixed[partner]
-    i, j = rows[keep], idx[keep]
-    force = np.asarray(cf.pair.force)[keep]  # substrate on heap disk
-    pos, rad = np.asarray(p.position), np.asarray(p.radius)
-    x = pos[j, 0] + (pos[i, 0] - pos[j, 0]) * rad[j] / (rad[i] + rad[j])
-    g = np.asarray(state.boundaries.gravity)
-    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 1.0])
-    along = np.array([up[1], -up[0]])
-    unit = analysis.force_unit(state)
-    order = np.argsort(x, kind="stable")
-    return SubstrateForces(x=x[order], normal=(force @ up)[order] / unit,
-                           horizontal=-(force @ along)[order] / unit, particle=i[order], substrate=j[order])
+# The base forces on fixed disks are a general measurement (`analysis`); the
+# names stay here too, where the 1997 paper's F_B is computed.
+SubstrateForces = analysis.SubstrateForces
+substrate_forces = analysis.substrate_forces
 
 
 class BaseProfile(NamedTuple):
@@ -694,6 +653,9 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
     return state, result
 
 
+protocol = pour  # the set-up function under the name every protocol module uses
+
+
 __all__ = [
     "MIN_RELEASE_GAP",
     "PAPER_SETTING",
@@ -711,6 +673,7 @@ __all__ = [
     "make_simulator",
     "measure",
     "pour",
+    "protocol",
     "run",
     "substrate_forces",
     "steepest_heap_height",
