@@ -12,6 +12,7 @@ import functools
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
+from jax import lax
 from jax_md import partition, space
 
 Array = Any
@@ -66,6 +67,54 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     if nbrs.cell_list_fn is not None:
         nbrs = nbrs.set(cell_list_fn=_CELL_LIST_FNS.setdefault(settings, nbrs.cell_list_fn))
     return nbrs
+
+
+def any_member(flag: Array, axis_name: str | None) -> Array:
+    """`flag` (a bool scalar), or-ed over the named `vmap` axis when there is one.
+
+    Under `vmap` a `lax.cond` whose predicate differs between members becomes a
+    `select`: both branches run for every member at every step. An or over the
+    batch axis gives one unbatched predicate, so the cond stays a real branch
+    and the whole batch skips the work on the steps where no member needs it.
+    """
+    if axis_name is None:
+        return flag
+    return lax.pmax(flag.astype(jnp.int32), axis_name) > 0
+
+
+def needs_rebuild(neighbors, position: Array, skin: float) -> Array:
+    """Whether any particle moved more than skin / 2 since the last build
+    (jax-md's own criterion, in free space; a hair more eager than jax-md's
+    float32 threshold, so it never says no where jax-md would rebuild)."""
+    moved = jnp.sum((position - neighbors.reference_position) ** 2, axis=-1)
+    return jnp.any(moved > (0.5 * skin) ** 2 * (1.0 - 1e-5))
+
+
+def update(neighbors, position: Array, skin: float, axis_name: str | None = None):
+    """`neighbors.update(position)`, with the rebuild decision taken once for a
+    whole batch when `axis_name` names the batch's `vmap` axis.
+
+    jax-md decides per list with a `lax.cond`; vmapped, that cond becomes a
+    select and every member rebuilds at every step. Here the rebuild branch runs
+    only when some member needs it; inside it, jax-md's own per-member decision
+    keeps the members that did not move unchanged, so each member's list is
+    exactly what it would be alone."""
+    if axis_name is None:
+        return neighbors.update(position)
+    need = any_member(needs_rebuild(neighbors, position, skin), axis_name)
+    return lax.cond(need, lambda: neighbors.update(position), lambda: neighbors)
+
+
+def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_capacity: int | None):
+    """The list rebuilt from `position` with `max_occupancy` slots per particle
+    and `cell_capacity` per cell (so lists of a batch share their shapes)."""
+    n = position.shape[0]
+    # an empty list of the new shape whose reference is infinitely far: update rebuilds it
+    forced = neighbors.set(idx=jnp.full((n, int(max_occupancy)), n, neighbors.idx.dtype),
+                           error=partition.PartitionError(jnp.zeros((), jnp.uint8)),  # a fresh list: no old overflow
+                           max_occupancy=int(max_occupancy), cell_list_capacity=cell_capacity,
+                           reference_position=jnp.full_like(position, jnp.inf))
+    return forced.update(position)
 
 
 def remap_history(old_partner: Array, old_history: Array, new_idx: Array) -> Array:

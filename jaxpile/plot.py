@@ -97,6 +97,35 @@ def series_figure(x, series: dict, *, xlabel: str, ylabel: str, title: str = "",
     return _finish(fig, path)
 
 
+def sweep_figure(series: dict, xlabel: str, *, theory=None, ylabel: str = "angle (degrees)", title: str = "",
+                 path=None):
+    """Mean +- standard error of each named quantity against a swept parameter,
+    with an optional theory curve.
+
+    Args:
+      series: name -> `sweep.summarise` dict (`x`, `mean`, `stderr`, `count`).
+      theory: optional `(x, label, y)`.
+    """
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for k, (name, s) in enumerate(series.items()):
+        x, m = np.asarray(s["x"], float), np.asarray(s["mean"], float)
+        e = np.nan_to_num(np.asarray(s["stderr"], float))
+        ax.errorbar(x + 0.004 * k * (np.ptp(x) or 1.0), m, yerr=e, fmt="o-", ms=4, lw=1, capsize=3,
+                    label=f"{name} (mean +- s.e., n = {min(s['count']) if s['count'] else 0}"
+                          f"{'-' + str(max(s['count'])) if s['count'] and max(s['count']) != min(s['count']) else ''})")
+    if theory is not None:
+        tx, label, ty = theory
+        ax.plot(tx, ty, "k--", lw=1, label=label)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
 def _finish(fig, path):
     if path is not None:
         fig.savefig(path, dpi=130)

@@ -33,15 +33,16 @@ from jaxpile.state import Boundaries, Contacts, Particles, SimState
 Array = Any
 
 
-def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
-    """History re-aligned with `new_neighbors.idx` (identity when nothing moved)."""
+def _with_remapped_history(state: SimState, new_neighbors, axis_name: str | None = None) -> Contacts:
+    """History re-aligned with `new_neighbors.idx` (identity when nothing moved;
+    decided once for the batch under a named `vmap` axis, see `neighbors.any_member`)."""
     c = state.contacts
     idx = new_neighbors.idx
     if idx.shape != c.partner.shape:
         history = nb.remap_history(c.partner, c.history, idx)
     else:
         history = lax.cond(
-            jnp.any(idx != c.partner),
+            nb.any_member(jnp.any(idx != c.partner), axis_name),
             lambda: nb.remap_history(c.partner, c.history, idx),
             lambda: c.history,
         )
@@ -51,7 +52,8 @@ def _with_remapped_history(state: SimState, new_neighbors) -> Contacts:
 def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
               integrator: str | Integrator = "velocity_verlet",
               hard_collisions: HardCollisions | None = None,
-              driver: Callable | None = None) -> Callable[[Any, SimState], SimState]:
+              driver: Callable | None = None,
+              axis_name: str | None = None) -> Callable[[Any, SimState], SimState]:
     """A pure, jittable `step(params, state) -> state`.
 
     Args:
@@ -72,6 +74,10 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         while it runs (activate the next parked disk, remove a wall, tilt
         gravity), with its own carried data in `state.protocol_state`. It must
         keep every array's shape and dtype.
+      axis_name: the name of the `vmap` axis the step will be mapped over (see
+        `jaxpile.ensemble`): the neighbour-list rebuild and the history remap are
+        then decided once for the whole batch, so they stay real branches
+        instead of running for every member at every step. None for one pile.
     """
     integ = get_integrator(integrator)
 
@@ -81,8 +87,8 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + integ.force_step))
 
         def forces_at(p: Particles, step_positions=None):
-            neighbors = state.neighbors.update(p.position)
-            contacts = _with_remapped_history(state, neighbors)
+            neighbors = nb.update(state.neighbors, p.position, state.neighbor_settings.skin, axis_name)
+            contacts = _with_remapped_history(state, neighbors, axis_name)
             cf = evaluate(law, params, p, contacts, neighbors.idx, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)
@@ -223,7 +229,7 @@ class Simulator:
         self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions, driver)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
-        self._start_jit = jax.jit(self._start)
+        self._start_jit = jax.jit(self.start)
         self._compiled: dict = {}
 
     # ------------------------------------------------------------------ set-up
@@ -245,8 +251,21 @@ class Simulator:
                 f"lightest disk); use dt <= {limit:.3g}, or about {limit / 5:.3g} for accurate collisions."
             )
 
+    def neighbor_settings(self, params, particles: Particles, box=None) -> nb.NeighborSettings:
+        """The neighbour-list settings `init` uses: the law's reach for the
+        largest disk as cutoff, the skin, and the cell-list box (see `init`)."""
+        radius = np.asarray(particles.radius)
+        r_max = float(radius.max())
+        cutoff = float(self.law.interaction_range(params, r_max, r_max))
+        skin = 0.2 * 2 * r_max if self.skin is None else float(self.skin)
+        if box is None:
+            pos = np.asarray(particles.position)
+            extent = pos.max(axis=0) - np.minimum(pos.min(axis=0), 0.0)
+            box = tuple(float(e) + 2 * (cutoff + skin) for e in extent)
+        return nb.NeighborSettings(tuple(float(b) for b in box), cutoff, skin, float(self.capacity_multiplier))
+
     def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None,
-             protocol_state=None) -> SimState:
+             protocol_state=None, neighbor_settings: nb.NeighborSettings | None = None) -> SimState:
         """Allocates the neighbour list, zeroes the contact history, checks the
         inputs and evaluates the forces at t = 0.
 
@@ -256,18 +275,21 @@ class Simulator:
             neighbour cutoff on each side.
           protocol_state: the driver's carried data (any pytree), stored in
             `state.protocol_state`.
+          neighbor_settings: all the neighbour-list settings at once (overrides
+            `box`; an ensemble gives its members one common setting).
         """
+        state = self.prepare(params, particles, boundaries, box=box, protocol_state=protocol_state,
+                             neighbor_settings=neighbor_settings)
+        return self._start_jit(params, state)
+
+    def prepare(self, params, particles: Particles, boundaries: Boundaries, *, box=None, protocol_state=None,
+                neighbor_settings: nb.NeighborSettings | None = None) -> SimState:
+        """`init` up to the forces: the checks, the neighbour list and zero
+        history, on the host. `start(params, state)` finishes it (it is pure, so
+        an ensemble maps it over its members in one call)."""
         self.check_params(params, particles)
         _check_finite(particles, step=0)
-        radius = np.asarray(particles.radius)
-        r_max = float(radius.max())
-        cutoff = float(self.law.interaction_range(params, r_max, r_max))
-        skin = 0.2 * 2 * r_max if self.skin is None else float(self.skin)
-        if box is None:
-            pos = np.asarray(particles.position)
-            extent = pos.max(axis=0) - np.minimum(pos.min(axis=0), 0.0)
-            box = tuple(float(e) + 2 * (cutoff + skin) for e in extent)
-        settings = nb.NeighborSettings(tuple(float(b) for b in box), cutoff, skin, float(self.capacity_multiplier))
+        settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
         neighbors = nb.allocate(settings, particles.position)
         n, k = neighbors.idx.shape
         h = self.law.history_size
@@ -281,11 +303,12 @@ class Simulator:
         state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings,
                          protocol_state=protocol_state)
         self._check_overlaps(state)
-        state = self._refresh_jit(params, state)
-        return self._start_jit(params, state)
+        return state
 
-    def _start(self, params, state: SimState) -> SimState:
-        """The integrator's own preparation (half kick back, Gear derivatives)."""
+    def start(self, params, state: SimState) -> SimState:
+        """The forces at t = 0 and the integrator's own preparation (half kick
+        back, Gear derivatives) of a `prepare`d state. Pure."""
+        state = self.refresh_forces(params, state)
         boundaries = self.boundaries_at(state)
 
         def force_fn(position, velocity, angular_velocity):
@@ -345,7 +368,7 @@ class Simulator:
             )
 
     # --------------------------------------------------------- pure rollouts
-    def rollout(self, params, state: SimState, n_steps: int, *, checkpoint: bool = False,
+    def rollout(self, params, state: SimState, n_steps: int, *, checkpoint: bool | int = False,
                 refresh: bool = True) -> SimState:
         """`n_steps` steps as one `lax.scan`: pure and differentiable.
 
@@ -353,14 +376,27 @@ class Simulator:
         so that the whole rollout, and its gradient, depends on `params` alone.
         No overflow handling happens inside; check `state.neighbors.did_buffer_overflow`
         on the result (or call `run` first to size the neighbour list).
-        `checkpoint=True` recomputes each step in the backward pass instead of
-        storing its intermediates.
+
+        Args:
+          checkpoint: memory of the reverse pass. False stores every step's
+            intermediates (memory grows like n_steps). True splits the rollout
+            into blocks of about sqrt(n_steps) steps under `jax.checkpoint`: the
+            reverse pass keeps only the state at each block's start and
+            recomputes one block at a time, so memory grows like sqrt(n_steps)
+            for about one extra forward pass. An int sets the block length.
         """
         if refresh:
             state = self.refresh_forces(params, state)
-        body = jax.checkpoint(self.step) if checkpoint else self.step
-        state, _ = lax.scan(lambda s, _: (body(params, s), None), state, None, length=n_steps)
-        return state
+        n_steps = int(n_steps)
+        if not checkpoint:
+            return _scan_steps(self.step, params, state, n_steps)
+        block = max(1, round(math.sqrt(n_steps))) if checkpoint is True else int(checkpoint)
+        if block < 1:
+            raise InputError(f"checkpoint must be True, False or a block length >= 1; got {checkpoint!r}.")
+        blocks, rest = divmod(n_steps, block)
+        run_block = jax.checkpoint(lambda p, s: _scan_steps(self.step, p, s, block), prevent_cse=False)
+        state, _ = lax.scan(lambda s, _: (run_block(params, s), None), state, None, length=blocks)
+        return _scan_steps(self.step, params, state, rest)
 
     def _advance(self, params, state: SimState, n_steps) -> SimState:
         return lax.fori_loop(0, n_steps, lambda _, s: self.step(params, s), state)
@@ -471,6 +507,13 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
+
+
+def _scan_steps(step, params, state: SimState, n: int) -> SimState:
+    if n == 0:
+        return state
+    state, _ = lax.scan(lambda s, _: (step(params, s), None), state, None, length=n)
+    return state
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:

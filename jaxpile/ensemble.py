@@ -1,0 +1,377 @@
+"""Batched ensembles: one compiled call advances B piles at once.
+
+A `Simulator`'s pure step is mapped with `jax.vmap` over a leading batch axis
+of the state and of the law parameters, so 16 seeds x 8 friction values of a
+protocol are one compiled loop. What makes that work for DEM:
+
+* Shapes. Every member has the same number of disks and the same neighbour
+  list shape: the batch shares one capacity (slots per disk and per cell),
+  taken as the largest any member needs (`stack_states`). A member's list is
+  rebuilt at that capacity; the extra slots stay empty and cost a little work.
+* Decisions. jax-md rebuilds a list with a `lax.cond`, which under `vmap`
+  becomes a select: every member would rebuild at every step. The batched step
+  (`make_step(..., axis_name="batch")`) instead ors the per-member need over
+  the batch (`neighbors.any_member`, a `lax.pmax` over the named axis), so the
+  rebuild runs only on steps where some member needs it, for the whole batch;
+  members that did not move keep their lists. The same holds for the history
+  remap. `benchmarks/ensemble_rebuild.py` measures the difference.
+* Overflow. After each chunk the host checks every member; if any list
+  overflowed, the whole batch gets a larger common capacity and the chunk is
+  re-run from its start (no contact is ever dropped).
+* Finished members. With `until`, a member whose predicate holds at the start
+  of a chunk is frozen (the chunk's result for it is discarded), so it ends
+  exactly where it would have ended run alone with `Simulator.run(until=...)`.
+  The run stops when every member has finished.
+* Devices. With several `jax.devices()` (GPUs, or CPU devices from
+  `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch axis is
+  sharded over them with `jax.sharding` (`NamedSharding` on a one-axis mesh):
+  each device advances its share, and the batch-wide rebuild decision becomes
+  one small all-reduce per step. The batch is padded with copies of its last
+  member to a multiple of the device count (the padding is dropped from the
+  results). On several hosts, start each process with
+  `jax.distributed.initialize()` and pass `devices=jax.devices()` (all
+  processes' devices): the same code then shards the batch across hosts.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from typing import Any, Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from jaxpile import neighbors as nb
+from jaxpile.errors import InputError, SimulationError
+from jaxpile.protocols.base import Protocol
+from jaxpile.simulate import RunInfo, Simulator, make_step, max_speed
+from jaxpile.state import SimState
+
+Array = Any
+
+AXIS = "batch"
+"""The name of the batch axis (for `lax.pmax` and friends inside the step)."""
+
+
+# ------------------------------------------------------------------ pytrees
+def stack(trees: Sequence[Any]) -> Any:
+    """Stacks pytrees of the same structure along a new leading axis."""
+    if not trees:
+        raise InputError("an ensemble needs at least one member.")
+    return jax.tree.map(lambda *xs: jnp.stack([jnp.asarray(x) for x in xs]), *trees)
+
+
+def member(tree: Any, i: int) -> Any:
+    """Member i of a batched pytree (its leaves indexed on the leading axis)."""
+    return jax.tree.map(lambda x: x[i], tree)
+
+
+def batch_size(tree: Any) -> int:
+    """The leading (batch) axis length of a batched pytree."""
+    leaves = jax.tree.leaves(tree)
+    if not leaves:
+        raise InputError("the batched pytree has no arrays.")
+    return int(np.shape(leaves[0])[0])
+
+
+def _capacity(state: SimState) -> tuple[int, int | None]:
+    return state.neighbors.max_occupancy, state.neighbors.cell_list_capacity
+
+
+def _at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None) -> SimState:
+    """The state with its neighbour list rebuilt at the given capacity and its
+    contact history carried into the new slots."""
+    if _capacity(state) == (max_occupancy, cell_capacity):
+        return state
+    neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity)
+    history = nb.remap_history(state.contacts.partner, state.contacts.history, neighbors.idx)
+    return state.set(neighbors=neighbors, contacts=state.contacts.set(partner=neighbors.idx, history=history))
+
+
+def stack_states(states: Sequence[SimState]) -> SimState:
+    """One batched state from member states of the same size and settings:
+    every neighbour list is brought to the largest capacity of any member."""
+    states = list(states)
+    if not states:
+        raise InputError("an ensemble needs at least one member.")
+    first = states[0]
+    for i, s in enumerate(states[1:], 1):
+        if s.particles.count != first.particles.count:
+            raise InputError(f"every member must hold the same number of disks; member 0 has "
+                             f"{first.particles.count}, member {i} has {s.particles.count}.")
+        if s.neighbor_settings != first.neighbor_settings:
+            raise InputError(f"member {i}'s neighbour settings {s.neighbor_settings} differ from member 0's "
+                             f"{first.neighbor_settings}; build every member with the same box (Ensemble.init "
+                             "does this).")
+    slots = max(s.neighbors.max_occupancy for s in states)
+    cells = [s.neighbors.cell_list_capacity for s in states]
+    cells = None if any(c is None for c in cells) else max(cells)
+    states = [_at_capacity(s, slots, cells) for s in states]
+    overflowed = [i for i, s in enumerate(states) if bool(s.neighbors.did_buffer_overflow)]
+    if overflowed:  # cannot happen at the largest allocated capacity; never pass it on silently
+        raise SimulationError(f"the shared neighbour capacity overflowed for member(s) {overflowed}.", states[0])
+    return stack(states)
+
+
+# ----------------------------------------------------------------- ensemble
+class Ensemble:
+    """A `Simulator`'s step vmapped over a batch of piles (see the module notes).
+
+    Example:
+      >>> from jaxpile.protocols import box                              # doctest: +SKIP
+      >>> sim = box.make_simulator("lee-herrmann")
+      >>> ens = Ensemble(sim)
+      >>> protocols = [box.protocol(72, width=1.6, height=1.6, seed=s) for s in range(4)]
+      >>> params = [box.law_and_params("lee-herrmann", {"mu": mu})[2] for mu in (0.1, 0.1, 0.3, 0.3)]
+      >>> state = ens.init(params, protocols)
+      >>> state = ens.run(params, state, 100_000, until=lambda s: s.protocol_state.settled_at >= 0)
+
+    Args:
+      sim: the simulator whose law, dt, schedule, integrator, driver and
+        chunking every member shares.
+      devices: the devices to shard the batch over (default: all of
+        `jax.devices()`; one device: no sharding).
+    """
+
+    def __init__(self, sim: Simulator, *, devices: Sequence | None = None):
+        if not isinstance(sim, Simulator):
+            raise InputError(f"Ensemble takes a Simulator; got {type(sim).__name__}.")
+        self.sim = sim
+        self.devices = list(jax.devices() if devices is None else devices)
+        if not self.devices:
+            raise InputError("devices is empty; pass None for all of jax.devices().")
+        self.step = make_step(sim.law, sim.dt, sim.schedule, sim.integrator, sim.hard_collisions, sim.driver,
+                              axis_name=AXIS)
+        self.mesh = Mesh(np.array(self.devices), (AXIS,)) if len(self.devices) > 1 else None
+        if self.mesh is None:
+            self._advance_jit = jax.jit(self._advance)
+            self._start_jit = jax.jit(jax.vmap(sim.start))
+        else:  # every leaf split along the batch axis, in and out; the step count replicated
+            split, whole = NamedSharding(self.mesh, PartitionSpec(AXIS)), NamedSharding(self.mesh, PartitionSpec())
+            self._advance_jit = jax.jit(self._advance, in_shardings=(split, split, split, whole), out_shardings=split)
+            self._start_jit = jax.jit(jax.vmap(sim.start), in_shardings=(split, split), out_shardings=split)
+        self._compiled: dict = {}
+
+    # --------------------------------------------------------------- set-up
+    def init(self, params, protocols: Sequence[Protocol]) -> SimState:
+        """Starts every member (each checked as `Simulator.init` checks one pile)
+        and stacks them on a shared neighbour box and capacity.
+
+        Args:
+          params: one params pytree per member (a list), or one batched pytree
+            with a leading axis of the members' count, or one unbatched pytree
+            shared by all.
+          protocols: one `Protocol` per member; same disk count, driver and schedule.
+
+        Returns:
+          The batched `SimState` (leading axis: members), sharded over the
+          devices when there are several.
+        """
+        protocols = list(protocols)
+        if not protocols:
+            raise InputError("an ensemble needs at least one member (protocols is empty).")
+        params_list = self.member_params(params, len(protocols))
+        if any((p.box is None) != (protocols[0].box is None) for p in protocols):
+            raise InputError("either every member's protocol gives a neighbour box or none does.")
+        # one setting for all: the longest reach and skin, a box that covers every member
+        each = [self.sim.neighbor_settings(prm, p.particles, p.box) for p, prm in zip(protocols, params_list)]
+        settings = nb.NeighborSettings(
+            box=tuple(float(b) for b in np.max([s.box for s in each], axis=0)),
+            cutoff=max(s.cutoff for s in each), skin=max(s.skin for s in each),
+            capacity_multiplier=each[0].capacity_multiplier)
+        states = []
+        for i, (p, prm) in enumerate(zip(protocols, params_list)):
+            for name in ("driver", "schedule"):
+                if getattr(p, name) is not None and getattr(p, name) is not getattr(self.sim, name):
+                    raise InputError(f"member {i}'s protocol {name} is not the simulator's; build the simulator "
+                                     f"for this protocol (e.g. its make_simulator).")
+            if p.info.get("dt") is not None and abs(p.info["dt"] - self.sim.dt) > 1e-12 * self.sim.dt:
+                raise InputError(f"member {i} was set up for dt = {p.info['dt']:g} but the simulator uses "
+                                 f"dt = {self.sim.dt:g}; pass the same dt to both.")
+            states.append(self.sim.prepare(prm, p.particles, p.boundaries, protocol_state=p.protocol_state,
+                                           neighbor_settings=settings))
+        return self._start_jit(self.shard(stack(params_list)), self.shard(stack_states(states)))
+
+    def member_params(self, params, count: int) -> list:
+        """`params` as a list of `count` unbatched pytrees (see `init`)."""
+        if isinstance(params, (list, tuple)):
+            if len(params) != count:
+                raise InputError(f"got {len(params)} params for {count} members; give one per member.")
+            return list(params)
+        leaves = jax.tree.leaves(params)
+        if leaves and all(np.ndim(x) >= 1 for x in leaves):
+            if batch_size(params) != count:
+                raise InputError(f"the batched params have {batch_size(params)} members, the ensemble {count}.")
+            return [member(params, i) for i in range(count)]
+        return [params] * count
+
+    def _as_batch(self, params, count: int):
+        """`params` (a list, a batched pytree, or one shared pytree) as a batched
+        pytree matching a (possibly padded) batch of `count`, on the devices."""
+        if isinstance(params, (list, tuple)):
+            tree = stack(list(params))
+        elif _is_batched(params):
+            tree = params
+        else:
+            tree = stack([params] * count)
+        n = batch_size(tree)
+        if n != count and self.padded_size(n) != count:
+            raise InputError(f"the params have {n} members, the state {count}.")
+        return self.shard(tree)
+
+    # -------------------------------------------------------------- sharding
+    def padded_size(self, count: int) -> int:
+        """The batch size after padding to a multiple of the device count."""
+        d = len(self.devices)
+        return -(-count // d) * d
+
+    def shard(self, tree):
+        """Pads a batched pytree to a multiple of the device count (copies of the
+        last member) and places it sharded along the batch axis."""
+        if self.mesh is None:
+            return tree
+        count = batch_size(tree)
+        extra = self.padded_size(count) - count
+        if extra:
+            tree = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], extra, axis=0)]), tree)
+        sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
+        return jax.device_put(tree, sharding)
+
+    # ------------------------------------------------------------------ runs
+    def _advance(self, params, state: SimState, frozen, n_steps) -> SimState:
+        def one(prm, s, stop):
+            new = lax.fori_loop(0, n_steps, lambda _, x: self.step(prm, x), s)
+            return jax.tree.map(lambda a, b: jnp.where(stop, a, b), s, new)
+
+        return jax.vmap(one, axis_name=AXIS)(params, state, frozen)
+
+    def _compiled_advance(self, params, state, frozen, info: RunInfo):
+        leaves, treedef = jax.tree.flatten((params, state))
+        key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
+        fn = self._compiled.get(key)
+        if fn is None:
+            t0 = time.perf_counter()
+            fn = self._advance_jit.lower(params, state, frozen, jnp.int32(1)).compile()
+            info.compile_seconds += time.perf_counter() - t0
+            self._compiled[key] = fn
+        return fn
+
+    def _reallocate(self, state: SimState, overflowed: SimState) -> SimState:
+        """Every member re-allocated from its chunk-start positions with room to
+        grow (as `Simulator._reallocate`), at the largest capacity any needs."""
+        old_slots = state.neighbors.max_occupancy
+        extra = max(4, old_slots)
+        settings = state.neighbor_settings
+        members = [member(state, i) for i in range(batch_size(state))]
+        fresh = [nb.allocate(settings, m.particles.position, extra_capacity=extra) for m in members]
+        slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
+        cells = None if fresh[0].cell_list_capacity is None else max(
+            max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
+        members = [_at_capacity(m, slots, cells) for m in members]
+        return self.shard(stack(members))
+
+    def _chunk(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
+        for _ in range(20):
+            fn = self._compiled_advance(params, state, frozen, info)
+            t0 = time.perf_counter()
+            new = fn(params, state, frozen, jnp.int32(n))
+            jax.block_until_ready(new)
+            info.wall_seconds += time.perf_counter() - t0
+            if not bool(jnp.any(new.neighbors.did_buffer_overflow)):
+                return new
+            info.reallocations += 1
+            state = self._reallocate(state, new)
+        raise SimulationError("the batch's neighbour list kept overflowing after 20 re-allocations.", state)
+
+    def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,
+            progress: bool | None = None, info: RunInfo | None = None) -> SimState:
+        """Advances every member up to `n_steps`, in chunks of the simulator's
+        `chunk_steps`, with batch-wide overflow handling and NaN checks.
+
+        Args:
+          params: as in `init` (a list, a batched pytree, or one shared pytree).
+          state: the batched state from `init` (or a previous `run`).
+          until: optional traceable predicate `state -> bool` of one member
+            (vmapped over the batch); a member whose predicate holds at a chunk
+            boundary is frozen there, and the run ends when all are.
+          progress: a progress bar over steps with the count of finished members
+            (default: when stderr is a terminal).
+          info: a `RunInfo` to accumulate timings into (`steps` counts batch steps).
+
+        Returns:
+          The batched state (padding members included when sharded; use
+          `members(state)` or `member(state, i)` for the real ones).
+        """
+        if not isinstance(state, SimState):
+            raise InputError("run() takes the batched SimState from Ensemble.init.")
+        if int(n_steps) != n_steps or n_steps < 0:
+            raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
+        count = batch_size(state)
+        params = self._as_batch(params, count)
+        self.sim.check_params(member(params, 0), member(state, 0).particles)
+        _check_batch_finite(state, last_good=None)
+        info = RunInfo() if info is None else info
+        info._n = count * state.particles.position.shape[1]
+        finished = jax.jit(jax.vmap(until)) if until is not None else None
+        if progress is None:
+            progress = sys.stderr.isatty()
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
+        done = 0
+        try:
+            while done < n_steps:
+                frozen = self.shard(finished(state) if finished is not None else jnp.zeros(count, bool))
+                if bool(jnp.all(frozen)):
+                    break
+                n = min(self.sim.chunk_steps, int(n_steps) - done)
+                new = self._chunk(params, state, frozen, n, info)
+                _check_batch_finite(new, last_good=state)
+                state = new
+                done += n
+                info.steps += n
+                bar.update(n)
+                if finished is not None:
+                    bar.set_postfix(finished=f"{int(jnp.sum(finished(state)))}/{count}")
+        finally:
+            bar.close()
+        if finished is not None:
+            info.at_rest = bool(jnp.all(finished(state)))
+        info.max_speed = float(jnp.max(jax.vmap(max_speed)(state)))
+        return state
+
+
+def _is_batched(params) -> bool:
+    leaves = jax.tree.leaves(params)
+    return bool(leaves) and all(np.ndim(x) >= 1 for x in leaves)
+
+
+def members(state: SimState, count: int | None = None) -> list[SimState]:
+    """The first `count` members (default: all) of a batched state, each a plain `SimState`."""
+    count = batch_size(state) if count is None else int(count)
+    return [member(state, i) for i in range(count)]
+
+
+def _check_batch_finite(state: SimState, *, last_good) -> None:
+    p = state.particles
+    bad = ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+    if not bool(jnp.any(bad)):
+        return
+    bad = np.asarray(bad)
+    m = int(np.argmax(bad.any(axis=1)))
+    i = int(np.argmax(bad[m]))
+    step = int(np.asarray(state.step)[m])
+    where = f"member {m}, particle {i} (position {np.asarray(p.position[m, i])}, velocity {np.asarray(p.velocity[m, i])})"
+    if last_good is None:
+        raise InputError(f"non-finite position or velocity in the input: {where}.")
+    raise SimulationError(f"non-finite position or velocity by step {step}: first offending {where}. "
+                          "The last good batch is in this error's `last_good_state`.",
+                          last_good_state=last_good, step=step)
+
+
+__all__ = ["AXIS", "Ensemble", "batch_size", "member", "members", "stack", "stack_states"]

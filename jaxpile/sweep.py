@@ -1,0 +1,306 @@
+"""Parameter sweeps over seeds: a protocol run for every (parameters, seed)
+member of a grid, as batched `Ensemble` runs, with tidy results.
+
+`sweep("box", "lee-herrmann", vary={"mu": [0.1, 0.2]}, seeds=16)` builds one
+box per seed (the same 16 packings for every mu: common random numbers, so
+differences between mu values are not blurred by different packings), runs
+all 32 members in batches of `batch_size` in one compiled loop each, and
+measures each member as the protocol's own `run` does. The rows go to a CSV
+(`write_csv`), and `summarise` gives mean and standard error per grid point.
+
+Protocols (`ADAPTERS`): `box` (Lee & Herrmann 1993: angle of repose by the
+three methods) and `pour` (Baxter et al. 1997: flank angles, base-force M
+ratio, force balance).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import ensemble
+from jaxpile.errors import InputError
+from jaxpile.simulate import RunInfo, max_speed
+from jaxpile.state import SimState
+
+
+@dataclass(frozen=True)
+class Adapter:
+    """What a sweep needs from a protocol.
+
+    Attributes:
+      setup: `(law, seed, dt, options) -> Protocol` for one member.
+      simulator: `(law, dt, options) -> Simulator` shared by the batch.
+      finished: `(protocol info, options) -> (state -> bool)`, traceable, per member.
+      max_steps: `(protocol info, options) -> int`, the step budget.
+      measure: `(sim, params, state, protocol) -> dict` of plain numbers.
+      law_and_params: the protocol module's `law_and_params`.
+      default_dt: `(law) -> float`.
+      angles: the angle columns to summarise and plot (the first is the headline).
+      options: the set-up options a sweep accepts.
+      theory: optional `(name, values) -> (label, degrees)` to overlay on angles.
+    """
+
+    setup: Callable
+    simulator: Callable
+    finished: Callable
+    max_steps: Callable
+    measure: Callable
+    law_and_params: Callable
+    default_dt: Callable
+    angles: tuple
+    options: frozenset
+    theory: Callable | None = None
+
+
+def _marginal_stability(name, values):
+    from jaxpile import theory
+
+    if name != "mu":
+        return None
+    return "theta_MS = arctan(3 mu) (1993 eq. 3)", np.degrees(theory.marginal_stability_angle(np.asarray(values)))
+
+
+def _option_names(setup, *extra) -> frozenset:
+    import inspect
+
+    names = set(inspect.signature(setup).parameters) - {"law", "seed", "dt", "dtype"}
+    return frozenset(names | set(extra))
+
+
+# ------------------------------------------------------------------------ box
+def _box_adapter() -> Adapter:
+    from jaxpile.protocols import box
+
+    def setup(law, seed, dt, options):
+        return box.protocol(law=law, seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
+
+    def simulator(law, dt, options):
+        return box.make_simulator(law, dt=dt, **options)
+
+    def finished(info, options):
+        return lambda s: s.protocol_state.settled_at >= 0
+
+    def max_steps(info, options):
+        return box.max_steps_for(info["law"], info["dt"], options.get("max_time", box.PAPER_SETTING["max_time"]))
+
+    def measure(sim, params, state, protocol):
+        ps = state.protocol_state
+        angles = box.repose(state, protocol.info["width"])
+        return {k: angles[k] for k in ("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola")} | {
+            "at_rest": int(ps.settled_at) >= 0, "wall_removed_step": int(ps.removed_at),
+            "settled_step": int(ps.settled_at), "n_left": int(ps.left), "fill_height": float(ps.fill_height)}
+
+    return Adapter(setup, simulator, finished, max_steps, measure, box.law_and_params,
+                   lambda law: float(box.law_setting(law)["dt"]),
+                   ("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
+                   _option_names(box.protocol, "max_time"), _marginal_stability)
+
+
+# ----------------------------------------------------------------------- pour
+def _pour_adapter() -> Adapter:
+    from jaxpile.protocols import pour
+
+    def setup(law, seed, dt, options):
+        options = {k: v for k, v in options.items() if k not in ("speed_tolerance", "max_settle_steps")}
+        return pour.pour(seed=seed, dt=dt, **options)
+
+    def simulator(law, dt, options):
+        return pour.make_simulator(law, dt=dt, **options)
+
+    def finished(info, options):
+        # as pour.execute: every disk poured, then at rest
+        pour_steps = int(info["pour_steps"])
+        tolerance = float(options.get("speed_tolerance", pour.PAPER_SETTING["speed_tolerance"]))
+        return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
+
+    def max_steps(info, options):
+        return int(info["pour_steps"]) + int(options.get("max_settle_steps", pour.PAPER_SETTING["max_settle_steps"]))
+
+    def measure(sim, params, state, protocol):
+        m = pour.summary(pour.measure(sim, params, state))
+        out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
+        for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
+            out[key] = m.get(key, float("nan"))
+        for flank in ("left", "right"):
+            a = (m.get("angle_of_repose") or {}).get(flank) or {}
+            out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
+        out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
+        ms = m.get("m_shape") or {}
+        out["m_ratio"] = ms.get("ratio", float("nan"))
+        out["m_shaped"] = bool(ms.get("m_shaped", False))
+        return out
+
+    return Adapter(setup, simulator, finished, max_steps, measure, pour.law_and_params,
+                   lambda law: float(pour.PAPER_SETTING["dt"]), ("repose_mean", "angle_height_base"),
+                   _option_names(pour.pour, "speed_tolerance", "max_settle_steps"), _marginal_stability)
+
+
+ADAPTERS: dict[str, Callable[[], Adapter]] = {"box": _box_adapter, "pour": _pour_adapter}
+
+
+def adapter(protocol: str) -> Adapter:
+    if protocol not in ADAPTERS:
+        raise InputError(f"sweeps run the protocols {sorted(ADAPTERS)}; got {protocol!r}.")
+    return ADAPTERS[protocol]()
+
+
+# ---------------------------------------------------------------------- sweep
+@dataclass
+class SweepResult:
+    """Rows (one dict per member: the varied parameters, seed, measurements,
+    steps) and the set-up and timings (`info`)."""
+
+    rows: list
+    info: dict
+
+    def column(self, name: str) -> np.ndarray:
+        return np.array([r.get(name, np.nan) for r in self.rows], dtype=float)
+
+
+def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
+    """Every (parameter values, seed) member: the product of the varied values,
+    each with every seed."""
+    for name, values in vary.items():
+        if len(values) == 0:
+            raise InputError(f"the sweep over {name!r} has no values.")
+    seeds = list(range(int(seeds))) if np.ndim(seeds) == 0 else [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("a sweep needs at least one seed.")
+    names = list(vary)
+    points = [dict(zip(names, combo)) for combo in itertools.product(*(vary[n] for n in names))] or [{}]
+    return [(point, seed) for point in points for seed in seeds]
+
+
+def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
+          seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
+          rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
+          devices=None, progress: bool | None = None, dtype=None) -> SweepResult:
+    """Runs a protocol for every member of `grid(vary, seeds)`, batched.
+
+    Args:
+      protocol: `box` or `pour`.
+      law: the contact law (default: the protocol paper's).
+      vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
+      seeds: a count (seeds 0..n-1) or a list of seeds.
+      params: fixed overrides of the protocol's law setting.
+      options: for the protocol's set-up (e.g. `n`, `width`, `height`).
+      dt, rotation: for the simulator (default: the protocol's).
+      max_steps: step budget (default: the protocol's).
+      batch_size: members per compiled batch (default: all at once).
+      devices: to shard each batch over (default: all `jax.devices()`).
+      progress: progress bars (default: when stderr is a terminal).
+
+    Returns:
+      `SweepResult`.
+    """
+    a = adapter(protocol)
+    law = law or {"box": "lee-herrmann", "pour": "baxter"}[protocol]
+    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
+    options = dict(options or {})
+    unknown = set(options) - a.options
+    if unknown:
+        raise InputError(f"unknown option(s) {sorted(unknown)} for a {protocol} sweep; known: {sorted(a.options)}.")
+    members = grid(vary, seeds)
+    dt = a.default_dt(law) if dt is None else float(dt)
+    member_params = []
+    for point, _ in members:
+        lawmod, _, prm = a.law_and_params(law, {**(params or {}), **point}, rotation, dtype=dtype)
+        member_params.append(prm)
+    unknown = set(vary) - set(lawmod.PARAM_NAMES)
+    if unknown:
+        raise InputError(f"cannot vary {sorted(unknown)}: not {lawmod.NAME} parameters ({list(lawmod.PARAM_NAMES)}).")
+    sim_options = {} if rotation is None else {"rotation": rotation}
+    sim = a.simulator(law, dt, sim_options)
+    ens = ensemble.Ensemble(sim, devices=devices)
+    batch_size = len(members) if batch_size is None else int(batch_size)
+    if batch_size < 1:
+        raise InputError(f"batch_size must be >= 1; got {batch_size}.")
+
+    rows, info = [], RunInfo()
+    t0 = time.perf_counter()
+    for start in range(0, len(members), batch_size):
+        chunk = members[start:start + batch_size]
+        prms = member_params[start:start + batch_size]
+        protocols = [a.setup(law, seed, dt, {**options, "dtype": dtype}) for _, seed in chunk]
+        budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, options)
+        state = ens.init(prms, protocols)
+        state = ens.run(prms, state, int(budget), until=a.finished(protocols[0].info, options), progress=progress,
+                        info=info)
+        for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
+            s = ensemble.member(state, k)
+            row = {"member": start + k, **point, "seed": seed}
+            row.update(a.measure(sim, prm, s, p))
+            row["steps"] = int(s.step)
+            rows.append(row)
+    n_particles = int(state.particles.position.shape[1])
+    record = {"protocol": protocol, "law": law, "vary": vary, "seeds": sorted({s for _, s in members}),
+              "params": params or {}, "options": options, "dt": dt, "members": len(members),
+              "batch_size": batch_size, "devices": len(ens.devices), "n_particles": n_particles,
+              "batch_steps": info.steps, "compile_seconds": info.compile_seconds,
+              "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
+              "neighbor_reallocations": info.reallocations,
+              "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
+              "angles": list(a.angles)}
+    return SweepResult(rows, record)
+
+
+def summarise(result: SweepResult, by: str, value: str) -> dict:
+    """Mean, standard error and count of `value` at each value of `by` (NaNs,
+    e.g. unmeasurable surfaces, left out and counted in `missing`)."""
+    x, y = result.column(by), result.column(value)
+    out = {"x": [], "mean": [], "stderr": [], "count": [], "missing": []}
+    for v in sorted(set(x[np.isfinite(x)].tolist())):
+        sel = y[x == v]
+        ok = sel[np.isfinite(sel)]
+        out["x"].append(v)
+        out["mean"].append(float(ok.mean()) if ok.size else math.nan)
+        out["stderr"].append(float(ok.std(ddof=1) / math.sqrt(ok.size)) if ok.size > 1 else math.nan)
+        out["count"].append(int(ok.size))
+        out["missing"].append(int(sel.size - ok.size))
+    return out
+
+
+def write_csv(path, result: SweepResult) -> None:
+    """The rows as a tidy CSV (one row per member, one column per quantity)."""
+    import csv
+
+    columns = []
+    for row in result.rows:
+        for key in row:
+            if key not in columns:
+                columns.append(key)
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=columns)
+        writer.writeheader()
+        for row in result.rows:
+            writer.writerow({k: row.get(k, "") for k in columns})
+
+
+def figure(result: SweepResult, by: str | None = None, path=None):
+    """Mean +- standard error of the protocol's angles against the varied
+    parameter `by` (default: the first varied one), with the theory overlaid
+    where there is one (theta_MS = arctan 3 mu for friction)."""
+    from jaxpile import plot
+
+    by = by or next(iter(result.info["vary"]), None)
+    if by is None:
+        raise InputError("the sweep varied no parameter: nothing to plot against.")
+    series = {name: summarise(result, by, name) for name in result.info["angles"]}
+    a = adapter(result.info["protocol"])
+    x = result.column(by)
+    theory_x = np.linspace(np.nanmin(x), np.nanmax(x), 50)
+    theory = a.theory(by, theory_x) if a.theory else None
+    title = (f"{result.info['protocol']} / {result.info['law']}: {result.info['members']} members, "
+             f"{len(result.info['seeds'])} seeds each")
+    return plot.sweep_figure(series, by, theory=None if theory is None else (theory_x, *theory), title=title,
+                             path=path)
+
+
+__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "summarise", "sweep", "write_csv"]
