@@ -1,0 +1,155 @@
+"""Gradients through whole rollouts: cost against the forward run, memory
+against the number of steps, and how the gradient norm behaves with the horizon.
+
+The problem: a 10-layer 1992 lattice pile (55 disks, hooke law with friction
+mu = 0.3 and rotation), started with random velocities and spins so that
+contacts slide while it settles under gravity. The measured quantity is a base
+force moment, sum_i N_i (x_i - x_c)^2 over the ground contacts (it changes
+when the profile changes shape: the M or the hump).
+
+1. Cost and memory: for each horizon T, the wall time of the forward rollout
+   and of `jax.grad` with respect to (kn, kt, mu), with `checkpoint=False`
+   (every step's intermediates stored) and `checkpoint=True` (blocks of
+   sqrt(T) steps recomputed), and the compiled temporary memory of each
+   (`compiled.memory_analysis()`: XLA's own figure for the peak of live buffers).
+2. Horizon: |dL/dmu| and |dL/dkn| (relative, d log L / d log theta) against T,
+   full-horizon and differentiating only the final window of 200 steps (the state
+   before it held fixed with `stop_gradient`), plus the spread of the
+   full-horizon gradient over 8 random starts (ensemble averaging).
+
+    python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxpile  # noqa: F401  (float64)
+from jaxpile.boundaries import GROUND
+from jaxpile.laws import hooke
+from jaxpile.protocols import lattice
+from jaxpile.simulate import Simulator
+
+NAMES = ("kn", "kt", "mu")
+
+
+def setup(layers: int, seed: int):
+    particles, boundaries = lattice.equilateral_pile(layers)
+    rng = np.random.default_rng(seed)
+    n = particles.count
+    particles = particles.set(velocity=jnp.asarray(rng.normal(0, 0.2, (n, 2))),
+                              angular_velocity=jnp.asarray(rng.normal(0, 1.0, n)))
+    params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3, wall_mu=0.5)
+    sim = Simulator(hooke.law(rotation=True), dt=5e-4, skin=0.1)
+    state = sim.init(params, particles, boundaries)
+    return sim, params, state
+
+
+def moment(sim, params, state):
+    cf = sim.contact_forces(params, state)
+    normal = cf.wall.normal[:, GROUND] * cf.wall.in_contact[:, GROUND]
+    x = state.particles.position[:, 0]
+    centre = jnp.sum(normal * x) / jnp.maximum(jnp.sum(normal), 1e-12)
+    return jnp.sum(normal * (x - centre) ** 2)
+
+
+def loss_fn(sim, state, steps, checkpoint, window=None):
+    def loss(params):
+        s = state
+        if window is not None and window < steps:
+            s = jax.lax.stop_gradient(sim.rollout(params, s, steps - window))
+            return moment(sim, params, sim.rollout(params, s, window, checkpoint=checkpoint))
+        return moment(sim, params, sim.rollout(params, s, steps, checkpoint=checkpoint))
+    return loss
+
+
+def clock(fn, *args):
+    jax.block_until_ready(fn(*args))
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    return time.perf_counter() - t0
+
+
+def temp_bytes(fn, *args) -> int:
+    analysis = fn.lower(*args).compile().memory_analysis()
+    return int(getattr(analysis, "temp_size_in_bytes", -1)) if analysis is not None else -1
+
+
+def relative_gradient(grad, params, value):
+    return {k: float(getattr(grad, k)) * float(getattr(params, k)) / float(value) for k in NAMES}
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--layers", type=int, default=10)
+    parser.add_argument("--horizons", default="250,1000,4000,16000")
+    parser.add_argument("--no-store-limit", type=int, default=4000,
+                        help="largest horizon to try without checkpointing (its memory grows with T)")
+    parser.add_argument("--window", type=int, default=200)
+    parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args(argv)
+    horizons = [int(h) for h in args.horizons.split(",")]
+
+    sim, params, state = setup(args.layers, 0)
+    rows = []
+    print(f"{state.particles.count} disks, hooke with friction; times in s, memory = XLA temp buffers")
+    print(f"{'T':>6} {'forward':>8} {'grad':>8} {'grad/fwd':>8} {'grad ckpt':>9} {'ckpt/fwd':>8} "
+          f"{'mem fwd':>9} {'mem grad':>9} {'mem ckpt':>9}")
+    for steps in horizons:
+        forward = jax.jit(loss_fn(sim, state, steps, False))
+        grad_ckpt = jax.jit(jax.grad(loss_fn(sim, state, steps, True)))
+        row = {"steps": steps, "forward_s": clock(forward, params), "grad_checkpoint_s": clock(grad_ckpt, params),
+               "mem_forward": temp_bytes(forward, params), "mem_grad_checkpoint": temp_bytes(grad_ckpt, params)}
+        if steps <= args.no_store_limit:
+            grad = jax.jit(jax.grad(loss_fn(sim, state, steps, False)))
+            row.update(grad_s=clock(grad, params), mem_grad=temp_bytes(grad, params))
+        rows.append(row)
+        mb = 1 / 2**20
+        g = row.get("grad_s", float("nan"))
+        print(f"{steps:6d} {row['forward_s']:8.3f} {g:8.3f} {g / row['forward_s']:8.2f} "
+              f"{row['grad_checkpoint_s']:9.3f} {row['grad_checkpoint_s'] / row['forward_s']:8.2f} "
+              f"{row['mem_forward'] * mb:8.2f}M {row.get('mem_grad', -1) * mb:8.2f}M "
+              f"{row['mem_grad_checkpoint'] * mb:8.2f}M")
+
+    print(f"\nrelative gradients d log L / d log theta against the horizon "
+          f"(full; last {args.window} steps only; spread over {args.seeds} random starts)")
+    horizon_rows = []
+    starts = [setup(args.layers, s)[2] for s in range(args.seeds)]
+    for steps in horizons:
+        full = jax.jit(jax.value_and_grad(loss_fn(sim, state, steps, True)))
+        win = jax.jit(jax.value_and_grad(loss_fn(sim, state, steps, True, window=args.window)))
+        v, g = full(params)
+        vw, gw = win(params)
+        rel, rel_w = relative_gradient(g, params, v), relative_gradient(gw, params, vw)
+        batch = jax.jit(jax.vmap(lambda s: jax.value_and_grad(loss_fn(sim, s, steps, True))(params)))
+        from jaxpile.ensemble import stack
+
+        vs, gs = batch(stack(starts))
+        per = np.array([[float(getattr(gs, k)[i]) * float(getattr(params, k)) / float(vs[i]) for k in NAMES]
+                        for i in range(args.seeds)])
+        row = {"steps": steps, "loss": float(v), "relative_grad": rel, "relative_grad_window": rel_w,
+               "ensemble_mean": dict(zip(NAMES, per.mean(0).tolist())),
+               "ensemble_std": dict(zip(NAMES, per.std(0, ddof=1).tolist()))}
+        horizon_rows.append(row)
+        print(f"  T = {steps:6d}: " + ", ".join(
+            f"{k}: {rel[k]:+.3g} (window {rel_w[k]:+.3g}; starts {row['ensemble_mean'][k]:+.3g} "
+            f"+- {row['ensemble_std'][k]:.2g})" for k in NAMES))
+
+    out = {"machine": f"{platform.processor() or platform.machine()}, {jax.default_backend()}",
+           "disks": state.particles.count, "cost": rows, "horizon": horizon_rows}
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump(out, fh, indent=2)
+    return out
+
+
+if __name__ == "__main__":
+    main()
