@@ -5,6 +5,7 @@
   jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
   jaxpile compare DIR [DIR ...]
   jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
+  jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
 
 Every protocol writes summary.json (the set-up and the protocol's measurements),
 base_forces.csv, state.npz, pile.png and profile.png; box and tilt add
@@ -12,7 +13,9 @@ energy.png (kinetic energy per disk, Lee & Herrmann 1993 Fig. 1(b)), flux adds
 angles.png (Fig. 5) and pour adds heap_profile.png (the binned base force of
 Baxter et al. 1997). A sweep writes sweep.csv (one row per member), sweep.png
 (mean +- standard error against the varied parameter, theory overlaid) and
-sweep.json (the set-up, timings and the per-value summaries).
+sweep.json (the set-up, timings and the per-value summaries). A fit writes
+fit.json (the fitted values, the loss history, the profiles before and after)
+and fit.png (loss curve; target, before and after).
 """
 
 from __future__ import annotations
@@ -184,6 +187,29 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--precision", choices=["float64", "float32"], default="float64")
     sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
     sweep.add_argument("--out", required=True, help="output folder")
+
+    fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile (gradients + optax)")
+    fitp.add_argument("--target", required=True, metavar="FILE|smid-novosad",
+                      help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features")
+    fitp.add_argument("--protocol", default="lattice", choices=["lattice", "pour"])
+    fitp.add_argument("--law", default=None, help="contact law (default: hooke for lattice, baxter for pour)")
+    fitp.add_argument("--params", required=True, metavar="NAME,NAME", help="the law parameters to fit")
+    fitp.add_argument("--set", action="append", metavar="NAME=VALUE", help="a starting/fixed law parameter")
+    fitp.add_argument("--layers", type=int, default=6, help="lattice: layers of the pile")
+    fitp.add_argument("--n", type=int, default=60, help="pour: disks to pour")
+    fitp.add_argument("--option", action="append", metavar="NAME=VALUE", help="pour: a set-up option")
+    fitp.add_argument("--seed", type=int, default=0, help="pour: random seed")
+    fitp.add_argument("--steps", type=int, default=40, help="optimiser steps")
+    fitp.add_argument("--optimizer", default="adam", help="an optax optimiser by name: adam, sgd, lbfgs, ...")
+    fitp.add_argument("--lr", type=float, default=0.05, help="learning rate (in log-parameter units)")
+    fitp.add_argument("--bins", type=int, default=None, help="profile bins (default: layers, or 9 for pour)")
+    fitp.add_argument("--window", type=int, default=2000,
+                      help="pour: steps of relaxation from the poured heap that are differentiated")
+    fitp.add_argument("--horizontal-weight", type=float, default=1.0,
+                      help="weight of the horizontal profile in the loss (when the target has one)")
+    fitp.add_argument("--dip-weight", type=float, default=0.0, help="weight of the central-dip feature")
+    fitp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    fitp.add_argument("--out", required=True, help="output folder")
     return parser
 
 
@@ -202,6 +228,8 @@ def main(argv=None) -> int:
             print(compare_table(args.dirs))
         elif args.command == "sweep":
             run_sweep(args)
+        elif args.command == "fit":
+            run_fit(args)
     except (InputError, SimulationError) as err:
         print(f"jaxpile: error: {err}", file=sys.stderr)
         return 2
@@ -480,6 +508,167 @@ def run_sweep(args) -> dict:
           f"{result.info['particle_steps_per_second']:.3g} particle-steps/s")
     print(f"jaxpile: wrote {out}/sweep.csv, sweep.json, sweep.png")
     return result.info
+
+
+def _optimizer(name: str, lr: float):
+    import optax
+
+    from jaxpile.errors import InputError
+
+    if not lr > 0:
+        raise InputError(f"--lr must be positive; got {lr}.")
+    if name == "lbfgs":
+        return optax.lbfgs()
+    make = getattr(optax, name, None)
+    if not callable(make) or name.startswith("_"):
+        raise InputError(f"--optimizer {name!r} is not an optax optimiser; try adam, sgd, adamw, rmsprop or lbfgs.")
+    try:
+        return make(lr)
+    except TypeError:
+        raise InputError(f"optax.{name} does not take a learning rate; try adam, sgd, adamw, rmsprop or lbfgs.") from None
+
+
+def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int = 60, seed: int = 0,
+                options: dict | None = None, bins: int | None = None, window: int = 2000, progress=None):
+    """The pile a fit differentiates: `(sim, params, state, steps, setting, window, description)`.
+
+    lattice: the 1992 pile loaded by a gravity ramp and settled; the whole
+    quasi-static loading (2 x ramp steps) is differentiated.
+    pour: a heap poured and relaxed with the starting parameters (not
+    differentiated), then `window` steps of relaxation from it with the
+    parameters being fitted, all differentiated: the fit sees how the settled
+    heap's base forces respond to the parameters, with its geometry fixed.
+    """
+    from jaxpile import fit
+    from jaxpile.errors import InputError
+    from jaxpile.protocols import lattice, pour
+    from jaxpile.simulate import Simulator, gravity_ramp
+
+    if protocol == "lattice":
+        _, contact_law, params = _lattice_law_and_params(law, start)
+        if layers < 2:
+            raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
+        particles, boundaries = lattice.equilateral_pile(layers)
+        ramp = max(600, 100 * layers)
+        sim = Simulator(contact_law, lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
+        state = sim.init(params, particles, boundaries)
+        setting = fit.ProfileSetting("ground", 0.5, layers + 0.5, bins or layers, 0.3)
+        return sim, params, state, 2 * ramp, setting, None, (
+            f"{layers}-layer lattice pile, gravity ramped over {ramp} steps and settled for {ramp}: "
+            "the whole loading differentiated")
+    options = dict(options or {})
+    p = pour.pour(n, seed=seed, **options)
+    _, _, params = pour.law_and_params(law, start)
+    sim = pour.make_simulator(law)
+    state, info = pour.execute(sim, params, p, progress=progress)
+    m = pour.measure(sim, params, state)
+    if "extent" not in m:
+        raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
+    x_left, x_right = m["extent"]
+    setting = fit.ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
+    return sim, params, state, int(window), setting, int(window), (
+        f"{n}-disk heap poured (seed {seed}) and relaxed with the starting parameters ({info.steps} steps, "
+        f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
+
+
+def _lattice_law_and_params(law: str, start: dict):
+    from jaxpile.protocols import lattice
+    from jaxpile.protocols.base import law_and_params
+
+    return law_and_params(law, start, setting=lattice.PAPER_SETTING)
+
+
+def run_fit(args) -> dict:
+    """`jaxpile fit`: gradient-based fit of law parameters to a base-force profile."""
+    import jax
+
+    import jaxpile  # noqa: F401  (turns on float64)
+    from jaxpile import fit, io
+    from jaxpile.errors import InputError
+    from jaxpile.laws import get_law_module
+
+    law = get_law_module(args.law or {"lattice": "hooke", "pour": "baxter"}[args.protocol]).NAME
+    lawmod = get_law_module(law)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    if not names:
+        raise InputError("--params needs at least one law parameter name (e.g. mu,kt).")
+    unknown = set(names) - set(lawmod.PARAM_NAMES)
+    if unknown:
+        raise InputError(f"cannot fit {sorted(unknown)}: not {law} parameters ({', '.join(lawmod.PARAM_NAMES)}).")
+    if args.steps < 0:
+        raise InputError(f"--steps must be >= 0; got {args.steps}.")
+    if args.target == "smid-novosad":
+        target = fit.smid_novosad_target()
+    elif os.path.exists(args.target):
+        target = fit.load_profile_csv(args.target)
+    else:
+        raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
+    horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0
+    optimizer = _optimizer(args.optimizer, args.lr)
+    start = _parse_set(args.set, lawmod.PARAM_NAMES)
+    progress = False if args.no_progress else None
+    sim, params, state, steps, setting, window, described = fit_problem(
+        args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=_parse_options(args.option),
+        bins=args.bins, window=args.window, progress=progress)
+    print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
+          flush=True)
+    loss = fit.profile_objective(sim, state, steps, setting, target, window=window,
+                                 horizontal_weight=horizontal_weight, dip_weight=args.dip_weight)
+    profile = jax.jit(lambda p: fit.simulated_profile(sim, p, state, steps, setting, window=window))
+    stopped = []
+
+    def stable(record) -> bool:
+        """Stops the fit before it steps where dt is above the law's stability limit
+        (the rollout would blow up and its gradient turn NaN)."""
+        try:
+            sim.check_params(params.set(**{n: jnp.asarray(record[n]) for n in names}), state.particles)
+        except InputError as err:
+            stopped.append(f"stopped at step {record['step']}: {err}")
+            return True
+        return False
+
+    import warnings
+
+    import jax.numpy as jnp
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # its message is in the result and printed below
+        result = fit.fit(loss, params, names, optimizer=optimizer, steps=args.steps, progress=progress is None,
+                         callback=stable)
+    seconds = time.perf_counter() - t0
+    if stopped:
+        result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
+    before, after = profile(params), profile(result.params)
+
+    def values(p):
+        return {n: float(getattr(p, n)) for n in names}
+
+    def plain_profile(pr):
+        return {"x_over_b": np.asarray(pr.x_over_b).tolist(), "normal": np.asarray(pr.normal).tolist(),
+                "horizontal": np.asarray(pr.horizontal).tolist(), "central_dip": float(fit.central_dip(pr))}
+
+    record = {
+        "target": target.source or args.target, "protocol": args.protocol, "law": law, "fitted": names,
+        "pile": described, "initial": values(params), "fitted_values": values(result.params),
+        "initial_loss": result.history[0]["loss"] if result.history else None, "loss": result.loss,
+        "best_step": result.best_step, "steps": result.steps, "converged": result.converged,
+        "message": result.message, "optimizer": args.optimizer, "lr": args.lr, "fit_seconds": seconds,
+        "target_central_dip": target.central_dip, "profile_before": plain_profile(before),
+        "profile_after": plain_profile(after), "history": result.history,
+    }
+    out = args.out
+    os.makedirs(out, exist_ok=True)
+    io.write_json(os.path.join(out, "fit.json"), _plain(record))
+    fit.fit_figure(result, target, before, after, path=os.path.join(out, "fit.png"))
+    print("jaxpile: " + ", ".join(f"{k}: {record['initial'][k]:.4g} -> {v:.4g}" for k, v in
+                                  record["fitted_values"].items())
+          + f"; loss {record['initial_loss']:.3g} -> {result.loss:.3g} ({result.message})")
+    print(f"jaxpile: central dip {record['profile_before']['central_dip']:.3f} -> "
+          f"{record['profile_after']['central_dip']:.3f}"
+          + (f" (target {target.central_dip:.3f})" if target.central_dip is not None else ""))
+    print(f"jaxpile: wrote {out}/fit.json, fit.png")
+    return record
 
 
 def _protocol_dt(module, m) -> float:

@@ -80,7 +80,11 @@ def evaluate(
 
     m_i, m_j = p.mass[:, None], p.mass[j]
     fixed_i, fixed_j = p.fixed[:, None], p.fixed[j]
+    pair_mask = valid & p.active[:, None] & p.active[j] & ~(fixed_i & fixed_j) & (j != jnp.arange(n)[:, None])
     m_eff = jnp.where(fixed_j, m_i, jnp.where(fixed_i, m_j, m_i * m_j / (m_i + m_j)))
+    # a fixed disk's mass is infinite: keep it out of the slots that are masked anyway,
+    # or inf * 0 in their (discarded) forces turns the gradient NaN
+    m_eff = jnp.where(pair_mask, m_eff, 1.0)
     shape = j.shape
     pair_geometry = PairGeometry(
         displacement=p.position[:, None, :] - p.position[j],
@@ -95,25 +99,24 @@ def evaluate(
     )
     kernel = _kernel_over_slots(law)
     pair = kernel(params, pair_geometry, contacts.history, dt)
-    pair_mask = valid & p.active[:, None] & p.active[j] & ~(fixed_i & fixed_j) & (j != jnp.arange(n)[:, None])
     pair = _mask(pair, pair_mask)
 
     # Walls: partners of zero radius and infinite mass at the foot of the normal.
     w = boundaries.wall_normal.shape[0]
     wshape = (n, w)
+    wall_mask = boundaries.wall_active[None, :] & (p.active & ~p.fixed)[:, None]
     wall_geometry = PairGeometry(
-        displacement=_wall_displacement(boundaries, p.position, p.radius),
+        displacement=_wall_displacement(boundaries, p.position, p.radius, wall_mask),
         radius_i=jnp.broadcast_to(p.radius[:, None], wshape),
         radius_j=jnp.zeros(wshape, p.radius.dtype),
         velocity=jnp.broadcast_to(p.velocity[:, None, :], wshape + (2,)),
         angular_velocity_i=jnp.broadcast_to(omega[:, None], wshape),
         angular_velocity_j=jnp.zeros(wshape, omega.dtype),
-        effective_mass=jnp.broadcast_to(p.mass[:, None], wshape),
+        effective_mass=jnp.where(wall_mask, p.mass[:, None], 1.0),  # finite where masked (see above)
         step_displacements=None if step_positions is None else jnp.stack(
-            [_wall_displacement(boundaries, x, p.radius) for x in step_positions], axis=-2),
+            [_wall_displacement(boundaries, x, p.radius, wall_mask) for x in step_positions], axis=-2),
     )
     wall = kernel(law.wall_params(params), wall_geometry, contacts.wall_history, dt)
-    wall_mask = boundaries.wall_active[None, :] & (p.active & ~p.fixed)[:, None]
     wall = _mask(wall, wall_mask)
 
     force = pair.force.sum(axis=1) + wall.force.sum(axis=1)
@@ -123,11 +126,18 @@ def evaluate(
     return ContactForces(pair=pair, wall=wall, force=force, torque=torque)
 
 
-def _wall_displacement(boundaries: Boundaries, position, radius):
-    """`[n, w, 2]` from each wall plane to each centre along the wall normal."""
+def _wall_displacement(boundaries: Boundaries, position, radius, mask=None):
+    """`[n, w, 2]` from each wall plane to each centre along the wall normal.
+    Where `mask` is False (a wall that is off, a fixed or parked disk) the
+    distance is put far out of every law's reach: a disk far behind a wall that is
+    off would otherwise sit "1e-6 r from it", where a steep law (baxter's
+    (sigma/r)^(n+1)) overflows, and inf * 0 in the masked-out force makes NaN
+    gradients."""
     distance = wall_distance(boundaries, position)  # [n, w]
     # A centre pushed through a wall keeps the wall's normal (never flips it).
     distance = jnp.maximum(distance, 1e-6 * radius[:, None])
+    if mask is not None:
+        distance = jnp.where(mask, distance, 1e3 * radius[:, None])
     return distance[..., None] * boundaries.wall_normal[None, :, :]
 
 

@@ -443,3 +443,30 @@ def test_gradient_of_a_profile_loss_through_a_rollout_matches_central_difference
     fd = (float(plus) - float(minus)) / (2 * h)
     assert abs(g) * kn > 1e-2 * float(value)  # kn really matters to the loss
     assert g == pytest.approx(fd, rel=1e-4)
+
+
+def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
+    """The issue's check: a base profile made by jaxpile (4-layer lattice pile,
+    hooke law, kt = 3000, mu = 0.15, loaded by a gravity ramp) written as a
+    target CSV; `jaxpile fit` from kt = 4000, mu = 0.2 recovers both within 2%."""
+    import json
+
+    from jaxpile import cli
+
+    true = {"kt": 3000.0, "mu": 0.15}
+    sim, params, state, steps, setting, window, _ = cli.fit_problem("lattice", "hooke", true, layers=4)
+    made = jax.jit(lambda p: fit.simulated_profile(sim, p, state, steps, setting))(params)
+    target = tmp_path / "target.csv"
+    rows = zip(np.asarray(made.x_over_b), np.asarray(made.normal), np.asarray(made.horizontal))
+    lines = [f"{float(x)!r},{float(n)!r},{float(h)!r}" for x, n, h in rows]
+    target.write_text("x/B,normal/max,horizontal/max\n" + "\n".join(lines) + "\n")
+    out = tmp_path / "fit"
+    assert cli.main(["fit", "--target", str(target), "--protocol", "lattice", "--layers", "4", "--params", "kt,mu",
+                     "--set", "kt=4000", "--set", "mu=0.2", "--steps", "150", "--horizontal-weight", "10",
+                     "--no-progress", "--out", str(out)]) == 0
+    record = json.loads((out / "fit.json").read_text())
+    assert record["initial"] == {"kt": 4000.0, "mu": 0.2}
+    for name, value in true.items():
+        assert record["fitted_values"][name] == pytest.approx(value, rel=0.02), name
+    assert record["loss"] < 1e-3 * record["initial_loss"]
+    assert (out / "fit.png").stat().st_size > 10_000
