@@ -35,7 +35,6 @@ protocol are one compiled loop. What makes that work for DEM:
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from typing import Any, Callable, Sequence

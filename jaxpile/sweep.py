@@ -19,15 +19,13 @@ import itertools
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import ensemble
 from jaxpile.errors import InputError
 from jaxpile.simulate import RunInfo, max_speed
-from jaxpile.state import SimState
 
 
 @dataclass(frozen=True)
