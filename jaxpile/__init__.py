@@ -9,7 +9,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from jaxpile import analysis, boundaries, laws, protocols, theory  # noqa: E402
+from jaxpile import analysis, boundaries, ensemble, fit, laws, protocols, sweep, theory  # noqa: E402
 from jaxpile.boundaries import make_boundaries, set_wall  # noqa: E402
 from jaxpile.errors import InputError, SimulationError  # noqa: E402
 from jaxpile.simulate import RunInfo, Simulator, make_step, max_speed  # noqa: E402
@@ -28,6 +28,8 @@ __all__ = [
     "Simulator",
     "analysis",
     "boundaries",
+    "ensemble",
+    "fit",
     "laws",
     "make_boundaries",
     "make_particles",
@@ -35,5 +37,6 @@ __all__ = [
     "max_speed",
     "protocols",
     "set_wall",
+    "sweep",
     "theory",
 ]
