@@ -584,7 +584,7 @@ def run_fit(args) -> dict:
 
     import jaxpile  # noqa: F401  (turns on float64)
     from jaxpile import fit, io
-    from jaxpile.errors import InputError
+    from jaxpile.errors import InputError, SimulationError
     from jaxpile.laws import get_law_module
 
     law = get_law_module(args.law or {"lattice": "hooke", "pour": "baxter"}[args.protocol]).NAME
@@ -640,6 +640,13 @@ def run_fit(args) -> dict:
     if stopped:
         result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
     before, after = profile(params), profile(result.params)
+    # the rollouts are pure (no re-allocation inside): make sure no contact was dropped
+    overflowed = jax.jit(lambda p: sim.rollout(p, state, steps).neighbors.did_buffer_overflow)
+    for label, p in (("starting", params), ("fitted", result.params)):
+        if bool(overflowed(p)):
+            raise SimulationError(f"the neighbour list overflowed in the rollout with the {label} parameters, so "
+                                  "contacts were missing from it; the fit is not valid. Give the pile more neighbour "
+                                  "head-room (a larger capacity_multiplier) and fit again.")
 
     def values(p):
         return {n: float(getattr(p, n)) for n in names}
