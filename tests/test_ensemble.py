@@ -153,3 +153,20 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
     assert int(rows[3]["settled_step"]) == pytest.approx(alone["settled_step"], abs=200)
     assert float(rows[3]["repose_cumulative_parabola"]) == pytest.approx(alone["repose_cumulative_parabola"], rel=1e-3)
     assert cli.main(argv[:-2] + ["--option", "colour=red", "--out", str(out)]) == 2  # unknown option refused
+
+
+def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
+    from jaxpile import sweep
+
+    result = sweep.sweep("pour", "baxter", vary={"mu": [0.3, 0.6]}, seeds=1,
+                         options={"n": 12, "release_height": 7.0, "speed_tolerance": 1e-3}, progress=False)
+    assert [(r["mu"], r["seed"]) for r in result.rows] == [(0.3, 0), (0.6, 0)]
+    for row in result.rows:
+        assert row["in_play"] + row["lost"] == 12
+        assert abs(row["force_balance"]) < 1e-3  # at rest: the substrate carries the heap's weight
+    summary = sweep.summarise(result, "mu", "repose_mean")
+    assert summary["x"] == [0.3, 0.6] and summary["count"][0] + summary["missing"][0] == 1
+    with pytest.raises(InputError, match="unknown option"):
+        sweep.sweep("pour", vary={"mu": [0.3]}, seeds=1, options={"colour": "red"})
+    with pytest.raises(InputError, match="unknown baxter parameter"):
+        sweep.sweep("pour", vary={"kn": [1.0]}, seeds=1, options={"n": 12})
