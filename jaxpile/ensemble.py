@@ -48,7 +48,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxpile import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.protocols.base import Protocol
-from jaxpile.simulate import RunInfo, Simulator, make_step, max_speed
+from jaxpile.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
 from jaxpile.state import SimState
 
 Array = Any
@@ -250,17 +250,9 @@ class Ensemble:
         return jax.vmap(one, axis_name=AXIS)(params, state, frozen)
 
     def _compiled_advance(self, params, state, frozen, info: RunInfo):
-        leaves, treedef = jax.tree.flatten((params, state))
-        key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
-        fn = self._compiled.get(key)
-        if fn is None:
-            t0 = time.perf_counter()
-            fn = self._advance_jit.lower(params, state, frozen, jnp.int32(1)).compile()
-            info.compile_seconds += time.perf_counter() - t0
-            self._compiled[key] = fn
-        return fn
+        return compiled_for(self._compiled, self._advance_jit, (params, state, frozen), info)
 
-    def _reallocate(self, state: SimState, overflowed: SimState) -> SimState:
+    def _reallocate(self, state: SimState) -> SimState:
         """Every member re-allocated from its chunk-start positions with room to
         grow (as `Simulator._reallocate`), at the largest capacity any needs."""
         old_slots = state.neighbors.max_occupancy
@@ -284,7 +276,7 @@ class Ensemble:
             if not bool(jnp.any(new.neighbors.did_buffer_overflow)):
                 return new
             info.reallocations += 1
-            state = self._reallocate(state, new)
+            state = self._reallocate(state)
         raise SimulationError("the batch's neighbour list kept overflowing after 20 re-allocations.", state)
 
     def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,
@@ -323,9 +315,10 @@ class Ensemble:
 
         bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
+        finished_now = finished(state) if finished is not None else jnp.zeros(count, bool)
         try:
             while done < n_steps:
-                frozen = self.shard(finished(state) if finished is not None else jnp.zeros(count, bool))
+                frozen = self.shard(finished_now)
                 if bool(jnp.all(frozen)):
                     break
                 n = min(self.sim.chunk_steps, int(n_steps) - done)
@@ -336,11 +329,12 @@ class Ensemble:
                 info.steps += n
                 bar.update(n)
                 if finished is not None:
-                    bar.set_postfix(finished=f"{int(jnp.sum(finished(state)))}/{count}")
+                    finished_now = finished(state)
+                    bar.set_postfix(finished=f"{int(jnp.sum(finished_now))}/{count}")
         finally:
             bar.close()
         if finished is not None:
-            info.at_rest = bool(jnp.all(finished(state)))
+            info.at_rest = bool(jnp.all(finished_now))
         info.max_speed = float(jnp.max(jax.vmap(max_speed)(state)))
         return state
 

@@ -402,15 +402,7 @@ class Simulator:
         return lax.fori_loop(0, n_steps, lambda _, s: self.step(params, s), state)
 
     def _compiled_advance(self, params, state: SimState, info: RunInfo):
-        leaves, treedef = jax.tree.flatten((params, state))
-        key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
-        fn = self._compiled.get(key)
-        if fn is None:
-            t0 = time.perf_counter()
-            fn = self._advance_jit.lower(params, state, jnp.int32(1)).compile()
-            info.compile_seconds += time.perf_counter() - t0
-            self._compiled[key] = fn
-        return fn
+        return compiled_for(self._compiled, self._advance_jit, (params, state), info)
 
     # ------------------------------------------------------------ host runs
     def _reallocate(self, state: SimState, overflowed) -> SimState:
@@ -507,6 +499,21 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
+
+
+def compiled_for(cache: dict, jitted, args: tuple, info: RunInfo):
+    """The compiled `jitted` for the shapes and structure of `args` (followed by
+    an int32 step count), from `cache` or compiled now, with the compile time
+    added to `info`: chunks of a run, and runs of the same shapes, share it."""
+    leaves, treedef = jax.tree.flatten(args)
+    key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
+    fn = cache.get(key)
+    if fn is None:
+        t0 = time.perf_counter()
+        fn = jitted.lower(*args, jnp.int32(1)).compile()
+        info.compile_seconds += time.perf_counter() - t0
+        cache[key] = fn
+    return fn
 
 
 def _scan_steps(step, params, state: SimState, n: int) -> SimState:
