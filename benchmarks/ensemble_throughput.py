@@ -18,7 +18,6 @@ Prints particle-steps per second for each and the ratios, and writes JSON.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 
@@ -27,7 +26,7 @@ import jax.numpy as jnp
 from jax import lax
 
 import jaxpile  # noqa: F401  (float64)
-from jaxpile import ensemble
+from jaxpile import ensemble, io
 from jaxpile.protocols import box
 
 LAW = "lee-herrmann"
@@ -91,8 +90,7 @@ def main(argv=None) -> dict:
     print(f"  batch-wide decision vs naive vmap: {out['batch_wide_over_naive']:.2f}x; "
           f"vs serial: {out['batch_wide_over_serial']:.2f}x")
     if args.out:
-        with open(args.out, "w") as fh:
-            json.dump(out, fh, indent=2)
+        io.write_json(args.out, out)
     return out
 
 

@@ -23,7 +23,6 @@ when the profile changes shape: the M or the hump).
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import time
 
@@ -32,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
+from jaxpile import io
 from jaxpile.boundaries import GROUND
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
@@ -146,8 +146,7 @@ def main(argv=None) -> dict:
     out = {"machine": f"{platform.processor() or platform.machine()}, {jax.default_backend()}",
            "disks": state.particles.count, "cost": rows, "horizon": horizon_rows}
     if args.out:
-        with open(args.out, "w") as fh:
-            json.dump(out, fh, indent=2)
+        io.write_json(args.out, out)
     return out
 
 

@@ -133,6 +133,14 @@ def _accepted_options(module) -> set:
     return names - reserved
 
 
+def _output_args(parser, precision: bool = True) -> None:
+    """The flags every run command shares: precision, progress bar, output folder."""
+    if precision:
+        parser.add_argument("--precision", choices=["float64", "float32"], default="float64")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--out", required=True, help="output folder")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -164,9 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--max-steps", type=int, default=None, help="step budget for loading and relaxing")
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
     pile.add_argument("--speed-tol", type=float, default=None, help="max disk speed that counts as at rest")
-    pile.add_argument("--precision", choices=["float64", "float32"], default="float64")
-    pile.add_argument("--no-progress", action="store_true", help="no progress bar")
-    pile.add_argument("--out", required=True, help="output folder")
+    _output_args(pile)
 
     compare = sub.add_parser("compare", help="print the summaries of finished runs side by side")
     compare.add_argument("dirs", nargs="+")
@@ -184,9 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
     sweep.add_argument("--max-steps", type=int, default=None, help="step budget per batch")
     sweep.add_argument("--batch-size", type=int, default=None, help="members per compiled batch (default: all)")
-    sweep.add_argument("--precision", choices=["float64", "float32"], default="float64")
-    sweep.add_argument("--no-progress", action="store_true", help="no progress bar")
-    sweep.add_argument("--out", required=True, help="output folder")
+    _output_args(sweep)
 
     fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile (gradients + optax)")
     fitp.add_argument("--target", required=True, metavar="FILE|smid-novosad",
@@ -208,8 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
     fitp.add_argument("--horizontal-weight", type=float, default=1.0,
                       help="weight of the horizontal profile in the loss (when the target has one)")
     fitp.add_argument("--dip-weight", type=float, default=0.0, help="weight of the central-dip feature")
-    fitp.add_argument("--no-progress", action="store_true", help="no progress bar")
-    fitp.add_argument("--out", required=True, help="output folder")
+    _output_args(fitp, precision=False)
     return parser
 
 

@@ -47,110 +47,20 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxpile import theory
-from jaxpile.boundaries import GROUND
+from jaxpile import analysis, theory
 from jaxpile.errors import InputError
 from jaxpile.state import SimState
 
 Array = Any
 
-BASES = ("ground", "substrate")
-"""What `base_load` can measure: the flat ground wall, or the fixed base disks."""
-
+BASES = analysis.BASES
 
 # ------------------------------------------------------------- base contacts
-class BaseLoad(NamedTuple):
-    """Every possible base contact with its force, as fixed-shape arrays.
-
-    Entries that are not a contact (disks off the ground, empty neighbour slots,
-    pairs not involving a fixed disk) are padding: weight 0 and zero x and forces.
-
-    Attributes:
-      x: `[c]` contact x: the disk centre's x on the ground; for a base disk, the
-        point on the centre line that divides it in the ratio of the radii.
-      normal: `[c]` force of the base on the pile normal to the base (the
-        ground's normal; along -g for base disks), in mg.
-      horizontal: `[c]` force the pile exerts on the base along it (+x for the
-        ground), in mg: the sign convention of `analysis.base_forces` (Liffman
-        et al. 1992, eq. 43: negative = leftwards).
-      weight: `[c]` 1.0 for a contact, 0.0 for padding.
-    """
-
-    x: Array
-    normal: Array
-    horizontal: Array
-    weight: Array
-
-
-def force_unit(state: SimState) -> Array:
-    """mg as a traceable scalar: the mean mass of the active movable disks times
-    |g| (mass 1 when no disk moves, g taken as 1 when gravity is off): the jnp
-    twin of `analysis.force_unit`."""
-    p = state.particles
-    movable = p.movable
-    count = jnp.sum(movable)
-    total = jnp.sum(jnp.where(movable, p.mass, 0.0))
-    mass = jnp.where(count > 0, total / jnp.maximum(count, 1), 1.0)
-    g2 = jnp.sum(state.boundaries.gravity**2)
-    g = jnp.where(g2 > 0, jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), 1.0)
-    return mass * g
-
-
-def base_load(sim, params, state: SimState, *, base: str = "ground") -> BaseLoad:
-    """The forces at every contact between the pile and its base, traceable.
-
-    The same physics as `analysis.base_forces` (ground) and
-    `analysis.substrate_forces` (movable disk against fixed disk), with masks
-    instead of boolean indexing so that the shapes do not depend on the contacts:
-    usable under `jax.jit` and `jax.grad` (e.g. on the state a `Simulator.rollout`
-    returns). Entries are not sorted.
-
-    Args:
-      sim: the `Simulator` (its law evaluates the forces).
-      params: the law's params pytree.
-      state: the state to measure.
-      base: `"ground"`: the ground wall (`boundaries.GROUND`), one entry per disk,
-        x the disk centre's x. `"substrate"`: the fixed base disks (the poured heap
-        of Baxter et al. 1997), one entry per neighbour slot `[n * k]`, "normal"
-        along -g (+y when gravity is off).
-
-    Returns:
-      `BaseLoad` of `[n]` (ground) or `[n * k]` (substrate) arrays, forces in mg
-      (`force_unit`).
-
-    Raises:
-      InputError: on an unknown `base`.
-    """
-    if base not in BASES:
-        raise InputError(f"base must be one of {list(BASES)}; got {base!r}.")
-    cf = sim.contact_forces(params, state)
-    p = state.particles
-    unit = force_unit(state)
-    if base == "ground":
-        contact = cf.wall.in_contact[:, GROUND]
-        force = jnp.where(contact[:, None], cf.wall.force[:, GROUND], 0.0)  # ground on disk
-        normal_dir = state.boundaries.wall_normal[GROUND]
-        along = jnp.stack([normal_dir[1], -normal_dir[0]])  # +x for the ground
-        x = jnp.where(contact, p.position[:, 0], 0.0)
-    else:
-        idx = state.neighbors.idx
-        n = idx.shape[0]
-        valid = idx < n
-        partner = jnp.where(valid, idx, 0)
-        contact = cf.pair.in_contact & valid & p.movable[:, None] & p.fixed[partner]
-        force = jnp.where(contact[..., None], cf.pair.force, 0.0)  # base disk on pile disk
-        x_i, x_j = p.position[:, None, 0], p.position[partner, 0]
-        r_i, r_j = p.radius[:, None], p.radius[partner]
-        x = jnp.where(contact, x_j + (x_i - x_j) * r_j / (r_i + r_j), 0.0)
-        g = state.boundaries.gravity
-        g2 = jnp.sum(g**2)
-        up = jnp.where(g2 > 0, -g / jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), jnp.array([0.0, 1.0], g.dtype))
-        normal_dir = up
-        along = jnp.stack([up[1], -up[0]])
-        contact, force, x = contact.reshape(-1), force.reshape(-1, 2), x.reshape(-1)
-    normal = (force @ normal_dir) / unit
-    horizontal = -(force @ along) / unit
-    return BaseLoad(x=x, normal=normal, horizontal=horizontal, weight=contact.astype(force.dtype))
+# The traceable base loads live with the other measurements (`analysis`, where the
+# host-side `base_forces` and `substrate_forces` are built on them).
+BaseLoad = analysis.BaseLoad
+base_load = analysis.base_load
+force_unit = analysis.traced_force_unit
 
 
 # ---------------------------------------------------------- smooth profiles
