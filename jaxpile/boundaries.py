@@ -24,6 +24,7 @@ def make_boundaries(
     ground: float = 0.0,
     gravity: float = 1.0,
     tilt_degrees: float = 0.0,
+    sides: bool = True,
     dtype=None,
 ) -> Boundaries:
     """The ground y = `ground` plus a left and a right wall.
@@ -35,12 +36,22 @@ def make_boundaries(
       gravity: magnitude g.
       tilt_degrees: gravity rotated by this angle (counter-clockwise) from -y,
         which is the same as tilting the whole set-up clockwise.
+      sides: False gives the ground alone (one wall, no side-wall slots): for a
+        pile that never meets a side wall. Every disk is checked against every
+        wall slot at every step, switched on or not, so two unused slots cost
+        about a fifth of a step (measured on the 1992 lattice pile).
     """
     if left is not None and right is not None and not left < right:
         raise InputError(f"the left wall (x = {left}) must be left of the right wall (x = {right}).")
     if not (gravity >= 0 and math.isfinite(gravity)):
         raise InputError(f"gravity must be a finite magnitude >= 0; got {gravity}.")
+    if not sides and (left is not None or right is not None):
+        raise InputError("sides=False makes the ground alone: left and right walls cannot be given.")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    if not sides:
+        return Boundaries(gravity=gravity_vector(gravity, tilt_degrees, dtype),
+                          wall_normal=jnp.array([[0.0, 1.0]], dtype), wall_offset=jnp.array([ground], dtype),
+                          wall_active=jnp.array([True]))
     normal = jnp.array([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0]], dtype)
     offset = jnp.array([ground, 0.0 if left is None else left, 0.0 if right is None else -right], dtype)
     active = jnp.array([True, left is not None, right is not None])
@@ -62,6 +73,9 @@ def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, p
     """Switches a wall on or off and/or moves an axis-aligned wall to `position`
     (x for a side wall, y for the ground). Pure: usable inside jit."""
     b = boundaries
+    if not 0 <= wall < b.wall_active.shape[0]:  # an index out of range would be clamped silently
+        raise InputError(f"wall {wall} does not exist: these boundaries have {b.wall_active.shape[0]} wall(s)"
+                         " (made with sides=False?).")
     if active is not None:
         b = b.set(wall_active=b.wall_active.at[wall].set(active))
     if position is not None:

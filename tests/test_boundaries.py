@@ -1,4 +1,5 @@
 """Run-time boundaries: walls switched off/on, gravity tilted, float32 kept."""
+import pytest
 
 import jax
 import jax.numpy as jnp
@@ -50,3 +51,16 @@ def test_float32_states_stay_float32():
     dtypes = {x.dtype for x in jax.tree.leaves(state) if jnp.issubdtype(x.dtype, jnp.floating)}
     assert dtypes == {jnp.dtype(jnp.float32)}
     assert np.all(np.isfinite(np.asarray(state.particles.position)))
+
+
+def test_ground_alone_has_one_wall_and_refuses_side_walls():
+    from jaxpile.boundaries import make_boundaries
+    from jaxpile.errors import InputError
+
+    ground = make_boundaries(sides=False, ground=0.5)
+    assert ground.wall_normal.shape == (1, 2) and bool(ground.wall_active[0])
+    assert float(ground.wall_offset[0]) == 0.5
+    with pytest.raises(InputError, match="sides=False"):
+        make_boundaries(sides=False, left=0.0)
+    with pytest.raises(InputError, match="wall 2 does not exist"):
+        set_wall(ground, RIGHT_WALL, active=True)  # would be clamped onto the ground by JAX

@@ -50,10 +50,10 @@ def lattice_angle(gap: float = 0.0) -> float:
 
 def equilateral_pile(layers: int, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0,
                      dtype=None) -> tuple[Particles, Boundaries]:
-    """Particles and boundaries (ground only, side walls off) of the k-layer pile."""
+    """Particles and boundaries (the ground alone, no side-wall slots) of the k-layer pile."""
     position = equilateral_positions(layers, diameter, gap=gap)
     particles = make_particles(position, 0.5 * diameter, mass=mass, dtype=dtype)
-    return particles, make_boundaries(dtype=particles.position.dtype)
+    return particles, make_boundaries(sides=False, dtype=particles.position.dtype)
 
 
 def pile_count(layers: int) -> int:
