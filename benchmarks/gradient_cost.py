@@ -17,13 +17,12 @@ when the profile changes shape: the M or the hump).
    before it held fixed with `stop_gradient`), plus the spread of the
    full-horizon gradient over 8 random starts (ensemble averaging).
 
-    python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--out FILE]
+    python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--no-horizon] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
 import time
 
 import jax
@@ -36,6 +35,7 @@ from jaxpile.boundaries import GROUND
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
+from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 NAMES = ("kn", "kt", "mu")
 
@@ -70,11 +70,18 @@ def loss_fn(sim, state, steps, checkpoint, window=None):
     return loss
 
 
-def clock(fn, *args):
-    jax.block_until_ready(fn(*args))
+def clock(fn, *args, compile_times: list | None = None):
+    """Run time of `fn(*args)` after a first call (whose extra time, the trace and
+    compile, is appended to `compile_times`)."""
     t0 = time.perf_counter()
     jax.block_until_ready(fn(*args))
-    return time.perf_counter() - t0
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    run = time.perf_counter() - t0
+    if compile_times is not None:
+        compile_times.append(max(first - run, 0.0))
+    return run
 
 
 def temp_bytes(fn, *args) -> int:
@@ -94,6 +101,7 @@ def main(argv=None) -> dict:
                         help="largest horizon to try without checkpointing (its memory grows with T)")
     parser.add_argument("--window", type=int, default=200)
     parser.add_argument("--seeds", type=int, default=8)
+    parser.add_argument("--no-horizon", action="store_true", help="cost and memory only (skip part 2)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     horizons = [int(h) for h in args.horizons.split(",")]
@@ -106,11 +114,15 @@ def main(argv=None) -> dict:
     for steps in horizons:
         forward = jax.jit(loss_fn(sim, state, steps, False))
         grad_ckpt = jax.jit(jax.grad(loss_fn(sim, state, steps, True)))
-        row = {"steps": steps, "forward_s": clock(forward, params), "grad_checkpoint_s": clock(grad_ckpt, params),
+        compiles = []
+        row = {"steps": steps, "forward_s": clock(forward, params, compile_times=compiles),
+               "grad_checkpoint_s": clock(grad_ckpt, params, compile_times=compiles),
                "mem_forward": temp_bytes(forward, params), "mem_grad_checkpoint": temp_bytes(grad_ckpt, params)}
+        row.update(compile_forward_s=compiles[0], compile_grad_checkpoint_s=compiles[1])
         if steps <= args.no_store_limit:
             grad = jax.jit(jax.grad(loss_fn(sim, state, steps, False)))
-            row.update(grad_s=clock(grad, params), mem_grad=temp_bytes(grad, params))
+            row.update(grad_s=clock(grad, params, compile_times=compiles), mem_grad=temp_bytes(grad, params))
+            row.update(compile_grad_s=compiles[2])
         rows.append(row)
         mb = 1 / 2**20
         g = row.get("grad_s", float("nan"))
@@ -118,6 +130,20 @@ def main(argv=None) -> dict:
               f"{row['grad_checkpoint_s']:9.3f} {row['grad_checkpoint_s'] / row['forward_s']:8.2f} "
               f"{row['mem_forward'] * mb:8.2f}M {row.get('mem_grad', -1) * mb:8.2f}M "
               f"{row['mem_grad_checkpoint'] * mb:8.2f}M")
+
+    n = state.particles.count
+    table = [{"case": f"gradient: {n}-disk pile, {r['steps']} steps, d/d(kn, kt, mu) (checkpointed)",
+              "jaxpile": n * r["steps"] / r["grad_checkpoint_s"], "lammps": None, "ratio": None,
+              "note": f"{r['grad_checkpoint_s'] / r['forward_s']:.1f}x the forward time; XLA temp "
+                      f"{r['mem_grad_checkpoint'] / 2**20:.1f} MB"
+                      + (f" (stored: {r['mem_grad'] / 2**20:.1f} MB)" if "mem_grad" in r else "")
+                      + f"; compile {r['compile_grad_checkpoint_s']:.1f} s"} for r in rows]
+    if args.no_horizon:
+        out = {"machine": describe(),
+               "disks": n, "cost": rows, "table": table}
+        if args.out:
+            io.write_json(args.out, out)
+        return out
 
     print(f"\nrelative gradients d log L / d log theta against the horizon "
           f"(full; last {args.window} steps only; spread over {args.seeds} random starts)")
@@ -143,8 +169,8 @@ def main(argv=None) -> dict:
             f"{k}: {rel[k]:+.3g} (window {rel_w[k]:+.3g}; starts {row['ensemble_mean'][k]:+.3g} "
             f"+- {row['ensemble_std'][k]:.2g})" for k in NAMES))
 
-    out = {"machine": f"{platform.processor() or platform.machine()}, {jax.default_backend()}",
-           "disks": state.particles.count, "cost": rows, "horizon": horizon_rows}
+    out = {"machine": describe(),
+           "disks": n, "cost": rows, "horizon": horizon_rows, "table": table}
     if args.out:
         io.write_json(args.out, out)
     return out

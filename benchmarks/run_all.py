@@ -1,0 +1,110 @@
+"""`make bench`: every benchmark at a size that finishes in about ten minutes on
+two CPU cores, its JSON written to `benchmarks/results/<backend>/`, and the
+README's benchmark table regenerated from those files.
+
+Each benchmark script runs in its own process (a fresh JAX: no compile cache or
+memory carried from one to the next) with the arguments below; `--full` runs
+them at the issue's full sizes instead (much longer on a CPU; the size a GPU
+run should use). The table is rebuilt from every results folder present, so a
+GPU run adds its rows beside the CPU ones.
+
+    python benchmarks/run_all.py [--full] [--only NAME,...] [--no-readme]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import re
+import subprocess
+import sys
+import time
+
+HERE = pathlib.Path(__file__).resolve().parent
+README = HERE.parent / "README.md"
+START, END = "<!-- bench-table:start -->", "<!-- bench-table:end -->"
+
+# name -> (script, small arguments, full arguments)
+BENCHMARKS = {
+    "vs_lammps": ("vs_lammps.py", ["--small"], []),
+    "scaling": ("scaling.py", ["--sizes", "1000,10000,100000", "--steps", "200"], ["--steps", "2000"]),
+    "gradient": ("gradient_cost.py", ["--horizons", "250,1000", "--no-horizon"],
+                 ["--horizons", "250,1000,4000,16000", "--no-horizon"]),
+    "ensemble_vmap": ("ensemble_throughput.py", ["--members", "8", "--n", "100", "--steps", "1000"],
+                      ["--members", "64", "--n", "409", "--steps", "5000"]),
+    "profile": ("profile_step.py", ["--steps", "300"], ["--steps", "2000"]),
+}
+
+
+def backend() -> str:
+    out = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"],
+                         capture_output=True, text=True, check=True)
+    return out.stdout.strip().splitlines()[-1]
+
+
+def fmt(x) -> str:
+    return "—" if x is None else f"{x:.3g}"
+
+
+def table(results_root: pathlib.Path) -> str:
+    """The markdown table of every `table` row in every results JSON."""
+    lines = ["| machine | case | jaxpile (particle-steps/s) | LAMMPS (particle-steps/s) | jaxpile / LAMMPS | note |",
+             "|---|---|---|---|---|---|"]
+    for path in sorted(results_root.glob("*/*.json")):
+        data = json.loads(path.read_text())
+        machine = data.get("machine", path.parent.name)
+        for row in data.get("table", []):
+            ratio = row.get("ratio")
+            lines.append(f"| {machine} | {row['case']} | {fmt(row.get('jaxpile'))} | {fmt(row.get('lammps'))} | "
+                         f"{'—' if ratio is None else f'{ratio:.2f}x'} | {row.get('note', '')} |")
+    return "\n".join(lines)
+
+
+def update_readme(text: str) -> bool:
+    readme = README.read_text()
+    if START not in readme or END not in readme:
+        print(f"README has no {START} ... {END} block; table not written", file=sys.stderr)
+        return False
+    new = re.sub(re.escape(START) + ".*?" + re.escape(END), lambda _: f"{START}\n{text}\n{END}", readme, flags=re.S)
+    README.write_text(new)
+    return True
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--full", action="store_true", help="the issue's full sizes")
+    parser.add_argument("--only", default=None, help="comma-separated names: " + ",".join(BENCHMARKS))
+    parser.add_argument("--no-readme", action="store_true", help="do not rewrite the README table")
+    args = parser.parse_args(argv)
+
+    names = list(BENCHMARKS) if args.only is None else args.only.split(",")
+    unknown = set(names) - set(BENCHMARKS)
+    if unknown:
+        parser.error(f"unknown benchmark(s) {sorted(unknown)}; known: {list(BENCHMARKS)}")
+    out_dir = HERE / "results" / backend()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    failed = []
+    t_all = time.perf_counter()
+    for name in names:
+        script, small, full = BENCHMARKS[name]
+        cmd = [sys.executable, str(HERE / script), *(full if args.full else small), "--out", str(out_dir / f"{name}.json")]
+        print(f"\n== {name}: {' '.join(cmd[1:])}", flush=True)
+        t0 = time.perf_counter()
+        if subprocess.run(cmd).returncode != 0:
+            failed.append(name)
+        print(f"== {name}: {time.perf_counter() - t0:.0f} s", flush=True)
+    print(f"\nall benchmarks: {time.perf_counter() - t_all:.0f} s; results in {out_dir}")
+    if not args.no_readme:
+        text = table(HERE / "results")
+        if update_readme(text):
+            print("README benchmark table regenerated")
+        print(text)
+    if failed:
+        print(f"failed: {failed}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

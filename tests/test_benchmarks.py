@@ -1,0 +1,81 @@
+"""The benchmark harness: its LAMMPS twin is the same problem as jaxpile's (run
+against LAMMPS when `lmp` is installed), and `make bench` rebuilds the README
+table from the results. No timings here: figures live in benchmarks/."""
+
+import json
+import pathlib
+import sys
+
+import numpy as np
+import pytest
+
+from jaxpile import analysis
+from jaxpile.laws import hooke
+from jaxpile.protocols import lattice
+from jaxpile.simulate import Simulator, gravity_ramp
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+import lammps_peer as peer  # noqa: E402
+import run_all  # noqa: E402
+import vs_lammps  # noqa: E402
+
+LAYERS, RAMP, HOLD = 6, 1500, 1500
+
+
+def test_lammps_twin_script_is_the_hooke_law_with_the_gravity_ramp(tmp_path):
+    particles, boundaries = lattice.equilateral_pile(LAYERS)
+    params = vs_lammps.lattice_params(wall_mu=0.8)
+    script, _ = vs_lammps.lattice_job(str(tmp_path), particles, boundaries, params, RAMP, HOLD)
+    lines = script.splitlines()
+    pair = next(line for line in lines if line.startswith("pair_style")).split()
+    assert pair[1] == "gran/hooke/history"
+    # kn kt gamma_n gamma_t mu dampflag, with LAMMPS's kt = 2/7 kn default made explicit
+    assert [float(v) for v in pair[2:7]] == pytest.approx([1e4, 2e4 / 7, 100.0, 50.0, 0.0])
+    wall = next(line for line in lines if "wall/gran" in line).split()
+    assert wall[3:5] == ["wall/gran", "hooke/history"]
+    assert [float(v) for v in wall[5:10]] == pytest.approx([1e4, 2e4 / 7, 100.0, 50.0, 0.8])
+    assert "yplane" in wall and "contacts" in wall
+    assert any(line.startswith("fix") and line.split()[3] == "nve" for line in lines)  # rotation off
+    assert f"run {RAMP + HOLD}" in lines
+    data = (tmp_path / "pile.data").read_text()
+    assert f"{particles.count} atoms" in data
+
+
+@pytest.mark.skipif(peer.find_binary() is None, reason="LAMMPS (lmp) is not installed")
+def test_lammps_and_jaxpile_give_the_same_base_forces_on_a_small_lattice_pile(tmp_path):
+    particles, boundaries = lattice.equilateral_pile(LAYERS)
+    params = vs_lammps.lattice_params()
+    sim = Simulator(hooke.law(rotation=False), lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(RAMP))
+    state = sim.run(params, sim.init(params, particles, boundaries), RAMP + HOLD, progress=False)
+    base = analysis.base_forces(sim, params, state)
+    run = peer.run(peer.find_binary(), *vs_lammps.lattice_job(str(tmp_path), particles, boundaries, params, RAMP, HOLD))
+    assert run.ok, run.error
+    check = vs_lammps.agreement(base, run)
+    assert check["contacts"] == [LAYERS, LAYERS]
+    # same integrator, same law, same ramp: the two codes agree to round-off on a small pile
+    assert check["max_rel_dev_normal"] < 1e-8 and check["max_rel_dev_horizontal"] < 1e-8, check
+    assert run.steps == RAMP + HOLD
+
+
+def test_readme_table_is_rebuilt_from_the_results_files(tmp_path, monkeypatch):
+    results = tmp_path / "results" / "cpu"
+    results.mkdir(parents=True)
+    rows = [{"case": "lattice", "jaxpile": 2.0e6, "lammps": 1.0e7, "ratio": 0.2, "note": "n1"},
+            {"case": "scaling", "jaxpile": 3.0e6, "lammps": None, "ratio": None, "note": "n2"}]
+    (results / "a.json").write_text(json.dumps({"machine": "m", "table": rows}))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{run_all.START}\nold table\n{run_all.END}\nafter\n")
+    monkeypatch.setattr(run_all, "README", readme)
+    assert run_all.update_readme(run_all.table(tmp_path / "results"))
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("intro\n") and text.endswith("after\n")
+    assert "| m | lattice | 2e+06 | 1e+07 | 0.20x | n1 |" in text
+    assert "| m | scaling | 3e+06 | — | — | n2 |" in text
+    readme.write_text("no markers\n")
+    assert not run_all.update_readme("x")  # says so rather than appending somewhere
+
+
+def test_bench_lists_only_scripts_that_exist():
+    for script, _, _ in run_all.BENCHMARKS.values():
+        assert (pathlib.Path(run_all.HERE) / script).exists()
+    assert np.all([name.isidentifier() for name in run_all.BENCHMARKS])
