@@ -437,6 +437,7 @@ class Simulator:
         progress: bool | None = None,
         info: RunInfo | None = None,
         until: Callable[[SimState], bool] | None = None,
+        checkpoint: tuple | None = None,
     ) -> SimState:
         """Advances `n_steps` in chunks, with overflow handling and NaN checks.
 
@@ -445,6 +446,14 @@ class Simulator:
           info: a `RunInfo` to accumulate timings into.
           until: optional host predicate checked after each chunk; the run stops
             early when it returns True.
+          checkpoint: optional `(path, every)` or `(path, every, extra)`: the
+            state is saved with `jaxpile.checkpoint.save` at the first chunk
+            boundary at or past every `every` steps of this run, and at its
+            end. `path` may hold `{step}` (one file per checkpoint); otherwise
+            each save replaces the last, atomically. `extra`: a dict of JSON-able
+            facts recorded with it. To resume, `checkpoint.restore` the file on
+            a fresh state of the same set-up and run the remaining steps: the
+            result is bit-identical to the uninterrupted run.
         """
         if not isinstance(state, SimState):
             raise InputError("run() takes a SimState; build one with Simulator.init(params, particles, boundaries).")
@@ -458,6 +467,7 @@ class Simulator:
             progress = sys.stderr.isatty()
         from tqdm.auto import tqdm
 
+        save = self._checkpointer(params, checkpoint)
         bar = tqdm(total=n_steps, disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
         try:
@@ -469,11 +479,35 @@ class Simulator:
                 done += n
                 info.steps += n
                 bar.update(n)
-                if until is not None and until(state):
+                stop = until is not None and until(state)
+                if save is not None:
+                    save(state, done, final=stop or done >= n_steps)
+                if stop:
                     break
         finally:
             bar.close()
         return state
+
+    def _checkpointer(self, params, checkpoint):
+        """`save(state, done, final)` for `run(checkpoint=(path, every[, extra]))`, or None."""
+        if checkpoint is None:
+            return None
+        if not isinstance(checkpoint, tuple) or len(checkpoint) not in (2, 3):
+            raise InputError(f"checkpoint must be (path, every) or (path, every, extra); got {checkpoint!r}.")
+        path, every, extra = (*checkpoint, {})[:3]
+        if int(every) != every or every < 1:
+            raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
+        from jaxpile import checkpoint as ckpt
+
+        last = [0]
+
+        def save(state: SimState, done: int, final: bool) -> None:
+            if final or done // every > last[0]:
+                last[0] = done // every
+                ckpt.save(str(path).replace("{step}", str(int(state.step))), state, self.law.name, params,
+                          **dict(extra))
+
+        return save
 
     def run_until_rest(
         self,

@@ -1,0 +1,163 @@
+"""Checkpoints: the whole simulation state on disk, written atomically, and
+restored so that a resumed run continues bit for bit.
+
+A checkpoint is one `.npz` with every array of the `SimState` pytree (particles,
+contact history, boundaries, the neighbour list with its reference positions,
+the step count, the integrator's and the protocol's carried state: insertion
+counters, PRNG keys, logs) under its pytree path, plus JSON metadata: the
+jaxpile version, the law, its parameters, the precision, the neighbour-list
+capacity and settings, and whatever the caller adds (the command that made the
+run, say). It is written to a temporary file in the same folder, fsync'ed and
+renamed over the old one, so a kill at any moment leaves the last complete
+checkpoint readable.
+
+To resume, build the same set-up again (same simulator, law, parameters and
+protocol) and hand its fresh state to `restore` as the template: it re-creates
+the neighbour list at the saved capacity (a run that re-allocated keeps its
+larger list) and fills every array from the file, after checking that the
+law, parameters, precision and shapes match.
+
+Bit-identical continuation also needs the same chunk boundaries (a re-allocation
+re-runs a chunk from its start, and the slot order it leaves changes the order
+of the force sums): `Simulator.run(..., checkpoint=...)` saves only at chunk
+boundaries, which a resumed run keeps.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import neighbors as nb
+from jaxpile.errors import InputError
+from jaxpile.io import _atomic_write
+from jaxpile.state import SimState
+
+FORMAT = 1  # bump when the layout of the file changes
+
+
+def _version() -> str:
+    from jaxpile import __version__
+
+    return __version__
+
+
+def _leaves(state: SimState) -> tuple[list[str], list[Any], Any]:
+    paths_and_leaves, treedef = jax.tree_util.tree_flatten_with_path(state)
+    names = [jax.tree_util.keystr(path) for path, _ in paths_and_leaves]
+    return names, [leaf for _, leaf in paths_and_leaves], treedef
+
+
+def _precision(state: SimState) -> str:
+    return str(state.particles.position.dtype)
+
+
+def _params_record(params) -> dict:
+    return {k: (None if v is None else np.asarray(v).tolist()) for k, v in vars(params).items()}
+
+
+def metadata(state: SimState, law_name: str, params, **extra) -> dict:
+    """What a checkpoint records besides the arrays."""
+    return {
+        "format": FORMAT,
+        "jaxpile_version": _version(),
+        "law": law_name,
+        "params": _params_record(params),
+        "precision": _precision(state),
+        "n_particles": int(state.particles.count),
+        "step": int(state.step),
+        "neighbor_capacity": int(state.neighbors.max_occupancy),
+        "cell_capacity": None if state.neighbors.cell_list_capacity is None else int(state.neighbors.cell_list_capacity),
+        "neighbor_settings": list(state.neighbor_settings),
+        "extra": extra,
+    }
+
+
+def save(path, state: SimState, law_name: str, params, **extra) -> None:
+    """Writes `state` (every array of it) and its metadata to `path`, atomically.
+
+    Args:
+      path: the `.npz` file (replaced atomically if it exists).
+      state: the state, at a chunk boundary of its run.
+      law_name: the law's name (`law.name`), checked on restore.
+      params: the law's parameters, recorded and checked on restore.
+      **extra: JSON-able facts to keep with it (e.g. the command line).
+    """
+    names, leaves, _ = _leaves(state)
+    arrays = {f"leaf:{name}": np.asarray(jax.device_get(leaf)) for name, leaf in zip(names, leaves)}
+    arrays["metadata"] = np.asarray(json.dumps(metadata(state, law_name, params, **extra)))
+    _atomic_write(path, lambda f: np.savez(f, **arrays))
+
+
+def read_metadata(path) -> dict:
+    """The metadata of a checkpoint, without its arrays."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return json.loads(str(data["metadata"]))
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
+
+
+def restore(path, template: SimState, law_name: str, params) -> SimState:
+    """The state saved in `path`, rebuilt on `template`'s structure.
+
+    Args:
+      path: a file written by `save`.
+      template: a fresh state of the same set-up (`Simulator.init` with the same
+        particles, boundaries and protocol state): it gives the pytree structure
+        and the static fields; its arrays are all replaced.
+      law_name, params: the law and parameters the run continues with; they
+        must be those the checkpoint was written with.
+
+    Raises:
+      InputError: unreadable file, another jaxpile checkpoint format, another
+        law, other parameters, another precision or another set-up (particle
+        count, array names or shapes).
+    """
+    meta = read_metadata(path)
+    if meta.get("format") != FORMAT:
+        raise InputError(f"{path} has checkpoint format {meta.get('format')}; this jaxpile reads format {FORMAT}.")
+    if meta["law"] != law_name:
+        raise InputError(f"{path} was written with the {meta['law']} law; resuming with {law_name} is not "
+                         "the same run. Resume with the law it was written with.")
+    if meta["precision"] != _precision(template):
+        raise InputError(f"{path} holds a {meta['precision']} run; the set-up to resume is "
+                         f"{_precision(template)}. Resume with --precision {meta['precision']}.")
+    if _params_record(params) != meta["params"]:
+        changed = sorted(k for k in set(meta["params"]) | set(_params_record(params))
+                         if meta["params"].get(k) != _params_record(params).get(k))
+        raise InputError(f"{path} was written with other law parameters ({', '.join(changed)} differ); "
+                         "resuming with other parameters is not the same run.")
+    if meta["n_particles"] != template.particles.count:
+        raise InputError(f"{path} holds {meta['n_particles']} disks; the set-up to resume has "
+                         f"{template.particles.count}. Build the same set-up it was written from.")
+
+    if meta["neighbor_settings"] != json.loads(json.dumps(list(template.neighbor_settings))):
+        raise InputError(f"{path} was written with neighbour settings {meta['neighbor_settings']}; the set-up "
+                         f"to resume has {list(template.neighbor_settings)}. Build the same set-up (box, skin).")
+
+    # the saved run may have re-allocated its list: give the template that capacity
+    neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position,
+                                       meta["neighbor_capacity"], meta["cell_capacity"])
+    c = template.contacts
+    contacts = c.set(partner=neighbors.idx,
+                     history=jnp.zeros(neighbors.idx.shape + c.history.shape[2:], c.history.dtype))
+    template = template.set(neighbors=neighbors, contacts=contacts)
+    names, leaves, treedef = _leaves(template)
+    with np.load(path, allow_pickle=False) as data:
+        saved = {k[len("leaf:"):] for k in data.files if k.startswith("leaf:")}
+        if saved != set(names):
+            raise InputError(f"{path} holds another kind of state (arrays {sorted(saved ^ set(names))[:4]} do "
+                             "not match): build the same set-up, protocol and integrator it was written from.")
+        restored = []
+        for name, leaf in zip(names, leaves):
+            value = data[f"leaf:{name}"]
+            if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
+                raise InputError(f"{path}: {name} is {value.dtype}{list(value.shape)}, the set-up has "
+                                 f"{np.asarray(leaf).dtype}{list(np.shape(leaf))}. Build the same set-up.")
+            restored.append(jnp.asarray(value))
+    return jax.tree_util.tree_unflatten(treedef, restored)

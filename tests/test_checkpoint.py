@@ -1,0 +1,130 @@
+"""Checkpoints: atomic, complete, and a resumed run is bit-identical to the
+uninterrupted one (across a neighbour-list re-allocation and a kill -9)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxpile import checkpoint
+from jaxpile.boundaries import make_boundaries
+from jaxpile.errors import InputError
+from jaxpile.laws import hooke
+from jaxpile.simulate import RunInfo, Simulator
+from jaxpile.state import make_particles
+
+CHUNK, EVERY, TOTAL = 250, 1500, 4500  # the list grows between 3500 and 3750
+
+
+def falling_disks(n=36, seed=0, dtype=jnp.float64):
+    """Disks on a sparse grid thrown about in a box: few neighbours each at the
+    start (a small list), a packed heap later (the list must grow)."""
+    rng = np.random.default_rng(seed)
+    i = np.arange(n)
+    position = np.stack([(i % 6) * 1.6 + 0.8, (i // 6) * 1.6 + 0.8], 1) + rng.uniform(-0.1, 0.1, (n, 2))
+    particles = make_particles(position, 0.5 * rng.uniform(0.9, 1.1, n), velocity=rng.normal(0, 1.0, (n, 2)),
+                               dtype=dtype)
+    return particles, make_boundaries(left=0.0, right=9.6, dtype=dtype)
+
+
+@pytest.fixture(scope="module")
+def setting():
+    params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
+    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=CHUNK, capacity_multiplier=1.0)
+    return sim, params
+
+
+def fresh(sim, params, **kw):
+    return sim.init(params, *falling_disks(**kw))
+
+
+def assert_identical(a, b):
+    la, lb = jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)
+    assert jax.tree_util.tree_structure(a) == jax.tree_util.tree_structure(b)
+    for x, y in zip(la, lb):
+        assert np.array_equal(np.asarray(x), np.asarray(y)), "resumed run differs"
+
+
+def test_resumed_run_is_bit_identical_across_a_reallocation(setting, tmp_path):
+    sim, params = setting
+    info = RunInfo()
+    path = str(tmp_path / "ck-{step}.npz")
+    whole = sim.run(params, fresh(sim, params), TOTAL, progress=False, info=info, checkpoint=(path, EVERY))
+    saved = sorted(os.listdir(tmp_path))
+    assert saved == [f"ck-{s}.npz" for s in (1500, 3000, 4500)]
+    first = checkpoint.read_metadata(tmp_path / "ck-1500.npz")
+    # the list grew after the first checkpoint: the resume must carry a re-allocation
+    assert info.reallocations >= 1 and whole.neighbors.max_occupancy > first["neighbor_capacity"]
+    assert first["step"] == 1500 and first["law"] == "hooke" and first["precision"] == "float64"
+
+    resumed = checkpoint.restore(tmp_path / "ck-1500.npz", fresh(sim, params), "hooke", params)
+    assert int(resumed.step) == 1500
+    resumed = sim.run(params, resumed, TOTAL - EVERY, progress=False)
+    assert_identical(resumed, whole)
+    # and the last checkpoint is the end state itself
+    assert_identical(checkpoint.restore(tmp_path / "ck-4500.npz", fresh(sim, params), "hooke", params), whole)
+
+
+def test_restore_refuses_another_law_parameters_precision_or_setup(setting, tmp_path):
+    sim, params = setting
+    path = tmp_path / "ck.npz"
+    state = fresh(sim, params)
+    checkpoint.save(path, state, "hooke", params, command="test")
+    assert checkpoint.read_metadata(path)["extra"] == {"command": "test"}
+    with pytest.raises(InputError, match="written with the hooke law"):
+        checkpoint.restore(path, state, "baxter", params)
+    with pytest.raises(InputError, match="mu differ"):
+        checkpoint.restore(path, state, "hooke", hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.3))
+    single = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4, dtype=jnp.float32)
+    with pytest.raises(InputError, match="float64 run"):
+        checkpoint.restore(path, fresh(Simulator(hooke.law(), 5e-4), single, dtype=jnp.float32), "hooke", params)
+    with pytest.raises(InputError, match="holds 36 disks"):
+        checkpoint.restore(path, fresh(sim, params, n=30), "hooke", params)
+    (tmp_path / "junk.npz").write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="not a readable jaxpile checkpoint"):
+        checkpoint.restore(tmp_path / "junk.npz", state, "hooke", params)
+    with pytest.raises(InputError, match="checkpoint must be"):
+        sim.run(params, state, 10, progress=False, checkpoint=str(path))
+
+
+WRITER = r"""
+import sys
+import jaxpile
+from jaxpile import checkpoint
+from jaxpile.laws import hooke
+sys.path.insert(0, sys.argv[2])
+from test_checkpoint import falling_disks
+from jaxpile.simulate import Simulator
+params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
+sim = Simulator(hooke.law(rotation=True), 5e-4)
+state = sim.init(params, *falling_disks(n=4000))
+print("ready", flush=True)
+while True:
+    checkpoint.save(sys.argv[1], state, "hooke", params)
+    state = state.set(step=state.step + 1)
+"""
+
+
+def test_a_kill_9_mid_write_leaves_the_last_complete_checkpoint(tmp_path):
+    path = tmp_path / "ck.npz"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(path), os.path.dirname(__file__)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        deadline = time.time() + 60
+        while not path.exists() and time.time() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.3)  # several writes in: the kill lands mid-write or between writes
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    meta = checkpoint.read_metadata(path)  # complete and readable, never a torn file
+    assert meta["n_particles"] == 4000 and meta["step"] >= 0
+    with np.load(path) as data:
+        assert data["leaf:.particles.position"].shape == (4000, 2)
