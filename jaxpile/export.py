@@ -1,0 +1,140 @@
+"""Results other programs open: extended XYZ frames (OVITO, ASE) and the
+contact-force network as a per-contact table.
+
+Extended XYZ: one frame is a count line, a comment line of `key=value` pairs
+(`Properties` names the columns, `Lattice` the box, `Time` and `Step`), then
+one line per disk. jaxpile writes 2D disks in 3D columns (z = 0) because the
+readers expect three components:
+
+  species (X)  pos(x y z)  radius  velo(vx vy vz)  omega(z)  force(fx fy fz)  active
+
+`force` is the total force on the disk at its last step (contacts + gravity).
+Parked disks (not yet poured) are written with `active` = 0 so every frame of a
+trajectory has the same rows; filter on it in OVITO (Expression selection
+`active == 0`, Delete selected). A trajectory is frames appended to one file.
+
+The contact table (CSV) has one row per disk-disk contact, i < j, with the
+normal and tangential force magnitudes in mg (`analysis.contact_network`),
+and the ground and wall contacts with j = -1 - wall index (`analysis.wall_partner`).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from jaxpile.errors import InputError
+from jaxpile.state import SimState
+
+PROPERTIES = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:1:force:R:3:active:I:1"
+COLUMNS = ("pos", 3), ("radius", 1), ("velo", 3), ("omega", 1), ("force", 3), ("active", 1)
+
+
+def frame_text(state: SimState, time: float | None = None) -> str:
+    """One extended-XYZ frame of `state`."""
+    p = state.particles
+    pos = np.asarray(p.position, float)
+    n = pos.shape[0]
+    lo = pos.min(0) - np.asarray(p.radius).max() if n else np.zeros(2)
+    hi = pos.max(0) + np.asarray(p.radius).max() if n else np.ones(2)
+    size = [float(v) for v in np.maximum(hi - lo, 1e-12)]
+    lo = [float(v) for v in lo]  # plain floats: repr of a numpy scalar is "np.float64(...)"
+    zero = np.zeros((n, 1))
+    table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
+                       np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
+    active = np.asarray(p.active).astype(int)
+    header = (f'Lattice="{size[0]!r} 0.0 0.0 0.0 {size[1]!r} 0.0 0.0 0.0 1.0" Origin="{lo[0]!r} {lo[1]!r} -0.5" '
+              f'Properties={PROPERTIES} Step={int(state.step)} pbc="F F F"'
+              + ("" if time is None else f" Time={float(time)!r}"))
+    rows = [f"X {' '.join(repr(float(v)) for v in row)} {a}" for row, a in zip(table, active)]
+    return f"{n}\n{header}\n" + "\n".join(rows) + ("\n" if rows else "")
+
+
+def write_xyz(path, state: SimState, *, time: float | None = None, append: bool = False) -> None:
+    """Writes (or appends, for a trajectory) one frame of `state` to `path`."""
+    text = frame_text(state, time)
+    if append:
+        with open(path, "a") as f:
+            f.write(text)
+    else:
+        from jaxpile.io import _atomic_write
+
+        _atomic_write(path, lambda f: f.write(text), text=True)
+
+
+def read_xyz(path) -> list[dict]:
+    """The frames of an extended-XYZ file written by `write_xyz`: each a dict of
+    numpy columns (`pos` `[n, 3]`, `radius`, `velo`, `omega`, `force`, `active`)
+    plus `step` and `time`."""
+    if not os.path.exists(path):
+        raise InputError(f"no such file: {path}")
+    frames = []
+    with open(path) as f:
+        lines = f.read().splitlines()
+    k = 0
+    while k < len(lines):
+        try:
+            n = int(lines[k])
+        except ValueError as e:
+            raise InputError(f"{path}, line {k + 1}: expected a particle count, got {lines[k]!r}.") from e
+        header = dict(_pairs(lines[k + 1]))
+        if header.get("Properties") != PROPERTIES:
+            raise InputError(f"{path}, line {k + 2}: not a jaxpile frame (Properties={header.get('Properties')}).")
+        body = [line.split()[1:] for line in lines[k + 2:k + 2 + n]]
+        data = np.asarray(body, float).reshape(n, sum(width for _, width in COLUMNS))
+        frame, col = {}, 0
+        for name, width in COLUMNS:
+            frame[name] = data[:, col:col + width] if width > 1 else data[:, col]
+            col += width
+        frame["active"] = frame["active"].astype(bool)
+        frame["step"] = int(header["Step"])
+        frame["time"] = float(header["Time"]) if "Time" in header else None
+        frames.append(frame)
+        k += 2 + n
+    return frames
+
+
+def _pairs(comment: str):
+    """key=value pairs of an extended-XYZ comment line (values may be quoted)."""
+    i = 0
+    while i < len(comment):
+        while i < len(comment) and comment[i] == " ":
+            i += 1
+        eq = comment.find("=", i)
+        if eq < 0:
+            return
+        key = comment[i:eq]
+        if eq + 1 < len(comment) and comment[eq + 1] == '"':
+            end = comment.index('"', eq + 2)
+            yield key, comment[eq + 2:end]
+            i = end + 1
+        else:
+            end = comment.find(" ", eq)
+            end = len(comment) if end < 0 else end
+            yield key, comment[eq + 1:end]
+            i = end
+
+
+def write_contacts(path, sim, params, state: SimState) -> dict:
+    """The contact-force table: disk-disk contacts (i < j) and wall contacts
+    (j = -1 - wall), with normal and tangential magnitudes in mg. Returns the columns."""
+    from jaxpile import analysis
+    from jaxpile.io import write_csv
+
+    net = analysis.contact_network(sim, params, state)
+    cf = sim.contact_forces(params, state)
+    touching = np.asarray(cf.wall.in_contact)
+    wi, ww = np.nonzero(touching)
+    normals = np.asarray(state.boundaries.wall_normal)[ww]
+    f = np.asarray(cf.wall.force)[wi, ww]
+    unit = analysis.force_unit(state)
+    columns = {
+        "i": np.concatenate([net.i, wi]),
+        "j": np.concatenate([net.j, [analysis.wall_partner(w) for w in ww]]),
+        "normal": np.concatenate([net.normal, np.sum(f * normals, axis=1) / unit]),
+        "tangential": np.concatenate([net.tangential,
+                                      np.abs(f[:, 0] * normals[:, 1] - f[:, 1] * normals[:, 0]) / unit]),
+    }
+    write_csv(path, columns)
+    return columns
