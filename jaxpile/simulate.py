@@ -12,6 +12,7 @@ neighbour list overflowed (no contact is ever dropped), NaN detection, and
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -453,7 +454,9 @@ class Simulator:
             each save replaces the last, atomically. `extra`: a dict of JSON-able
             facts recorded with it. To resume, `checkpoint.restore` the file on
             a fresh state of the same set-up and run the remaining steps: the
-            result is bit-identical to the uninterrupted run.
+            result is bit-identical to the uninterrupted run. If NaN/inf
+            appears, the last finite state is saved as `<path>.last-good.npz`
+            (named in the `SimulationError`).
         """
         if not isinstance(state, SimState):
             raise InputError("run() takes a SimState; build one with Simulator.init(params, particles, boundaries).")
@@ -474,7 +477,13 @@ class Simulator:
             while done < n_steps:
                 n = min(self.chunk_steps, n_steps - done)
                 new = self._chunk(params, state, n, info)
-                _check_finite(new.particles, step=int(new.step), last_good=state)
+                try:
+                    _check_finite(new.particles, step=int(new.step), last_good=state)
+                except SimulationError as error:
+                    if save is not None:  # keep the last good state on disk beside the checkpoints
+                        error.saved_to = save.last_good(state, failed_at=int(new.step))
+                        error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
+                    raise
                 state = new
                 done += n
                 info.steps += n
@@ -507,6 +516,14 @@ class Simulator:
                 ckpt.save(str(path).replace("{step}", str(int(state.step))), state, self.law.name, params,
                           **dict(extra))
 
+        def last_good(state: SimState, failed_at: int) -> str:
+            """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
+            stem, suffix = os.path.splitext(str(path).replace("{step}", str(int(state.step))))
+            target = f"{stem}.last-good{suffix or '.npz'}"
+            ckpt.save(target, state, self.law.name, params, failed_at=failed_at, **dict(extra))
+            return target
+
+        save.last_good = last_good
         return save
 
     def run_until_rest(

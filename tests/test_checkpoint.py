@@ -128,3 +128,25 @@ def test_a_kill_9_mid_write_leaves_the_last_complete_checkpoint(tmp_path):
     assert meta["n_particles"] == 4000 and meta["step"] >= 0
     with np.load(path) as data:
         assert data["leaf:.particles.position"].shape == (4000, 2)
+
+
+def test_a_nan_mid_run_reports_step_and_particle_and_saves_the_last_good_state(tmp_path):
+    from jaxpile.errors import SimulationError
+
+    def poison(state):  # disk 5's velocity turns NaN at step 600
+        v = state.particles.velocity
+        return state.set(particles=state.particles.set(
+            velocity=jnp.where(state.step == 600, v.at[5].set(jnp.nan), v)))
+
+    params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
+    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=CHUNK, driver=poison)
+    state = sim.init(params, *falling_disks())
+    with pytest.raises(SimulationError, match="by step 750: first offending particle 5") as caught:
+        sim.run(params, state, 2000, progress=False, checkpoint=(str(tmp_path / "ck.npz"), 1000))
+    error = caught.value
+    assert error.step == 750 and int(error.last_good_state.step) == 500
+    assert error.saved_to == str(tmp_path / "ck.last-good.npz") and error.saved_to in str(error)
+    meta = checkpoint.read_metadata(error.saved_to)
+    assert meta["step"] == 500 and meta["extra"]["failed_at"] == 750
+    good = checkpoint.restore(error.saved_to, sim.init(params, *falling_disks()), "hooke", params)
+    assert np.isfinite(np.asarray(good.particles.velocity)).all()
