@@ -186,7 +186,7 @@ def make_particles(
     if np.any(~np.isfinite(radius)) or np.any(radius <= 0):
         bad = int(np.flatnonzero(~(radius > 0) | ~np.isfinite(radius))[0])
         raise InputError(
-            f"radius must be positive and finite; particle {bad} has radius {radius[bad]!r}."
+            f"radius must be positive and finite; particle {bad} has radius {float(radius[bad])}."
         )
     if mass is None:
         rho = (4.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
@@ -194,7 +194,7 @@ def make_particles(
     mass = per_particle("mass", mass, dtype)
     if np.any(~np.isfinite(mass)) or np.any(mass <= 0):
         bad = int(np.flatnonzero(~(mass > 0) | ~np.isfinite(mass))[0])
-        raise InputError(f"mass must be positive and finite; particle {bad} has mass {mass[bad]!r}.")
+        raise InputError(f"mass must be positive and finite; particle {bad} has mass {float(mass[bad])}.")
     velocity = np.zeros_like(position) if velocity is None else np.asarray(velocity, dtype=dtype)
     if velocity.shape != position.shape:
         raise InputError(f"velocity must have shape {position.shape}; got {velocity.shape}.")
@@ -204,7 +204,7 @@ def make_particles(
     for name, value in (("position", position), ("velocity", velocity), ("angular_velocity", omega)):
         if not np.all(np.isfinite(value)):
             bad = int(np.flatnonzero(~np.isfinite(value.reshape(n, -1)).all(axis=1))[0])
-            raise InputError(f"{name} of particle {bad} is not finite: {value[bad]!r}.")
+            raise InputError(f"{name} of particle {bad} is not finite: {value[bad].tolist()}.")
     moving_fixed = fixed & ((np.abs(velocity).sum(axis=1) > 0) | (omega != 0))
     if moving_fixed.any():
         bad = int(np.flatnonzero(moving_fixed)[0])
