@@ -126,6 +126,33 @@ def gravity_ramp(steps: int) -> Callable[[SimState], Boundaries]:
     return schedule
 
 
+def load_then_settle(sim, params, state, *, load_steps: int, max_settle_steps: int, speed_tolerance: float,
+                     progress=None, checkpoint: tuple | None = None):
+    """`load_steps` steps (a gravity ramp, a pour), then run until at rest within
+    `max_settle_steps`: the two phases of the lattice and pour protocols.
+
+    Resumable: the phase and the steps left are read from `state.step` (the run
+    started at step 0), so a state restored from a checkpoint of this run
+    continues where it stopped and ends bit-identical to the uninterrupted run.
+
+    Returns:
+      (state, RunInfo) over both phases (the steps of this call).
+    """
+    step = int(state.step)
+    info = RunInfo()
+    state = sim.run(params, state, max(int(load_steps) - step, 0), progress=progress, info=info,
+                    checkpoint=checkpoint)
+    settle = max(int(max_settle_steps) - max(step - int(load_steps), 0), 0)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=settle,
+                                     progress=progress, checkpoint=checkpoint)
+    rest.steps += info.steps
+    rest.wall_seconds += info.wall_seconds
+    rest.compile_seconds += info.compile_seconds
+    rest.reallocations += info.reallocations
+    rest._n = state.particles.count
+    return state, rest
+
+
 @dataclass
 class RunInfo:
     """What a run did (host-side numbers, for summaries and benchmarks)."""
@@ -449,8 +476,8 @@ class Simulator:
             early when it returns True.
           checkpoint: optional `(path, every)` or `(path, every, extra)`: the
             state is saved with `jaxpile.checkpoint.save` at the first chunk
-            boundary at or past every `every` steps of this run, and at its
-            end. `path` may hold `{step}` (one file per checkpoint); otherwise
+            boundary at or past each multiple of `every` of the step count, and
+            at the end of the run. `path` may hold `{step}` (one file per checkpoint); otherwise
             each save replaces the last, atomically. `extra`: a dict of JSON-able
             facts recorded with it. To resume, `checkpoint.restore` the file on
             a fresh state of the same set-up and run the remaining steps: the
@@ -508,11 +535,16 @@ class Simulator:
             raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
         from jaxpile import checkpoint as ckpt
 
-        last = [0]
+        last = [None]
 
         def save(state: SimState, done: int, final: bool) -> None:
-            if final or done // every > last[0]:
-                last[0] = done // every
+            # every `every` steps of the run's absolute step count, so a resumed run saves
+            # where the uninterrupted one did
+            step = int(state.step)
+            if last[0] is None:
+                last[0] = (step - done) // every
+            if final or step // every > last[0]:
+                last[0] = step // every
                 ckpt.save(str(path).replace("{step}", str(int(state.step))), state, self.law.name, params,
                           **dict(extra))
 
@@ -534,9 +566,11 @@ class Simulator:
         speed_tolerance: float = 1e-4,
         max_steps: int = 1_000_000,
         progress: bool | None = None,
+        checkpoint: tuple | None = None,
     ) -> tuple[SimState, RunInfo]:
         """Runs until every movable disk is slower than `speed_tolerance`
-        (checked after each chunk) or `max_steps` have been taken."""
+        (checked after each chunk) or `max_steps` have been taken
+        (`checkpoint` as in `run`)."""
         if not speed_tolerance > 0:
             raise InputError(f"speed_tolerance must be > 0; got {speed_tolerance}.")
         info = RunInfo()
@@ -546,7 +580,7 @@ class Simulator:
             info.speed_history.append((int(s.step), speed))
             return speed < speed_tolerance
 
-        state = self.run(params, state, max_steps, progress=progress, info=info, until=at_rest)
+        state = self.run(params, state, max_steps, progress=progress, info=info, until=at_rest, checkpoint=checkpoint)
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info

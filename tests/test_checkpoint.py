@@ -150,3 +150,26 @@ def test_a_nan_mid_run_reports_step_and_particle_and_saves_the_last_good_state(t
     assert meta["step"] == 500 and meta["extra"]["failed_at"] == 750
     good = checkpoint.restore(error.saved_to, sim.init(params, *falling_disks()), "hooke", params)
     assert np.isfinite(np.asarray(good.particles.velocity)).all()
+
+
+def test_a_pour_resumed_mid_pour_ends_bit_identical(tmp_path):
+    """The pour's two phases (pouring, settling) resume from the step count:
+    restored halfway through the pour, the run ends where the uninterrupted one did."""
+    from jaxpile.protocols import pour
+
+    sim = pour.make_simulator("hooke", chunk_steps=500)
+    params = pour.law_params("hooke")
+    protocol = pour.pour(12, release_height=14.0, seed=5)
+    steps = protocol.info["pour_steps"]
+    every = 500 * max(1, steps // 1000)  # a checkpoint about halfway through the pour
+    path = str(tmp_path / "pour-{step}.npz")
+    whole, info = pour.execute(sim, params, protocol, max_settle_steps=3000, progress=False,
+                               checkpoint=(path, every))
+    resumed, rest = pour.execute(sim, params, protocol, max_settle_steps=3000, progress=False,
+                                 resume=path.format(step=every))
+    assert int(resumed.step) == int(whole.step) and rest.steps == info.steps - every
+    mid = checkpoint.restore(path.format(step=every), sim.init(params, protocol.particles, protocol.boundaries,
+                                                               box=protocol.box, protocol_state=protocol.protocol_state),
+                             "hooke", params)
+    assert 0 < int(mid.protocol_state.poured) < 12  # the insertion counter is part of what is saved
+    assert_identical(resumed, whole)

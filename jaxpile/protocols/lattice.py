@@ -87,24 +87,21 @@ PAPER_SETTING = {
 }
 
 
-def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None):
+def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
+          checkpoint=None):
     """Loads the pile (gravity ramped in by `sim.schedule`) and runs it to rest.
+
+    Resumable from a checkpoint of the same run (`checkpoint` as in
+    `Simulator.run`; see `simulate.load_then_settle`).
 
     Returns:
       (state, RunInfo) with the steps of both phases.
     """
-    from jaxpile.simulate import RunInfo
+    from jaxpile.simulate import load_then_settle
 
-    info = RunInfo()
     ramp = min(ramp_steps, max_steps)
-    state = sim.run(params, state, ramp, progress=progress, info=info)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance,
-                                     max_steps=max_steps - ramp, progress=progress)
-    rest.steps += info.steps
-    rest.wall_seconds += info.wall_seconds
-    rest.compile_seconds += info.compile_seconds
-    rest.reallocations += info.reallocations
-    return state, rest
+    return load_then_settle(sim, params, state, load_steps=ramp, max_settle_steps=max_steps - ramp,
+                            speed_tolerance=speed_tolerance, progress=progress, checkpoint=checkpoint)
 
 
 def compare_with_theory(base, layers: int) -> dict:

@@ -587,14 +587,21 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
 
 
 def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
-            max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None):
+            max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, checkpoint=None,
+            resume=None):
     """Pours every disk (`info["pour_steps"]` steps) and runs until at rest.
+
+    Args:
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
+      resume: a checkpoint file of this same run to continue from (bit-identical
+        to the uninterrupted run).
 
     Returns:
       (state, RunInfo): the run's steps and timings over both phases, `at_rest`
       and the final `max_speed` from the settling phase.
     """
-    from jaxpile.simulate import RunInfo
+    from jaxpile import checkpoint as ckpt
+    from jaxpile.simulate import load_then_settle
 
     if abs(sim.dt - protocol.info["dt"]) > 1e-12 * protocol.info["dt"]:
         raise InputError(f"the protocol was set up for dt = {protocol.info['dt']:g} but the simulator "
@@ -603,23 +610,18 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
         raise InputError(f"max_settle_steps must be a whole number >= 1; got {max_settle_steps!r}.")
     state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
                      protocol_state=protocol.protocol_state)
-    info = RunInfo()
-    state = sim.run(params, state, protocol.info["pour_steps"], progress=progress, info=info)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance,
-                                     max_steps=int(max_settle_steps), progress=progress)
-    rest.steps += info.steps
-    rest.wall_seconds += info.wall_seconds
-    rest.compile_seconds += info.compile_seconds
-    rest.reallocations += info.reallocations
-    rest._n = state.particles.count
-    return state, rest
+    if resume is not None:
+        state = ckpt.restore(resume, state, sim.law.name, params)
+    return load_then_settle(sim, params, state, load_steps=protocol.info["pour_steps"],
+                            max_settle_steps=int(max_settle_steps), speed_tolerance=speed_tolerance,
+                            progress=progress, checkpoint=checkpoint)
 
 
 def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: float = PAPER_SETTING["dt"],
         rotation: bool | None = None, integrator: str = PAPER_SETTING["integrator"],
         speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
         max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, bins: int | None = None,
-        voidage_cell: float = 3.0, dtype=None, **options):
+        voidage_cell: float = 3.0, dtype=None, checkpoint=None, resume=None, **options):
     """Pours a heap with a law by name and measures it (the paper's run by default:
     1334 disks from 100 sigma on S = 1.1 sigma with baxter n = 36, r0 = 1.2 sigma).
 
@@ -630,6 +632,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       dt, rotation, integrator: for the `Simulator` (leapfrog, eqs. 9-12, by default).
       speed_tolerance, max_settle_steps: the rest criterion after pouring.
       bins, voidage_cell: for `measure`.
+      checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
       **options: for `pour` (spacing, polydispersity, release_height,
         insert_height, spread, interval, substrate_disks, seed).
 
@@ -642,7 +645,8 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
     sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator)
     t0 = time.perf_counter()
     state, info = execute(sim, params, protocol, speed_tolerance=speed_tolerance,
-                          max_settle_steps=max_settle_steps, progress=progress)
+                          max_settle_steps=max_settle_steps, progress=progress, checkpoint=checkpoint,
+                          resume=resume)
     total = time.perf_counter() - t0
     result = measure(sim, params, state, bins=bins, voidage_cell=voidage_cell)
     result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
