@@ -172,6 +172,11 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--max-steps", type=int, default=None, help="step budget for loading and relaxing")
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
     pile.add_argument("--speed-tol", type=float, default=None, help="max disk speed that counts as at rest")
+    pile.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
+                      help="save the whole run to OUT/checkpoint.npz every STEPS steps (atomically; lattice, pour)")
+    pile.add_argument("--resume", default=None, metavar="DIR",
+                      help="continue the run saved in DIR/checkpoint.npz with its own settings "
+                           "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
     _output_args(pile)
 
     compare = sub.add_parser("compare", help="print the summaries of finished runs side by side")
@@ -216,12 +221,65 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _resume_argv(argv: list[str]) -> list[str]:
+    """`pile --resume DIR [--no-progress]` -> the saved run's own command line plus
+    `--resume DIR`: a resumed run takes every setting from its checkpoint."""
+    from jaxpile import checkpoint
+    from jaxpile.errors import InputError
+
+    rest = [a for a in argv[1:] if a != "--no-progress"]
+    if len(rest) != 2 or rest[0] != "--resume":
+        raise InputError("resume a run with `jaxpile pile --resume DIR` alone (its settings come from the "
+                         f"checkpoint; --no-progress may be added); got {' '.join(argv)!r}.")
+    folder = rest[1]
+    path = os.path.join(folder, "checkpoint.npz")
+    if not os.path.exists(path):
+        raise InputError(f"no checkpoint to resume in {folder} (expected {path}; runs write it with "
+                         "--checkpoint-every STEPS).")
+    saved = checkpoint.read_metadata(path)["extra"].get("argv")
+    if not saved:
+        raise InputError(f"{path} does not record the command that made it: it cannot be resumed from the CLI.")
+    return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
+
+
+def _run_command(argv: list[str]) -> list[str]:
+    """What a checkpoint records to resume from: the command without --resume DIR
+    and --no-progress."""
+    out, skip = [], False
+    for a in argv:
+        if skip or a == "--no-progress":
+            skip = False
+            continue
+        if a == "--resume":
+            skip = True
+            continue
+        out.append(a)
+    return out
+
+
+def _checkpoint_spec(args):
+    """`(path, every, extra)` for `Simulator.run(checkpoint=...)`, or None."""
+    from jaxpile.errors import InputError
+
+    if args.checkpoint_every is None:
+        return None
+    if args.checkpoint_every < 1:
+        raise InputError(f"--checkpoint-every must be >= 1 step; got {args.checkpoint_every}.")
+    return os.path.join(args.out, "checkpoint.npz"), args.checkpoint_every, {"argv": args.argv}
+
+
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("MPLBACKEND", "Agg")  # figures go to files; never open a window
     from jaxpile.errors import InputError, SimulationError
 
     try:
+        argv = [t for a in argv for t in (a.split("=", 1) if a.startswith("--resume=") else [a])]
+        if argv[:1] == ["pile"] and "--resume" in argv:
+            argv = _resume_argv(argv)
+        args = build_parser().parse_args(argv)
+        if args.command == "pile":
+            args.argv = _run_command(argv)
         if args.command == "pile":
             if args.protocol == "lattice":
                 run_pile(args)
@@ -282,9 +340,15 @@ def run_pile(args) -> dict:
               "contacts switch to the soft law by eq. 22", flush=True)
     sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator, hard_collisions=hard)
     state = sim.init(params, particles, boundaries)
+    if args.resume is not None:
+        from jaxpile import checkpoint
+
+        state = checkpoint.restore(os.path.join(args.resume, "checkpoint.npz"), state, law.name, params)
+        print(f"jaxpile: resuming {args.resume} at step {int(state.step)}", flush=True)
+    resumed_from = int(state.step)
     t0 = time.perf_counter()
     state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
-                                max_steps=max_steps, progress=progress)
+                                max_steps=max_steps, progress=progress, checkpoint=_checkpoint_spec(args))
     total = time.perf_counter() - t0
 
     base = analysis.base_forces(sim, params, state)
@@ -302,7 +366,8 @@ def run_pile(args) -> dict:
         "hard_collisions": None if hard is None else hard._asdict(),
         "precision": args.precision,
         "seed": args.seed,
-        "steps": int(info.steps),
+        "steps": int(state.step),
+        "resumed_from_step": resumed_from,
         "wall_seconds": info.wall_seconds,
         "compile_seconds": info.compile_seconds,
         "total_seconds": total,
@@ -388,6 +453,14 @@ def run_protocol(args) -> dict:
         raise InputError(f"unknown --option {sorted(unknown)} for the {name} protocol; known: "
                          f"{', '.join(sorted(_accepted_options(module)))}.")
     kwargs.update(options)
+    if args.checkpoint_every is not None or args.resume is not None:
+        if name != "pour":
+            raise InputError(f"--checkpoint-every and --resume work with the lattice and pour protocols so far, "
+                             f"not {name}.")
+        kwargs["checkpoint"] = _checkpoint_spec(args)
+        if args.resume is not None:
+            kwargs["resume"] = os.path.join(args.resume, "checkpoint.npz")
+            print(f"jaxpile: resuming {args.resume}", flush=True)
 
     print(f"jaxpile: {name} pile ({PROTOCOL_HELP[name]}), law {contact_law.name} "
           f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)

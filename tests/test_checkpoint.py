@@ -1,6 +1,7 @@
 """Checkpoints: atomic, complete, and a resumed run is bit-identical to the
 uninterrupted one (across a neighbour-list re-allocation and a kill -9)."""
 
+import json
 import os
 import signal
 import subprocess
@@ -173,3 +174,50 @@ def test_a_pour_resumed_mid_pour_ends_bit_identical(tmp_path):
                              "hooke", params)
     assert 0 < int(mid.protocol_state.poured) < 12  # the insertion counter is part of what is saved
     assert_identical(resumed, whole)
+
+
+CLI = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
+LATTICE_RUN = ["pile", "--protocol", "lattice", "--layers", "6", "--ramp-steps", "1000", "--max-steps", "40000",
+               "--speed-tol", "1e-12", "--checkpoint-every", "1000", "--no-progress"]
+
+
+def test_cli_run_killed_with_sigkill_and_resumed_ends_as_the_uninterrupted_run(tmp_path):
+    from jaxpile import io
+    from jaxpile.cli import main
+
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(LATTICE_RUN + ["--out", str(whole)]) == 0
+
+    proc = subprocess.Popen([sys.executable, "-c", CLI, *LATTICE_RUN, "--out", str(cut)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline, step = time.time() + 120, 0
+        while step < 3000 and proc.poll() is None and time.time() < deadline:
+            time.sleep(0.02)
+            if (cut / "checkpoint.npz").exists():
+                step = checkpoint.read_metadata(cut / "checkpoint.npz")["step"]
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert step >= 3000 and proc.returncode == -signal.SIGKILL, "the run was not caught mid-way"
+    assert not (cut / "summary.json").exists()
+
+    assert main(["pile", "--resume", str(cut), "--no-progress"]) == 0
+    a, b = io.load_arrays(whole / "state.npz"), io.load_arrays(cut / "state.npz")
+    for key in a:
+        if key != "metadata":
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert (whole / "base_forces.csv").read_text() == (cut / "base_forces.csv").read_text()
+    done, resumed = (json.loads((d / "summary.json").read_text()) for d in (whole, cut))
+    assert resumed["steps"] == done["steps"] and resumed["resumed_from_step"] >= 3000
+
+
+def test_cli_resume_errors_are_clear(tmp_path, capsys):
+    from jaxpile.cli import main
+
+    assert main(["pile", "--resume", str(tmp_path)]) == 2
+    assert "no checkpoint to resume" in capsys.readouterr().err
+    assert main(["pile", "--resume", str(tmp_path), "--layers", "4"]) == 2
+    assert "--resume DIR` alone" in capsys.readouterr().err
+    assert main(["pile", "--protocol", "box", "--n", "20", "--checkpoint-every", "100", "--out", str(tmp_path)]) == 2
+    assert "lattice and pour protocols so far" in capsys.readouterr().err
