@@ -3,12 +3,15 @@
   jaxpile pile --protocol lattice --layers 45 --law hooke --out DIR [--set NAME=VALUE ...]
   jaxpile pile --protocol sloped --slope 45 --n 360 --out DIR
   jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
+  jaxpile pile ... --checkpoint-every STEPS --out DIR;  jaxpile pile --resume DIR
+  jaxpile show DIR [--out DIR2] [--checkpoint]
   jaxpile compare DIR [DIR ...]
   jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
   jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
 
 Every protocol writes summary.json (the set-up and the protocol's measurements),
-base_forces.csv, state.npz, pile.png and profile.png; box and tilt add
+base_forces.csv, contacts.csv (the force network), state.npz, final.xyz
+(extended XYZ), pile.png and profile.png; box and tilt add
 energy.png (kinetic energy per disk, Lee & Herrmann 1993 Fig. 1(b)), flux adds
 angles.png (Fig. 5) and pour adds heap_profile.png (the binned base force of
 Baxter et al. 1997). A sweep writes sweep.csv (one row per member), sweep.png
@@ -179,6 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
                            "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
     _output_args(pile)
 
+    show = sub.add_parser("show", help="re-draw the figures of a finished or checkpointed pile run (no re-run)")
+    show.add_argument("dir")
+    show.add_argument("--out", default=None, help="where to write the figures (default: DIR)")
+    show.add_argument("--checkpoint", action="store_true", help="draw the last checkpoint even if the run finished")
+
     compare = sub.add_parser("compare", help="print the summaries of finished runs side by side")
     compare.add_argument("dirs", nargs="+")
 
@@ -285,6 +293,11 @@ def main(argv=None) -> int:
                 run_pile(args)
             else:
                 run_protocol(args)
+        elif args.command == "show":
+            from jaxpile.show import show
+
+            written = show(args.dir, args.out, checkpoint=args.checkpoint)
+            print(f"jaxpile: wrote {args.out or args.dir}/" + ", ".join(written))
         elif args.command == "compare":
             print(compare_table(args.dirs))
         elif args.command == "sweep":
@@ -303,7 +316,7 @@ def run_pile(args) -> dict:
     from jaxpile.errors import InputError
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import analysis, io, plot, theory
+    from jaxpile import analysis, export, io, plot, theory
     from jaxpile.laws import get_law_module
     from jaxpile.protocols import lattice
     from jaxpile.simulate import Simulator, gravity_ramp
@@ -389,6 +402,8 @@ def run_pile(args) -> dict:
     io.write_csv(os.path.join(out, "base_forces.csv"), {"x": base.x, "normal": base.normal, "horizontal": base.horizontal})
     io.save_state(os.path.join(out, "state.npz"), state, law=law.name, params=summary["params"], dt=dt,
                   rotation=rotation, precision=args.precision)
+    export.write_contacts(os.path.join(out, "contacts.csv"), sim, params, state)
+    export.write_xyz(os.path.join(out, "final.xyz"), state, time=int(state.step) * dt)
     mu = summary["params"].get("mu")
     title = f"{layers}-layer lattice pile, {law.name} law" + ("" if mu is None else f", mu = {mu:g}")
     plot.pile_figure(state.particles.position, state.particles.radius, network, title=title,
@@ -399,7 +414,8 @@ def run_pile(args) -> dict:
                              title=title + " vs Liffman et al. 1992 eqs. 42, 44",
                              path=os.path.join(out, "profile.png"))
     print(_summary_lines(summary), flush=True)
-    print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, state.npz, pile.png, profile.png")
+    print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, contacts.csv, state.npz, final.xyz, pile.png, "
+          "profile.png")
     return summary
 
 
@@ -410,7 +426,7 @@ def run_protocol(args) -> dict:
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import analysis, io
+    from jaxpile import analysis, export, io
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
     from jaxpile.protocols import PROTOCOLS
@@ -508,7 +524,9 @@ def run_protocol(args) -> dict:
                  {"x": np.asarray(base.x), "normal": np.asarray(base.normal), "horizontal": np.asarray(base.horizontal)})
     io.save_state(os.path.join(out, "state.npz"), state, law=contact_law.name, params=summary["params"], dt=dt,
                   rotation=summary["rotation"], precision=args.precision, protocol=name)
-    written = ["summary.json", "base_forces.csv", "state.npz"] + _protocol_figures(name, m, state, base, network,
+    export.write_contacts(os.path.join(out, "contacts.csv"), sim, params, state)
+    export.write_xyz(os.path.join(out, "final.xyz"), state, time=int(state.step) * dt)
+    written = ["summary.json", "base_forces.csv", "contacts.csv", "state.npz", "final.xyz"] + _protocol_figures(name, m, state, base, network,
                                                                                    contact_law.name, out)
     print(_headline(name, summary), flush=True)
     print(f"jaxpile: wrote {out}/" + ", ".join(written))

@@ -1,0 +1,114 @@
+"""`jaxpile show DIR`: the figures of a `jaxpile pile` run drawn again from its
+files, without running anything.
+
+A finished run is drawn from `state.npz` (the disks), `contacts.csv` (the force
+network) and `base_forces.csv` + `summary.json` (the profile, with the 1992
+lattice theory where the run has it). A run still going, or stopped, is drawn
+from its `checkpoint.npz`: the law and parameters recorded there give the
+contact forces of the saved state (evaluated, not advanced).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile.errors import InputError
+
+
+def _network_from_csv(path):
+    from jaxpile.analysis import ContactNetwork
+    from jaxpile.io import read_csv
+
+    table = read_csv(path)
+    disks = table["j"] >= 0  # wall rows have j = -1 - wall
+    return ContactNetwork(i=table["i"][disks].astype(int), j=table["j"][disks].astype(int),
+                          normal=table["normal"][disks], tangential=table["tangential"][disks])
+
+
+def _finished(folder: str, out: str) -> list[str]:
+    from jaxpile import io, plot, theory
+
+    summary = json.loads(open(os.path.join(folder, "summary.json")).read())
+    state = io.load_arrays(os.path.join(folder, "state.npz"))
+    active = state["particles.active"]
+    contacts = os.path.join(folder, "contacts.csv")
+    network = _network_from_csv(contacts) if os.path.exists(contacts) else None
+    base = io.read_csv(os.path.join(folder, "base_forces.csv"))
+    title = f"{summary.get('protocol', 'pile')} pile, {summary.get('law', '')} law (redrawn)"
+    plot.pile_figure(state["particles.position"], state["particles.radius"], network, active=active,
+                     title=title, path=os.path.join(out, "pile.png"))
+    written = ["pile.png"]
+    n_theory = h_theory = None
+    layers = summary.get("layers")
+    if summary.get("protocol") == "lattice" and summary.get("pile_intact") and layers == len(base["x"]):
+        n_theory = np.full(len(base["x"]), theory.lattice_ground_normal_force(layers))
+        h_theory = theory.lattice_ground_horizontal_force(layers)
+    plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,
+                             theory_horizontal=h_theory, title=title, path=os.path.join(out, "profile.png"))
+    written.append("profile.png")
+    return written
+
+
+def state_from_checkpoint(path):
+    """(state, law, params, metadata) of a checkpoint, enough to evaluate its
+    contact forces (its neighbour list is the slots alone)."""
+    from typing import NamedTuple
+
+    from jaxpile import checkpoint
+    from jaxpile.laws import get_law_module
+    from jaxpile.state import Boundaries, Contacts, Particles, SimState
+
+    meta = checkpoint.read_metadata(path)
+    with np.load(path, allow_pickle=False) as data:
+        leaves = {k[len("leaf:"):]: jnp.asarray(data[k]) for k in data.files if k.startswith("leaf:")}
+
+    def part(prefix, cls):
+        fields = {k[len(prefix):]: v for k, v in leaves.items() if k.startswith(prefix) and "." not in k[len(prefix):]}
+        return cls(**fields)
+
+    class Slots(NamedTuple):  # what force evaluation reads of a neighbour list
+        idx: jnp.ndarray
+
+    state = SimState(particles=part(".particles.", Particles), contacts=part(".contacts.", Contacts),
+                     boundaries=part(".boundaries.", Boundaries), neighbors=Slots(idx=leaves[".neighbors.idx"]),
+                     step=leaves[".step"], neighbor_settings=None)
+    law = get_law_module(meta["law"]).law(rotation=True)  # spins as saved (zero when rotation was off)
+    params = law.params_type(**{k: None if v is None else jnp.asarray(v, state.particles.position.dtype)
+                                for k, v in meta["params"].items()})
+    return state, law, params, meta
+
+
+def _checkpointed(folder: str, out: str) -> list[str]:
+    from jaxpile import analysis, plot
+    from jaxpile.simulate import Simulator
+
+    state, law, params, meta = state_from_checkpoint(os.path.join(folder, "checkpoint.npz"))
+    sim = Simulator(law, 1.0)  # dt is not used: forces are evaluated, not advanced
+    network = analysis.contact_network(sim, params, state)
+    base = analysis.base_forces(sim, params, state)
+    title = f"{meta['law']} law, checkpoint at step {meta['step']}"
+    plot.pile_figure(state.particles.position, state.particles.radius, network, active=state.particles.active,
+                     title=title, path=os.path.join(out, "pile.png"))
+    plot.base_profile_figure(base.x, base.normal, base.horizontal, title=title, path=os.path.join(out, "profile.png"))
+    return ["pile.png", "profile.png"]
+
+
+def show(folder: str, out: str | None = None, *, checkpoint: bool = False) -> list[str]:
+    """Draws `pile.png` and `profile.png` of the run in `folder` into `out`
+    (default: `folder`). A finished run is drawn from its results, unless
+    `checkpoint` asks for its last checkpoint; a run with only a checkpoint is
+    drawn from that. Returns the file names written."""
+    out = folder if out is None else out
+    finished = all(os.path.exists(os.path.join(folder, f)) for f in ("summary.json", "state.npz", "base_forces.csv"))
+    has_checkpoint = os.path.exists(os.path.join(folder, "checkpoint.npz"))
+    if not (finished or has_checkpoint):
+        raise InputError(f"{folder} holds neither a finished `jaxpile pile` run (summary.json, state.npz, "
+                         "base_forces.csv) nor a checkpoint.npz.")
+    if checkpoint and not has_checkpoint:
+        raise InputError(f"{folder} has no checkpoint.npz (runs write one with --checkpoint-every STEPS).")
+    os.makedirs(out, exist_ok=True)
+    return _checkpointed(folder, out) if (checkpoint or not finished) else _finished(folder, out)
