@@ -104,7 +104,7 @@ from test_checkpoint import falling_disks
 from jaxpile.simulate import Simulator
 params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
 sim = Simulator(hooke.law(rotation=True), 5e-4)
-state = sim.init(params, *falling_disks(n=4000))
+state = sim.init(params, *falling_disks(n=1500))
 print("ready", flush=True)
 while True:
     checkpoint.save(sys.argv[1], state, "hooke", params)
@@ -126,9 +126,9 @@ def test_a_kill_9_mid_write_leaves_the_last_complete_checkpoint(tmp_path):
         proc.send_signal(signal.SIGKILL)
         proc.wait()
     meta = checkpoint.read_metadata(path)  # complete and readable, never a torn file
-    assert meta["n_particles"] == 4000 and meta["step"] >= 0
+    assert meta["n_particles"] == 1500 and meta["step"] >= 0
     with np.load(path) as data:
-        assert data["leaf:.particles.position"].shape == (4000, 2)
+        assert data["leaf:.particles.position"].shape == (1500, 2)
 
 
 def test_a_nan_mid_run_reports_step_and_particle_and_saves_the_last_good_state(tmp_path):
