@@ -8,14 +8,22 @@ import platform
 import jax
 
 
-def describe() -> str:
-    """CPU model and core count, and the JAX backend with its device count and kind."""
+def details() -> dict:
+    """CPU model and core count, the JAX backend and its devices."""
     model = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
             model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
     except (OSError, StopIteration):
         pass
-    device = jax.devices()[0]
-    kind = "" if jax.default_backend() == "cpu" else f" {device.device_kind}"
-    return f"{model}, {os.cpu_count()} cores; jax {jax.__version__} {jax.default_backend()} x{jax.device_count()}{kind}"
+    return {"processor": model, "cpu_count": os.cpu_count(), "jax_version": jax.__version__,
+            "jax_backend": jax.default_backend(), "jax_device_count": jax.device_count(),
+            "device_kind": jax.devices()[0].device_kind}
+
+
+def describe() -> str:
+    """`details` in one line."""
+    d = details()
+    kind = "" if d["jax_backend"] == "cpu" else f" {d['device_kind']}"
+    return (f"{d['processor']}, {d['cpu_count']} cores; jax {d['jax_version']} {d['jax_backend']} "
+            f"x{d['jax_device_count']}{kind}")

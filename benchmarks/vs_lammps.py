@@ -69,7 +69,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import shutil
 import tempfile
 import time
@@ -86,26 +85,15 @@ from jaxpile.simulate import RunInfo, Simulator, gravity_ramp
 
 try:
     from benchmarks import lammps_peer as peer
-    from benchmarks.machine import describe
+    from benchmarks.machine import describe, details
 except ImportError:  # run as a script: benchmarks/ is on sys.path
     import lammps_peer as peer
-    from machine import describe
+    from machine import describe, details
 
 FULL = {"ramp": 20_000, "hold": 20_000, "pour_n": 1000, "pour_settle": 30_000, "ensemble_steps": "5000,5000"}
 SMALL = {"ramp": 20_000, "hold": 20_000, "pour_n": 200, "pour_settle": 20_000, "ensemble_steps": "1000,1000"}
 DT = lattice.PAPER_SETTING["dt"]
 OTHER_POUR_LAWS = ("liffman", "lee-herrmann", "baxter")
-
-
-def machine() -> dict:
-    model = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"processor": model, "cpu_count": os.cpu_count(), "jax_backend": jax.default_backend(),
-            "jax_device_count": jax.device_count()}
 
 
 def rate(work: float, seconds: float | None) -> float | None:
@@ -558,7 +546,7 @@ def main(argv=None) -> dict:
     else:
         version = peer.run(binary, "units lj\n", os.path.join(root, "version")).version
         print(f"LAMMPS {version} ({binary}); work files in {root}")
-    out = {"machine": describe(), "machine_details": machine(), "jax_version": jax.__version__, "lammps_version": version, "lammps_binary": binary,
+    out = {"machine": describe(), "machine_details": details(), "jax_version": jax.__version__, "lammps_version": version, "lammps_binary": binary,
            "cases": {}, "table": []}
     t0 = time.perf_counter()
     try:
