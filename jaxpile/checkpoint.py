@@ -34,7 +34,7 @@ import numpy as np
 
 from jaxpile import neighbors as nb
 from jaxpile.errors import InputError
-from jaxpile.io import _atomic_write
+from jaxpile.io import atomic_write
 from jaxpile.state import SimState
 
 FORMAT = 1  # bump when the layout of the file changes
@@ -90,7 +90,7 @@ def save(path, state: SimState, law_name: str, params, **extra) -> None:
     names, leaves, _ = _leaves(state)
     arrays = {f"leaf:{name}": np.asarray(jax.device_get(leaf)) for name, leaf in zip(names, leaves)}
     arrays["metadata"] = np.asarray(json.dumps(metadata(state, law_name, params, **extra)))
-    _atomic_write(path, lambda f: np.savez(f, **arrays))
+    atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
 def read_metadata(path) -> dict:
@@ -99,6 +99,15 @@ def read_metadata(path) -> dict:
         with np.load(path, allow_pickle=False) as data:
             return json.loads(str(data["metadata"]))
     except (OSError, ValueError, KeyError) as e:
+        raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
+
+
+def read_leaves(path) -> dict:
+    """The saved arrays of a checkpoint by pytree path (`.particles.position`, ...)."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {k[len("leaf:"):]: data[k] for k in data.files if k.startswith("leaf:")}
+    except (OSError, ValueError) as e:
         raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
 
 
@@ -148,16 +157,15 @@ def restore(path, template: SimState, law_name: str, params) -> SimState:
                      history=jnp.zeros(neighbors.idx.shape + c.history.shape[2:], c.history.dtype))
     template = template.set(neighbors=neighbors, contacts=contacts)
     names, leaves, treedef = _leaves(template)
-    with np.load(path, allow_pickle=False) as data:
-        saved = {k[len("leaf:"):] for k in data.files if k.startswith("leaf:")}
-        if saved != set(names):
-            raise InputError(f"{path} holds another kind of state (arrays {sorted(saved ^ set(names))[:4]} do "
-                             "not match): build the same set-up, protocol and integrator it was written from.")
-        restored = []
-        for name, leaf in zip(names, leaves):
-            value = data[f"leaf:{name}"]
-            if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
-                raise InputError(f"{path}: {name} is {value.dtype}{list(value.shape)}, the set-up has "
-                                 f"{np.asarray(leaf).dtype}{list(np.shape(leaf))}. Build the same set-up.")
-            restored.append(jnp.asarray(value))
+    saved = read_leaves(path)
+    if set(saved) != set(names):
+        raise InputError(f"{path} holds another kind of state (arrays {sorted(set(saved) ^ set(names))[:4]} do "
+                         "not match): build the same set-up, protocol and integrator it was written from.")
+    restored = []
+    for name, leaf in zip(names, leaves):
+        value = saved[name]
+        if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
+            raise InputError(f"{path}: {name} is {value.dtype}{list(value.shape)}, the set-up has "
+                             f"{np.asarray(leaf).dtype}{list(np.shape(leaf))}. Build the same set-up.")
+        restored.append(jnp.asarray(value))
     return jax.tree_util.tree_unflatten(treedef, restored)

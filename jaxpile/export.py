@@ -25,6 +25,7 @@ import os
 import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.io import atomic_write
 from jaxpile.state import SimState
 
 PROPERTIES = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:1:force:R:3:active:I:1"
@@ -58,9 +59,7 @@ def write_xyz(path, state: SimState, *, time: float | None = None, append: bool 
         with open(path, "a") as f:
             f.write(text)
     else:
-        from jaxpile.io import _atomic_write
-
-        _atomic_write(path, lambda f: f.write(text), text=True)
+        atomic_write(path, lambda f: f.write(text), text=True)
 
 
 def read_xyz(path) -> list[dict]:

@@ -30,7 +30,7 @@ def save_state(path, state: SimState, **metadata) -> None:
     """Writes the state's arrays (plus `metadata` as JSON) to an npz, atomically."""
     arrays = state_arrays(state)
     arrays["metadata"] = np.asarray(json.dumps(metadata, default=str))
-    _atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
 
 
 def load_arrays(path) -> dict:
@@ -41,7 +41,7 @@ def load_arrays(path) -> dict:
 def write_csv(path, columns: dict) -> None:
     names = list(columns)
     table = np.column_stack([np.asarray(columns[n], float) for n in names]) if names else np.zeros((0, 0))
-    _atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g"),
+    atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g"),
                   text=True)
 
 
@@ -57,10 +57,10 @@ def read_csv(path) -> dict:
 
 
 def write_json(path, obj) -> None:
-    _atomic_write(path, lambda f: f.write(json.dumps(obj, indent=2, default=float) + "\n"), text=True)
+    atomic_write(path, lambda f: f.write(json.dumps(obj, indent=2, default=float) + "\n"), text=True)
 
 
-def _atomic_write(path, write, text: bool = False) -> None:
+def atomic_write(path, write, text: bool = False) -> None:
     """Write to a temporary file in the same folder, fsync, then rename."""
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)

@@ -92,8 +92,9 @@ def needs_rebuild(neighbors, position: Array, skin: float) -> Array:
 
 
 def update(neighbors, position: Array, skin: float, axis_name: str | None = None):
-    """`neighbors.update(position)`, with the rebuild decision taken once for a
-    whole batch when `axis_name` names the batch's `vmap` axis.
+    """`neighbors.update(position)` behind our own rebuild check (cheaper on CPU
+    than jax-md's, which then runs only inside the rebuild branch), decided once
+    for a whole batch when `axis_name` names the batch's `vmap` axis.
 
     jax-md decides per list with a `lax.cond`; vmapped, that cond becomes a
     select and every member rebuilds at every step. Here the rebuild branch runs

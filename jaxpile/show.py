@@ -63,8 +63,7 @@ def state_from_checkpoint(path):
     from jaxpile.state import Boundaries, Contacts, Particles, SimState
 
     meta = checkpoint.read_metadata(path)
-    with np.load(path, allow_pickle=False) as data:
-        leaves = {k[len("leaf:"):]: jnp.asarray(data[k]) for k in data.files if k.startswith("leaf:")}
+    leaves = {k: jnp.asarray(v) for k, v in checkpoint.read_leaves(path).items()}
 
     def part(prefix, cls):
         fields = {k[len(prefix):]: v for k, v in leaves.items() if k.startswith(prefix) and "." not in k[len(prefix):]}

@@ -524,8 +524,8 @@ class Simulator:
             bar.close()
         return state
 
-    def _checkpointer(self, params, checkpoint):
-        """`save(state, done, final)` for `run(checkpoint=(path, every[, extra]))`, or None."""
+    def _checkpointer(self, params, checkpoint) -> "_Checkpointer | None":
+        """The saver for `run(checkpoint=(path, every[, extra]))`, or None."""
         if checkpoint is None:
             return None
         if not isinstance(checkpoint, tuple) or len(checkpoint) not in (2, 3):
@@ -533,30 +533,7 @@ class Simulator:
         path, every, extra = (*checkpoint, {})[:3]
         if int(every) != every or every < 1:
             raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
-        from jaxpile import checkpoint as ckpt
-
-        last = [None]
-
-        def save(state: SimState, done: int, final: bool) -> None:
-            # every `every` steps of the run's absolute step count, so a resumed run saves
-            # where the uninterrupted one did
-            step = int(state.step)
-            if last[0] is None:
-                last[0] = (step - done) // every
-            if final or step // every > last[0]:
-                last[0] = step // every
-                ckpt.save(str(path).replace("{step}", str(int(state.step))), state, self.law.name, params,
-                          **dict(extra))
-
-        def last_good(state: SimState, failed_at: int) -> str:
-            """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
-            stem, suffix = os.path.splitext(str(path).replace("{step}", str(int(state.step))))
-            target = f"{stem}.last-good{suffix or '.npz'}"
-            ckpt.save(target, state, self.law.name, params, failed_at=failed_at, **dict(extra))
-            return target
-
-        save.last_good = last_good
-        return save
+        return _Checkpointer(str(path), int(every), dict(extra), self.law.name, params)
 
     def run_until_rest(
         self,
@@ -606,6 +583,38 @@ def _scan_steps(step, params, state: SimState, n: int) -> SimState:
         return state
     state, _ = lax.scan(lambda s, _: (step(params, s), None), state, None, length=n)
     return state
+
+
+class _Checkpointer:
+    """Saves a run's state at chunk boundaries, every `every` steps of the
+    absolute step count (so a resumed run saves where the uninterrupted one
+    did), at the run's end, and the last good state when NaN/inf appears."""
+
+    def __init__(self, path: str, every: int, extra: dict, law_name: str, params):
+        self.path, self.every, self.extra, self.law_name, self.params = path, every, extra, law_name, params
+        self.last = None  # multiple of `every` last saved
+
+    def _save(self, target: str, state: SimState, **extra) -> str:
+        from jaxpile import checkpoint
+
+        checkpoint.save(target, state, self.law_name, self.params, **self.extra, **extra)
+        return target
+
+    def _path(self, state: SimState) -> str:
+        return self.path.replace("{step}", str(int(state.step)))
+
+    def __call__(self, state: SimState, done: int, final: bool) -> None:
+        step = int(state.step)
+        if self.last is None:
+            self.last = (step - done) // self.every
+        if final or step // self.every > self.last:
+            self.last = step // self.every
+            self._save(self._path(state), state)
+
+    def last_good(self, state: SimState, failed_at: int) -> str:
+        """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
+        stem, suffix = os.path.splitext(self._path(state))
+        return self._save(f"{stem}.last-good{suffix or '.npz'}", state, failed_at=failed_at)
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
