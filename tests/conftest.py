@@ -1,9 +1,30 @@
-"""Shared fixtures: small piles and simulators compiled once per session."""
+"""Shared fixtures: small piles and simulators compiled once per session.
 
-import numpy as np
-import pytest
+XLA's compiled programs are also kept on disk (JAX's persistent compilation
+cache, in .pytest_cache/jax-compile unless JAX_COMPILATION_CACHE_DIR is set):
+the test workers, the notebook kernels and the CLI subprocesses the suite
+starts compile many of the same step functions, and on 2 cores compiling is
+most of the suite's time. Set here, before jax is imported, so every process
+the suite starts inherits it.
+"""
 
-import jaxpile  # noqa: F401  (float64 on)
+import os
+import pathlib
+
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR",
+                      str(pathlib.Path(__file__).resolve().parent.parent / ".pytest_cache" / "jax-compile"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+# in case a plugin imported jax before the environment was set
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                  float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
+
+import jaxpile  # noqa: F401,E402  (float64 on)
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator, gravity_ramp
