@@ -26,6 +26,7 @@ boundaries, which a resumed run keeps.
 from __future__ import annotations
 
 import json
+import os
 from typing import Any
 
 import jax
@@ -52,6 +53,17 @@ def _leaves(state: SimState) -> tuple[list[str], list[Any], Any]:
     return names, [leaf for _, leaf in paths_and_leaves], treedef
 
 
+def step_of(state: SimState) -> int:
+    """The state's step count; for a batch (`jaxpile.ensemble`) the furthest
+    member's, which is the batch's own step count (members still running are all there)."""
+    return int(np.max(np.asarray(state.step)))
+
+
+def batch_of(state: SimState) -> int | None:
+    """The batch size of an ensemble's state, None for one pile."""
+    return int(np.shape(state.step)[0]) if np.ndim(state.step) else None
+
+
 def _precision(state: SimState) -> str:
     return str(state.particles.position.dtype)
 
@@ -69,7 +81,8 @@ def metadata(state: SimState, law_name: str, params, **extra) -> dict:
         "params": _params_record(params),
         "precision": _precision(state),
         "n_particles": int(state.particles.count),
-        "step": int(state.step),
+        "step": step_of(state),
+        "batch": batch_of(state),
         "neighbor_capacity": int(state.neighbors.max_occupancy),
         "cell_capacity": None if state.neighbors.cell_list_capacity is None else int(state.neighbors.cell_list_capacity),
         "neighbor_settings": list(state.neighbor_settings),
@@ -93,6 +106,37 @@ def save(path, state: SimState, law_name: str, params, **extra) -> None:
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
+def with_facts(spec, path=None, **facts):
+    """A run's `checkpoint=(path, every[, extra])` spec with more facts in
+    `extra` (and, given `path`, another file): how a protocol of several phases
+    records which phase a checkpoint belongs to. None stays None."""
+    if spec is None:
+        return None
+    if not isinstance(spec, tuple) or len(spec) not in (2, 3):
+        raise InputError(f"checkpoint must be (path, every) or (path, every, extra); got {spec!r}.")
+    old_path, every, extra = (*spec, {})[:3]
+    return (old_path if path is None else path, every, {**extra, **facts})
+
+
+def sibling(path, stage: str) -> str:
+    """`DIR/checkpoint.npz` -> `DIR/checkpoint.<stage>.npz`: the file of one
+    stage of a run of several (the box pile a tilt starts from)."""
+    stem, suffix = os.path.splitext(str(path))
+    return f"{stem}.{stage}{suffix or '.npz'}"
+
+
+def in_folder(folder) -> str | None:
+    """The newest checkpoint of the `jaxpile pile` run in `folder`:
+    `checkpoint.npz`, or `checkpoint.box.npz` when a tilt run stopped while
+    still building its pile; None when there is neither."""
+    for stage in (None, "box"):
+        path = os.path.join(folder, "checkpoint.npz")
+        path = path if stage is None else sibling(path, stage)
+        if os.path.exists(path):
+            return path
+    return None
+
+
 def read_metadata(path) -> dict:
     """The metadata of a checkpoint, without its arrays."""
     try:
@@ -111,14 +155,30 @@ def read_leaves(path) -> dict:
         raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
 
 
+def _at_saved_capacity(template: SimState, slots: int, cells: int | None) -> SimState:
+    """The template with its neighbour list (each member's, for a batch) at
+    the saved capacity; its arrays are then all replaced from the file."""
+    if batch_of(template) is not None:
+        from jaxpile import ensemble
+
+        members = [ensemble.member(template, i) for i in range(batch_of(template))]
+        return ensemble.stack([ensemble.at_capacity(m, slots, cells) for m in members])
+    neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells)
+    c = template.contacts
+    contacts = c.set(partner=neighbors.idx,
+                     history=jnp.zeros(neighbors.idx.shape + c.history.shape[2:], c.history.dtype))
+    return template.set(neighbors=neighbors, contacts=contacts)
+
+
 def restore(path, template: SimState, law_name: str, params) -> SimState:
     """The state saved in `path`, rebuilt on `template`'s structure.
 
     Args:
       path: a file written by `save`.
       template: a fresh state of the same set-up (`Simulator.init` with the same
-        particles, boundaries and protocol state): it gives the pytree structure
-        and the static fields; its arrays are all replaced.
+        particles, boundaries and protocol state; `Ensemble.init` for a batch):
+        it gives the pytree structure and the static fields; its arrays are
+        all replaced.
       law_name, params: the law and parameters the run continues with; they
         must be those the checkpoint was written with.
 
@@ -149,13 +209,12 @@ def restore(path, template: SimState, law_name: str, params) -> SimState:
         raise InputError(f"{path} was written with neighbour settings {meta['neighbor_settings']}; the set-up "
                          f"to resume has {list(template.neighbor_settings)}. Build the same set-up (box, skin).")
 
+    if meta.get("batch") != batch_of(template):
+        raise InputError(f"{path} holds {'a batch of ' + str(meta.get('batch')) if meta.get('batch') else 'one pile'}; "
+                         f"the set-up to resume has {'a batch of ' + str(batch_of(template)) if batch_of(template) else 'one pile'}. "
+                         "Build the same set-up it was written from.")
     # the saved run may have re-allocated its list: give the template that capacity
-    neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position,
-                                       meta["neighbor_capacity"], meta["cell_capacity"])
-    c = template.contacts
-    contacts = c.set(partner=neighbors.idx,
-                     history=jnp.zeros(neighbors.idx.shape + c.history.shape[2:], c.history.dtype))
-    template = template.set(neighbors=neighbors, contacts=contacts)
+    template = _at_saved_capacity(template, meta["neighbor_capacity"], meta["cell_capacity"])
     names, leaves, treedef = _leaves(template)
     saved = read_leaves(path)
     if set(saved) != set(names):

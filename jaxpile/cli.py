@@ -3,8 +3,8 @@
   jaxpile pile --protocol lattice --layers 45 --law hooke --out DIR [--set NAME=VALUE ...]
   jaxpile pile --protocol sloped --slope 45 --n 360 --out DIR
   jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
-  jaxpile pile ... --checkpoint-every STEPS --out DIR;  jaxpile pile --resume DIR
-  jaxpile show DIR [--out DIR2] [--checkpoint]
+  jaxpile pile|sweep ... --checkpoint-every STEPS --out DIR;  jaxpile pile|sweep --resume DIR
+  jaxpile show DIR [--out DIR2] [--checkpoint]   (a pile run, a checkpoint, a sweep or a fit)
   jaxpile compare DIR [DIR ...]
   jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
   jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
@@ -176,13 +176,14 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--ramp-steps", type=int, default=None, help="steps over which gravity is switched on")
     pile.add_argument("--speed-tol", type=float, default=None, help="max disk speed that counts as at rest")
     pile.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
-                      help="save the whole run to OUT/checkpoint.npz every STEPS steps (atomically; lattice, pour)")
+                      help="save the whole run to OUT/checkpoint.npz every STEPS steps (atomically)")
     pile.add_argument("--resume", default=None, metavar="DIR",
                       help="continue the run saved in DIR/checkpoint.npz with its own settings "
                            "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
     _output_args(pile)
 
-    show = sub.add_parser("show", help="re-draw the figures of a finished or checkpointed pile run (no re-run)")
+    show = sub.add_parser("show", help="re-draw the figures of a finished or checkpointed pile run, a sweep or a "
+                                       "fit (no re-run)")
     show.add_argument("dir")
     show.add_argument("--out", default=None, help="where to write the figures (default: DIR)")
     show.add_argument("--checkpoint", action="store_true", help="draw the last checkpoint even if the run finished")
@@ -203,6 +204,10 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
     sweep.add_argument("--max-steps", type=int, default=None, help="step budget per batch")
     sweep.add_argument("--batch-size", type=int, default=None, help="members per compiled batch (default: all)")
+    sweep.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
+                       help="save the running batch and the rows so far to OUT/checkpoint.npz every STEPS steps")
+    sweep.add_argument("--resume", default=None, metavar="DIR",
+                       help="continue the sweep saved in DIR (`jaxpile sweep --resume DIR`)")
     _output_args(sweep)
 
     fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile (gradients + optax)")
@@ -230,23 +235,26 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _resume_argv(argv: list[str]) -> list[str]:
-    """`pile --resume DIR [--no-progress]` -> the saved run's own command line plus
-    `--resume DIR`: a resumed run takes every setting from its checkpoint."""
+    """`pile|sweep --resume DIR [--no-progress]` -> the saved run's own command line
+    plus `--resume DIR`: a resumed run takes every setting from its checkpoint."""
     from jaxpile import checkpoint
     from jaxpile.errors import InputError
 
     rest = [a for a in argv[1:] if a != "--no-progress"]
     if len(rest) != 2 or rest[0] != "--resume":
-        raise InputError("resume a run with `jaxpile pile --resume DIR` alone (its settings come from the "
+        raise InputError(f"resume a run with `jaxpile {argv[0]} --resume DIR` alone (its settings come from the "
                          f"checkpoint; --no-progress may be added); got {' '.join(argv)!r}.")
     folder = rest[1]
-    path = os.path.join(folder, "checkpoint.npz")
-    if not os.path.exists(path):
-        raise InputError(f"no checkpoint to resume in {folder} (expected {path}; runs write it with "
-                         "--checkpoint-every STEPS).")
+    path = checkpoint.in_folder(folder)
+    if path is None:
+        raise InputError(f"no checkpoint to resume in {folder} (expected {os.path.join(folder, 'checkpoint.npz')}; "
+                         "runs write it with --checkpoint-every STEPS).")
     saved = checkpoint.read_metadata(path)["extra"].get("argv")
     if not saved:
         raise InputError(f"{path} does not record the command that made it: it cannot be resumed from the CLI.")
+    if saved[0] != argv[0]:
+        raise InputError(f"{folder} holds a `jaxpile {saved[0]}` run: resume it with `jaxpile {saved[0]} --resume "
+                         f"{folder}`.")
     return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
 
 
@@ -283,10 +291,10 @@ def main(argv=None) -> int:
 
     try:
         argv = [t for a in argv for t in (a.split("=", 1) if a.startswith("--resume=") else [a])]
-        if argv[:1] == ["pile"] and "--resume" in argv:
+        if argv[:1] in (["pile"], ["sweep"]) and "--resume" in argv:
             argv = _resume_argv(argv)
         args = build_parser().parse_args(argv)
-        if args.command == "pile":
+        if args.command in ("pile", "sweep"):
             args.argv = _run_command(argv)
         if args.command == "pile":
             if args.protocol == "lattice":
@@ -469,14 +477,17 @@ def run_protocol(args) -> dict:
         raise InputError(f"unknown --option {sorted(unknown)} for the {name} protocol; known: "
                          f"{', '.join(sorted(_accepted_options(module)))}.")
     kwargs.update(options)
-    if args.checkpoint_every is not None or args.resume is not None:
-        if name != "pour":
-            raise InputError(f"--checkpoint-every and --resume work with the lattice and pour protocols so far, "
-                             f"not {name}.")
-        kwargs["checkpoint"] = _checkpoint_spec(args)
-        if args.resume is not None:
-            kwargs["resume"] = os.path.join(args.resume, "checkpoint.npz")
-            print(f"jaxpile: resuming {args.resume}", flush=True)
+    kwargs["checkpoint"] = _checkpoint_spec(args)
+    resumed_from = 0
+    if args.resume is not None:
+        from jaxpile import checkpoint
+
+        kwargs["resume"] = os.path.join(args.resume, "checkpoint.npz")  # tilt: its box stage is beside it
+        saved = checkpoint.in_folder(args.resume)
+        if saved is None:
+            raise InputError(f"no checkpoint to resume in {args.resume}.")
+        resumed_from = int(checkpoint.read_metadata(saved)["step"])
+        print(f"jaxpile: resuming {args.resume} at step {resumed_from}", flush=True)
 
     print(f"jaxpile: {name} pile ({PROTOCOL_HELP[name]}), law {contact_law.name} "
           f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)
@@ -513,6 +524,7 @@ def run_protocol(args) -> dict:
         "n_particles": int(active.sum()),
         "particle_steps_per_second": steps * int(active.sum()) / wall if wall > 0 else None,
         "cli_total_seconds": total,
+        "resumed_from_step": resumed_from,
         # pour's own `summary` is its measurements as plain numbers (the rest are maps and arrays)
         **(m["summary"] if name == "pour" else _plain(m)),
     }
@@ -550,7 +562,7 @@ def run_sweep(args) -> dict:
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import io
+    from jaxpile import checkpoint, io
     from jaxpile import sweep as sw
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
@@ -580,9 +592,16 @@ def run_sweep(args) -> dict:
     print(f"jaxpile: sweep of the {args.protocol} protocol, law {law}: "
           + ", ".join(f"{k} in {v}" for k, v in vary.items()) + f", {args.seeds} seeds: {members} members",
           flush=True)
+    resume = None
+    if args.resume is not None:
+        resume = os.path.join(args.resume, "checkpoint.npz")
+        done = len(checkpoint.read_metadata(resume)["extra"].get("rows", []))
+        print(f"jaxpile: resuming {args.resume}: {done} members measured, the next batch at step "
+              f"{checkpoint.read_metadata(resume)['step']}", flush=True)
     result = sw.sweep(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
                       max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
-                      progress=False if args.no_progress else None)
+                      progress=False if args.no_progress else None, checkpoint=_checkpoint_spec(args),
+                      resume=resume)
     out = args.out
     os.makedirs(out, exist_ok=True)
     sw.write_csv(os.path.join(out, "sweep.csv"), result)
@@ -755,7 +774,10 @@ def run_fit(args) -> dict:
         "initial_loss": result.history[0]["loss"] if result.history else None, "loss": result.loss,
         "best_step": result.best_step, "steps": result.steps, "converged": result.converged,
         "message": result.message, "optimizer": args.optimizer, "lr": args.lr, "fit_seconds": seconds,
-        "target_central_dip": target.central_dip, "profile_before": plain_profile(before),
+        "target_central_dip": target.central_dip,
+        "target_profile": {"x_over_b": np.asarray(target.x_over_b).tolist(), "normal": np.asarray(target.normal).tolist(),
+                           "horizontal": None if target.horizontal is None else np.asarray(target.horizontal).tolist()},
+        "profile_before": plain_profile(before),
         "profile_after": plain_profile(after), "history": result.history,
     }
     out = args.out

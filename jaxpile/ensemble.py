@@ -82,7 +82,7 @@ def _capacity(state: SimState) -> tuple[int, int | None]:
     return state.neighbors.max_occupancy, state.neighbors.cell_list_capacity
 
 
-def _at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None) -> SimState:
+def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None) -> SimState:
     """The state with its neighbour list rebuilt at the given capacity and its
     contact history carried into the new slots."""
     if _capacity(state) == (max_occupancy, cell_capacity):
@@ -110,7 +110,7 @@ def stack_states(states: Sequence[SimState]) -> SimState:
     slots = max(s.neighbors.max_occupancy for s in states)
     cells = [s.neighbors.cell_list_capacity for s in states]
     cells = None if any(c is None for c in cells) else max(cells)
-    states = [_at_capacity(s, slots, cells) for s in states]
+    states = [at_capacity(s, slots, cells) for s in states]
     overflowed = [i for i, s in enumerate(states) if bool(s.neighbors.did_buffer_overflow)]
     if overflowed:  # cannot happen at the largest allocated capacity; never pass it on silently
         raise SimulationError(f"the shared neighbour capacity overflowed for member(s) {overflowed}.", states[0])
@@ -263,7 +263,7 @@ class Ensemble:
         slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
-        members = [_at_capacity(m, slots, cells) for m in members]
+        members = [at_capacity(m, slots, cells) for m in members]
         return self.shard(stack(members))
 
     def _chunk(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
@@ -280,7 +280,7 @@ class Ensemble:
         raise SimulationError("the batch's neighbour list kept overflowing after 20 re-allocations.", state)
 
     def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,
-            progress: bool | None = None, info: RunInfo | None = None) -> SimState:
+            progress: bool | None = None, info: RunInfo | None = None, checkpoint: tuple | None = None) -> SimState:
         """Advances every member up to `n_steps`, in chunks of the simulator's
         `chunk_steps`, with batch-wide overflow handling and NaN checks.
 
@@ -293,6 +293,13 @@ class Ensemble:
           progress: a progress bar over steps with the count of finished members
             (default: when stderr is a terminal).
           info: a `RunInfo` to accumulate timings into (`steps` counts batch steps).
+          checkpoint: optional `(path, every[, extra])` as in `Simulator.run`:
+            the whole batch is saved (`jaxpile.checkpoint.save`) at chunk
+            boundaries. To resume, `checkpoint.restore` it on a fresh
+            `init` of the same members and run the steps left (the budget less
+            `checkpoint.step_of(state)` for members started at step 0):
+            members frozen at the save stay frozen, and the batch ends
+            bit-identical to the uninterrupted run.
 
         Returns:
           The batched state (padding members included when sharded; use
@@ -313,6 +320,7 @@ class Ensemble:
             progress = sys.stderr.isatty()
         from tqdm.auto import tqdm
 
+        save = self.sim._checkpointer(params, checkpoint)
         bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
         finished_now = finished(state) if finished is not None else jnp.zeros(count, bool)
@@ -323,7 +331,15 @@ class Ensemble:
                     break
                 n = min(self.sim.chunk_steps, int(n_steps) - done)
                 new = self._chunk(params, state, frozen, n, info)
-                _check_batch_finite(new, last_good=state)
+                try:
+                    _check_batch_finite(new, last_good=state)
+                except SimulationError as error:
+                    if save is not None:  # the last good batch on disk beside the checkpoints
+                        from jaxpile.checkpoint import step_of
+
+                        error.saved_to = save.last_good(state, failed_at=step_of(new))
+                        error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
+                    raise
                 state = new
                 done += n
                 info.steps += n
@@ -331,6 +347,8 @@ class Ensemble:
                 if finished is not None:
                     finished_now = finished(state)
                     bar.set_postfix(finished=f"{int(jnp.sum(finished_now))}/{count}")
+                if save is not None:
+                    save(state, done, final=done >= n_steps or bool(jnp.all(finished_now)))
         finally:
             bar.close()
         if finished is not None:
@@ -367,4 +385,4 @@ def _check_batch_finite(state: SimState, *, last_good) -> None:
                           last_good_state=last_good, step=step)
 
 
-__all__ = ["AXIS", "Ensemble", "batch_size", "member", "members", "stack", "stack_states"]
+__all__ = ["AXIS", "Ensemble", "at_capacity", "batch_size", "member", "members", "stack", "stack_states"]

@@ -1,11 +1,14 @@
-"""`jaxpile show DIR`: the figures of a `jaxpile pile` run drawn again from its
-files, without running anything.
+"""`jaxpile show DIR`: the figures of a `jaxpile pile`, `sweep` or `fit` run
+drawn again from its files, without running anything.
 
-A finished run is drawn from `state.npz` (the disks), `contacts.csv` (the force
-network) and `base_forces.csv` + `summary.json` (the profile, with the 1992
-lattice theory where the run has it). A run still going, or stopped, is drawn
-from its `checkpoint.npz`: the law and parameters recorded there give the
-contact forces of the saved state (evaluated, not advanced).
+A finished pile run is drawn from `state.npz` (the disks), `contacts.csv` (the
+force network) and `base_forces.csv` + `summary.json` (the profile, with the
+1992 lattice theory where the run has it). A run still going, or stopped, is
+drawn from its checkpoint (`checkpoint.in_folder`): the law and parameters
+recorded there give the contact forces of the saved state (evaluated, not
+advanced), and the kinetic energy samples saved with a box, tilt or flux run
+give its energy curve. A sweep is drawn from `sweep.csv` + `sweep.json`, a fit
+from `fit.json`.
 """
 
 from __future__ import annotations
@@ -81,33 +84,90 @@ def state_from_checkpoint(path):
     return state, law, params, meta
 
 
-def _checkpointed(folder: str, out: str) -> list[str]:
+def _checkpointed(path: str, out: str) -> list[str]:
     from jaxpile import analysis, plot
     from jaxpile.simulate import Simulator
 
-    state, law, params, meta = state_from_checkpoint(os.path.join(folder, "checkpoint.npz"))
+    state, law, params, meta = state_from_checkpoint(path)
     sim = Simulator(law, 1.0)  # dt is not used: forces are evaluated, not advanced
     network = analysis.contact_network(sim, params, state)
     base = analysis.base_forces(sim, params, state)
-    title = f"{meta['law']} law, checkpoint at step {meta['step']}"
+    stage = meta["extra"].get("stage") or meta["extra"].get("phase")
+    title = f"{meta['law']} law, checkpoint at step {meta['step']}" + (f" ({stage})" if stage else "")
     plot.pile_figure(state.particles.position, state.particles.radius, network, active=state.particles.active,
                      title=title, path=os.path.join(out, "pile.png"))
     plot.base_profile_figure(base.x, base.normal, base.horizontal, title=title, path=os.path.join(out, "profile.png"))
-    return ["pile.png", "profile.png"]
+    written = ["pile.png", "profile.png"]
+    samples = meta["extra"].get("samples")
+    if samples and samples.get("time"):
+        energy = np.maximum(np.asarray(samples["kinetic_energy"], dtype=float), 1e-300)
+        plot.series_figure(samples["time"], {"kinetic energy per disk": energy}, xlabel="time",
+                           ylabel="E_kin per disk", logy=True, title=title + " (Lee & Herrmann 1993 Fig. 1b)",
+                           path=os.path.join(out, "energy.png"))
+        written.append("energy.png")
+    return written
+
+
+def _sweep(folder: str, out: str) -> list[str]:
+    from jaxpile import sweep
+
+    result = sweep.read(folder)
+    sweep.figure(result, result.info.get("summary_by"), path=os.path.join(out, "sweep.png"))
+    return ["sweep.png"]
+
+
+def _fit(folder: str, out: str) -> list[str]:
+    from types import SimpleNamespace
+
+    from jaxpile import fit
+
+    record = json.loads(open(os.path.join(folder, "fit.json")).read())
+    saved = record.get("target_profile")
+    if saved is not None:
+        horizontal = None if saved["horizontal"] is None else np.asarray(saved["horizontal"])
+        target = SimpleNamespace(x_over_b=np.asarray(saved["x_over_b"]), normal=np.asarray(saved["normal"]),
+                                 horizontal=horizontal)
+    elif record.get("target") == "smid-novosad":
+        target = fit.smid_novosad_target()
+    elif os.path.exists(str(record.get("target"))):
+        target = fit.load_profile_csv(record["target"])
+    else:
+        raise InputError(f"{folder}/fit.json does not hold its target profile and its target "
+                         f"{record.get('target')!r} cannot be found: re-run the fit to redraw it.")
+
+    def profile(p):
+        return fit.Profile(np.asarray(p["x_over_b"]), np.asarray(p["normal"]),
+                           None if p.get("horizontal") is None else np.asarray(p["horizontal"]))
+
+    result = SimpleNamespace(history=record["history"], best_step=record["best_step"], loss=record["loss"])
+    fit.fit_figure(result, target, profile(record["profile_before"]), profile(record["profile_after"]),
+                   path=os.path.join(out, "fit.png"))
+    return ["fit.png"]
 
 
 def show(folder: str, out: str | None = None, *, checkpoint: bool = False) -> list[str]:
-    """Draws `pile.png` and `profile.png` of the run in `folder` into `out`
-    (default: `folder`). A finished run is drawn from its results, unless
-    `checkpoint` asks for its last checkpoint; a run with only a checkpoint is
-    drawn from that. Returns the file names written."""
+    """Draws the figures of the run in `folder` into `out` (default: `folder`):
+    `pile.png` and `profile.png` of a pile run (and `energy.png` of a sampled
+    run's checkpoint), `sweep.png` of a sweep, `fit.png` of a fit. A finished
+    pile run is drawn from its results, unless `checkpoint` asks for its last
+    checkpoint; a run with only a checkpoint is drawn from that. Returns the
+    file names written."""
+    from jaxpile import checkpoint as ckpt
+
     out = folder if out is None else out
+    if not os.path.isdir(folder):
+        raise InputError(f"{folder} is not a folder; give one written by `jaxpile pile`, `sweep` or `fit` --out.")
+    has = {name: os.path.exists(os.path.join(folder, name)) for name in ("sweep.json", "fit.json")}
     finished = all(os.path.exists(os.path.join(folder, f)) for f in ("summary.json", "state.npz", "base_forces.csv"))
-    has_checkpoint = os.path.exists(os.path.join(folder, "checkpoint.npz"))
-    if not (finished or has_checkpoint):
+    saved = ckpt.in_folder(folder)
+    if not (finished or saved or any(has.values())):
         raise InputError(f"{folder} holds neither a finished `jaxpile pile` run (summary.json, state.npz, "
-                         "base_forces.csv) nor a checkpoint.npz.")
-    if checkpoint and not has_checkpoint:
+                         "base_forces.csv), a checkpoint.npz, a sweep (sweep.json) nor a fit (fit.json).")
+    if checkpoint and saved is None:
         raise InputError(f"{folder} has no checkpoint.npz (runs write one with --checkpoint-every STEPS).")
     os.makedirs(out, exist_ok=True)
-    return _checkpointed(folder, out) if (checkpoint or not finished) else _finished(folder, out)
+    if has["sweep.json"] and not checkpoint:
+        return _sweep(folder, out)
+    if has["fit.json"] and not checkpoint:
+        return _fit(folder, out)
+    return _checkpointed(saved, out) if (checkpoint or not finished) else _finished(folder, out)

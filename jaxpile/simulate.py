@@ -144,7 +144,7 @@ def load_then_settle(sim, params, state, *, load_steps: int, max_settle_steps: i
                     checkpoint=checkpoint)
     settle = max(int(max_settle_steps) - max(step - int(load_steps), 0), 0)
     state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=settle,
-                                     progress=progress, checkpoint=checkpoint)
+                                     progress=progress, checkpoint=checkpoint, resumed=step > int(load_steps))
     rest.steps += info.steps
     rest.wall_seconds += info.wall_seconds
     rest.compile_seconds += info.compile_seconds
@@ -466,6 +466,7 @@ class Simulator:
         info: RunInfo | None = None,
         until: Callable[[SimState], bool] | None = None,
         checkpoint: tuple | None = None,
+        resumed: bool = False,
     ) -> SimState:
         """Advances `n_steps` in chunks, with overflow handling and NaN checks.
 
@@ -483,7 +484,12 @@ class Simulator:
             a fresh state of the same set-up and run the remaining steps: the
             result is bit-identical to the uninterrupted run. If NaN/inf
             appears, the last finite state is saved as `<path>.last-good.npz`
-            (named in the `SimulationError`).
+            (named in the `SimulationError`). The facts in `extra` are
+            written as they stand at each save (a log that grows is saved up
+            to date).
+          resumed: `state` is a checkpoint this same run (this `until`) saved:
+            `until` was evaluated on it then, so it is evaluated first now, and
+            if it holds no step is taken (the uninterrupted run stopped there).
         """
         if not isinstance(state, SimState):
             raise InputError("run() takes a SimState; build one with Simulator.init(params, particles, boundaries).")
@@ -498,6 +504,8 @@ class Simulator:
         from tqdm.auto import tqdm
 
         save = self._checkpointer(params, checkpoint)
+        if resumed and until is not None and until(state):
+            return state
         bar = tqdm(total=n_steps, disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
         try:
@@ -544,10 +552,11 @@ class Simulator:
         max_steps: int = 1_000_000,
         progress: bool | None = None,
         checkpoint: tuple | None = None,
+        resumed: bool = False,
     ) -> tuple[SimState, RunInfo]:
         """Runs until every movable disk is slower than `speed_tolerance`
         (checked after each chunk) or `max_steps` have been taken
-        (`checkpoint` as in `run`)."""
+        (`checkpoint` and `resumed` as in `run`)."""
         if not speed_tolerance > 0:
             raise InputError(f"speed_tolerance must be > 0; got {speed_tolerance}.")
         info = RunInfo()
@@ -557,7 +566,8 @@ class Simulator:
             info.speed_history.append((int(s.step), speed))
             return speed < speed_tolerance
 
-        state = self.run(params, state, max_steps, progress=progress, info=info, until=at_rest, checkpoint=checkpoint)
+        state = self.run(params, state, max_steps, progress=progress, info=info, until=at_rest, checkpoint=checkpoint,
+                         resumed=resumed)
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
@@ -601,10 +611,14 @@ class _Checkpointer:
         return target
 
     def _path(self, state: SimState) -> str:
-        return self.path.replace("{step}", str(int(state.step)))
+        from jaxpile.checkpoint import step_of
+
+        return self.path.replace("{step}", str(step_of(state)))
 
     def __call__(self, state: SimState, done: int, final: bool) -> None:
-        step = int(state.step)
+        from jaxpile.checkpoint import step_of
+
+        step = step_of(state)
         if self.last is None:
             self.last = (step - done) // self.every
         if final or step // self.every > self.last:

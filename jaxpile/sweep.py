@@ -179,7 +179,8 @@ def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
 def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
           seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
           rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
-          devices=None, progress: bool | None = None, dtype=None) -> SweepResult:
+          devices=None, progress: bool | None = None, dtype=None, checkpoint: tuple | None = None,
+          resume=None) -> SweepResult:
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
@@ -194,6 +195,12 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
       batch_size: members per compiled batch (default: all at once).
       devices: to shard each batch over (default: all `jax.devices()`).
       progress: progress bars (default: when stderr is a terminal).
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`: the running
+        batch is saved every `every` steps, with the rows of the batches
+        already measured, the batch it belongs to and the grid.
+      resume: a checkpoint file of this same sweep: the batches it had
+        measured are taken from it, its batch is continued from the saved
+        state, and the sweep ends as the uninterrupted one would (rows equal).
 
     Returns:
       `SweepResult`.
@@ -218,16 +225,31 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     if batch_size < 1:
         raise InputError(f"batch_size must be >= 1; got {batch_size}.")
 
+    from jaxpile import checkpoint as ckpt
+
     rows, info = [], RunInfo()
+    plan = [[point, seed] for point, seed in members]
+    first = 0
+    if resume is not None:
+        saved = ckpt.read_metadata(resume)["extra"]
+        if saved.get("grid") != plan or saved.get("batch_size") != batch_size:
+            raise InputError(f"{resume} was written by another sweep (other members or batch size); "
+                             "resume it with the command that made it.")
+        rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
-    for start in range(0, len(members), batch_size):
+    for start in range(first, len(members), batch_size):
         chunk = members[start:start + batch_size]
         prms = member_params[start:start + batch_size]
         protocols = [a.setup(law, seed, dt, {**options, "dtype": dtype}) for _, seed in chunk]
         budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, options)
         state = ens.init(prms, protocols)
-        state = ens.run(prms, state, int(budget), until=a.finished(protocols[0].info, options), progress=progress,
-                        info=info)
+        if resume is not None and start == first:
+            saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
+            state = ens.shard(ckpt.restore(resume, state, sim.law.name, saved_params))
+        # the rows list is written as it stands at each save: the batches measured so far
+        spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, batch_start=start, rows=rows)
+        state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
+                        until=a.finished(protocols[0].info, options), progress=progress, info=info, checkpoint=spec)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}
@@ -278,6 +300,37 @@ def write_csv(path, result: SweepResult) -> None:
             writer.writerow({k: row.get(k, "") for k in columns})
 
 
+def _cell(text: str):
+    """A CSV cell as written by `write_csv`: a number, a bool, empty (None) or text."""
+    if text == "":
+        return None
+    if text in ("True", "False"):
+        return text == "True"
+    try:
+        number = float(text)
+    except ValueError:
+        return text
+    return int(number) if number.is_integer() and "." not in text and "e" not in text.lower() else number
+
+
+def read(folder) -> SweepResult:
+    """The `SweepResult` of a `jaxpile sweep` folder, from its `sweep.csv` and
+    `sweep.json` (what `jaxpile show` redraws from)."""
+    import csv
+    import json
+    import os
+
+    paths = [os.path.join(folder, name) for name in ("sweep.csv", "sweep.json")]
+    missing = [p for p in paths if not os.path.exists(p)]
+    if missing:
+        raise InputError(f"{folder} is not a finished `jaxpile sweep` folder ({', '.join(missing)} missing).")
+    with open(paths[0], newline="") as fh:
+        rows = [{k: _cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+    with open(paths[1]) as fh:
+        info = json.load(fh)
+    return SweepResult(rows, info)
+
+
 def figure(result: SweepResult, by: str | None = None, path=None):
     """Mean +- standard error of the protocol's angles against the varied
     parameter `by` (default: the first varied one), with the theory overlaid
@@ -298,4 +351,5 @@ def figure(result: SweepResult, by: str | None = None, path=None):
                              path=path)
 
 
-__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "summarise", "sweep", "write_csv"]
+__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "read", "summarise", "sweep",
+           "write_csv"]

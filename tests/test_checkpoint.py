@@ -219,5 +219,5 @@ def test_cli_resume_errors_are_clear(tmp_path, capsys):
     assert "no checkpoint to resume" in capsys.readouterr().err
     assert main(["pile", "--resume", str(tmp_path), "--layers", "4"]) == 2
     assert "--resume DIR` alone" in capsys.readouterr().err
-    assert main(["pile", "--protocol", "box", "--n", "20", "--checkpoint-every", "100", "--out", str(tmp_path)]) == 2
-    assert "lattice and pour protocols so far" in capsys.readouterr().err
+    assert main(["pile", "--protocol", "box", "--n", "20", "--checkpoint-every", "0", "--out", str(tmp_path)]) == 2
+    assert "--checkpoint-every must be >= 1" in capsys.readouterr().err

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from jaxpile import checkpoint
 from jaxpile.cli import main
 from jaxpile.io import load_arrays, read_csv, write_csv
 
@@ -28,7 +29,8 @@ CASES = {
 def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_path, capsys):
     extra, keys, figure = CASES[protocol]
     out = tmp_path / protocol
-    assert main(["pile", "--protocol", protocol, *extra, "--no-progress", "--out", str(out)]) == 0
+    assert main(["pile", "--protocol", protocol, *extra, "--no-progress", "--out", str(out),
+                 "--checkpoint-every", "2000"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["protocol"] == protocol and summary["n_particles"] > 0
     for key in keys:
@@ -44,6 +46,17 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     assert f"{protocol} pile" in printed and "wrote" in printed
     assert main(["compare", str(out)]) == 0
     assert protocol in capsys.readouterr().out
+
+    # the run was checkpointed (the tilt also saved the box run that built its pile);
+    # resuming the finished run takes no step and writes the same pile
+    saved = checkpoint.read_metadata(out / "checkpoint.npz")
+    assert saved["extra"]["argv"][:3] == ["pile", "--protocol", protocol]
+    assert (out / "checkpoint.box.npz").exists() == (protocol == "tilt")
+    assert main(["pile", "--resume", str(out), "--no-progress"]) == 0
+    assert f"resuming {out} at step {saved['step']}" in capsys.readouterr().out
+    again = load_arrays(out / "state.npz")
+    np.testing.assert_array_equal(again["particles.position"], state["particles.position"])
+    assert json.loads((out / "summary.json").read_text())["resumed_from_step"] == saved["step"]
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import jaxpile
-from jaxpile import ensemble
+from jaxpile import ensemble, sweep
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, lattice
 from jaxpile.simulate import RunInfo, Simulator
@@ -45,7 +45,7 @@ def _split(state):
 def test_batched_run_equals_each_member_alone_across_reallocation_and_freezing(batch):
     sim, ens, protocols, params, state = batch
     # too few neighbour slots for anyone: the first chunk overflows and the batch re-allocates
-    small = ensemble.stack([ensemble._at_capacity(m, 2, m.neighbors.cell_list_capacity)
+    small = ensemble.stack([ensemble.at_capacity(m, 2, m.neighbors.cell_list_capacity)
                             for m in ensemble.members(state)])
     split = _split(state)
 
@@ -135,7 +135,8 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
 
     out = tmp_path / "sweep"
     argv = ["sweep", "--protocol", "box", "--law", LAW, "--mu", "0.15,0.3", "--seeds", "2", "--n", "30",
-            "--option", "width=1.2", "--option", "height=1.2", "--no-progress", "--out", str(out)]
+            "--option", "width=1.2", "--option", "height=1.2", "--no-progress", "--checkpoint-every", "3000",
+            "--out", str(out)]
     assert cli.main(argv) == 0
     with open(out / "sweep.csv") as fh:
         rows = list(csv.DictReader(fh))
@@ -145,6 +146,16 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
     summary = json.loads((out / "sweep.json").read_text())
     assert summary["members"] == 4 and summary["summary_by"] == "mu"
     assert (out / "sweep.png").stat().st_size > 10_000
+    # `jaxpile show` redraws the sweep's figure from sweep.csv + sweep.json without running
+    assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
+    assert (tmp_path / "redrawn" / "sweep.png").stat().st_size > 10_000
+    reread = sweep.read(out)
+    assert reread.column("mu").tolist() == [0.15, 0.15, 0.3, 0.3] and reread.rows[3]["at_rest"] is True
+    # resuming the finished sweep from its checkpoint runs no step and measures the same rows
+    table = (out / "sweep.csv").read_text()
+    assert cli.main(["sweep", "--resume", str(out), "--no-progress"]) == 0
+    assert (out / "sweep.csv").read_text() == table
+    assert cli.main(["pile", "--resume", str(out)]) == 2  # a sweep is resumed with `jaxpile sweep`
     # member (mu = 0.3, seed 1) is the box protocol's own run with those settings, up to
     # round-off: the batch shares one neighbour capacity, so sums run over more empty
     # slots, and 30 000 steps of granular flow amplify the last bits

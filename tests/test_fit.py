@@ -470,3 +470,8 @@ def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
         assert record["fitted_values"][name] == pytest.approx(value, rel=0.02), name
     assert record["loss"] < 1e-3 * record["initial_loss"]
     assert (out / "fit.png").stat().st_size > 10_000
+    np.testing.assert_allclose(record["target_profile"]["normal"], np.asarray(made.normal), rtol=1e-12)
+    # `jaxpile show` redraws the fit from fit.json alone, even once the target file is gone
+    target.unlink()
+    assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
+    assert (tmp_path / "redrawn" / "fit.png").stat().st_size > 10_000

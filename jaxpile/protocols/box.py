@@ -595,20 +595,31 @@ def _sample(state: SimState):
 _sample_jit = jax.jit(_sample)
 
 
-def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progress=None):
+def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progress=None, checkpoint=None,
+                samples: dict | None = None):
     """Runs `state` until the host predicate `finished(state)` holds (checked
     after each chunk) or `max_steps`, sampling once per chunk.
+
+    Args:
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`; the samples so
+        far are saved with each checkpoint (under `extra["samples"]`).
+      samples: the samples of the run so far, when `state` is a resumed
+        checkpoint (its `extra["samples"]`): continued, and nothing is run if
+        the resumed state is already finished.
 
     Returns:
       (state, RunInfo, samples): samples is a dict of per-chunk lists `step`,
       `time`, `kinetic_energy` (per movable disk, `analysis.mean_kinetic_energy`;
-      Fig. 1(b)) and `max_speed`, starting with the given state.
+      Fig. 1(b)) and `max_speed`, starting with the run's first state.
     """
+    from jaxpile import checkpoint as ckpt
     from jaxpile.simulate import RunInfo
 
-    if int(max_steps) != max_steps or max_steps < 1:
+    if int(max_steps) != max_steps or max_steps < 0 or (max_steps == 0 and samples is None):
         raise InputError(f"max_steps must be a whole number >= 1; got {max_steps!r}.")
-    samples = {"step": [], "time": [], "kinetic_energy": [], "max_speed": []}
+    resumed = samples is not None
+    samples = {k: list(v) for k, v in samples.items()} if resumed else {
+        "step": [], "time": [], "kinetic_energy": [], "max_speed": []}
 
     def sample(s: SimState) -> None:
         step, energy, speed = (x.item() for x in _sample_jit(s))
@@ -621,9 +632,14 @@ def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progr
         sample(s)
         return bool(finished(s))
 
-    sample(state)
+    if not resumed:
+        sample(state)
     info = RunInfo()
-    state = sim.run(params, state, int(max_steps), progress=progress, info=info, until=stop)
+    info._n = state.particles.count
+    if not (resumed and finished(state)):
+        # the samples dict is written as it stands at each save: always up to date
+        state = sim.run(params, state, int(max_steps), progress=progress, info=info, until=stop,
+                        checkpoint=ckpt.with_facts(checkpoint, samples=samples))
     info.max_speed = float(max_speed(state))
     info.at_rest = bool(finished(state))
     return state, info, samples
@@ -636,17 +652,38 @@ def check_dt(sim, p: Protocol) -> None:
                          f"dt = {sim.dt:g}; pass the same dt to both.")
 
 
-def execute(sim, params, p: Protocol, *, max_steps: int, progress=None):
+def start(sim, params, p: Protocol, resume=None) -> tuple[SimState, dict | None]:
+    """The protocol's first state, or with `resume` (a checkpoint file of this
+    same run) the state saved there, with the samples saved beside it."""
+    from jaxpile import checkpoint as ckpt
+
+    check_dt(sim, p)
+    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    if resume is None:
+        return state, None
+    state = ckpt.restore(resume, state, sim.law.name, params)
+    samples = ckpt.read_metadata(resume)["extra"].get("samples")
+    if samples is None:
+        raise InputError(f"{resume} does not hold a sampled protocol run (no samples recorded with it).")
+    return state, samples
+
+
+def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Starts a box protocol and runs it until its driver records the final rest
     (`BoxState.settled_at`) or `max_steps`.
+
+    Args:
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
+      resume: a checkpoint file of this same run to continue from: the run
+        ends bit-identical to the uninterrupted one, samples included.
 
     Returns:
       (state, RunInfo, samples) as `run_sampled`.
     """
-    check_dt(sim, p)
-    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    return run_sampled(sim, params, state, max_steps=max_steps, progress=progress,
-                       finished=lambda s: int(s.protocol_state.settled_at) >= 0)
+    state, samples = start(sim, params, p, resume)
+    return run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
+                       finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
+                       samples=samples)
 
 
 def count_check(state: SimState) -> dict:
@@ -659,7 +696,7 @@ def count_check(state: SimState) -> dict:
 
 def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool | None = None,
         dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = PAPER_SETTING["max_time"],
-        chunk_steps: int | None = None, progress=False, dtype=None, **options):
+        chunk_steps: int | None = None, progress=False, dtype=None, checkpoint=None, resume=None, **options):
     """Fills the box, removes the right wall at rest, lets the pile settle, and
     measures it (Lee & Herrmann 1993, sec. 3, Fig. 1).
 
@@ -669,6 +706,7 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
       params: None (`PAPER_SETTING`), a dict of overrides, or a params pytree.
       rotation, dt, integrator, chunk_steps: for the `Simulator`.
       max_time: give up after this many paper seconds.
+      checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
       **options: for `protocol` (width, height, radius, packing_fraction,
         placement_fraction, rest_speed, hold_time, seed).
 
@@ -689,7 +727,7 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
     t0 = time.perf_counter()
     state, info, samples = execute(sim, params, p, max_steps=max_steps_for(law, p.info["dt"], max_time),
-                                   progress=progress)
+                                   progress=progress, checkpoint=checkpoint, resume=resume)
     ps = state.protocol_state
     mu = friction_coefficient(params)
     out = {
@@ -737,6 +775,7 @@ __all__ = [
     "motion",
     "run",
     "run_sampled",
+    "start",
     "take_out",
     "units",
 ]

@@ -309,13 +309,19 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
     return sloped_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
 
 
+def _with_phase(checkpoint, phase: str, **facts):
+    from jaxpile import checkpoint as ckpt
+
+    return ckpt.with_facts(checkpoint, phase=phase, **facts)
+
+
 def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rotation: bool | None = None,
         dt: float = SETTING["dt"], drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
         settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
         max_interval: float = SETTING["max_interval"], speed_tolerance: float = SETTING["speed_tolerance"],
         relax_steps: int = SETTING["relax_steps"], bins: int = 15, dip_threshold: float = 0.05,
         integrator: str = "velocity_verlet", hard_collisions=None, dtype=None, progress: bool | None = False,
-        chunk_steps: int = 1000):
+        chunk_steps: int = 1000, checkpoint=None, resume=None):
     """Drops n disks one at a time, relaxes the pile to rest and measures it.
 
     Args:
@@ -327,6 +333,10 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
       bins: bins of the base normal force profile.
       dip_threshold: a central dip is reported when `central_dip` exceeds it.
       integrator, hard_collisions, chunk_steps: passed to `Simulator`.
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`; each save
+        records its phase (`fill`, or `relax` with the steps the fill took).
+      resume: a checkpoint file of this same run to continue from (in either
+        phase); the run ends bit-identical to the uninterrupted one.
       Other arguments as in `protocol`.
 
     Returns:
@@ -349,14 +359,25 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
     sim = Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
                     capacity_multiplier=4.0, chunk_steps=chunk_steps)
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    fill_steps = None  # known once the fill phase is over
+    if resume is not None:
+        from jaxpile import checkpoint as ckpt
+
+        state = ckpt.restore(resume, state, sim.law.name, params)
+        fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
     t0 = time.perf_counter()
     fill = RunInfo()
-    budget = n * p.info["max_interval_steps"] + chunk_steps
-    state = sim.run(params, state, budget, progress=progress, info=fill,
-                    until=lambda s: bool(np.asarray(s.particles.active).all()))
-    fill_steps = int(state.step)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=relax_steps,
-                                     progress=progress)
+    fill._n = state.particles.count
+    if fill_steps is None:
+        budget = n * p.info["max_interval_steps"] + chunk_steps
+        state = sim.run(params, state, max(budget - int(state.step), 0), progress=progress, info=fill,
+                        until=lambda s: bool(np.asarray(s.particles.active).all()),
+                        checkpoint=_with_phase(checkpoint, "fill"), resumed=int(state.step) > 0)
+        fill_steps = int(state.step)
+    relax_left = relax_steps - (int(state.step) - fill_steps)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=max(relax_left, 0),
+                                     progress=progress, resumed=int(state.step) > fill_steps,
+                                     checkpoint=_with_phase(checkpoint, "relax", fill_steps=fill_steps))
     total = time.perf_counter() - t0
     active = np.asarray(state.particles.active)
     measurements = {

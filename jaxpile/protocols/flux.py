@@ -387,13 +387,14 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
                                 driver=driver, **kwargs)
 
 
-def execute(sim, params, p: Protocol, *, max_steps: int, progress=None):
+def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps`. Returns as `box.run_sampled`."""
-    boxes.check_dt(sim, p)
-    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    return boxes.run_sampled(sim, params, state, max_steps=max_steps, progress=progress,
-                             finished=lambda s: int(s.protocol_state.settled_at) >= 0)
+    rest (`FluxState.settled_at`), or `max_steps`; `checkpoint` and `resume` as
+    in `box.execute`. Returns as `box.run_sampled`."""
+    state, samples = boxes.start(sim, params, p, resume)
+    return boxes.run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
+                             finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
+                             samples=samples)
 
 
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
@@ -401,7 +402,7 @@ law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
         dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"],
-        chunk_steps: int | None = None, progress=False, dtype=None, **options):
+        chunk_steps: int | None = None, progress=False, dtype=None, checkpoint=None, resume=None, **options):
     """Feeds the pile `insertions` disks at the paper's rule and measures the
     angle before each insertion (Fig. 5).
 
@@ -410,6 +411,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
       insertions: disks to insert.
       params: None (`box.PAPER_SETTING`), a dict of overrides, or a params pytree.
       max_time: give up after this many paper seconds.
+      checkpoint, resume: see `box.execute` (save the run as it goes; continue a saved run).
       **options: for `protocol` (width, pool, fixed_base, radius, v_cut,
         rest_measure, hold_time, gap, seed).
 
@@ -428,7 +430,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
     t0 = time.perf_counter()
     state, info, samples = execute(sim, params, p, max_steps=boxes.max_steps_for(law, p.info["dt"], max_time),
-                                   progress=progress)
+                                   progress=progress, checkpoint=checkpoint, resume=resume)
     ps = state.protocol_state
     done = int(ps.inserted)
     record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])

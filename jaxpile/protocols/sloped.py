@@ -285,7 +285,7 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
         base: float | None = None, params=None, rotation: bool | None = None, dt: float = SETTING["dt"],
         ramp_steps: int = SETTING["ramp_steps"], speed_tolerance: float = SETTING["speed_tolerance"],
         max_steps: int = SETTING["max_steps"], integrator: str = "velocity_verlet", hard_collisions=None,
-        dtype=None, progress: bool | None = False, seed: int = 0):
+        dtype=None, progress: bool | None = False, seed: int = 0, checkpoint=None, resume=None):
     """Builds the sloped pile, loads and relaxes it, and compares its base forces
     with eqs. 54-59.
 
@@ -297,6 +297,9 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
         overrides on top of it, or a ready params pytree.
       rotation: integrate spins (default off, the 1992 static analysis).
       integrator, hard_collisions: passed to `Simulator`.
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
+      resume: a checkpoint file of this same run to continue from (bit-identical
+        to the uninterrupted run).
       Other arguments as in `protocol` and `lattice.relax`.
 
     Returns:
@@ -315,9 +318,13 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
     p = protocol(alpha_degrees, n=n, base=base, ramp_steps=ramp_steps, seed=seed, dtype=dtype)
     sim = Simulator(contact_law, dt, schedule=p.schedule, integrator=integrator, hard_collisions=hard_collisions)
     state = sim.init(params, p.particles, p.boundaries, box=p.box)
+    if resume is not None:
+        from jaxpile import checkpoint as ckpt
+
+        state = ckpt.restore(resume, state, sim.law.name, params)
     t0 = time.perf_counter()
     state, info = lattice.relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
-                                max_steps=max_steps, progress=progress)
+                                max_steps=max_steps, progress=progress, checkpoint=checkpoint)
     total = time.perf_counter() - t0
     base_f = analysis.base_forces(sim, params, state)
     n_particles = int(np.asarray(state.particles.active).sum())

@@ -34,6 +34,7 @@ with the pile's own theta_R (method 3) and mu (`theory.tilting_angle`, Fig. 7(b)
 from __future__ import annotations
 
 import math
+import os
 import time
 from typing import Any, NamedTuple
 
@@ -253,7 +254,7 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
 
 
 def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: bool = False,
-            settle_time: float = SETTING["settle_time"], progress=None):
+            settle_time: float = SETTING["settle_time"], progress=None, checkpoint=None, resume=None):
     """Tilts until the pile moves (or the largest tilt), then, with `settle`,
     until it is at rest again.
 
@@ -261,10 +262,14 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
       pile: the state `p` was built from: continued as it is (contact history
         kept). None: start from `p.particles` with `sim.init` (fresh history).
       settle_time: at most this many paper seconds after the pile moved.
+      checkpoint, resume: as in `box.execute` (a tilt checkpoint resumes on the
+        same `pile`).
 
     Returns:
       (state, RunInfo, samples) as `box.run_sampled`.
     """
+    from jaxpile import checkpoint as ckpt
+
     boxes.check_dt(sim, p)
     if pile is None:
         state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
@@ -272,6 +277,12 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         if int(pile.step) != p.info["start_step"] or pile.particles.count != p.info["n"]:
             raise InputError("pile is not the state this tilt protocol was built from.")
         state = pile.set(protocol_state=p.protocol_state)
+    samples = None
+    if resume is not None:
+        state = ckpt.restore(resume, state, sim.law.name, params)
+        samples = ckpt.read_metadata(resume)["extra"].get("samples")
+        if samples is None:
+            raise InputError(f"{resume} does not hold a tilt run (no samples recorded with it).")
     u = boxes.units(sim.law.name)
     settle_steps = int(round(boxes._check_positive("settle_time", settle_time) * u.time / sim.dt)) if settle else 0
     max_steps = p.info["max_tilt_steps"] + sim.chunk_steps + settle_steps
@@ -283,7 +294,9 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         # gave up: the largest tilt reached without motion
         return int(ps.phase) == 0 and int(s.step) - p.info["start_step"] > p.info["max_tilt_steps"] + int(ps.hold)
 
-    return boxes.run_sampled(sim, params, state, max_steps=max_steps, finished=finished, progress=progress)
+    done = int(state.step) - p.info["start_step"]
+    return boxes.run_sampled(sim, params, state, max_steps=max_steps - done, finished=finished, progress=progress,
+                             checkpoint=ckpt.with_facts(checkpoint, stage="tilt"), samples=samples)
 
 
 def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: float | None) -> dict:
@@ -315,7 +328,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         pile_params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str = "velocity_verlet", settle: bool = False, settle_time: float = SETTING["settle_time"],
         chunk_steps: int | None = None, progress=False, dtype=None, box_options: dict | None = None,
-        **options):
+        checkpoint=None, resume=None, **options):
     """Builds a pile with the box protocol (or takes `pile`), tilts it at the
     paper's rate until it moves, and measures theta_T.
 
@@ -331,6 +344,13 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         by default: the paper stops at theta_T, and once the held tilt exceeds
         the floor's friction angle the disks slide off and never rest.
       box_options: for `box.run` (width, height, seed, max_time, ...).
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`: the tilt is
+        saved to `path`; the box run that builds the pile (when `pile` is
+        None) to `checkpoint.sibling(path, "box")` (`checkpoint.box.npz`),
+        whose last save is the pile the tilt starts from.
+      resume: the tilt checkpoint `path` of this same run: the box run is
+        continued (or just read back) from its sibling file, then the tilt
+        from `path` if it had begun. Ends bit-identical to the uninterrupted run.
       **options: for `protocol` (rate_degrees, move_speed, rest_speed,
         rest_measure, hold_time, max_tilt_degrees, edge).
 
@@ -341,18 +361,29 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
       onset and of the motion, counts, the kinetic energy per chunk, timings;
       `box` holds the box run's measurements when the pile was built here.
     """
+    from jaxpile import checkpoint as ckpt
+
     _, _, tilt_params = boxes.law_and_params(law, params, rotation, dtype)
     box_result = None
     if pile is None:
+        box_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], "box")
+        box_resume = None if resume is None else ckpt.sibling(resume, "box")
+        if box_resume is not None and not os.path.exists(box_resume):
+            raise InputError(f"resuming a tilt that builds its own pile needs the box run's checkpoint "
+                             f"{box_resume}; it is not there.")
         pile, box_result = boxes.run(law, n, params=params if pile_params is None else pile_params,
                                      rotation=rotation, dt=dt, integrator=integrator, chunk_steps=chunk_steps,
-                                     progress=progress, dtype=dtype, **(box_options or {}))
+                                     progress=progress, dtype=dtype,
+                                     checkpoint=ckpt.with_facts(checkpoint, path=box_file, stage="box"),
+                                     resume=box_resume, **(box_options or {}))
+        if resume is not None and not os.path.exists(resume):
+            resume = None  # stopped before the tilt began: it starts afresh from the pile
     p = protocol(pile, law=law, dt=dt, **options)
     before = boxes.repose(pile, p.info["edge"])
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
     t0 = time.perf_counter()
     state, info, samples = execute(sim, tilt_params, p, pile=pile, settle=settle, settle_time=settle_time,
-                                   progress=progress)
+                                   progress=progress, checkpoint=checkpoint, resume=resume)
     ps = state.protocol_state
     moved = int(ps.phase) >= 1
     theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
