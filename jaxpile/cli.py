@@ -177,6 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--speed-tol", type=float, default=None, help="max disk speed that counts as at rest")
     pile.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
                       help="save the whole run to OUT/checkpoint.npz every STEPS steps (atomically)")
+    pile.add_argument("--trajectory-every", type=int, default=None, metavar="STEPS",
+                      help="append a frame to OUT/trajectory.xyz (extended XYZ: OVITO, ASE) every STEPS steps")
     pile.add_argument("--resume", default=None, metavar="DIR",
                       help="continue the run saved in DIR/checkpoint.npz with its own settings "
                            "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
@@ -271,6 +273,23 @@ def _run_command(argv: list[str]) -> list[str]:
             continue
         out.append(a)
     return out
+
+
+def _trajectory(args, resumed_from: int):
+    """The context that records OUT/trajectory.xyz with --trajectory-every (a
+    resumed run drops the frames written after its checkpoint and goes on)."""
+    import contextlib
+
+    from jaxpile import export
+    from jaxpile.errors import InputError
+
+    if args.trajectory_every is None:
+        return contextlib.nullcontext()
+    if args.trajectory_every < 1:
+        raise InputError(f"--trajectory-every must be >= 1 step; got {args.trajectory_every}.")
+    os.makedirs(args.out, exist_ok=True)
+    return export.trajectory(os.path.join(args.out, "trajectory.xyz"), args.trajectory_every,
+                             resume_step=resumed_from if args.resume is not None else None)
 
 
 def _checkpoint_spec(args):
@@ -368,8 +387,9 @@ def run_pile(args) -> dict:
         print(f"jaxpile: resuming {args.resume} at step {int(state.step)}", flush=True)
     resumed_from = int(state.step)
     t0 = time.perf_counter()
-    state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
-                                max_steps=max_steps, progress=progress, checkpoint=_checkpoint_spec(args))
+    with _trajectory(args, resumed_from):
+        state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
+                                    max_steps=max_steps, progress=progress, checkpoint=_checkpoint_spec(args))
     total = time.perf_counter() - t0
 
     base = analysis.base_forces(sim, params, state)
@@ -423,7 +443,7 @@ def run_pile(args) -> dict:
                              path=os.path.join(out, "profile.png"))
     print(_summary_lines(summary), flush=True)
     print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, contacts.csv, state.npz, final.xyz, pile.png, "
-          "profile.png")
+          "profile.png" + (", trajectory.xyz" if args.trajectory_every else ""))
     return summary
 
 
@@ -495,7 +515,8 @@ def run_protocol(args) -> dict:
         hard = kwargs["hard_collisions"]
         print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g})", flush=True)
     t0 = time.perf_counter()
-    state, m = module.run(lawmod.NAME, **kwargs)
+    with _trajectory(args, resumed_from):
+        state, m = module.run(lawmod.NAME, **kwargs)
     total = time.perf_counter() - t0
 
     dt = args.dt if args.dt is not None else _protocol_dt(module, m)
@@ -538,8 +559,9 @@ def run_protocol(args) -> dict:
                   rotation=summary["rotation"], precision=args.precision, protocol=name)
     export.write_contacts(os.path.join(out, "contacts.csv"), sim, params, state)
     export.write_xyz(os.path.join(out, "final.xyz"), state, time=int(state.step) * dt)
-    written = ["summary.json", "base_forces.csv", "contacts.csv", "state.npz", "final.xyz"] + _protocol_figures(name, m, state, base, network,
-                                                                                   contact_law.name, out)
+    written = ["summary.json", "base_forces.csv", "contacts.csv", "state.npz", "final.xyz"]
+    written += ["trajectory.xyz"] if args.trajectory_every else []
+    written += _protocol_figures(name, m, state, base, network, contact_law.name, out)
     print(_headline(name, summary), flush=True)
     print(f"jaxpile: wrote {out}/" + ", ".join(written))
     return summary

@@ -11,7 +11,9 @@ readers expect three components:
 `force` is the total force on the disk at its last step (contacts + gravity).
 Parked disks (not yet poured) are written with `active` = 0 so every frame of a
 trajectory has the same rows; filter on it in OVITO (Expression selection
-`active == 0`, Delete selected). A trajectory is frames appended to one file.
+`active == 0`, Delete selected). A trajectory is frames appended to one file:
+`with export.trajectory(path, every): ...` records one through any run, a
+protocol's included (CLI: `--trajectory-every STEPS`).
 
 The contact table (CSV) has one row per disk-disk contact, i < j, with the
 normal and tangential force magnitudes in mg (`analysis.contact_network`),
@@ -92,6 +94,67 @@ def read_xyz(path) -> list[dict]:
         frames.append(frame)
         k += 2 + n
     return frames
+
+
+class Trajectory:
+    """Appends a frame to an extended-XYZ file at step 0 and at the first chunk
+    boundary at or past each multiple of `every` steps (see `trajectory`)."""
+
+    def __init__(self, path, every: int, resume_step: int | None = None):
+        if int(every) != every or every < 1:
+            raise InputError(f"the trajectory interval must be a whole number of steps >= 1; got {every!r}.")
+        self.path, self.every, self.frames = str(path), int(every), 0
+        self.last = None  # step of the last frame written
+        if resume_step is None:
+            if os.path.exists(self.path):
+                os.remove(self.path)
+        else:  # frames written after the checkpoint, before the run stopped, are written again
+            self.frames = truncate_xyz(self.path, resume_step) if os.path.exists(self.path) else 0
+            self.last = int(resume_step)
+
+    def __call__(self, state: SimState, dt: float) -> None:
+        step = int(np.max(np.asarray(state.step)))
+        if np.ndim(state.step) or (self.last is not None and step <= self.last):
+            return  # a batch, or a state already written (the next phase starts where the last ended)
+        if self.last is None or step // self.every > self.last // self.every:
+            write_xyz(self.path, state, time=step * dt, append=True)
+            self.last, self.frames = step, self.frames + 1
+
+
+def trajectory(path, every: int, *, resume_step: int | None = None):
+    """A context manager: every run inside it appends frames to `path`
+    (`Trajectory`), through a protocol's own runs (`simulate.observing`).
+
+    Args:
+      path: the `.xyz` file; replaced, unless resuming.
+      every: steps between frames (at chunk boundaries: a frame is written at
+        the first boundary at or past each multiple).
+      resume_step: the step a resumed run continues from: frames after it
+        (written before the run was stopped) are dropped, and the resumed run
+        appends the same frames the uninterrupted run would have.
+
+    Example:
+      >>> with export.trajectory("out/trajectory.xyz", 1000):            # doctest: +SKIP
+      ...     state, m = box.run("hooke", width=1.6, height=1.6)
+    """
+    from jaxpile.simulate import observing
+
+    return observing(Trajectory(path, every, resume_step))
+
+
+def truncate_xyz(path, step: int) -> int:
+    """Keeps the frames of `path` up to `step` (atomically); returns how many."""
+    with open(path) as f:
+        lines = f.read().splitlines(keepends=True)
+    kept, k = [], 0
+    while k < len(lines):
+        n = int(lines[k])
+        if int(dict(_pairs(lines[k + 1].strip()))["Step"]) > step:
+            break
+        kept.append("".join(lines[k:k + 2 + n]))
+        k += 2 + n
+    atomic_write(path, lambda f: f.write("".join(kept)), text=True)
+    return len(kept)
 
 
 def _pairs(comment: str):

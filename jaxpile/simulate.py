@@ -11,6 +11,8 @@ neighbour list overflowed (no contact is ever dropped), NaN detection, and
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 import os
 import sys
@@ -106,6 +108,27 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
                          integrator_state=extra)
 
     return step
+
+
+_OBSERVERS: contextvars.ContextVar[tuple] = contextvars.ContextVar("jaxpile_observers", default=())
+
+
+@contextlib.contextmanager
+def observing(observer: Callable[[SimState, float], None]):
+    """Inside the block, every `Simulator.run` calls `observer(state, dt)` with
+    its first state and the state at each chunk boundary: how a trajectory is
+    recorded (`export.trajectory`) through a protocol's own runs without
+    threading an argument through each. Host-side; batched runs are not observed."""
+    token = _OBSERVERS.set(_OBSERVERS.get() + (observer,))
+    try:
+        yield observer
+    finally:
+        _OBSERVERS.reset(token)
+
+
+def _observe(state: SimState, dt: float) -> None:
+    for observer in _OBSERVERS.get():
+        observer(state, dt)
 
 
 def gravity_ramp(steps: int) -> Callable[[SimState], Boundaries]:
@@ -506,6 +529,7 @@ class Simulator:
         save = self._checkpointer(params, checkpoint)
         if resumed and until is not None and until(state):
             return state
+        _observe(state, self.dt)
         bar = tqdm(total=n_steps, disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
         try:
@@ -523,6 +547,7 @@ class Simulator:
                 done += n
                 info.steps += n
                 bar.update(n)
+                _observe(state, self.dt)
                 stop = until is not None and until(state)
                 if save is not None:
                     save(state, done, final=stop or done >= n_steps)

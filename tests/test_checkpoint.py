@@ -178,7 +178,7 @@ def test_a_pour_resumed_mid_pour_ends_bit_identical(tmp_path):
 
 CLI = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
 LATTICE_RUN = ["pile", "--protocol", "lattice", "--layers", "6", "--ramp-steps", "1000", "--max-steps", "40000",
-               "--speed-tol", "1e-12", "--checkpoint-every", "1000", "--no-progress"]
+               "--speed-tol", "1e-12", "--checkpoint-every", "1000", "--trajectory-every", "1500", "--no-progress"]
 
 
 def test_cli_run_killed_with_sigkill_and_resumed_ends_as_the_uninterrupted_run(tmp_path):
@@ -208,6 +208,8 @@ def test_cli_run_killed_with_sigkill_and_resumed_ends_as_the_uninterrupted_run(t
         if key != "metadata":
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     assert (whole / "base_forces.csv").read_text() == (cut / "base_forces.csv").read_text()
+    # the frames written after the checkpoint, before the kill, were dropped and written again
+    assert (whole / "trajectory.xyz").read_text() == (cut / "trajectory.xyz").read_text()
     done, resumed = (json.loads((d / "summary.json").read_text()) for d in (whole, cut))
     assert resumed["steps"] == done["steps"] and resumed["resumed_from_step"] >= 3000
 

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from jaxpile import checkpoint
+from jaxpile import checkpoint, export
 from jaxpile.cli import main
 from jaxpile.io import load_arrays, read_csv, write_csv
 
@@ -30,7 +30,7 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     extra, keys, figure = CASES[protocol]
     out = tmp_path / protocol
     assert main(["pile", "--protocol", protocol, *extra, "--no-progress", "--out", str(out),
-                 "--checkpoint-every", "2000"]) == 0
+                 "--checkpoint-every", "2000", "--trajectory-every", "2000"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["protocol"] == protocol and summary["n_particles"] > 0
     for key in keys:
@@ -52,7 +52,11 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     saved = checkpoint.read_metadata(out / "checkpoint.npz")
     assert saved["extra"]["argv"][:3] == ["pile", "--protocol", protocol]
     assert (out / "checkpoint.box.npz").exists() == (protocol == "tilt")
+    steps = [f["step"] for f in export.read_xyz(out / "trajectory.xyz")]  # through every stage and phase
+    assert steps[0] == 0 and len(steps) >= 2 and steps == sorted(set(steps))
+    trajectory = (out / "trajectory.xyz").read_text()
     assert main(["pile", "--resume", str(out), "--no-progress"]) == 0
+    assert (out / "trajectory.xyz").read_text() == trajectory
     assert f"resuming {out} at step {saved['step']}" in capsys.readouterr().out
     again = load_arrays(out / "state.npz")
     np.testing.assert_array_equal(again["particles.position"], state["particles.position"])

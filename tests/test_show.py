@@ -6,9 +6,10 @@ import pytest
 
 from jaxpile import export, io
 from jaxpile.cli import main
+from jaxpile.protocols.lattice import equilateral_positions as lattice_positions
 
 RUN = ["pile", "--protocol", "lattice", "--layers", "5", "--ramp-steps", "1000", "--max-steps", "3000",
-       "--checkpoint-every", "1000", "--no-progress"]
+       "--checkpoint-every", "1000", "--trajectory-every", "500", "--no-progress"]
 
 
 @pytest.fixture(scope="module")
@@ -26,6 +27,24 @@ def test_a_pile_run_leaves_an_xyz_frame_and_a_contact_table(finished_run):
     base = io.read_csv(finished_run / "base_forces.csv")
     ground = contacts["j"] == -1
     np.testing.assert_allclose(np.sort(contacts["normal"][ground]), np.sort(base["normal"]), rtol=1e-9)
+
+
+def test_a_pile_run_records_a_trajectory_that_reads_back(finished_run):
+    frames = export.read_xyz(finished_run / "trajectory.xyz")
+    steps = [f["step"] for f in frames]
+    assert steps[0] == 0 and steps == sorted(set(steps)) and all(s % 500 == 0 for s in steps)
+    # frames fall on chunk boundaries (the runner's chunks here are 1000 steps): 0, 1000, 2000, ...
+    assert len(frames) >= 3 and steps[1] == 1000
+    first = frames[0]["pos"][:, :2]
+    np.testing.assert_array_equal(first, np.asarray(lattice_positions(5)))
+    assert np.any(frames[-1]["force"][:, 1] < 0)  # gravity is on by the end of the ramp
+
+
+def test_a_trajectory_cut_back_to_a_checkpoint_keeps_the_frames_up_to_it(finished_run, tmp_path):
+    path = tmp_path / "t.xyz"
+    path.write_text((finished_run / "trajectory.xyz").read_text())
+    assert export.truncate_xyz(path, 1200) == 2
+    assert [f["step"] for f in export.read_xyz(path)] == [0, 1000]
 
 
 @pytest.mark.parametrize("which", ["finished", "checkpoint"])
