@@ -90,6 +90,13 @@ def metadata(state: SimState, law_name: str, params, **extra) -> dict:
     }
 
 
+def _json_value(value):
+    """numpy scalars and arrays in the recorded facts (a sweep's rows, say) as plain JSON."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable: record plain numbers, strings and lists.")
+
+
 def save(path, state: SimState, law_name: str, params, **extra) -> None:
     """Writes `state` (every array of it) and its metadata to `path`, atomically.
 
@@ -102,7 +109,7 @@ def save(path, state: SimState, law_name: str, params, **extra) -> None:
     """
     names, leaves, _ = _leaves(state)
     arrays = {f"leaf:{name}": np.asarray(jax.device_get(leaf)) for name, leaf in zip(names, leaves)}
-    arrays["metadata"] = np.asarray(json.dumps(metadata(state, law_name, params, **extra)))
+    arrays["metadata"] = np.asarray(json.dumps(metadata(state, law_name, params, **extra), default=_json_value))
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
@@ -126,9 +133,9 @@ def sibling(path, stage: str) -> str:
 
 
 def in_folder(folder) -> str | None:
-    """The newest checkpoint of the `jaxpile pile` run in `folder`:
-    `checkpoint.npz`, or `checkpoint.box.npz` when a tilt run stopped while
-    still building its pile; None when there is neither."""
+    """The checkpoint to resume or draw the `jaxpile pile` or `sweep` run in
+    `folder` from: `checkpoint.npz`, or else `checkpoint.box.npz` (a tilt run
+    stopped while still building its pile); None when there is neither."""
     for stage in (None, "box"):
         path = os.path.join(folder, "checkpoint.npz")
         path = path if stage is None else sibling(path, stage)

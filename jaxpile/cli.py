@@ -132,7 +132,7 @@ def _accepted_options(module) -> set:
     if any(v.kind is inspect.Parameter.VAR_KEYWORD for v in run_params.values()):
         names |= set(inspect.signature(module.protocol).parameters)
     reserved = {"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "insertions", "pile",
-                "alpha_degrees", "hard_collisions", "pile_params", "box_options"}
+                "alpha_degrees", "hard_collisions", "pile_params", "box_options", "checkpoint", "resume"}
     return names - reserved
 
 
@@ -300,7 +300,15 @@ def _checkpoint_spec(args):
         return None
     if args.checkpoint_every < 1:
         raise InputError(f"--checkpoint-every must be >= 1 step; got {args.checkpoint_every}.")
-    return os.path.join(args.out, "checkpoint.npz"), args.checkpoint_every, {"argv": args.argv}
+    path = os.path.join(args.out, "checkpoint.npz")
+    if args.resume is None:  # a new run: an older run's checkpoints in OUT must not be taken for its own
+        from jaxpile import checkpoint
+
+        for stale in (path, checkpoint.sibling(path, "box"), checkpoint.sibling(path, "last-good")):
+            if os.path.exists(stale):
+                print(f"jaxpile: removing {stale} of an earlier run in {args.out}", flush=True)
+                os.remove(stale)
+    return path, args.checkpoint_every, {"argv": args.argv}
 
 
 def main(argv=None) -> int:
@@ -315,6 +323,8 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         if args.command in ("pile", "sweep"):
             args.argv = _run_command(argv)
+            if args.resume is not None:
+                args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         if args.command == "pile":
             if args.protocol == "lattice":
                 run_pile(args)

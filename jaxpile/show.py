@@ -88,6 +88,14 @@ def _checkpointed(path: str, out: str) -> list[str]:
     from jaxpile import analysis, plot
     from jaxpile.simulate import Simulator
 
+    from jaxpile import checkpoint
+
+    meta = checkpoint.read_metadata(path)
+    if meta.get("batch"):
+        rows = len(meta["extra"].get("rows", []))
+        raise InputError(f"{path} holds a running sweep's batch ({meta['batch']} piles at step {meta['step']}; "
+                         f"{rows} members measured so far): `jaxpile show` draws a sweep once it has written "
+                         "sweep.json.")
     state, law, params, meta = state_from_checkpoint(path)
     sim = Simulator(law, 1.0)  # dt is not used: forces are evaluated, not advanced
     network = analysis.contact_network(sim, params, state)

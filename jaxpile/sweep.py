@@ -235,6 +235,10 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         if saved.get("grid") != plan or saved.get("batch_size") != batch_size:
             raise InputError(f"{resume} was written by another sweep (other members or batch size); "
                              "resume it with the command that made it.")
+        if saved.get("devices") != len(ens.devices):
+            raise InputError(f"{resume} was written on {saved.get('devices')} device(s), this run has "
+                             f"{len(ens.devices)}: the batch is padded to a multiple of the device count, so "
+                             "resume it with as many devices.")
         rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
     for start in range(first, len(members), batch_size):
@@ -247,7 +251,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
             saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
             state = ens.shard(ckpt.restore(resume, state, sim.law.name, saved_params))
         # the rows list is written as it stands at each save: the batches measured so far
-        spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, batch_start=start, rows=rows)
+        spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
+                               batch_start=start, rows=rows)
         state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
                         until=a.finished(protocols[0].info, options), progress=progress, info=info, checkpoint=spec)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):

@@ -223,3 +223,20 @@ def test_cli_resume_errors_are_clear(tmp_path, capsys):
     assert "--resume DIR` alone" in capsys.readouterr().err
     assert main(["pile", "--protocol", "box", "--n", "20", "--checkpoint-every", "0", "--out", str(tmp_path)]) == 2
     assert "--checkpoint-every must be >= 1" in capsys.readouterr().err
+
+
+def test_a_new_cli_run_replaces_an_earlier_runs_checkpoints_in_its_folder(tmp_path, capsys):
+    """A tilt stopped in its box stage is resumed from checkpoint.box.npz only if no
+    checkpoint.npz is there: a new run must not leave an older run's files to be
+    taken for its own."""
+    from jaxpile.cli import main
+
+    for name in ("checkpoint.npz", "checkpoint.box.npz"):
+        (tmp_path / name).write_bytes(b"an earlier run")
+    assert main(["pile", "--protocol", "lattice", "--layers", "3", "--ramp-steps", "500", "--max-steps", "1000",
+                 "--checkpoint-every", "500", "--no-progress", "--out", str(tmp_path)]) == 0
+    assert "removing" in capsys.readouterr().out
+    assert not (tmp_path / "checkpoint.box.npz").exists()
+    assert checkpoint.read_metadata(tmp_path / "checkpoint.npz")["extra"]["argv"][:3] == ["pile", "--protocol",
+                                                                                        "lattice"]
+

@@ -42,17 +42,15 @@ def tilted(tmp_path_factory):
     return folder, state, m
 
 
-def test_a_tilt_killed_mid_tilt_resumes_from_its_pile_and_tilt_checkpoints(tilted, tmp_path):
+def test_a_tilt_resumes_mid_tilt_from_its_save_and_the_pile_it_names(tilted):
     folder, whole, m = tilted
     start = m["info"]["start_step"]
     box_steps, tilt_steps = saved_steps(folder, ".box"), [s for s in saved_steps(folder) if s > start]
     assert box_steps[-1] == start and len(tilt_steps) >= 2
-    # what a kill mid-tilt leaves in a run folder: the box stage's last save (the pile) and a tilt save
-    shutil.copy(folder / f"ck-{box_steps[-1]}.box.npz", tmp_path / "checkpoint.box.npz")
-    shutil.copy(folder / f"ck-{tilt_steps[len(tilt_steps) // 2]}.npz", tmp_path / "checkpoint.npz")
-    assert checkpoint.read_metadata(tmp_path / "checkpoint.npz")["extra"]["stage"] == "tilt"
-    assert checkpoint.in_folder(tmp_path) == str(tmp_path / "checkpoint.npz")
-    resumed, r = tilt.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
+    mid = folder / f"ck-{tilt_steps[len(tilt_steps) // 2]}.npz"
+    extra = checkpoint.read_metadata(mid)["extra"]
+    assert extra["stage"] == "tilt" and extra["pile_checkpoint"] == f"ck-{start}.box.npz"
+    resumed, r = tilt.run("hooke", resume=str(mid), **TILT)
     assert_identical(resumed, whole)
     assert r["theta_t"] == m["theta_t"] and r["kinetic_energy"] == m["kinetic_energy"]
     assert r["steps"] < m["steps"]
@@ -61,6 +59,7 @@ def test_a_tilt_killed_mid_tilt_resumes_from_its_pile_and_tilt_checkpoints(tilte
 def test_a_tilt_killed_while_building_its_pile_resumes_the_box_run_then_tilts(tilted, tmp_path):
     folder, whole, m = tilted
     box_steps = saved_steps(folder, ".box")
+    # what a kill during the box stage leaves in a run folder (fixed names): the box run's save alone
     shutil.copy(folder / f"ck-{box_steps[len(box_steps) // 2]}.box.npz", tmp_path / "checkpoint.box.npz")
     assert checkpoint.in_folder(tmp_path) == str(tmp_path / "checkpoint.box.npz")
     resumed, r = tilt.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
@@ -128,5 +127,10 @@ def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_sam
     assert extra["rows"] == whole.rows[:1] and checkpoint.read_metadata(mid)["batch"] == 1
     resumed = sweep.sweep("box", "hooke", resume=str(mid), **kw)
     assert resumed.rows == whole.rows
+    # a sweep still running is not drawn as one pile: `jaxpile show` says what it holds
+    from jaxpile.cli import main
+
+    shutil.copy(mid, tmp_path / "checkpoint.npz")
+    assert main(["show", str(tmp_path)]) == 2
     with pytest.raises(Exception, match="another sweep"):
         sweep.sweep("box", "hooke", resume=str(mid), **{**kw, "seeds": 2})

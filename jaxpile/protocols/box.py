@@ -681,6 +681,9 @@ def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoi
       (state, RunInfo, samples) as `run_sampled`.
     """
     state, samples = start(sim, params, p, resume)
+    if int(state.step) > max_steps:
+        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {max_steps} steps: "
+                         "resume with the budget (max_time) it was written with.")
     return run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
                        finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
                        samples=samples)

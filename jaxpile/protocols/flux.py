@@ -392,6 +392,9 @@ def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoi
     rest (`FluxState.settled_at`), or `max_steps`; `checkpoint` and `resume` as
     in `box.execute`. Returns as `box.run_sampled`."""
     state, samples = boxes.start(sim, params, p, resume)
+    if int(state.step) > max_steps:
+        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {max_steps} steps: "
+                         "resume with the budget (max_time) it was written with.")
     return boxes.run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
                              finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
                              samples=samples)

@@ -324,6 +324,31 @@ def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: floa
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 
+def _stages(resume) -> tuple[str | None, str | None]:
+    """`(box run checkpoint, tilt checkpoint)` to resume a tilt that builds its
+    own pile from `resume`: a tilt save (which names its pile's file), a box
+    save, or the tilt's fixed path when the run stopped before the tilt began
+    (then only its `checkpoint.sibling(resume, "box")` exists)."""
+    from jaxpile import checkpoint as ckpt
+
+    if resume is None:
+        return None, None
+    if not os.path.exists(resume):
+        box = ckpt.sibling(resume, "box")
+        if not os.path.exists(box):
+            raise InputError(f"resuming a tilt that builds its own pile needs the box run's checkpoint "
+                             f"{box} (or the tilt's {resume}); neither is there.")
+        return box, None
+    extra = ckpt.read_metadata(resume)["extra"]
+    if extra.get("stage") == "box":
+        return resume, None
+    pile = os.path.join(os.path.dirname(resume), extra.get("pile_checkpoint") or "")
+    if not extra.get("pile_checkpoint") or not os.path.exists(pile):
+        raise InputError(f"{resume} is a tilt checkpoint; resuming it needs the pile it started from, the box "
+                         f"run's last save {pile or '(not recorded)'}, beside it.")
+    return pile, resume
+
+
 def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = None, params=None,
         pile_params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str = "velocity_verlet", settle: bool = False, settle_time: float = SETTING["settle_time"],
@@ -348,9 +373,11 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         saved to `path`; the box run that builds the pile (when `pile` is
         None) to `checkpoint.sibling(path, "box")` (`checkpoint.box.npz`),
         whose last save is the pile the tilt starts from.
-      resume: the tilt checkpoint `path` of this same run: the box run is
-        continued (or just read back) from its sibling file, then the tilt
-        from `path` if it had begun. Ends bit-identical to the uninterrupted run.
+      resume: a checkpoint of this same run: a tilt save (the pile it started
+        from, named in it, is read back beside it), a box save (the box run
+        is continued, then the tilt starts), or the tilt's fixed `path` before
+        the tilt began (its box sibling is continued). Ends bit-identical to
+        the uninterrupted run.
       **options: for `protocol` (rate_degrees, move_speed, rest_speed,
         rest_measure, hold_time, max_tilt_degrees, edge).
 
@@ -367,17 +394,15 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
     box_result = None
     if pile is None:
         box_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], "box")
-        box_resume = None if resume is None else ckpt.sibling(resume, "box")
-        if box_resume is not None and not os.path.exists(box_resume):
-            raise InputError(f"resuming a tilt that builds its own pile needs the box run's checkpoint "
-                             f"{box_resume}; it is not there.")
+        box_resume, resume = _stages(resume)
         pile, box_result = boxes.run(law, n, params=params if pile_params is None else pile_params,
                                      rotation=rotation, dt=dt, integrator=integrator, chunk_steps=chunk_steps,
                                      progress=progress, dtype=dtype,
                                      checkpoint=ckpt.with_facts(checkpoint, path=box_file, stage="box"),
                                      resume=box_resume, **(box_options or {}))
-        if resume is not None and not os.path.exists(resume):
-            resume = None  # stopped before the tilt began: it starts afresh from the pile
+        if checkpoint is not None:  # each tilt save names the pile it started from (its box run's last save)
+            pile_file = os.path.basename(box_file.replace("{step}", str(int(pile.step))))
+            checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=pile_file)
     p = protocol(pile, law=law, dt=dt, **options)
     before = boxes.repose(pile, p.info["edge"])
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
