@@ -179,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
                       help="save the whole run to OUT/checkpoint.npz every STEPS steps (atomically)")
     pile.add_argument("--trajectory-every", type=int, default=None, metavar="STEPS",
                       help="append a frame to OUT/trajectory.xyz (extended XYZ: OVITO, ASE) every STEPS steps")
+    pile.add_argument("--trajectory-format", choices=["xyz", "lammps"], default="xyz",
+                      help="the trajectory's format: extended XYZ, or a LAMMPS dump (OUT/trajectory.lammpstrj: "
+                           "OVITO, LAMMPS read_dump/rerun)")
     pile.add_argument("--resume", default=None, metavar="DIR",
                       help="continue the run saved in DIR/checkpoint.npz with its own settings "
                            "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
@@ -288,8 +291,12 @@ def _trajectory(args, resumed_from: int):
     if args.trajectory_every < 1:
         raise InputError(f"--trajectory-every must be >= 1 step; got {args.trajectory_every}.")
     os.makedirs(args.out, exist_ok=True)
-    return export.trajectory(os.path.join(args.out, "trajectory.xyz"), args.trajectory_every,
+    return export.trajectory(os.path.join(args.out, _trajectory_name(args)), args.trajectory_every,
                              resume_step=resumed_from if args.resume is not None else None)
+
+
+def _trajectory_name(args) -> str:
+    return "trajectory.lammpstrj" if args.trajectory_format == "lammps" else "trajectory.xyz"
 
 
 def _checkpoint_spec(args):
@@ -453,7 +460,7 @@ def run_pile(args) -> dict:
                              path=os.path.join(out, "profile.png"))
     print(_summary_lines(summary), flush=True)
     print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, contacts.csv, state.npz, final.xyz, pile.png, "
-          "profile.png" + (", trajectory.xyz" if args.trajectory_every else ""))
+          "profile.png" + (f", {_trajectory_name(args)}" if args.trajectory_every else ""))
     return summary
 
 
@@ -570,7 +577,7 @@ def run_protocol(args) -> dict:
     export.write_contacts(os.path.join(out, "contacts.csv"), sim, params, state)
     export.write_xyz(os.path.join(out, "final.xyz"), state, time=int(state.step) * dt)
     written = ["summary.json", "base_forces.csv", "contacts.csv", "state.npz", "final.xyz"]
-    written += ["trajectory.xyz"] if args.trajectory_every else []
+    written += [_trajectory_name(args)] if args.trajectory_every else []
     written += _protocol_figures(name, m, state, base, network, contact_law.name, out)
     print(_headline(name, summary), flush=True)
     print(f"jaxpile: wrote {out}/" + ", ".join(written))

@@ -1,4 +1,5 @@
-"""Results other programs open: extended XYZ frames (OVITO, ASE) and the
+"""Results other programs open: extended XYZ frames (OVITO, ASE), LAMMPS
+`dump custom` frames (OVITO; LAMMPS `read_dump`, `rerun`) and the
 contact-force network as a per-contact table.
 
 Extended XYZ: one frame is a count line, a comment line of `key=value` pairs
@@ -56,12 +57,7 @@ def frame_text(state: SimState, time: float | None = None) -> str:
 
 def write_xyz(path, state: SimState, *, time: float | None = None, append: bool = False) -> None:
     """Writes (or appends, for a trajectory) one frame of `state` to `path`."""
-    text = frame_text(state, time)
-    if append:
-        with open(path, "a") as f:
-            f.write(text)
-    else:
-        atomic_write(path, lambda f: f.write(text), text=True)
+    _write(path, frame_text(state, time), append)
 
 
 def read_xyz(path) -> list[dict]:
@@ -96,6 +92,82 @@ def read_xyz(path) -> list[dict]:
     return frames
 
 
+DUMP_COLUMNS = "id type x y z radius vx vy vz omegaz fx fy fz active"
+
+
+def dump_text(state: SimState) -> str:
+    """One LAMMPS `dump custom` frame of `state` (what OVITO opens and LAMMPS's
+    `read_dump` / `rerun` read): ids from 1, type 1, z = 0, and the box of the
+    disks (`ff ff pp`, non-periodic in the plane)."""
+    p = state.particles
+    pos = np.asarray(p.position, float)
+    n = pos.shape[0]
+    reach = float(np.asarray(p.radius).max()) if n else 0.5
+    lo = pos.min(0) - reach if n else np.zeros(2)
+    hi = np.maximum(pos.max(0) + reach if n else np.ones(2), lo + 1e-12)
+    zero = np.zeros((n, 1))
+    table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
+                       np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
+    active = np.asarray(p.active).astype(int)
+    head = (f"ITEM: TIMESTEP\n{int(np.max(np.asarray(state.step)))}\nITEM: NUMBER OF ATOMS\n{n}\n"
+            f"ITEM: BOX BOUNDS ff ff pp\n{float(lo[0])!r} {float(hi[0])!r}\n{float(lo[1])!r} {float(hi[1])!r}\n"
+            f"-0.5 0.5\nITEM: ATOMS {DUMP_COLUMNS}\n")
+    rows = [f"{k + 1} 1 {' '.join(repr(float(v)) for v in row)} {a}" for k, (row, a) in enumerate(zip(table, active))]
+    return head + "\n".join(rows) + ("\n" if rows else "")
+
+
+def write_lammps_dump(path, state: SimState, *, append: bool = False) -> None:
+    """Writes (or appends, for a trajectory) one `dump custom` frame of `state`."""
+    _write(path, dump_text(state), append)
+
+
+def read_lammps_dump(path) -> list[dict]:
+    """The frames of a dump written by `write_lammps_dump`, as `read_xyz` gives
+    them (`pos` `[n, 3]`, `radius`, `velo`, `omega`, `force`, `active`, `step`)."""
+    frames = []
+    for step, text in _frames(path):
+        lines = text.splitlines()
+        if lines[8].split()[2:] != DUMP_COLUMNS.split():
+            raise InputError(f"{path}: a frame with columns {lines[8]!r}; jaxpile writes {DUMP_COLUMNS!r}.")
+        n = int(lines[3])
+        data = np.asarray([line.split() for line in lines[9:9 + n]], float).reshape(n, 14)
+        frames.append({"pos": data[:, 2:5], "radius": data[:, 5], "velo": data[:, 6:9], "omega": data[:, 9],
+                       "force": data[:, 10:13], "active": data[:, 13].astype(bool), "step": step, "time": None})
+    return frames
+
+
+def _write(path, text: str, append: bool) -> None:
+    if append:
+        with open(path, "a") as f:
+            f.write(text)
+    else:
+        atomic_write(path, lambda f: f.write(text), text=True)
+
+
+def _is_dump(path) -> bool:
+    return str(path).endswith((".lammpstrj", ".dump"))
+
+
+def _frames(path):
+    """`(step, text)` of each frame of an extended-XYZ file or a LAMMPS dump."""
+    if not os.path.exists(path):
+        raise InputError(f"no such file: {path}")
+    with open(path) as f:
+        lines = f.read().splitlines(keepends=True)
+    k = 0
+    while k < len(lines):
+        try:
+            if _is_dump(path):
+                n, step, size = int(lines[k + 3]), int(lines[k + 1]), 9 + int(lines[k + 3])
+            else:
+                n = int(lines[k])
+                step, size = int(dict(_pairs(lines[k + 1].strip()))["Step"]), 2 + n
+        except (ValueError, IndexError, KeyError) as e:
+            raise InputError(f"{path}, line {k + 1}: not a frame jaxpile wrote ({e}).") from e
+        yield step, "".join(lines[k:k + size])
+        k += size
+
+
 class Trajectory:
     """Appends a frame to an extended-XYZ file at step 0 and at the first chunk
     boundary at or past each multiple of `every` steps (see `trajectory`)."""
@@ -109,7 +181,7 @@ class Trajectory:
             if os.path.exists(self.path):
                 os.remove(self.path)
         else:  # frames written after the checkpoint, before the run stopped, are written again
-            self.frames = truncate_xyz(self.path, resume_step) if os.path.exists(self.path) else 0
+            self.frames = truncate(self.path, resume_step) if os.path.exists(self.path) else 0
             self.last = int(resume_step)
 
     def __call__(self, state: SimState, dt: float) -> None:
@@ -117,7 +189,10 @@ class Trajectory:
         if np.ndim(state.step) or (self.last is not None and step <= self.last):
             return  # a batch, or a state already written (the next phase starts where the last ended)
         if self.last is None or step // self.every > self.last // self.every:
-            write_xyz(self.path, state, time=step * dt, append=True)
+            if _is_dump(self.path):
+                write_lammps_dump(self.path, state, append=True)
+            else:
+                write_xyz(self.path, state, time=step * dt, append=True)
             self.last, self.frames = step, self.frames + 1
 
 
@@ -126,7 +201,8 @@ def trajectory(path, every: int, *, resume_step: int | None = None):
     (`Trajectory`), through a protocol's own runs (`simulate.observing`).
 
     Args:
-      path: the `.xyz` file; replaced, unless resuming.
+      path: the `.xyz` file, or a LAMMPS dump (`.lammpstrj` or `.dump`);
+        replaced, unless resuming.
       every: steps between frames (at chunk boundaries: a frame is written at
         the first boundary at or past each multiple).
       resume_step: the step a resumed run continues from: frames after it
@@ -142,17 +218,10 @@ def trajectory(path, every: int, *, resume_step: int | None = None):
     return observing(Trajectory(path, every, resume_step))
 
 
-def truncate_xyz(path, step: int) -> int:
-    """Keeps the frames of `path` up to `step` (atomically); returns how many."""
-    with open(path) as f:
-        lines = f.read().splitlines(keepends=True)
-    kept, k = [], 0
-    while k < len(lines):
-        n = int(lines[k])
-        if int(dict(_pairs(lines[k + 1].strip()))["Step"]) > step:
-            break
-        kept.append("".join(lines[k:k + 2 + n]))
-        k += 2 + n
+def truncate(path, step: int) -> int:
+    """Keeps the frames of a trajectory (extended XYZ or LAMMPS dump) up to
+    `step`, atomically; returns how many."""
+    kept = [text for frame_step, text in _frames(path) if frame_step <= step]
     atomic_write(path, lambda f: f.write("".join(kept)), text=True)
     return len(kept)
 

@@ -29,8 +29,11 @@ CASES = {
 def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_path, capsys):
     extra, keys, figure = CASES[protocol]
     out = tmp_path / protocol
+    dump = protocol == "tilt"  # one protocol records a LAMMPS dump, the others extended XYZ
+    trajectory_file = out / ("trajectory.lammpstrj" if dump else "trajectory.xyz")
     assert main(["pile", "--protocol", protocol, *extra, "--no-progress", "--out", str(out),
-                 "--checkpoint-every", "2000", "--trajectory-every", "2000"]) == 0
+                 "--checkpoint-every", "2000", "--trajectory-every", "2000",
+                 "--trajectory-format", "lammps" if dump else "xyz"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["protocol"] == protocol and summary["n_particles"] > 0
     for key in keys:
@@ -52,11 +55,12 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     saved = checkpoint.read_metadata(out / "checkpoint.npz")
     assert saved["extra"]["argv"][:3] == ["pile", "--protocol", protocol]
     assert (out / "checkpoint.box.npz").exists() == (protocol == "tilt")
-    steps = [f["step"] for f in export.read_xyz(out / "trajectory.xyz")]  # through every stage and phase
+    read = export.read_lammps_dump if dump else export.read_xyz
+    steps = [f["step"] for f in read(trajectory_file)]  # through every stage and phase
     assert steps[0] == 0 and len(steps) >= 2 and steps == sorted(set(steps))
-    trajectory = (out / "trajectory.xyz").read_text()
+    trajectory = trajectory_file.read_text()
     assert main(["pile", "--resume", str(out), "--no-progress"]) == 0
-    assert (out / "trajectory.xyz").read_text() == trajectory
+    assert trajectory_file.read_text() == trajectory
     assert f"resuming {out} at step {saved['step']}" in capsys.readouterr().out
     again = load_arrays(out / "state.npz")
     np.testing.assert_array_equal(again["particles.position"], state["particles.position"])

@@ -43,7 +43,7 @@ def test_a_pile_run_records_a_trajectory_that_reads_back(finished_run):
 def test_a_trajectory_cut_back_to_a_checkpoint_keeps_the_frames_up_to_it(finished_run, tmp_path):
     path = tmp_path / "t.xyz"
     path.write_text((finished_run / "trajectory.xyz").read_text())
-    assert export.truncate_xyz(path, 1200) == 2
+    assert export.truncate(path, 1200) == 2
     assert [f["step"] for f in export.read_xyz(path)] == [0, 1000]
 
 
