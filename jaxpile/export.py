@@ -35,24 +35,33 @@ PROPERTIES = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:1:force:R:3:active
 COLUMNS = ("pos", 3), ("radius", 1), ("velo", 3), ("omega", 1), ("force", 3), ("active", 1)
 
 
-def frame_text(state: SimState, time: float | None = None) -> str:
-    """One extended-XYZ frame of `state`."""
+def _table(state: SimState):
+    """`(rows, active, lo, hi)`: the per-disk columns both formats write (pos xyz,
+    radius, velocity xyz, spin z, force xyz; z = 0), the active flags, and the
+    corners of the disks' bounding box (plain floats: the repr of a numpy
+    scalar is "np.float64(...)")."""
     p = state.particles
     pos = np.asarray(p.position, float)
     n = pos.shape[0]
-    lo = pos.min(0) - np.asarray(p.radius).max() if n else np.zeros(2)
-    hi = pos.max(0) + np.asarray(p.radius).max() if n else np.ones(2)
-    size = [float(v) for v in np.maximum(hi - lo, 1e-12)]
-    lo = [float(v) for v in lo]  # plain floats: repr of a numpy scalar is "np.float64(...)"
+    reach = float(np.asarray(p.radius).max()) if n else 0.5
+    lo = pos.min(0) - reach if n else np.zeros(2)
+    hi = np.maximum(pos.max(0) + reach if n else np.ones(2), lo + 1e-12)
     zero = np.zeros((n, 1))
     table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
                        np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
-    active = np.asarray(p.active).astype(int)
+    rows = [" ".join(repr(float(v)) for v in row) for row in table]
+    return rows, np.asarray(p.active).astype(int), [float(v) for v in lo], [float(v) for v in hi]
+
+
+def frame_text(state: SimState, time: float | None = None) -> str:
+    """One extended-XYZ frame of `state`."""
+    rows, active, lo, hi = _table(state)
+    size = [h - l for h, l in zip(hi, lo)]
     header = (f'Lattice="{size[0]!r} 0.0 0.0 0.0 {size[1]!r} 0.0 0.0 0.0 1.0" Origin="{lo[0]!r} {lo[1]!r} -0.5" '
               f'Properties={PROPERTIES} Step={int(state.step)} pbc="F F F"'
               + ("" if time is None else f" Time={float(time)!r}"))
-    rows = [f"X {' '.join(repr(float(v)) for v in row)} {a}" for row, a in zip(table, active)]
-    return f"{n}\n{header}\n" + "\n".join(rows) + ("\n" if rows else "")
+    lines = [f"X {row} {a}" for row, a in zip(rows, active)]
+    return f"{len(rows)}\n{header}\n" + "\n".join(lines) + ("\n" if lines else "")
 
 
 def write_xyz(path, state: SimState, *, time: float | None = None, append: bool = False) -> None:
@@ -99,21 +108,12 @@ def dump_text(state: SimState) -> str:
     """One LAMMPS `dump custom` frame of `state` (what OVITO opens and LAMMPS's
     `read_dump` / `rerun` read): ids from 1, type 1, z = 0, and the box of the
     disks (`ff ff pp`, non-periodic in the plane)."""
-    p = state.particles
-    pos = np.asarray(p.position, float)
-    n = pos.shape[0]
-    reach = float(np.asarray(p.radius).max()) if n else 0.5
-    lo = pos.min(0) - reach if n else np.zeros(2)
-    hi = np.maximum(pos.max(0) + reach if n else np.ones(2), lo + 1e-12)
-    zero = np.zeros((n, 1))
-    table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
-                       np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
-    active = np.asarray(p.active).astype(int)
-    head = (f"ITEM: TIMESTEP\n{int(np.max(np.asarray(state.step)))}\nITEM: NUMBER OF ATOMS\n{n}\n"
-            f"ITEM: BOX BOUNDS ff ff pp\n{float(lo[0])!r} {float(hi[0])!r}\n{float(lo[1])!r} {float(hi[1])!r}\n"
+    rows, active, lo, hi = _table(state)
+    head = (f"ITEM: TIMESTEP\n{int(np.max(np.asarray(state.step)))}\nITEM: NUMBER OF ATOMS\n{len(rows)}\n"
+            f"ITEM: BOX BOUNDS ff ff pp\n{lo[0]!r} {hi[0]!r}\n{lo[1]!r} {hi[1]!r}\n"
             f"-0.5 0.5\nITEM: ATOMS {DUMP_COLUMNS}\n")
-    rows = [f"{k + 1} 1 {' '.join(repr(float(v)) for v in row)} {a}" for k, (row, a) in enumerate(zip(table, active))]
-    return head + "\n".join(rows) + ("\n" if rows else "")
+    lines = [f"{k + 1} 1 {row} {a}" for k, (row, a) in enumerate(zip(rows, active))]
+    return head + "\n".join(lines) + ("\n" if lines else "")
 
 
 def write_lammps_dump(path, state: SimState, *, append: bool = False) -> None:

@@ -655,13 +655,17 @@ def check_dt(sim, p: Protocol) -> None:
 def start(sim, params, p: Protocol, resume=None) -> tuple[SimState, dict | None]:
     """The protocol's first state, or with `resume` (a checkpoint file of this
     same run) the state saved there, with the samples saved beside it."""
-    from jaxpile import checkpoint as ckpt
-
     check_dt(sim, p)
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    if resume is None:
-        return state, None
-    state = ckpt.restore(resume, state, sim.law.name, params)
+    return (state, None) if resume is None else restore_sampled(resume, state, sim, params)
+
+
+def restore_sampled(resume, template: SimState, sim, params) -> tuple[SimState, dict]:
+    """The state a sampled run (`run_sampled`) saved in `resume`, rebuilt on
+    `template` (`checkpoint.restore`), and the samples saved with it."""
+    from jaxpile import checkpoint as ckpt
+
+    state = ckpt.restore(resume, template, sim.law.name, params)
     samples = ckpt.read_metadata(resume)["extra"].get("samples")
     if samples is None:
         raise InputError(f"{resume} does not hold a sampled protocol run (no samples recorded with it).")
@@ -774,6 +778,7 @@ __all__ = [
     "random_positions",
     "repose",
     "rest_detector",
+    "restore_sampled",
     "rms_speed",
     "motion",
     "run",

@@ -389,15 +389,10 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
 
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps`; `checkpoint` and `resume` as
-    in `box.execute`. Returns as `box.run_sampled`."""
-    state, samples = boxes.start(sim, params, p, resume)
-    if int(state.step) > max_steps:
-        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {max_steps} steps: "
-                         "resume with the budget (max_time) it was written with.")
-    return boxes.run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
-                             finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
-                             samples=samples)
+    rest (`FluxState.settled_at`), or `max_steps`: `box.execute`, whose
+    predicate is the same field of this driver's state. Returns as `box.run_sampled`."""
+    return boxes.execute(sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
+                         resume=resume)
 
 
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`

@@ -279,10 +279,7 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         state = pile.set(protocol_state=p.protocol_state)
     samples = None
     if resume is not None:
-        state = ckpt.restore(resume, state, sim.law.name, params)
-        samples = ckpt.read_metadata(resume)["extra"].get("samples")
-        if samples is None:
-            raise InputError(f"{resume} does not hold a tilt run (no samples recorded with it).")
+        state, samples = boxes.restore_sampled(resume, state, sim, params)
     u = boxes.units(sim.law.name)
     settle_steps = int(round(boxes._check_positive("settle_time", settle_time) * u.time / sim.dt)) if settle else 0
     max_steps = p.info["max_tilt_steps"] + sim.chunk_steps + settle_steps
