@@ -278,6 +278,25 @@ def _run_command(argv: list[str]) -> list[str]:
     return out
 
 
+def _resume_point(args) -> tuple[str | None, int]:
+    """For --resume DIR: the checkpoint file to hand to the run (DIR/checkpoint.npz;
+    a tilt finds its box stage beside it) and the step it resumes at, announced.
+    `(None, 0)` for a new run."""
+    from jaxpile import checkpoint
+    from jaxpile.errors import InputError
+
+    if args.resume is None:
+        return None, 0
+    saved = checkpoint.in_folder(args.resume)
+    if saved is None:
+        raise InputError(f"no checkpoint to resume in {args.resume}.")
+    meta = checkpoint.read_metadata(saved)
+    rows = meta["extra"].get("rows")
+    print(f"jaxpile: resuming {args.resume} at step {meta['step']}"
+          + ("" if rows is None else f" ({len(rows)} members measured)"), flush=True)
+    return os.path.join(args.resume, "checkpoint.npz"), int(meta["step"])
+
+
 def _trajectory(args, resumed_from: int):
     """The context that records OUT/trajectory.xyz with --trajectory-every (a
     resumed run drops the frames written after its checkpoint and goes on)."""
@@ -397,12 +416,11 @@ def run_pile(args) -> dict:
               "contacts switch to the soft law by eq. 22", flush=True)
     sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator, hard_collisions=hard)
     state = sim.init(params, particles, boundaries)
-    if args.resume is not None:
+    resume, resumed_from = _resume_point(args)
+    if resume is not None:
         from jaxpile import checkpoint
 
-        state = checkpoint.restore(os.path.join(args.resume, "checkpoint.npz"), state, law.name, params)
-        print(f"jaxpile: resuming {args.resume} at step {int(state.step)}", flush=True)
-    resumed_from = int(state.step)
+        state = checkpoint.restore(resume, state, law.name, params)
     t0 = time.perf_counter()
     with _trajectory(args, resumed_from):
         state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
@@ -515,16 +533,7 @@ def run_protocol(args) -> dict:
                          f"{', '.join(sorted(_accepted_options(module)))}.")
     kwargs.update(options)
     kwargs["checkpoint"] = _checkpoint_spec(args)
-    resumed_from = 0
-    if args.resume is not None:
-        from jaxpile import checkpoint
-
-        kwargs["resume"] = os.path.join(args.resume, "checkpoint.npz")  # tilt: its box stage is beside it
-        saved = checkpoint.in_folder(args.resume)
-        if saved is None:
-            raise InputError(f"no checkpoint to resume in {args.resume}.")
-        resumed_from = int(checkpoint.read_metadata(saved)["step"])
-        print(f"jaxpile: resuming {args.resume} at step {resumed_from}", flush=True)
+    kwargs["resume"], resumed_from = _resume_point(args)
 
     print(f"jaxpile: {name} pile ({PROTOCOL_HELP[name]}), law {contact_law.name} "
           f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)
@@ -601,7 +610,7 @@ def run_sweep(args) -> dict:
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import checkpoint, io
+    from jaxpile import io
     from jaxpile import sweep as sw
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
@@ -631,12 +640,7 @@ def run_sweep(args) -> dict:
     print(f"jaxpile: sweep of the {args.protocol} protocol, law {law}: "
           + ", ".join(f"{k} in {v}" for k, v in vary.items()) + f", {args.seeds} seeds: {members} members",
           flush=True)
-    resume = None
-    if args.resume is not None:
-        resume = os.path.join(args.resume, "checkpoint.npz")
-        done = len(checkpoint.read_metadata(resume)["extra"].get("rows", []))
-        print(f"jaxpile: resuming {args.resume}: {done} members measured, the next batch at step "
-              f"{checkpoint.read_metadata(resume)['step']}", flush=True)
+    resume, _ = _resume_point(args)
     result = sw.sweep(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
                       max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
                       progress=False if args.no_progress else None, checkpoint=_checkpoint_spec(args),

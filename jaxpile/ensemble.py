@@ -46,6 +46,7 @@ from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxpile import neighbors as nb
+from jaxpile.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.protocols.base import Protocol
 from jaxpile.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
@@ -335,8 +336,6 @@ class Ensemble:
                     _check_batch_finite(new, last_good=state)
                 except SimulationError as error:
                     if save is not None:  # the last good batch on disk beside the checkpoints
-                        from jaxpile.checkpoint import step_of
-
                         error.saved_to = save.last_good(state, failed_at=step_of(new))
                         error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
                     raise

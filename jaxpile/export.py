@@ -109,7 +109,7 @@ def dump_text(state: SimState) -> str:
     `read_dump` / `rerun` read): ids from 1, type 1, z = 0, and the box of the
     disks (`ff ff pp`, non-periodic in the plane)."""
     rows, active, lo, hi = _table(state)
-    head = (f"ITEM: TIMESTEP\n{int(np.max(np.asarray(state.step)))}\nITEM: NUMBER OF ATOMS\n{len(rows)}\n"
+    head = (f"ITEM: TIMESTEP\n{int(state.step)}\nITEM: NUMBER OF ATOMS\n{len(rows)}\n"
             f"ITEM: BOX BOUNDS ff ff pp\n{lo[0]!r} {hi[0]!r}\n{lo[1]!r} {hi[1]!r}\n"
             f"-0.5 0.5\nITEM: ATOMS {DUMP_COLUMNS}\n")
     lines = [f"{k + 1} 1 {row} {a}" for k, (row, a) in enumerate(zip(rows, active))]
@@ -185,9 +185,9 @@ class Trajectory:
             self.last = int(resume_step)
 
     def __call__(self, state: SimState, dt: float) -> None:
-        step = int(np.max(np.asarray(state.step)))
-        if np.ndim(state.step) or (self.last is not None and step <= self.last):
-            return  # a batch, or a state already written (the next phase starts where the last ended)
+        step = int(state.step)
+        if self.last is not None and step <= self.last:
+            return  # already written: the next phase starts where the last ended
         if self.last is None or step // self.every > self.last // self.every:
             if _is_dump(self.path):
                 write_lammps_dump(self.path, state, append=True)

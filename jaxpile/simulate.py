@@ -26,6 +26,7 @@ import numpy as np
 from jax import lax
 
 from jaxpile import neighbors as nb
+from jaxpile.checkpoint import step_of
 from jaxpile.collisions import HardCollisions, hard_collision_velocities
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.integrators import Integrator, get_integrator
@@ -636,13 +637,9 @@ class _Checkpointer:
         return target
 
     def _path(self, state: SimState) -> str:
-        from jaxpile.checkpoint import step_of
-
         return self.path.replace("{step}", str(step_of(state)))
 
     def __call__(self, state: SimState, done: int, final: bool) -> None:
-        from jaxpile.checkpoint import step_of
-
         step = step_of(state)
         if self.last is None:
             self.last = (step - done) // self.every
