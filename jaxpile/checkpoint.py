@@ -38,7 +38,7 @@ from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
 from jaxpile.state import SimState
 
-FORMAT = 1  # bump when the layout of the file changes
+FORMAT = 2  # 2: contact history per half pair (Contacts.pairs). Bump when the layout of the file changes
 
 
 def _version() -> str:
@@ -172,8 +172,8 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None) -> Sim
         return ensemble.stack([ensemble.at_capacity(m, slots, cells) for m in members])
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells)
     c = template.contacts
-    contacts = c.set(partner=neighbors.idx,
-                     history=jnp.zeros(neighbors.idx.shape + c.history.shape[2:], c.history.dtype))
+    pairs = nb.half_pairs(neighbors.idx)
+    contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
 
 

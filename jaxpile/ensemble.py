@@ -89,8 +89,7 @@ def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None) 
     if _capacity(state) == (max_occupancy, cell_capacity):
         return state
     neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity)
-    history = nb.remap_history(state.contacts.partner, state.contacts.history, neighbors.idx)
-    return state.set(neighbors=neighbors, contacts=state.contacts.set(partner=neighbors.idx, history=history))
+    return state.set(neighbors=neighbors, contacts=nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx))
 
 
 def stack_states(states: Sequence[SimState]) -> SimState:

@@ -30,27 +30,11 @@ from jaxpile.checkpoint import step_of
 from jaxpile.collisions import HardCollisions, hard_collision_velocities
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.integrators import Integrator, get_integrator
-from jaxpile.interactions import ContactForces, evaluate, external_force
+from jaxpile.interactions import ContactForces, evaluate, external_force, in_slots
 from jaxpile.laws.base import ContactLaw
 from jaxpile.state import Boundaries, Contacts, Particles, SimState
 
 Array = Any
-
-
-def _with_remapped_history(state: SimState, new_neighbors, axis_name: str | None = None) -> Contacts:
-    """History re-aligned with `new_neighbors.idx` (identity when nothing moved;
-    decided once for the batch under a named `vmap` axis, see `neighbors.any_member`)."""
-    c = state.contacts
-    idx = new_neighbors.idx
-    if idx.shape != c.partner.shape:
-        history = nb.remap_history(c.partner, c.history, idx)
-    else:
-        history = lax.cond(
-            nb.any_member(jnp.any(idx != c.partner), axis_name),
-            lambda: nb.remap_history(c.partner, c.history, idx),
-            lambda: c.history,
-        )
-    return c.set(partner=idx, history=history)
 
 
 def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
@@ -91,9 +75,9 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         boundaries = state.boundaries if schedule is None else schedule(state.set(step=state.step + integ.force_step))
 
         def forces_at(p: Particles, step_positions=None):
-            neighbors = nb.update(state.neighbors, p.position, state.neighbor_settings.skin, axis_name)
-            contacts = _with_remapped_history(state, neighbors, axis_name)
-            cf = evaluate(law, params, p, contacts, neighbors.idx, boundaries, dt, step_positions)
+            neighbors, contacts = nb.update_with_contacts(state.neighbors, state.contacts, p.position,
+                                                          state.neighbor_settings.skin, axis_name)
+            cf = evaluate(law, params, p, contacts, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)
             return force, cf.torque, (neighbors, contacts)
@@ -343,13 +327,14 @@ class Simulator:
         _check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
         neighbors = nb.allocate(settings, particles.position)
-        n, k = neighbors.idx.shape
+        n = neighbors.idx.shape[0]
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
+        pairs = nb.half_pairs(neighbors.idx)
         contacts = Contacts(
-            partner=neighbors.idx,
-            history=jnp.zeros((n, k, h), dtype),
+            pairs=pairs,
+            history=jnp.zeros((pairs.shape[0], h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
         state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings,
@@ -365,7 +350,7 @@ class Simulator:
 
         def force_fn(position, velocity, angular_velocity):
             p = state.particles.set(position=position, velocity=velocity, angular_velocity=angular_velocity)
-            cf = evaluate(self.law, params, p, state.contacts, state.neighbors.idx, boundaries, 0.0)
+            cf = evaluate(self.law, params, p, state.contacts, boundaries, 0.0)
             return cf.force + external_force(p, boundaries), cf.torque
 
         particles, extra = self.integrator.start(state.particles, self.dt, self.law.rotation, force_fn)
@@ -380,11 +365,13 @@ class Simulator:
         velocities with these `params` (history not advanced). Pure."""
         boundaries = self.boundaries_at(state)
         p = state.particles
-        cf = evaluate(self.law, params, p, state.contacts, state.neighbors.idx, boundaries, 0.0)
+        cf = evaluate(self.law, params, p, state.contacts, boundaries, 0.0)
         return state.set(particles=p.set(force=cf.force + external_force(p, boundaries), torque=cf.torque))
 
     def contact_forces(self, params, state: SimState) -> ContactForces:
-        """Every contact's force at the state as stored, without advancing history."""
+        """Every contact's force at the state as stored, without advancing
+        history; `pair` laid out as the neighbour slots `[n, k]` (each disk's
+        view of its contacts, `interactions.in_slots`), for the measurements."""
         return _evaluate_jit(self.law, params, state)
 
     def _check_overlaps(self, state: SimState) -> None:
@@ -462,8 +449,7 @@ class Simulator:
         # at least double: a chunk that starts with few neighbours may end with many
         extra = max(4, overflowed.neighbors.max_occupancy)
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
-        history = nb.remap_history(state.contacts.partner, state.contacts.history, neighbors.idx)
-        contacts = state.contacts.set(partner=neighbors.idx, history=history)
+        contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx)
         return state.set(neighbors=neighbors, contacts=contacts)
 
     def _chunk(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
@@ -675,7 +661,8 @@ def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
 
 
 def _evaluate(law: ContactLaw, params, state: SimState) -> ContactForces:
-    return evaluate(law, params, state.particles, state.contacts, state.neighbors.idx, state.boundaries, 0.0)
+    cf = evaluate(law, params, state.particles, state.contacts, state.boundaries, 0.0)
+    return cf._replace(pair=in_slots(cf.pair, state.contacts.pairs, state.neighbors.idx))
 
 
 _evaluate_jit = jax.jit(_evaluate, static_argnums=0)

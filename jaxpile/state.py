@@ -68,18 +68,20 @@ class Particles:
 
 @dataclasses.dataclass
 class Contacts:
-    """Contact history as fixed-size padded arrays aligned with the neighbour slots.
+    """Contact history as fixed-size padded arrays, one entry per pair.
 
     Attributes:
-      partner: `[n, k]` int, the particle id each neighbour slot held when its
-        history was written (`n` marks an empty slot). Used to carry history
-        across a neighbour-list rebuild.
-      history: `[n, k, h]` per-pair history (for `hooke`: the accumulated shear
-        displacement vector). Non-zero only while the pair is in contact.
+      pairs: `[P, 2]` int, the half pair list `(i, j)`, i < j, each pair of the
+        neighbour list once (`neighbors.half_pairs(neighbors.idx)`, rebuilt with
+        the list; empty entries `(n, n)`).
+      history: `[P, h]` per-pair history, in the frame of the pair's lower id i
+        (for `hooke`: the accumulated shear displacement of i relative to j).
+        Non-zero only while the pair is in contact; carried pair by pair across
+        neighbour-list rebuilds (`neighbors.carry_history`).
       wall_history: `[n, w, h]` the same for each particle against each wall.
     """
 
-    partner: Array
+    pairs: Array
     history: Array
     wall_history: Array
 

@@ -9,7 +9,7 @@ import pytest
 import jaxpile
 from jaxpile import interactions
 from jaxpile.laws import hooke
-from jaxpile.neighbors import remap_history
+from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_entry
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
 
@@ -70,24 +70,30 @@ def test_neighbor_list_forces_equal_all_pairs(agitated):
     p = state.particles
     n = p.count
     all_idx = jnp.asarray([[j for j in range(n) if j != i] for i in range(n)], jnp.int32)
-    history = remap_history(state.contacts.partner, state.contacts.history, all_idx)
-    contacts = state.contacts.set(partner=all_idx, history=history)
-    brute = interactions.evaluate(sim.law, PARAMS, p, contacts, all_idx, state.boundaries, 0.0)
+    contacts = contacts_for(state.contacts, state.neighbors.idx, all_idx)
+    brute = interactions.evaluate(sim.law, PARAMS, p, contacts, state.boundaries, 0.0)
     listed = sim.contact_forces(PARAMS, state)
     np.testing.assert_allclose(listed.force, brute.force, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(listed.torque, brute.torque, rtol=1e-12, atol=1e-12)
 
 
-def test_remap_history_follows_partner_ids():
-    old_partner = jnp.array([[3, 1, 4], [4, 4, 4], [0, 4, 4], [0, 4, 4]])
-    old_hist = jnp.arange(24.0).reshape(4, 3, 2)
-    new_idx = jnp.array([[1, 2, 3, 4], [4, 4, 4, 4], [4, 0, 4, 4], [0, 4, 4, 4]])
-    new = remap_history(old_partner, old_hist, new_idx)
-    np.testing.assert_array_equal(new[0, 0], old_hist[0, 1])  # partner 1 moved slot 1 -> 0
-    np.testing.assert_array_equal(new[0, 1], 0.0)  # partner 2 is new
-    np.testing.assert_array_equal(new[0, 2], old_hist[0, 0])  # partner 3 moved slot 0 -> 2
-    np.testing.assert_array_equal(new[2, 1], old_hist[2, 0])
-    np.testing.assert_array_equal(new[1], 0.0)
+def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
+    # full lists of 4 disks (empty = 4): pairs (0,1) (0,3) (0,2)->gone (1,2) new ...
+    old_idx = jnp.array([[3, 1, 2], [0, 4, 4], [0, 4, 4], [0, 4, 4]])
+    new_idx = jnp.array([[1, 4, 3, 4], [2, 0, 4, 4], [4, 1, 4, 4], [0, 4, 4, 4]])
+    old_pairs = half_pairs(old_idx)
+    assert old_pairs.shape == (6, 2)  # ceil(4 * 3 / 2)
+    np.testing.assert_array_equal(old_pairs[:3], [[0, 3], [0, 1], [0, 2]])  # row-major slot order
+    np.testing.assert_array_equal(old_pairs[3:], 4)  # empty entries
+    old_hist = jnp.arange(12.0).reshape(6, 2)
+    new_pairs = half_pairs(new_idx)
+    np.testing.assert_array_equal(new_pairs[:3], [[0, 1], [0, 3], [1, 2]])
+    new = carry_history(old_idx, old_hist, new_idx, new_pairs)
+    np.testing.assert_array_equal(new[0], old_hist[1])  # (0, 1) moved entry 1 -> 0
+    np.testing.assert_array_equal(new[1], old_hist[0])  # (0, 3) moved entry 0 -> 1
+    np.testing.assert_array_equal(new[2], 0.0)  # (1, 2) is new
+    np.testing.assert_array_equal(new[3:], 0.0)  # empty entries
+    assert pair_entry(new_pairs, 3, 0) == 1 and pair_entry(new_pairs, 0, 2) is None
 
 
 def _sliding_pair(skin):
@@ -110,9 +116,8 @@ def test_history_survives_neighbor_rebuilds_and_clears_on_separation():
         ref0 = np.asarray(state.neighbors.reference_position).copy()
         state = sim.run(params, state, 2000, progress=False)
         rebuilt = not np.array_equal(np.asarray(state.neighbors.reference_position), ref0)
-        row = np.asarray(state.contacts.history[1])
-        slot = int(np.flatnonzero(np.asarray(state.contacts.partner[1]) == 0)[0])
-        results[skin] = (rebuilt, row[slot].copy(), state, sim, params)
+        entry = pair_entry(state.contacts.pairs, 0, 1)
+        results[skin] = (rebuilt, np.asarray(state.contacts.history[entry]).copy(), state, sim, params)
     assert not results[2.0][0] and results[0.05][0]
     shear_a, shear_b = results[2.0][1], results[0.05][1]
     assert np.linalg.norm(shear_a) > 0.05  # accumulated displacement along the tangent

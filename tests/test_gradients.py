@@ -102,11 +102,11 @@ def test_gradient_stays_finite_for_a_disk_behind_a_wall_that_is_off():
     particles = make_particles(np.array([[-3.0, 0.5], [5.0, 0.5]]), 0.5)
     boundaries = set_wall(make_boundaries(left=0.0, right=10.0), LEFT_WALL, active=False)
     law = baxter.law()
-    idx = jnp.full((2, 1), 2)
-    contacts = Contacts(partner=idx, history=jnp.zeros((2, 1, 1)), wall_history=jnp.zeros((2, 3, 1)))
+    pairs = jnp.full((1, 2), 2)  # no pair
+    contacts = Contacts(pairs=pairs, history=jnp.zeros((1, 1)), wall_history=jnp.zeros((2, 3, 1)))
 
     def total(n):
-        cf = evaluate(law, baxter.make_params(n=n), particles, contacts, idx, boundaries, 1e-3)
+        cf = evaluate(law, baxter.make_params(n=n), particles, contacts, boundaries, 1e-3)
         return jnp.sum(cf.force**2)
 
     assert np.isfinite(float(jax.grad(total)(60.0)))

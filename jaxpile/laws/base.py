@@ -54,6 +54,9 @@ class PairForce(NamedTuple):
       normal: the normal force magnitude along +n (repulsive > 0), for analysis
         and for Coulomb caps.
       in_contact: bool.
+      torque_j: torque on j (z component). The pair loop evaluates each pair
+        once, from its lower id i, and gives j the reaction -force and this
+        torque (for a contact-point lever arm: torque * r_j / r_i, same sign).
     """
 
     force: Array
@@ -61,6 +64,7 @@ class PairForce(NamedTuple):
     history: Array
     normal: Array
     in_contact: Array
+    torque_j: Array = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,7 +76,8 @@ class ContactLaw:
       name: registry name (`hooke`, ...).
       history_size: h, the length of the per-pair history vector.
       rotation: False freezes the angular degrees of freedom.
-      pair_force: `(params, PairGeometry, history[h], dt) -> PairForce`.
+      pair_force: `(params, PairGeometry, history[h], dt) -> PairForce` (with
+        `torque_j`, the torque on j, filled in).
       wall_params: `params -> params` used for walls (the `wall_*` values).
       interaction_range: `(params, radius_i, radius_j) -> float`, the distance
         below which a pair interacts (sizes the neighbour list).
@@ -93,7 +98,7 @@ class ContactLaw:
     params_type: type
 
 
-def contact_result(in_contact, force, torque, history, normal) -> PairForce:
+def contact_result(in_contact, force, torque, history, normal, torque_j) -> PairForce:
     """A `PairForce` that is zero (and has zero history) outside contact."""
     return PairForce(
         force=jnp.where(in_contact, force, jnp.zeros_like(force)),
@@ -101,6 +106,7 @@ def contact_result(in_contact, force, torque, history, normal) -> PairForce:
         history=jnp.where(in_contact, history, jnp.zeros_like(history)),
         normal=jnp.where(in_contact, normal, 0.0),
         in_contact=in_contact,
+        torque_j=jnp.where(in_contact, torque_j, 0.0),
     )
 
 

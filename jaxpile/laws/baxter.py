@@ -130,7 +130,8 @@ def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
 
     force = f_n * n_hat + f_t * t_hat
     torque = -lever_i * f_t  # (-lever_i n) x (f_t t)
-    return contact_result(engaged, force, torque, delta[None], f_n)
+    torque_j = -lever_j * f_t  # (lever_j n) x (-f_t t)
+    return contact_result(engaged, force, torque, delta[None], f_n, torque_j)
 
 
 def hooke_equivalent(n: float, r0: float, r_min: float, sigma: float = 1.0, weight: float = 1.0) -> float:

@@ -11,7 +11,7 @@ m_eff = m_i m_j / (m_i + m_j) (m_i against a wall or a fixed disk):
   Coulomb:     if |F_t| > mu |F_n|: F_t <- F_t mu|F_n|/|F_t| and s is rescaled so
                that k_t s + m_eff gamma_t v_tr matches (LAMMPS semantics: the cap
                uses |F_n| including its damping part)
-  torque on i: -r_i (n x F_t)
+  torque on i: -r_i (n x F_t), on j: -r_j (n x F_t)
 
 The shear displacement s is the per-pair history (a 2-vector, zeroed when the
 pair separates). Walls and the ground use `wall_kn, wall_kt, wall_gamma_n,
@@ -134,8 +134,10 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
     ftx, fty = keep * ftx, keep * fty
 
     fx, fy = fn * nx + ftx, fn * ny + fty
-    torque = -g.radius_i * (nx * fty - ny * ftx)
-    return contact_result(in_contact, jnp.stack([fx, fy]), torque, jnp.stack([sx, sy]), fn)
+    n_cross_ft = nx * fty - ny * ftx
+    torque = -g.radius_i * n_cross_ft
+    torque_j = -g.radius_j * n_cross_ft  # (r_j n) x (-F_t)
+    return contact_result(in_contact, jnp.stack([fx, fy]), torque, jnp.stack([sx, sy]), fn, torque_j)
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:

@@ -127,7 +127,8 @@ def _pair_force(p: Params, g: PairGeometry, history: Array, dt, slip: bool) -> P
 
     force = f_n * n + f_s * s
     torque = g.radius_i * f_s  # (-a_i n) x (f_s s), z component
-    return contact_result(in_contact, force, torque, delta_s[None], f_n)
+    torque_j = g.radius_j * f_s  # (a_j n) x (-f_s s)
+    return contact_result(in_contact, force, torque, delta_s[None], f_n, torque_j)
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:

@@ -142,7 +142,8 @@ def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
 
     force = spring - p.kd * dot2(g.velocity, n) * n + f_t * t  # (34)-(35)
     torque = -g.radius_i * f_slip  # (36)
-    return contact_result(in_contact, force, torque, new_history, f_n)
+    torque_j = -g.radius_j * f_slip  # (36) for disk 2: its own radius, the same sense
+    return contact_result(in_contact, force, torque, new_history, f_n, torque_j)
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:
