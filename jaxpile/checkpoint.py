@@ -162,17 +162,17 @@ def read_leaves(path) -> dict:
         raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
 
 
-def _at_saved_capacity(template: SimState, slots: int, cells: int | None) -> SimState:
+def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs: int) -> SimState:
     """The template with its neighbour list (each member's, for a batch) at
     the saved capacity; its arrays are then all replaced from the file."""
     if batch_of(template) is not None:
         from jaxpile import ensemble
 
         members = [ensemble.member(template, i) for i in range(batch_of(template))]
-        return ensemble.stack([ensemble.at_capacity(m, slots, cells) for m in members])
+        return ensemble.stack([ensemble.at_capacity(m, slots, cells, pairs) for m in members])
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells)
     c = template.contacts
-    pairs = nb.half_pairs(neighbors.idx)
+    pairs = nb.half_pairs(neighbors.idx, pairs)
     contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
 
@@ -221,9 +221,12 @@ def restore(path, template: SimState, law_name: str, params) -> SimState:
                          f"the set-up to resume has {'a batch of ' + str(batch_of(template)) if batch_of(template) else 'one pile'}. "
                          "Build the same set-up it was written from.")
     # the saved run may have re-allocated its list: give the template that capacity
-    template = _at_saved_capacity(template, meta["neighbor_capacity"], meta["cell_capacity"])
-    names, leaves, treedef = _leaves(template)
     saved = read_leaves(path)
+    saved_pairs = saved.get(".contacts.pairs")
+    if saved_pairs is None or saved_pairs.ndim < 2:
+        raise InputError(f"{path} holds no contact pair list: it was not written by this jaxpile.")
+    template = _at_saved_capacity(template, meta["neighbor_capacity"], meta["cell_capacity"], saved_pairs.shape[-2])
+    names, leaves, treedef = _leaves(template)
     if set(saved) != set(names):
         raise InputError(f"{path} holds another kind of state (arrays {sorted(set(saved) ^ set(names))[:4]} do "
                          "not match): build the same set-up, protocol and integrator it was written from.")

@@ -797,7 +797,9 @@ def run_fit(args) -> dict:
         result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
     before, after = profile(params), profile(result.params)
     # the rollouts are pure (no re-allocation inside): make sure no contact was dropped
-    overflowed = jax.jit(lambda p: sim.rollout(p, state, steps).neighbors.did_buffer_overflow)
+    from jaxpile.neighbors import overflowed as lost_contacts
+
+    overflowed = jax.jit(lambda p: lost_contacts(sim.rollout(p, state, steps)))
     for label, p in (("starting", params), ("fitted", result.params)):
         if bool(overflowed(p)):
             raise SimulationError(f"the neighbour list overflowed in the rollout with the {label} parameters, so "

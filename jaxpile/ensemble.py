@@ -49,7 +49,7 @@ from jaxpile import neighbors as nb
 from jaxpile.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.protocols.base import Protocol
-from jaxpile.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
+from jaxpile.simulate import RunInfo, Simulator, _pairs_needed, compiled_for, make_step, max_speed
 from jaxpile.state import SimState
 
 Array = Any
@@ -79,17 +79,20 @@ def batch_size(tree: Any) -> int:
     return int(np.shape(leaves[0])[0])
 
 
-def _capacity(state: SimState) -> tuple[int, int | None]:
-    return state.neighbors.max_occupancy, state.neighbors.cell_list_capacity
+def _capacity(state: SimState) -> tuple[int, int | None, int]:
+    return state.neighbors.max_occupancy, state.neighbors.cell_list_capacity, int(state.contacts.pairs.shape[-2])
 
 
-def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None) -> SimState:
-    """The state with its neighbour list rebuilt at the given capacity and its
-    contact history carried into the new slots."""
-    if _capacity(state) == (max_occupancy, cell_capacity):
+def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None, pairs: int | None = None) -> SimState:
+    """The state with its neighbour list rebuilt at the given capacity (and
+    `pairs` half-pair entries; default: as many as now) and its contact history
+    carried onto the new pairs."""
+    pairs = int(state.contacts.pairs.shape[-2]) if pairs is None else int(pairs)
+    if _capacity(state) == (max_occupancy, cell_capacity, pairs):
         return state
     neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity)
-    return state.set(neighbors=neighbors, contacts=nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx))
+    return state.set(neighbors=neighbors,
+                     contacts=nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs))
 
 
 def stack_states(states: Sequence[SimState]) -> SimState:
@@ -110,8 +113,9 @@ def stack_states(states: Sequence[SimState]) -> SimState:
     slots = max(s.neighbors.max_occupancy for s in states)
     cells = [s.neighbors.cell_list_capacity for s in states]
     cells = None if any(c is None for c in cells) else max(cells)
-    states = [at_capacity(s, slots, cells) for s in states]
-    overflowed = [i for i, s in enumerate(states) if bool(s.neighbors.did_buffer_overflow)]
+    pairs = max(int(s.contacts.pairs.shape[-2]) for s in states)
+    states = [at_capacity(s, slots, cells, pairs) for s in states]
+    overflowed = [i for i, s in enumerate(states) if bool(nb.overflowed(s))]
     if overflowed:  # cannot happen at the largest allocated capacity; never pass it on silently
         raise SimulationError(f"the shared neighbour capacity overflowed for member(s) {overflowed}.", states[0])
     return stack(states)
@@ -252,7 +256,7 @@ class Ensemble:
     def _compiled_advance(self, params, state, frozen, info: RunInfo):
         return compiled_for(self._compiled, self._advance_jit, (params, state, frozen), info)
 
-    def _reallocate(self, state: SimState) -> SimState:
+    def _reallocate(self, state: SimState, overflowed: SimState) -> SimState:
         """Every member re-allocated from its chunk-start positions with room to
         grow (as `Simulator._reallocate`), at the largest capacity any needs."""
         old_slots = state.neighbors.max_occupancy
@@ -263,7 +267,9 @@ class Ensemble:
         slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
-        members = [at_capacity(m, slots, cells) for m in members]
+        needed = _pairs_needed(state, overflowed)
+        pairs = max(nb.pair_capacity_for(f.idx, settings.capacity_multiplier, needed) for f in fresh)
+        members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))
 
     def _chunk(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
@@ -273,10 +279,10 @@ class Ensemble:
             new = fn(params, state, frozen, jnp.int32(n))
             jax.block_until_ready(new)
             info.wall_seconds += time.perf_counter() - t0
-            if not bool(jnp.any(new.neighbors.did_buffer_overflow)):
+            if not bool(jnp.any(nb.overflowed(new))):
                 return new
             info.reallocations += 1
-            state = self._reallocate(state)
+            state = self._reallocate(state, new)
         raise SimulationError("the batch's neighbour list kept overflowing after 20 re-allocations.", state)
 
     def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,

@@ -175,7 +175,8 @@ def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
     lower = keep
     upper = (idx < n) & (idx < jnp.arange(n, dtype=idx.dtype)[:, None]) & (mirrored >= 0)
     e = jnp.where(lower, entry, jnp.maximum(mirrored, 0))
-    valid = lower | upper
+    valid = (lower | upper) & (e < pairs.shape[0])  # a pair past the capacity was not evaluated
+    e = jnp.where(valid, e, 0)
     sign = jnp.where(lower, 1.0, -1.0).astype(pair.force.dtype)
 
     def take(x, flip=None):

@@ -5,22 +5,27 @@ jax-md finds the candidates: each particle sees each neighbour in one of K
 slots (`idx[n, K]`, empty = n). The contact laws do not run on those slots.
 Each rebuild compacts the full list into a *half* list, `pairs[P, 2]` with
 i < j, each pair once (row-major: sorted by i, so the gathers of x_i walk
-memory in order), P = ceil(n K / 2) entries (empty = (n, n)). The law is then
-evaluated once per pair and the reaction on j is added by a scatter, as LAMMPS
-does with its half list: measured on the 1035-disk lattice pile, 2970 pairs in
-4658 entries against 9315 full-list slots, and one law evaluation per pair
-instead of two (see benchmarks/profile_step.py).
+memory in order; empty entries (n, n)). The law is then evaluated once per
+pair and the reaction on j is added by a scatter, as LAMMPS does with its half
+list: on the 1035-disk lattice pile, 2970 pairs against 9315 full-list slots,
+and one law evaluation per pair instead of two.
 
-The pair list is a pure function of `idx` (`half_pairs`), so it never needs a
-capacity of its own: it holds every pair whenever the full list does, and it
-overflows exactly when the full list does. `allocate` runs outside jit,
-`update` inside; the runner checks `did_buffer_overflow` after each chunk and
-re-allocates (see `simulate`).
+The half list has a capacity of its own, P: the pairs at allocation times the
+capacity multiplier (`pair_capacity_for`), never more than ceil(n K / 2), which
+holds every pair of the full list. The full list's K carries head-room for the
+densest row; P only for the mean, so padding costs far less (the pour: 249
+pairs in 1040 entries at ceil(n K / 2)). A rebuild that finds more pairs than P
+keeps the first P, records the demand in `Contacts.demand` and raises the
+list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
+as for an overflow of the full list (no contact is ever dropped). `allocate`
+runs outside jit, `update` inside; the runner checks `overflowed(state)`
+after each chunk (see `simulate`).
 """
 
 from __future__ import annotations
 
 import functools
+import math
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -129,10 +134,35 @@ def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_cap
     return forced.update(position)
 
 
+MIN_PAIRS = 16
+"""The smallest pair capacity allocated (a pile that starts with no contact)."""
+
+PAIR_ALIGN = 64
+"""Pair capacities are rounded up to a multiple of this. Measured on 2 CPU
+cores (45-layer lattice): 4455 entries ran at 246 us per step, 4658 at 178 and
+4480 (4455 rounded up) at the figure in the commit; on one core all alike. XLA
+splits a loop of an odd length across threads badly."""
+
+
 def pair_capacity(n: int, slots: int) -> int:
-    """Entries of the half pair list of a full list with `slots` slots per disk:
-    ceil(n K / 2), which holds every pair of a list that did not overflow."""
-    return max(1, -(-int(n) * int(slots) // 2))
+    """Room for the most half pairs a full list with `slots` slots per disk
+    can hold, ceil(n K / 2), rounded up to a multiple of `PAIR_ALIGN`."""
+    most = max(1, -(-int(n) * int(slots) // 2))
+    return -(-most // PAIR_ALIGN) * PAIR_ALIGN
+
+
+def pair_count(idx: Array) -> Array:
+    """The number of half pairs (slots with i < j) of a full list."""
+    return jnp.sum(_half_slots(idx)[0], dtype=jnp.int32)
+
+
+def pair_capacity_for(idx: Array, multiplier: float, at_least: int = 0) -> int:
+    """Host-side: the pair capacity to allocate for the full list `idx`: its
+    pairs times `multiplier` (the neighbour list's head-room), at least
+    `at_least` and `MIN_PAIRS`, at most `pair_capacity` (which holds them all)."""
+    n, k = idx.shape
+    wanted = max(int(at_least), MIN_PAIRS, math.ceil(float(multiplier) * int(pair_count(idx))))
+    return min(pair_capacity(n, k), -(-wanted // PAIR_ALIGN) * PAIR_ALIGN)
 
 
 def _half_slots(idx: Array) -> tuple[Array, Array]:
@@ -144,18 +174,21 @@ def _half_slots(idx: Array) -> tuple[Array, Array]:
     return keep, jnp.where(keep, order, -1)
 
 
-def half_pairs(idx: Array) -> Array:
+def half_pairs(idx: Array, capacity: int | None = None) -> Array:
     """The half pair list of a full neighbour list.
 
     Args:
       idx: `[n, K]` full list (both rows of each pair; empty = n).
+      capacity: P, the entries of the result (default `pair_capacity(n, K)`,
+        which holds every pair); pairs past it are left out (check
+        `pair_count(idx) <= P`: `update_with_contacts` flags an overflow).
 
     Returns:
       `[P, 2]` int32 `(i, j)` with i < j, each pair once, in row-major slot
-      order (sorted by i); P = `pair_capacity(n, K)`, empty entries `(n, n)`.
+      order (sorted by i); empty entries `(n, n)`.
     """
     n, k = idx.shape
-    capacity = pair_capacity(n, k)
+    capacity = pair_capacity(n, k) if capacity is None else int(capacity)
     keep, entry = _half_slots(idx)
     target = jnp.where(keep, entry, capacity).reshape(-1)  # past the end: dropped
     rows = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None], idx.shape).reshape(-1)
@@ -187,27 +220,44 @@ def carry_history(old_idx: Array, old_history: Array, new_idx: Array, new_pairs:
     row = jnp.minimum(i, n - 1)
     match = keep[row] & (old_idx[row] == j[:, None])  # [P_new, K_old]
     found = jnp.max(jnp.where(match, entry[row], -1), axis=1, initial=-1)
+    found = jnp.where(found < old_history.shape[0], found, -1)  # past the old capacity: it was not kept
     old = old_history[jnp.maximum(found, 0)]
     return jnp.where(((found >= 0) & (i < n))[:, None], old, jnp.zeros_like(old))
 
 
-def contacts_for(contacts, old_idx: Array, new_idx: Array):
-    """`contacts` (a `state.Contacts`) re-laid on the half pairs of `new_idx`,
-    history carried pair by pair from the list `old_idx` it was laid on."""
-    pairs = half_pairs(new_idx)
-    return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, new_idx, pairs))
+def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None = None):
+    """`contacts` (a `state.Contacts`) re-laid on the half pairs of `new_idx`
+    (`capacity` entries; default: as many as now), history carried pair by
+    pair from the list `old_idx` it was laid on; the demand restarts from the
+    new list's pairs."""
+    capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
+    pairs = half_pairs(new_idx, capacity)
+    return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, new_idx, pairs),
+                        demand=pair_count(new_idx))
 
 
 def update_with_contacts(neighbors, contacts, position: Array, skin: float, axis_name: str | None = None):
     """`update` and, when the list was rebuilt, the contacts re-laid on its
-    half pairs, in one branch: the steps with no rebuild pay for neither."""
+    half pairs, in one branch: the steps with no rebuild pay for neither. More
+    pairs than the pair capacity raise the list's overflow flag."""
     need = any_member(needs_rebuild(neighbors, position, skin), axis_name)
 
     def rebuild():
         new = neighbors.update(position)
-        return new, contacts_for(contacts, neighbors.idx, new.idx)
+        laid = contacts_for(contacts, neighbors.idx, new.idx)
+        demand = jnp.maximum(contacts.demand, laid.demand)
+        over = demand > contacts.pairs.shape[0]
+        new = new.set(error=new.error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, over))
+        return new, laid.set(demand=demand)
 
     return lax.cond(need, rebuild, lambda: (neighbors, contacts))
+
+
+def overflowed(state) -> Array:
+    """Whether a state's lists lost anything: the full list overflowed, or some
+    rebuild (or the laying of the pairs itself) found more half pairs than the
+    pair list holds. Traceable; for a batch, per member."""
+    return state.neighbors.did_buffer_overflow | (state.contacts.demand > state.contacts.pairs.shape[-2])
 
 
 def pair_entry(pairs, i: int, j: int) -> int | None:

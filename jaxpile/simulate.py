@@ -331,9 +331,10 @@ class Simulator:
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = nb.half_pairs(neighbors.idx)
+        pairs = nb.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx, settings.capacity_multiplier))
         contacts = Contacts(
             pairs=pairs,
+            demand=nb.pair_count(neighbors.idx),
             history=jnp.zeros((pairs.shape[0], h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
@@ -413,7 +414,7 @@ class Simulator:
 
         The starting force is first re-evaluated with `params` (`refresh=True`),
         so that the whole rollout, and its gradient, depends on `params` alone.
-        No overflow handling happens inside; check `state.neighbors.did_buffer_overflow`
+        No overflow handling happens inside; check `neighbors.overflowed(state)`
         on the result (or call `run` first to size the neighbour list).
 
         Args:
@@ -449,7 +450,9 @@ class Simulator:
         # at least double: a chunk that starts with few neighbours may end with many
         extra = max(4, overflowed.neighbors.max_occupancy)
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
-        contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx)
+        pairs = nb.pair_capacity_for(neighbors.idx, state.neighbor_settings.capacity_multiplier,
+                                     at_least=_pairs_needed(state, overflowed))
+        contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
     def _chunk(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
@@ -460,7 +463,7 @@ class Simulator:
             new = fn(params, state, jnp.int32(n))
             jax.block_until_ready(new)
             info.wall_seconds += time.perf_counter() - t0
-            if not bool(new.neighbors.did_buffer_overflow):
+            if not bool(nb.overflowed(new)):
                 return new
             info.reallocations += 1
             state = self._reallocate(state, new)
@@ -583,6 +586,15 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
+
+
+def _pairs_needed(state: SimState, overflowed: SimState) -> int:
+    """The pair capacity a re-allocation must give at least: the old one, or,
+    if the chunk found more pairs than that, twice its demand's worth (a
+    chunk that starts with few contacts may end with many)."""
+    capacity = int(state.contacts.pairs.shape[-2])
+    demand = int(np.max(np.asarray(overflowed.contacts.demand)))
+    return capacity if demand <= capacity else max(2 * capacity, demand)
 
 
 def compiled_for(cache: dict, jitted, args: tuple, info: RunInfo):

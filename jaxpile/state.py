@@ -79,11 +79,15 @@ class Contacts:
         Non-zero only while the pair is in contact; carried pair by pair across
         neighbour-list rebuilds (`neighbors.carry_history`).
       wall_history: `[n, w, h]` the same for each particle against each wall.
+      demand: int scalar, the most half pairs any rebuild found since the pair
+        list was allocated (more than P: the list overflowed and is re-allocated
+        with room for them).
     """
 
     pairs: Array
     history: Array
     wall_history: Array
+    demand: Array
 
 
 @dataclasses.dataclass

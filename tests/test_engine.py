@@ -9,7 +9,7 @@ import pytest
 import jaxpile
 from jaxpile import interactions
 from jaxpile.laws import hooke
-from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_entry
+from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
 
@@ -70,7 +70,7 @@ def test_neighbor_list_forces_equal_all_pairs(agitated):
     p = state.particles
     n = p.count
     all_idx = jnp.asarray([[j for j in range(n) if j != i] for i in range(n)], jnp.int32)
-    contacts = contacts_for(state.contacts, state.neighbors.idx, all_idx)
+    contacts = contacts_for(state.contacts, state.neighbors.idx, all_idx, pair_capacity(n, n - 1))  # room for all
     brute = interactions.evaluate(sim.law, PARAMS, p, contacts, state.boundaries, 0.0)
     listed = sim.contact_forces(PARAMS, state)
     np.testing.assert_allclose(listed.force, brute.force, rtol=1e-12, atol=1e-12)
@@ -82,7 +82,7 @@ def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
     old_idx = jnp.array([[3, 1, 2], [0, 4, 4], [0, 4, 4], [0, 4, 4]])
     new_idx = jnp.array([[1, 4, 3, 4], [2, 0, 4, 4], [4, 1, 4, 4], [0, 4, 4, 4]])
     old_pairs = half_pairs(old_idx)
-    assert old_pairs.shape == (6, 2)  # ceil(4 * 3 / 2)
+    assert old_pairs.shape == (64, 2)  # ceil(4 * 3 / 2) = 6 pairs at most, rounded up to PAIR_ALIGN
     np.testing.assert_array_equal(old_pairs[:3], [[0, 3], [0, 1], [0, 2]])  # row-major slot order
     np.testing.assert_array_equal(old_pairs[3:], 4)  # empty entries
     old_hist = jnp.arange(12.0).reshape(6, 2)
@@ -168,3 +168,20 @@ def test_second_call_of_jitted_step_does_not_recompile(agitated):
     # new parameter values do not recompile either: they are arguments, not constants
     step(PARAMS.set(mu=jnp.asarray(0.1, PARAMS.mu.dtype)), s2)
     assert len(traces) == 1
+
+
+def test_pair_capacity_overflow_reallocates_and_changes_nothing():
+    """A half pair list too small for the pile (64 entries for 330 pairs) is
+    flagged as an overflow on the first rebuild: the chunk is re-run with room
+    for every pair, and the run ends exactly where one with ample room ends."""
+    particles, boundaries = lattice.equilateral_pile(15)
+    params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3, wall_mu=1.0)
+    sim = Simulator(hooke.law(), dt=5e-4, chunk_steps=200, skin=0.02)  # thin skin: a rebuild within the chunk
+    ample = sim.init(params, particles, boundaries)
+    cramped = ample.set(contacts=contacts_for(ample.contacts, ample.neighbors.idx, ample.neighbors.idx, 64))
+    info = jaxpile.RunInfo()
+    out = sim.run(params, cramped, 400, progress=False, info=info)
+    ref = sim.run(params, ample, 400, progress=False)
+    assert int(ample.contacts.demand) > 64 and info.reallocations >= 1
+    assert out.contacts.pairs.shape[0] >= int(ample.contacts.demand)
+    np.testing.assert_allclose(out.particles.position, ref.particles.position, rtol=0, atol=1e-12)
