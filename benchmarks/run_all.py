@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import re
 import subprocess
@@ -27,7 +28,9 @@ START, END = "<!-- bench-table:start -->", "<!-- bench-table:end -->"
 
 # name -> (script, small arguments, full arguments)
 BENCHMARKS = {
-    "vs_lammps": ("vs_lammps.py", ["--small"], []),
+    "vs_lammps": ("vs_lammps.py", ["--small", "--cases", "lattice,pour"], ["--cases", "lattice,pour"]),
+    # the batch on every core: one JAX device per core (JAXPILE_HOST_DEVICES, see ENV)
+    "vs_lammps_ensemble": ("vs_lammps.py", ["--small", "--cases", "ensemble"], ["--cases", "ensemble"]),
     "scaling": ("scaling.py", ["--sizes", "1000,10000,100000", "--steps", "200"], ["--steps", "2000"]),
     "gradient": ("gradient_cost.py", ["--horizons", "250,1000", "--no-horizon"],
                  ["--horizons", "250,1000,4000,16000", "--no-horizon"]),
@@ -35,6 +38,10 @@ BENCHMARKS = {
                       ["--members", "64", "--n", "409", "--steps", "5000"]),
     "profile": ("profile_step.py", ["--steps", "300"], ["--steps", "2000"]),
 }
+
+
+ENV = {"vs_lammps_ensemble": {"JAXPILE_HOST_DEVICES": str(os.cpu_count() or 1)}}
+"""Extra environment of a benchmark's process."""
 
 
 def backend() -> str:
@@ -91,7 +98,7 @@ def main(argv=None) -> int:
         cmd = [sys.executable, str(HERE / script), *(full if args.full else small), "--out", str(out_dir / f"{name}.json")]
         print(f"\n== {name}: {' '.join(cmd[1:])}", flush=True)
         t0 = time.perf_counter()
-        if subprocess.run(cmd).returncode != 0:
+        if subprocess.run(cmd, env={**os.environ, **ENV.get(name, {})}).returncode != 0:
             failed.append(name)
         print(f"== {name}: {time.perf_counter() - t0:.0f} s", flush=True)
     print(f"\nall benchmarks: {time.perf_counter() - t_all:.0f} s; results in {out_dir}")

@@ -3,11 +3,27 @@
 Importing jaxpile turns on float64 in JAX (`jax_enable_x64`): static force
 analysis with stiff springs (mg / (k sigma) = 1e-4) needs it. Arrays created as
 float32 stay float32, so large dynamic runs can still use single precision.
+
+On a CPU, `JAXPILE_HOST_DEVICES=N` in the environment splits the host into N
+JAX devices before anything runs (`jax_num_cpu_devices`); `Ensemble` and
+`jaxpile sweep` shard a batch over them, so a batch uses N cores. Measured on
+2 cores (64 lattice piles of 120 disks, hooke): 6.9e6 -> 8.9e6 particle-steps/s
+with N = 2; a single pile, which runs on one device, is ~10% slower that way,
+so the default is one device.
 """
+
+import os as _os
+import warnings as _warnings
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
+if _os.environ.get("JAXPILE_HOST_DEVICES"):
+    try:
+        jax.config.update("jax_num_cpu_devices", int(_os.environ["JAXPILE_HOST_DEVICES"]))
+    except (RuntimeError, ValueError) as _error:  # JAX already running, or not a number: say so, carry on
+        _warnings.warn(f"JAXPILE_HOST_DEVICES={_os.environ['JAXPILE_HOST_DEVICES']!r} ignored: {_error}",
+                       stacklevel=2)
 
 from jaxpile import analysis, boundaries, ensemble, fit, laws, protocols, sweep, theory  # noqa: E402
 from jaxpile.boundaries import make_boundaries, set_wall  # noqa: E402

@@ -10,11 +10,14 @@ pair and the reaction on j is added by a scatter, as LAMMPS does with its half
 list: on the 1035-disk lattice pile, 2970 pairs against 9315 full-list slots,
 and one law evaluation per pair instead of two.
 
-The half list has a capacity of its own, P: the pairs at allocation times the
-capacity multiplier (`pair_capacity_for`), never more than ceil(n K / 2), which
-holds every pair of the full list. The full list's K carries head-room for the
-densest row; P only for the mean, so padding costs far less (the pour: 249
-pairs in 1040 entries at ceil(n K / 2)). A rebuild that finds more pairs than P
+The half list has a capacity of its own, P (`pair_capacity_for`): room for 3
+pairs per disk (a close-packed 2D pile of equal disks, the most any packing of
+them has) or 10% over the pairs at allocation, whichever is more, and never
+more than ceil(n K / 2), which holds every pair of the full list. The full
+list's K carries head-room for its densest row; P only for the mean, so padding
+costs far less (the lattice: 2970 pairs in 3328 entries instead of 4658; a pour
+sized for its whole heap from the start, where sizing it for the pairs at
+allocation cost three re-allocations, each re-running a chunk). A rebuild that finds more pairs than P
 keeps the first P, records the demand in `Contacts.demand` and raises the
 list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
 as for an overflow of the full list (no contact is ever dropped). `allocate`
@@ -134,8 +137,13 @@ def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_cap
     return forced.update(position)
 
 
-MIN_PAIRS = 16
-"""The smallest pair capacity allocated (a pile that starts with no contact)."""
+PAIRS_PER_DISK = 3.0
+"""Pair room allocated per disk at least: a close-packed 2D pile of equal disks
+has 3 pairs per disk, looser packings fewer."""
+
+PAIR_HEADROOM = 1.1
+"""Pair room allocated over the pairs a list holds at allocation (the mean
+coordination of a pile moves little; the densest row, which sizes K, more)."""
 
 PAIR_ALIGN = 64
 """Pair capacities are rounded up to a multiple of this. Measured on 2 CPU
@@ -156,12 +164,13 @@ def pair_count(idx: Array) -> Array:
     return jnp.sum(_half_slots(idx)[0], dtype=jnp.int32)
 
 
-def pair_capacity_for(idx: Array, multiplier: float, at_least: int = 0) -> int:
-    """Host-side: the pair capacity to allocate for the full list `idx`: its
-    pairs times `multiplier` (the neighbour list's head-room), at least
-    `at_least` and `MIN_PAIRS`, at most `pair_capacity` (which holds them all)."""
+def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
+    """Host-side: the pair capacity to allocate for the full list `idx`: the
+    more of `PAIRS_PER_DISK` per disk and `PAIR_HEADROOM` times its pairs, at
+    least `at_least`, at most `pair_capacity` (which holds them all), rounded
+    up to `PAIR_ALIGN`."""
     n, k = idx.shape
-    wanted = max(int(at_least), MIN_PAIRS, math.ceil(float(multiplier) * int(pair_count(idx))))
+    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * int(pair_count(idx))))
     return min(pair_capacity(n, k), -(-wanted // PAIR_ALIGN) * PAIR_ALIGN)
 
 

@@ -331,7 +331,7 @@ class Simulator:
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = nb.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx, settings.capacity_multiplier))
+        pairs = nb.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx))
         contacts = Contacts(
             pairs=pairs,
             demand=nb.pair_count(neighbors.idx),
@@ -450,8 +450,7 @@ class Simulator:
         # at least double: a chunk that starts with few neighbours may end with many
         extra = max(4, overflowed.neighbors.max_occupancy)
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
-        pairs = nb.pair_capacity_for(neighbors.idx, state.neighbor_settings.capacity_multiplier,
-                                     at_least=_pairs_needed(state, overflowed))
+        pairs = nb.pair_capacity_for(neighbors.idx, at_least=_pairs_needed(state, overflowed))
         contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
