@@ -3,10 +3,10 @@
 For B box piles (Lee & Herrmann 1993, the lee-herrmann law) falling in their box,
 times the same steps three ways:
 
-* `batch-wide`: `Ensemble` (the rebuild and history remap decided once for the
+* `batch-wide`: `Ensemble` (the rebuild and history carry decided once for the
   batch with a `lax.pmax` over the vmap axis: real branches);
 * `naive vmap`: `jax.vmap` of the single-pile step (jax-md's per-member cond
-  becomes a select: every member rebuilds its list and remaps its history at
+  becomes a select: every member rebuilds its list and carries its history at
   every step);
 * `serial`: the B piles one after the other with `Simulator.run`.
 

@@ -76,7 +76,7 @@ def group_of(source: str) -> str:
     if "integrators.py" in source:
         return "integrator"
     if "neighbors.py" in source:
-        return "neighbour check, history remap"
+        return "neighbour check, pair list, history carry"
     return "step glue (" + source + ")"
 
 

@@ -13,8 +13,9 @@ protocol are one compiled loop. What makes that work for DEM:
   (`make_step(..., axis_name="batch")`) instead ors the per-member need over
   the batch (`neighbors.any_member`, a `lax.pmax` over the named axis), so the
   rebuild runs only on steps where some member needs it, for the whole batch;
-  members that did not move keep their lists. The same holds for the history
-  remap. `benchmarks/ensemble_rebuild.py` measures the difference.
+  members that did not move keep their lists, and the contact history is
+  carried onto the new pairs inside the same branch.
+  `benchmarks/ensemble_throughput.py` measures the difference.
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).

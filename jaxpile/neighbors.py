@@ -277,19 +277,3 @@ def pair_entry(pairs, i: int, j: int) -> int | None:
     hits = np.flatnonzero((np.asarray(pairs[:, 0]) == a) & (np.asarray(pairs[:, 1]) == b))
     return int(hits[0]) if len(hits) else None
 
-
-def remap_history(old_partner: Array, old_history: Array, new_idx: Array) -> Array:
-    """Carries per-slot history into a new slot layout by matching partner ids.
-
-    Args:
-      old_partner: `[n, k_old]` partner ids the history was written for.
-      old_history: `[n, k_old, h]`.
-      new_idx: `[n, k_new]` the new neighbour list (empty slots hold n).
-
-    Returns:
-      `[n, k_new, h]`: each new slot gets the history its partner had in the old
-      layout, or zero if the pair is new. O(n k_new k_old), k ~ 10 in 2D.
-    """
-    n = new_idx.shape[0]
-    match = (new_idx[:, :, None] == old_partner[:, None, :]) & (new_idx[:, :, None] < n)
-    return jnp.einsum("nko,noh->nkh", match.astype(old_history.dtype), old_history)

@@ -63,8 +63,8 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         gravity), with its own carried data in `state.protocol_state`. It must
         keep every array's shape and dtype.
       axis_name: the name of the `vmap` axis the step will be mapped over (see
-        `jaxpile.ensemble`): the neighbour-list rebuild and the history remap are
-        then decided once for the whole batch, so they stay real branches
+        `jaxpile.ensemble`): the neighbour-list rebuild (with the history carried
+        onto the new pairs) is then decided once for the whole batch, so it stays a real branch
         instead of running for every member at every step. None for one pile.
     """
     integ = get_integrator(integrator)
