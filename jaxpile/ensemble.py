@@ -50,7 +50,7 @@ from jaxpile import neighbors as nb
 from jaxpile.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.protocols.base import Protocol
-from jaxpile.simulate import RunInfo, Simulator, _pairs_needed, compiled_for, make_step, max_speed
+from jaxpile.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
 from jaxpile.state import SimState
 
 Array = Any
@@ -268,7 +268,7 @@ class Ensemble:
         slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
-        needed = _pairs_needed(state, overflowed)
+        needed = nb.pairs_needed(state, overflowed)
         pairs = max(nb.pair_capacity_for(f.idx, needed) for f in fresh)
         members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))

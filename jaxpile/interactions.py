@@ -19,6 +19,7 @@ import jax.numpy as jnp
 
 from jaxpile.boundaries import wall_distance
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
+from jaxpile.neighbors import half_slots
 from jaxpile.state import Boundaries, Contacts, Particles
 
 Array = Any
@@ -164,10 +165,8 @@ def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
       id; empty slots are zero and not in contact. Traceable (used by the
       measurements and by `fit`).
     """
-    from jaxpile.neighbors import _half_slots
-
     n, k = idx.shape
-    keep, entry = _half_slots(idx)
+    keep, entry = half_slots(idx)
     partner = jnp.where(idx < n, idx, 0)
     # j < i: the entry of pair (j, i), found in row j
     back = (idx[partner] == jnp.arange(n, dtype=idx.dtype)[:, None, None]) & keep[partner]  # [n, k, k]

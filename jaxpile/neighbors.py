@@ -17,9 +17,9 @@ more than ceil(n K / 2), which holds every pair of the full list. The full
 list's K carries head-room for its densest row; P only for the mean, so padding
 costs far less (the lattice: 2970 pairs in 3328 entries instead of 4658; a pour
 sized for its whole heap from the start, where sizing it for the pairs at
-allocation cost three re-allocations, each re-running a chunk). A rebuild that finds more pairs than P
-keeps the first P, records the demand in `Contacts.demand` and raises the
-list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
+allocation cost three re-allocations, each re-running a chunk). A rebuild
+that finds more pairs than P keeps the first P, records the demand in
+`Contacts.demand` and raises the list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
 as for an overflow of the full list (no contact is ever dropped). `allocate`
 runs outside jit, `update` inside; the runner checks `overflowed(state)`
 after each chunk (see `simulate`).
@@ -32,6 +32,7 @@ import math
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import lax
 from jax_md import partition, space
 
@@ -159,9 +160,19 @@ def pair_capacity(n: int, slots: int) -> int:
     return -(-most // PAIR_ALIGN) * PAIR_ALIGN
 
 
+def pairs_needed(state, overflowed) -> int:
+    """Host-side: the pair capacity a re-allocation of `state` must give at
+    least, after the chunk that ended in `overflowed`: the old one, or, if the
+    chunk found more pairs than that, the more of twice it and the demand (a
+    chunk that starts with few contacts may end with many)."""
+    capacity = int(state.contacts.pairs.shape[-2])
+    demand = int(np.max(np.asarray(overflowed.contacts.demand)))
+    return capacity if demand <= capacity else max(2 * capacity, demand)
+
+
 def pair_count(idx: Array) -> Array:
     """The number of half pairs (slots with i < j) of a full list."""
-    return jnp.sum(_half_slots(idx)[0], dtype=jnp.int32)
+    return jnp.sum(half_slots(idx)[0], dtype=jnp.int32)
 
 
 def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
@@ -174,7 +185,7 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
     return min(pair_capacity(n, k), -(-wanted // PAIR_ALIGN) * PAIR_ALIGN)
 
 
-def _half_slots(idx: Array) -> tuple[Array, Array]:
+def half_slots(idx: Array) -> tuple[Array, Array]:
     """`[n, K]` bool: the slots (i, k) with i < idx[i, k] (each pair once), and
     `[n, K]` int: each such slot's entry in the half pair list (-1 elsewhere)."""
     n = idx.shape[0]
@@ -198,7 +209,7 @@ def half_pairs(idx: Array, capacity: int | None = None) -> Array:
     """
     n, k = idx.shape
     capacity = pair_capacity(n, k) if capacity is None else int(capacity)
-    keep, entry = _half_slots(idx)
+    keep, entry = half_slots(idx)
     target = jnp.where(keep, entry, capacity).reshape(-1)  # past the end: dropped
     rows = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32)[:, None], idx.shape).reshape(-1)
     empty = jnp.full((capacity,), n, jnp.int32)
@@ -207,24 +218,22 @@ def half_pairs(idx: Array, capacity: int | None = None) -> Array:
     return jnp.stack([i, j], axis=1)
 
 
-def carry_history(old_idx: Array, old_history: Array, new_idx: Array, new_pairs: Array) -> Array:
-    """History of the half pairs of `new_idx`, each taken from the same pair
+def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array:
+    """History of the half pairs `new_pairs`, each taken from the same pair
     (i, j) of the old list, or zero for a new pair.
 
     Args:
       old_idx: `[n, K_old]` the full list the old history's pairs came from
         (`half_pairs(old_idx)` is their layout).
       old_history: `[P_old, h]`.
-      new_idx: `[n, K_new]` (unused beyond its pairs, kept for symmetry).
-      new_pairs: `half_pairs(new_idx)`.
+      new_pairs: `[P_new, 2]`, the half pairs of the new list.
 
     Returns:
       `[P_new, h]`. Exact (a gather, no arithmetic): a list rebuilt where
       nothing moved gives the same history bit for bit. O(P K_old).
     """
-    del new_idx
     n = old_idx.shape[0]
-    keep, entry = _half_slots(old_idx)
+    keep, entry = half_slots(old_idx)
     i, j = new_pairs[:, 0], new_pairs[:, 1]
     row = jnp.minimum(i, n - 1)
     match = keep[row] & (old_idx[row] == j[:, None])  # [P_new, K_old]
@@ -241,7 +250,7 @@ def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None 
     new list's pairs."""
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
     pairs = half_pairs(new_idx, capacity)
-    return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, new_idx, pairs),
+    return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, pairs),
                         demand=pair_count(new_idx))
 
 
@@ -271,8 +280,6 @@ def overflowed(state) -> Array:
 
 def pair_entry(pairs, i: int, j: int) -> int | None:
     """Host-side: the entry of pair (i, j) (either order) in a half pair list, or None."""
-    import numpy as np
-
     a, b = min(i, j), max(i, j)
     hits = np.flatnonzero((np.asarray(pairs[:, 0]) == a) & (np.asarray(pairs[:, 1]) == b))
     return int(hits[0]) if len(hits) else None

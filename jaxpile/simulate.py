@@ -450,7 +450,7 @@ class Simulator:
         # at least double: a chunk that starts with few neighbours may end with many
         extra = max(4, overflowed.neighbors.max_occupancy)
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
-        pairs = nb.pair_capacity_for(neighbors.idx, at_least=_pairs_needed(state, overflowed))
+        pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed))
         contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
@@ -585,15 +585,6 @@ class Simulator:
         info.max_speed = float(max_speed(state))
         info.at_rest = info.max_speed < speed_tolerance
         return state, info
-
-
-def _pairs_needed(state: SimState, overflowed: SimState) -> int:
-    """The pair capacity a re-allocation must give at least: the old one, or,
-    if the chunk found more pairs than that, twice its demand's worth (a
-    chunk that starts with few contacts may end with many)."""
-    capacity = int(state.contacts.pairs.shape[-2])
-    demand = int(np.max(np.asarray(overflowed.contacts.demand)))
-    return capacity if demand <= capacity else max(2 * capacity, demand)
 
 
 def compiled_for(cache: dict, jitted, args: tuple, info: RunInfo):

@@ -88,7 +88,7 @@ def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
     old_hist = jnp.arange(12.0).reshape(6, 2)
     new_pairs = half_pairs(new_idx)
     np.testing.assert_array_equal(new_pairs[:3], [[0, 1], [0, 3], [1, 2]])
-    new = carry_history(old_idx, old_hist, new_idx, new_pairs)
+    new = carry_history(old_idx, old_hist, new_pairs)
     np.testing.assert_array_equal(new[0], old_hist[1])  # (0, 1) moved entry 1 -> 0
     np.testing.assert_array_equal(new[1], old_hist[0])  # (0, 3) moved entry 0 -> 1
     np.testing.assert_array_equal(new[2], 0.0)  # (1, 2) is new

@@ -343,3 +343,22 @@ def test_shear_history_survives_neighbor_rebuilds(name):
         histories.append(float(state.contacts.history[entry, 0]))
     assert abs(histories[0]) > 0.02
     assert histories[1] == pytest.approx(histories[0], rel=1e-10)
+
+
+@pytest.mark.parametrize("name", list(LAWS))
+def test_torque_on_j_is_what_the_law_gives_from_js_side(name):
+    """The half pair list evaluates each pair once, from i, and hands j the
+    reaction -F and the law's `torque_j` (hooke: -r_j n x F_t; liffman eq. 36,
+    lee-herrmann eq. 2b, baxter eq. 13 with j's own lever arm). Evaluated from
+    j's side (displacement, velocity and the two disks swapped), the same law
+    must give exactly that force and torque."""
+    law, params = LAWS[name]
+    f = lambda x: jnp.asarray(x, jnp.float64)
+    d, v, ri, rj, wi, wj = (0.7, 0.69), (0.3, -0.2), 0.45, 0.55, 1.5, -0.7
+    history = jnp.zeros(law.history_size)
+    from_i = law.pair_force(params, PairGeometry(f(d), f(ri), f(rj), f(v), f(wi), f(wj), f(0.5)), history, 0.0)
+    from_j = law.pair_force(params, PairGeometry(-f(d), f(rj), f(ri), -f(v), f(wj), f(wi), f(0.5)), history, 0.0)
+    assert bool(from_i.in_contact) and abs(float(from_i.torque)) > 1e-6
+    np.testing.assert_allclose(from_j.force, -from_i.force, rtol=1e-12, atol=1e-15)
+    assert float(from_j.torque) == pytest.approx(float(from_i.torque_j), rel=1e-12, abs=1e-15)
+    assert float(from_j.torque_j) == pytest.approx(float(from_i.torque), rel=1e-12, abs=1e-15)
