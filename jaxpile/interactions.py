@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+from jax import lax
 
 from jaxpile.boundaries import wall_distance
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
@@ -124,30 +125,67 @@ def evaluate(
     # [F, -F] would be a fusion of its own that evaluates the law a second time
     force = jax.ops.segment_sum(pair.force, i, n, indices_are_sorted=True) - jax.ops.segment_sum(pair.force, j, n)
 
-    # Walls: partners of zero radius and infinite mass at the foot of the normal.
-    w = boundaries.wall_normal.shape[0]
-    wshape = (n, w)
-    wall_mask = boundaries.wall_active[None, :] & (p.active & ~p.fixed)[:, None]
-    wall_geometry = PairGeometry(
-        displacement=_wall_displacement(boundaries, p.position, p.radius, wall_mask),
-        radius_i=jnp.broadcast_to(p.radius[:, None], wshape),
-        radius_j=jnp.zeros(wshape, p.radius.dtype),
-        velocity=jnp.broadcast_to(p.velocity[:, None, :], wshape + (2,)),
-        angular_velocity_i=jnp.broadcast_to(omega[:, None], wshape),
-        angular_velocity_j=jnp.zeros(wshape, omega.dtype),
-        effective_mass=jnp.where(wall_mask, p.mass[:, None], 1.0),  # finite where masked (see above)
-        step_displacements=None if step_positions is None else jnp.stack(
-            [_wall_displacement(boundaries, x, p.radius, wall_mask) for x in step_positions], axis=-2),
-    )
-    wall = _kernel_over(law, 2)(law.wall_params(params), wall_geometry, contacts.wall_history, dt)
-
-    force = force + wall.force.sum(axis=1)
+    wall, wall_force, wall_torque = _wall_forces(law, params, p, omega, contacts.wall_history, boundaries, dt,
+                                                 step_positions)
+    force = force + wall_force
     if law.rotation:
         torque = (jax.ops.segment_sum(pair.torque, i, n, indices_are_sorted=True)
-                  + jax.ops.segment_sum(pair.torque_j, j, n) + wall.torque.sum(axis=1))
+                  + jax.ops.segment_sum(pair.torque_j, j, n) + wall_torque)
     else:
         torque = jnp.zeros_like(p.angular_velocity)
     return ContactForces(pair=pair, wall=wall, force=force, torque=torque)
+
+
+def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, boundaries: Boundaries, dt,
+                 step_positions=None) -> tuple[PairForce, Array, Array]:
+    """`PairForce` `[n, w]`: every disk against every wall, walls being partners of
+    zero radius and infinite mass at the foot of the normal; and its sums over
+    the walls, force `[n, 2]` and torque `[n]`.
+
+    Each wall behind its own `lax.cond` on it being on: a wall that is off
+    costs nothing (a pour has none on, the lattice pile only its ground, a box
+    loses a wall). Walls that are off give exactly zero either way (the law's
+    out-of-contact branch), so both branches agree bit for bit; under `vmap`
+    with a wall differing between members its cond becomes a select and costs
+    what the kernel alone did."""
+    n = p.count
+    w = boundaries.wall_normal.shape[0]
+    mass_free = (p.active & ~p.fixed)
+    wall_law = law.wall_params(params)
+
+    def displacement(x, k, mask):
+        distance = x @ boundaries.wall_normal[k] - boundaries.wall_offset[k]
+        # A centre pushed through a wall keeps the wall's normal (never flips it);
+        # masked disks are put far out of every law's reach (see _wall_displacement).
+        distance = jnp.where(mask, jnp.maximum(distance, 1e-6 * p.radius), 1e3 * p.radius)
+        return distance[:, None] * boundaries.wall_normal[k][None, :]
+
+    def one(k):
+        def on():
+            mask = mass_free & boundaries.wall_active[k]
+            geometry = PairGeometry(
+                displacement=displacement(p.position, k, mask),
+                radius_i=p.radius,
+                radius_j=jnp.zeros_like(p.radius),
+                velocity=p.velocity,
+                angular_velocity_i=omega,
+                angular_velocity_j=jnp.zeros_like(omega),
+                effective_mass=jnp.where(mask, p.mass, 1.0),  # finite where masked (see _pair_geometry)
+                step_displacements=None if step_positions is None else jnp.stack(
+                    [displacement(x, k, mask) for x in step_positions], axis=-2),
+            )
+            return _kernel_over(law, 1)(wall_law, geometry, wall_history[:, k], dt)
+
+        def off():
+            return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(on))
+
+        return lax.cond(boundaries.wall_active[k], on, off)
+
+    walls = [one(k) for k in range(w)]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *walls)
+    force = sum(wall.force for wall in walls) if w else jnp.zeros_like(p.position)
+    torque = sum(wall.torque for wall in walls) if w else jnp.zeros_like(p.radius)
+    return stacked, force, torque
 
 
 def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
