@@ -170,7 +170,8 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
 
         members = [ensemble.member(template, i) for i in range(batch_of(template))]
         return ensemble.stack([ensemble.at_capacity(m, slots, cells, pairs) for m in members])
-    neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells)
+    neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
+                                       template.neighbor_settings)
     c = template.contacts
     pairs = nb.half_pairs(neighbors.idx, pairs)
     contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))

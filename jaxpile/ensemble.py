@@ -91,7 +91,8 @@ def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None, 
     pairs = int(state.contacts.pairs.shape[-2]) if pairs is None else int(pairs)
     if _capacity(state) == (max_occupancy, cell_capacity, pairs):
         return state
-    neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity)
+    neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity,
+                                       state.neighbor_settings)
     return state.set(neighbors=neighbors,
                      contacts=nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs))
 

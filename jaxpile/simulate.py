@@ -76,7 +76,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
 
         def forces_at(p: Particles, step_positions=None):
             neighbors, contacts = nb.update_with_contacts(state.neighbors, state.contacts, p.position,
-                                                          state.neighbor_settings.skin, axis_name)
+                                                          state.neighbor_settings, axis_name)
             cf = evaluate(law, params, p, contacts, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)

@@ -9,6 +9,7 @@ import pytest
 import jaxpile
 from jaxpile import interactions
 from jaxpile.laws import hooke
+from jaxpile import neighbors as nb
 from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
@@ -75,6 +76,31 @@ def test_neighbor_list_forces_equal_all_pairs(agitated):
     listed = sim.contact_forces(PARAMS, state)
     np.testing.assert_allclose(listed.force, brute.force, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(listed.torque, brute.torque, rtol=1e-12, atol=1e-12)
+
+
+def _within_reach(pos, reach):
+    d = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return [set(np.flatnonzero(row < reach)) for row in d]
+
+
+def test_cell_list_finds_every_pair_within_reach_inside_and_outside_its_box_and_flags_overflow():
+    """`neighbors.allocate` and `rebuild` (the sorted cell list) against all
+    pairs: 300 disks, two thirds of them outside the box (clamped into its
+    border cells), then moved; then squeezed until the slots and the window
+    overflow, which must raise the flag rather than drop a neighbour silently."""
+    rng = np.random.default_rng(3)
+    settings = nb.NeighborSettings((12.0, 9.0), 1.0, 0.2, 1.5)
+    pos = rng.uniform(-1.0, 2.0, (300, 2)) * np.array(settings.box)
+    nbrs = nb.allocate(settings, pos)
+    assert not bool(nbrs.did_buffer_overflow)
+    assert [set(r[r < 300]) for r in np.asarray(nbrs.idx)] == _within_reach(pos, 1.2)
+    moved = pos + rng.normal(0.0, 0.3, pos.shape)
+    again = nb.rebuild(nbrs, jnp.asarray(moved), settings)
+    assert not bool(again.did_buffer_overflow)
+    assert [set(r[r < 300]) for r in np.asarray(again.idx)] == _within_reach(moved, 1.2)
+    squeezed = nb.rebuild(nbrs, jnp.asarray(0.2 * moved + 4.0), settings)
+    assert bool(squeezed.did_buffer_overflow)
 
 
 def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
