@@ -25,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxpile import blocks
 from jaxpile import neighbors as nb
 from jaxpile.checkpoint import step_of
 from jaxpile.collisions import HardCollisions, hard_collision_velocities
@@ -224,6 +225,12 @@ class Simulator:
       chunk_steps: steps per compiled chunk between host checks.
       max_initial_overlap: largest allowed start overlap as a fraction of the
         contact distance r_i + r_j (deeper means the start positions are wrong).
+      in_play: optional `(state, steps) -> m`, host-side: no disk past the
+        first m can be in play (active, moved by the driver) during the next
+        `steps` steps from `state`. A protocol that brings parked disks into
+        play in index order (a pour) gives it, and each chunk then runs on the
+        smallest block of leading disks that holds them (`jaxpile.blocks`):
+        the same result bit for bit, at the cost of the disks in play.
     """
 
     def __init__(
@@ -239,6 +246,7 @@ class Simulator:
         capacity_multiplier: float = 1.5,
         chunk_steps: int = 1000,
         max_initial_overlap: float = 0.05,
+        in_play: Callable[[SimState, int], int] | None = None,
     ):
         if not (dt > 0 and math.isfinite(dt)):
             raise InputError(f"dt must be positive and finite; got {dt}.")
@@ -262,6 +270,8 @@ class Simulator:
             hard_collisions.check()
         self.hard_collisions = hard_collisions
         self.driver = driver
+        self.in_play = in_play
+        self._block_pairs: dict[int, int] = {}  # pair entries each block size has needed
         self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions, driver)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
@@ -454,8 +464,25 @@ class Simulator:
         contacts = nb.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
+    def _block_for(self, state: SimState, n: int) -> int | None:
+        """The block of leading disks the next n steps can run on, or None (all)."""
+        if self.in_play is None:
+            return None
+        size = blocks.block_size(int(self.in_play(state, n)), state.particles.count)
+        return size if size is not None and blocks.fits(state, size) else None
+
     def _chunk(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
-        """n steps from `state`; on overflow, re-allocate and re-run from `state`."""
+        """n steps from `state` (on a block of its leading disks when `in_play`
+        allows); on overflow, re-allocate and re-run from `state`."""
+        size = self._block_for(state, n)
+        if size is None:
+            return self._chunk_on(params, state, n, info)
+        room = blocks.pair_room(state, size, self._block_pairs.get(size, 0))
+        new = self._chunk_on(params, blocks.take(state, size, room), n, info)
+        self._block_pairs[size] = max(room, int(new.contacts.pairs.shape[0]))
+        return blocks.put(state, new)
+
+    def _chunk_on(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
         for _ in range(20):
             fn = self._compiled_advance(params, state, info)
             t0 = time.perf_counter()

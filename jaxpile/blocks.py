@@ -1,0 +1,124 @@
+"""Running only the disks in play: a chunk of a pour on the leading block of its disks.
+
+A pour (or any protocol that brings disks into play in index order) carries
+every disk it will ever hold from the first step, the ones not yet poured
+parked and inactive. They cost as much per step as disks in the heap: the
+pair list, the walls, the integrator and the neighbour build all run over the
+whole array. LAMMPS only carries the atoms created so far.
+
+Here a chunk runs on the leading `T` disks instead: `T` is the smallest of a
+few fixed capacities (powers of two, at least `MIN_BLOCK`) that holds every
+disk the protocol can have in play by the chunk's end (its `in_play(state,
+steps)`), so each capacity compiles once. `take` cuts the state down to the
+block, `put` lays the chunk's result back into the full state. A disk
+outside the block is parked: it has no neighbour, no pair and does not move,
+and the driver never touches it during the chunk (the protocol's `in_play`
+promises that), so the block's run does the same arithmetic in the same
+order as the full run: the result is bit for bit the same (tests compare the
+two). `fits` checks the part of that promise a state can show: no pair and no
+neighbour crosses the block's edge and no disk past it is in play; a chunk
+whose state fails it runs on the full array.
+
+Per-disk arrays of the protocol's carried state (`protocol_state`) are cut
+and laid back too: every leaf whose leading axis has the disk count. The
+integrator's carried state must be None (velocity Verlet, leapfrog); Gear's
+derivatives keep the full array.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import neighbors as nb
+from jaxpile.state import SimState
+
+Array = Any
+
+MIN_BLOCK = 64
+"""The smallest block: below this the step's fixed costs dominate anyway."""
+
+
+def block_size(needed: int, count: int) -> int | None:
+    """The block for `needed` leading disks out of `count`: the smallest power
+    of two >= max(needed, MIN_BLOCK), or None when that is not smaller than
+    the whole array (then the chunk runs on all disks)."""
+    size = MIN_BLOCK
+    while size < needed:
+        size *= 2
+    return size if size < count else None
+
+
+def fits(state: SimState, size: int) -> bool:
+    """Host-side: whether the disks past `size` are out of the run's way now:
+    parked (inactive and not fixed), without neighbours, and in no pair."""
+    n = state.particles.count
+    if state.integrator_state is not None:
+        return False
+    p = state.particles
+    tail_in_play = np.asarray(p.active[size:]) | np.asarray(p.fixed[size:])
+    if tail_in_play.any():
+        return False
+    idx = np.asarray(state.neighbors.idx)
+    if np.any((idx[:size] >= size) & (idx[:size] < n)) or np.any(idx[size:] < n):
+        return False
+    pairs = np.asarray(state.contacts.pairs)
+    return not np.any((pairs[:, 1] >= size) & (pairs[:, 1] < n))
+
+
+def _per_disk(tree, n: int, fn):
+    """`fn` applied to every array leaf of `tree` whose leading axis is n."""
+    return jax.tree.map(lambda x: fn(x) if hasattr(x, "shape") and x.ndim and x.shape[0] == n else x, tree)
+
+
+def _renumber(x: Array, old: int, new: int) -> Array:
+    """Index arrays whose empty value is `old` given the empty value `new`."""
+    return jnp.where(x == old, new, x)
+
+
+def pair_room(state: SimState, size: int, at_least: int = 0) -> int:
+    """The pair entries of a block of `size` disks: `neighbors.PAIRS_PER_DISK`
+    per disk, the pairs the state holds now and `at_least`, rounded up to
+    `PAIR_ALIGN`, and never more than the full list's."""
+    held = int(np.sum(np.asarray(state.contacts.pairs[:, 0]) < state.particles.count))
+    wanted = max(int(np.ceil(nb.PAIRS_PER_DISK * size)), held, int(at_least))
+    return min(int(state.contacts.pairs.shape[0]), -(-wanted // nb.PAIR_ALIGN) * nb.PAIR_ALIGN)
+
+
+def take(state: SimState, size: int, pairs: int) -> SimState:
+    """The state of the leading `size` disks, with `pairs` pair entries (it must
+    `fits`; the pairs held must fit in `pairs`, which `pair_room` makes sure of)."""
+    n = state.particles.count
+    c, nbrs = state.contacts, state.neighbors
+    cut = lambda x: x[:size]
+    held = jnp.sum(c.pairs[:, 0] < n, dtype=jnp.int32)
+    contacts = c.set(pairs=_renumber(c.pairs[:pairs], n, size), history=c.history[:pairs],
+                     wall_history=c.wall_history[:size], demand=held)
+    neighbors = nbrs.set(idx=_renumber(nbrs.idx[:size], n, size), reference_position=nbrs.reference_position[:size])
+    return state.set(particles=jax.tree.map(cut, state.particles), contacts=contacts, neighbors=neighbors,
+                     protocol_state=_per_disk(state.protocol_state, n, cut))
+
+
+def put(full: SimState, block: SimState) -> SimState:
+    """`full` with its leading disks replaced by the block's run: the block's
+    neighbour and pair capacities carry over (more pair entries than the full
+    state's are kept), the disks past the block as they were."""
+    n, size = full.particles.count, block.particles.count
+    tail = lambda whole, part: jnp.concatenate([part, whole[size:]])
+    c = block.contacts
+    entries = max(int(full.contacts.pairs.shape[0]), int(c.pairs.shape[0]))
+    extra = entries - c.pairs.shape[0]
+    pairs = jnp.concatenate([_renumber(c.pairs, size, n), jnp.full((extra, 2), n, c.pairs.dtype)])
+    history = jnp.concatenate([c.history, jnp.zeros((extra,) + c.history.shape[1:], c.history.dtype)])
+    contacts = c.set(pairs=pairs, history=history, wall_history=tail(full.contacts.wall_history, c.wall_history))
+    b = block.neighbors
+    idx = jnp.concatenate([_renumber(b.idx, size, n), jnp.full((n - size, b.idx.shape[1]), n, b.idx.dtype)])
+    neighbors = b.set(idx=idx, reference_position=tail(full.neighbors.reference_position, b.reference_position))
+    protocol_state = jax.tree.map(
+        lambda whole, part: tail(whole, part) if hasattr(whole, "shape") and whole.ndim and whole.shape[0] == n
+        else part, full.protocol_state, block.protocol_state)
+    return block.set(particles=jax.tree.map(tail, full.particles, block.particles), contacts=contacts,
+                     neighbors=neighbors, protocol_state=protocol_state)
