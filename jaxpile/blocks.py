@@ -7,7 +7,8 @@ pair list, the walls, the integrator and the neighbour build all run over the
 whole array. LAMMPS only carries the atoms created so far.
 
 Here a chunk runs on the leading `T` disks instead: `T` is the smallest of a
-few fixed capacities (powers of two, at least `MIN_BLOCK`) that holds every
+few fixed capacities (powers of two, at least `MIN_BLOCK`, at most half the
+disks) that holds every
 disk the protocol can have in play by the chunk's end (its `in_play(state,
 steps)`), so each capacity compiles once. `take` cuts the state down to the
 block, `put` lays the chunk's result back into the full state. A disk
@@ -44,12 +45,14 @@ MIN_BLOCK = 64
 
 def block_size(needed: int, count: int) -> int | None:
     """The block for `needed` leading disks out of `count`: the smallest power
-    of two >= max(needed, MIN_BLOCK), or None when that is not smaller than
-    the whole array (then the chunk runs on all disks)."""
+    of two >= max(needed, MIN_BLOCK), or None (the chunk runs on all disks)
+    when that is more than half of them: a block must save at least half the
+    step to be worth its own compile (a 48-disk test pour on 35 substrate disks
+    would compile a 64-block to save a fifth)."""
     size = MIN_BLOCK
     while size < needed:
         size *= 2
-    return size if size < count else None
+    return size if 2 * size <= count else None
 
 
 def fits(state: SimState, size: int) -> bool:
