@@ -9,9 +9,10 @@ run of the sorted keys, found by one binary search, read through a window of W
 entries (`_build`). jax-md's own cell list (a dense grid of cells, shifted nine
 times) cost about 1 us per disk per rebuild on 2 CPU cores (a 260-disk pour:
 270 us with K = 3, 480 us with the pour's K = 8), and a pour rebuilds every ~8
-steps while disks fall; this build does the same list in a fraction of that
-(see the commit that brought it). The list keeps jax-md's `NeighborList` type
-and its overflow flags: `max_occupancy` is K, `cell_list_capacity` is W.
+steps while disks fall; this build takes 167 us for that heap (596 us for 1472
+disks, against 2193) and a third of jax-md's temporary memory. The list keeps
+jax-md's `NeighborList` type and its overflow flags: `max_occupancy` is K,
+`cell_list_capacity` is W.
 
 The contact laws do not run on those slots.
 Each rebuild compacts the full list into a *half* list, `pairs[P, 2]` with
