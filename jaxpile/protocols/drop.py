@@ -186,6 +186,23 @@ def make_driver(*, drop_height: float, settle_speed: float, quiet_steps: int, ma
     return driver
 
 
+def make_in_play(quiet_steps: int):
+    """Host-side `(state, steps) -> m` for `Simulator(in_play=...)`: no disk past
+    the first m can be in play during the next `steps` steps. Disks are dropped
+    in index order (the first parked one next), at most one at once and then
+    one every `quiet_steps` (the quiet count restarts at each drop, and the
+    forced drops wait longer): the active ones plus 1 + (steps - 1) //
+    quiet_steps. Each chunk then runs on the block of leading disks that holds
+    them (`jaxpile.blocks`)."""
+    gap = max(int(quiet_steps), 1)
+
+    def in_play(state: SimState, steps: int) -> int:
+        active = int(np.asarray(state.particles.active).sum())
+        return min(state.particles.count, active + 1 + (max(int(steps), 1) - 1) // gap)
+
+    return in_play
+
+
 def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
              drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
              settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
@@ -357,7 +374,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
                  quiet_time=quiet_time, max_interval=max_interval, dtype=dtype)
     # capacity: the list is allocated with the disks parked apart (see `pour.make_simulator`)
     sim = Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
-                    capacity_multiplier=4.0, chunk_steps=chunk_steps)
+                    capacity_multiplier=4.0, chunk_steps=chunk_steps, in_play=make_in_play(p.info["quiet_steps"]))
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     fill_steps = None  # known once the fill phase is over
     if resume is not None:
