@@ -72,9 +72,9 @@ def fits(state: SimState, size: int) -> bool:
     return not np.any((pairs[:, 1] >= size) & (pairs[:, 1] < n))
 
 
-def _per_disk(tree, n: int, fn):
-    """`fn` applied to every array leaf of `tree` whose leading axis is n."""
-    return jax.tree.map(lambda x: fn(x) if hasattr(x, "shape") and x.ndim and x.shape[0] == n else x, tree)
+def _is_per_disk(x, n: int) -> bool:
+    """Whether a leaf is a per-disk array (its leading axis is the disk count)."""
+    return hasattr(x, "shape") and x.ndim > 0 and x.shape[0] == n
 
 
 def _renumber(x: Array, old: int, new: int) -> Array:
@@ -88,7 +88,7 @@ def pair_room(state: SimState, size: int, at_least: int = 0) -> int:
     `PAIR_ALIGN`, and never more than the full list's."""
     held = int(np.sum(np.asarray(state.contacts.pairs[:, 0]) < state.particles.count))
     wanted = max(int(np.ceil(nb.PAIRS_PER_DISK * size)), held, int(at_least))
-    return min(int(state.contacts.pairs.shape[0]), -(-wanted // nb.PAIR_ALIGN) * nb.PAIR_ALIGN)
+    return min(int(state.contacts.pairs.shape[0]), nb.aligned(wanted))
 
 
 def take(state: SimState, size: int, pairs: int) -> SimState:
@@ -102,7 +102,7 @@ def take(state: SimState, size: int, pairs: int) -> SimState:
                      wall_history=c.wall_history[:size], demand=held)
     neighbors = nbrs.set(idx=_renumber(nbrs.idx[:size], n, size), reference_position=nbrs.reference_position[:size])
     return state.set(particles=jax.tree.map(cut, state.particles), contacts=contacts, neighbors=neighbors,
-                     protocol_state=_per_disk(state.protocol_state, n, cut))
+                     protocol_state=jax.tree.map(lambda x: cut(x) if _is_per_disk(x, n) else x, state.protocol_state))
 
 
 def put(full: SimState, block: SimState) -> SimState:
@@ -121,7 +121,7 @@ def put(full: SimState, block: SimState) -> SimState:
     idx = jnp.concatenate([_renumber(b.idx, size, n), jnp.full((n - size, b.idx.shape[1]), n, b.idx.dtype)])
     neighbors = b.set(idx=idx, reference_position=tail(full.neighbors.reference_position, b.reference_position))
     protocol_state = jax.tree.map(
-        lambda whole, part: tail(whole, part) if hasattr(whole, "shape") and whole.ndim and whole.shape[0] == n
-        else part, full.protocol_state, block.protocol_state)
+        lambda whole, part: tail(whole, part) if _is_per_disk(whole, n) else part,
+        full.protocol_state, block.protocol_state)
     return block.set(particles=jax.tree.map(tail, full.particles, block.particles), contacts=contacts,
                      neighbors=neighbors, protocol_state=protocol_state)

@@ -18,7 +18,6 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxpile.boundaries import wall_distance
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
 from jaxpile.neighbors import half_slots
 from jaxpile.state import Boundaries, Contacts, Particles
@@ -148,15 +147,18 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
     out-of-contact branch), so both branches agree bit for bit; under `vmap`
     with a wall differing between members its cond becomes a select and costs
     what the kernel alone did."""
-    n = p.count
     w = boundaries.wall_normal.shape[0]
     mass_free = (p.active & ~p.fixed)
     wall_law = law.wall_params(params)
 
     def displacement(x, k, mask):
+        """`[n, 2]` from wall k's plane to each centre along its normal. A centre
+        pushed through the wall keeps the wall's normal (never flips it). Where
+        `mask` is False (a fixed or parked disk) the distance is put far out of
+        every law's reach: a disk far behind the wall would otherwise sit "1e-6 r
+        from it", where a steep law (baxter's (sigma/r)^(n+1)) overflows, and
+        inf * 0 in the masked-out force makes NaN gradients."""
         distance = x @ boundaries.wall_normal[k] - boundaries.wall_offset[k]
-        # A centre pushed through a wall keeps the wall's normal (never flips it);
-        # masked disks are put far out of every law's reach (see _wall_displacement).
         distance = jnp.where(mask, jnp.maximum(distance, 1e-6 * p.radius), 1e3 * p.radius)
         return distance[:, None] * boundaries.wall_normal[k][None, :]
 
@@ -231,21 +233,6 @@ def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
         in_contact=pair.in_contact[e] & valid,
         torque_j=None,
     )
-
-
-def _wall_displacement(boundaries: Boundaries, position, radius, mask=None):
-    """`[n, w, 2]` from each wall plane to each centre along the wall normal.
-    Where `mask` is False (a wall that is off, a fixed or parked disk) the
-    distance is put far out of every law's reach: a disk far behind a wall that is
-    off would otherwise sit "1e-6 r from it", where a steep law (baxter's
-    (sigma/r)^(n+1)) overflows, and inf * 0 in the masked-out force makes NaN
-    gradients."""
-    distance = wall_distance(boundaries, position)  # [n, w]
-    # A centre pushed through a wall keeps the wall's normal (never flips it).
-    distance = jnp.maximum(distance, 1e-6 * radius[:, None])
-    if mask is not None:
-        distance = jnp.where(mask, distance, 1e3 * radius[:, None])
-    return distance[..., None] * boundaries.wall_normal[None, :, :]
 
 
 def external_force(particles: Particles, boundaries: Boundaries) -> Array:

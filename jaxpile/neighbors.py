@@ -271,11 +271,16 @@ cores (45-layer lattice): 4455 entries ran at 246 us per step, 4658 at 178 and
 splits a loop of an odd length across threads badly."""
 
 
+def aligned(entries: int) -> int:
+    """`entries` rounded up to a multiple of `PAIR_ALIGN`."""
+    return -(-int(entries) // PAIR_ALIGN) * PAIR_ALIGN
+
+
 def pair_capacity(n: int, slots: int) -> int:
     """Room for the most half pairs a full list with `slots` slots per disk
     can hold, ceil(n K / 2), rounded up to a multiple of `PAIR_ALIGN`."""
     most = max(1, -(-int(n) * int(slots) // 2))
-    return -(-most // PAIR_ALIGN) * PAIR_ALIGN
+    return aligned(most)
 
 
 def pairs_needed(state, overflowed) -> int:
@@ -300,7 +305,7 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
     up to `PAIR_ALIGN`."""
     n, k = idx.shape
     wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * int(pair_count(idx))))
-    return min(pair_capacity(n, k), -(-wanted // PAIR_ALIGN) * PAIR_ALIGN)
+    return min(pair_capacity(n, k), aligned(wanted))
 
 
 def half_slots(idx: Array) -> tuple[Array, Array]:
