@@ -431,6 +431,43 @@ def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=
                         cumulative_parabola=float(angles[2]), slopes=slopes, x=x)
 
 
+def mid_flank_angle(profile: SurfaceProfile, *, flank: str, base: float, band=(0.2, 0.8),
+                    apex: float | None = None) -> float | None:
+    """The angle between a heap's flank and its base (Baxter et al. 1997, sec.
+    III), from the straight part of the flank only: a least-squares line through
+    the flank's columns whose height above `base` lies in `band` (fractions of
+    the apex height), so that neither the rounded apex nor a one-disk toe spread
+    along the base tilts the line.
+
+    Args:
+      profile: from `surface_profile` (h = disk-centre heights).
+      flank: `"left"` or `"right"` of the apex.
+      base: the height the apex height is measured from (the substrate's
+        centre line for a poured heap).
+      band: `(lo, hi)` fractions of the apex height, 0 <= lo < hi <= 1.
+      apex: the apex x; default `apex_x(profile)`.
+
+    Returns:
+      The angle in degrees, or None when fewer than 3 columns lie in the band.
+    """
+    if flank not in ("left", "right"):
+        raise InputError(f"flank must be 'left' or 'right'; got {flank!r}.")
+    lo, hi = (float(b) for b in band)
+    if not 0.0 <= lo < hi <= 1.0:
+        raise InputError(f"band must be (lo, hi) with 0 <= lo < hi <= 1; got {band!r}.")
+    x = np.asarray(profile.x, dtype=np.float64)
+    h = np.asarray(profile.height, dtype=np.float64) - float(base)
+    centre = apex_x(profile) if apex is None else float(apex)
+    top = float(np.nanmax(h))
+    side = (x <= centre) if flank == "left" else (x >= centre)
+    with np.errstate(invalid="ignore"):
+        keep = side & (h >= lo * top) & (h <= hi * top)
+    if keep.sum() < 3:
+        return None
+    slope = np.polyfit(x[keep] - x[keep].mean(), h[keep], 1)[0]
+    return float(np.degrees(np.arctan(abs(slope))))
+
+
 # --------------------------------------------------------------- force chains
 def wall_partner(wall: int) -> int:
     """The partner id `force_chains` gives wall `wall`: -1 - wall (ground = -1)."""
@@ -725,6 +762,7 @@ __all__ = [
     "max_speed",
     "mean_kinetic_energy",
     "packing_fraction",
+    "mid_flank_angle",
     "repose_angles",
     "rest_index",
     "surface_profile",

@@ -874,6 +874,7 @@ HEADLINES = {
     "tilt": ("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
     "flux": ("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
     "pour": ("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
+             "angle_mid_flank.left", "angle_mid_flank.right",
              "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
              "m_shape.ratio", "m_shape.m_shaped"),
 }

@@ -142,6 +142,26 @@ def test_flanks_of_a_rough_symmetric_heap_agree_within_half_a_degree():
     assert left.cumulative_parabola == pytest.approx(28, abs=0.5)
 
 
+def test_mid_flank_angle_ignores_the_toe_and_the_rounded_apex():
+    """A 30-degree flank with a 15-column toe one disk high and a flat top: the
+    line through the columns between 20% and 80% of the apex height is the
+    flank's own 30 degrees, where a line through the whole flank is flatter."""
+    x = np.arange(60) + 0.5
+    flank = np.tan(np.radians(30.0)) * (x - 15.0)
+    h = np.clip(flank, 0.6, 0.9 * flank.max())  # toe at 0.6, top cut flat
+    h = np.concatenate([h, h[::-1]])
+    prof = analysis.SurfaceProfile(x=np.arange(120) + 0.5, height=h, count=np.ones(120, int),
+                                   particle=np.arange(120), column_width=1.0)
+    for side in ("left", "right"):
+        assert analysis.mid_flank_angle(prof, flank=side, base=0.0) == pytest.approx(30.0, abs=1e-9)
+        assert analysis.repose_angles(prof, flank=side).least_squares < 27.0
+    assert analysis.mid_flank_angle(prof, flank="left", base=0.0, band=(0.995, 0.999)) is None  # < 3 columns
+    with pytest.raises(InputError, match="band"):
+        analysis.mid_flank_angle(prof, flank="left", base=0.0, band=(0.8, 0.2))
+    with pytest.raises(InputError, match="flank"):
+        analysis.mid_flank_angle(prof, flank="up", base=0.0)
+
+
 def test_empty_columns_beyond_the_toe_are_dropped_but_a_gap_is_an_error():
     pos, r = stepped_heap(25, columns=30)
     prof = analysis.surface_profile(pos, r, x_min=0.0, width=40.0)  # 10 empty columns at the right

@@ -203,6 +203,52 @@ def test_baxter_history_lives_while_engaged_inside_r0():
     assert float(inside.normal) == pytest.approx(1.19**-37, rel=1e-12)
 
 
+@pytest.mark.parametrize("slip", baxter.SLIP_MODES)
+def test_eq5_baxter_gross_sliding_holds_or_accumulates_delta_f(slip):
+    """Past delta_max the force is mu F_e^N either way (eq. 5's limit); "hold"
+    clips delta_F to delta_max, "accumulate" keeps integrating it, so a contact
+    strained 1.5 delta_max must be strained back past delta_max before its force falls."""
+    law = baxter.law(slip=slip)
+    p = baxter.make_params(n=36.0, r0=1.2, mu=0.5, damping_fraction=0.0)
+    delta_max = 1.214 * 0.5 * 0.2
+    out = law.pair_force(p, _geometry((1.0, 0.0)), jnp.array([1.5 * delta_max]), 0.0)
+    assert -float(out.force[1]) == pytest.approx(0.5, rel=1e-12)
+    held = 1.0 if slip == "hold" else 1.5
+    assert float(out.history[0]) == pytest.approx(held * delta_max, rel=1e-12)
+    back = law.pair_force(p, _geometry((1.0, 0.0), v=(0.0, -0.2 * delta_max / 1e-3)), out.history, 1e-3)
+    expected = 0.5 * (1 - (1 - 0.8) ** 1.5) if slip == "hold" else 0.5
+    assert -float(back.force[1]) == pytest.approx(expected, rel=1e-9)
+
+
+@pytest.mark.parametrize("lever_arm", baxter.LEVER_ARMS)
+def test_eq6_eq13_baxter_lever_arm_readings(lever_arm):
+    """A pair of equal disks turning rigidly at rate w (v_i - v_j = w r t, both
+    spins w): the contact-point arms (r/2 each) see no relative motion of the
+    touching surfaces; eqs. 6 and 13 as printed (arm r for both) strain delta_F by
+    -w r dt, and the torques use the same arm as delta_F."""
+    law = baxter.law(lever_arm=lever_arm)
+    p = baxter.make_params(n=36.0, r0=1.2, mu=0.5, damping_fraction=0.0)
+    r, w, dt = 1.05, 0.8, 1e-3
+    f = lambda x: jnp.asarray(x, jnp.float64)
+    g = PairGeometry(f((r, 0.0)), f(0.5), f(0.5), f((0.0, w * r)), f(w), f(w), f(0.5))
+    out = law.pair_force(p, g, jnp.zeros(1), dt)
+    arm = r / 2 if lever_arm == "contact-point" else r
+    assert float(out.history[0]) == pytest.approx(w * r * dt - 2 * w * arm * dt, abs=1e-15)
+    strained = law.pair_force(p, g._replace(velocity=f((0.0, 0.0)), angular_velocity_i=f(0.0),
+                                            angular_velocity_j=f(0.0)), jnp.array([0.01]), 0.0)
+    f_t = float(strained.force[1])  # t = (0, 1)
+    assert float(strained.torque) == pytest.approx(-arm * f_t, rel=1e-12)
+    assert float(strained.torque_j) == pytest.approx(-arm * f_t, rel=1e-12)
+
+
+def test_baxter_unknown_reading_is_an_input_error():
+    with pytest.raises(InputError, match="lever_arm"):
+        baxter.law(lever_arm="rim")
+    with pytest.raises(InputError, match="slip"):
+        baxter.law(slip="reset")
+    assert baxter.law(lever_arm="centre-distance") == baxter.law(lever_arm="centre-distance")  # compiles once
+
+
 def test_eq14_hooke_equivalent_equal_work():
     k = baxter.hooke_equivalent(36.0, 1.2, 0.97)
     r = np.linspace(0.97, 1.2, 200_001)

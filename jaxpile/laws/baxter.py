@@ -19,14 +19,28 @@ n = (x_i - x_j) / r and t = z x n:
   stiffness (eq. 7): k_T = 3 mu F_e^N / (2 delta_max) (1 - |delta_F|/delta_max)^{1/2},
   damping (eq. 8): C_T = f 2 sqrt(m k_T).
 
-Three readings of the printed equations, each needed for the law to make sense:
+Readings of the printed equations. Where the text admits two, both are options
+of `law(...)` (named after what they mean), measured against the paper's heap in
+`benchmarks/baxter_readings.py`:
 - The exponent's sign. The text's form would give a force that grows with r. It
   must fall with r and equal mg at r = sigma, so that two disks stacked under
-  gravity rest at exactly r = sigma.
-- The lever arm in eq. 6. It says (theta_i' + theta_j') r_ij. A contact at
-  distance r has lever arms r a_i / (a_i + a_j) and r a_j / (a_i + a_j) (r/2
-  each for equal disks), and those are used for both the displacement and the
-  torque (eq. 13).
+  gravity rest at exactly r = sigma. (One reading only.)
+- The lever arm in eqs. 6 and 13, `lever_arm`. Eq. 6 prints
+  (theta_i' + theta_j') r_ij and eq. 13 T_i = r_ij x F_ij: the centre-to-centre
+  distance. `"contact-point"` (default) uses the arms from each centre to the
+  contact point, r a_i / (a_i + a_j) and r a_j / (a_i + a_j) (r/2 each for equal
+  disks), in both: the relative velocity of the touching surfaces, zero for a
+  pair turning rigidly. `"centre-distance"` is the printed text: both arms are
+  r, so a disk's spin moves delta_F (and feels its torque) twice as strongly, a
+  disk rolling on another without slip still strains the contact (rolling is
+  resisted), and a pair turning rigidly strains it too.
+- What delta_F does at gross sliding, `slip`. Eq. 5 is defined for
+  |delta_F| <= delta_max, and delta_max = alpha mu delta_N shrinks as a pair
+  separates. `"hold"` (default) clips delta_F to +-delta_max at every step (the
+  contact slides: F^T = mu F_e^N and the stored strain is what the spring can
+  hold). `"accumulate"` keeps integrating delta_F past delta_max and only caps the
+  force (the reserve 1 - |delta_F|/delta_max is floored at 0): a contact that
+  slid far must be strained back by as much before its force turns.
 - The mass in C_c = 2 sqrt(m k). It is taken as 2 m_i m_j / (m_i + m_j) (the
   paper's m for equal disks, and the same on both sides of a pair). Against a
   wall or a fixed disk this gives 2 m_i.
@@ -101,37 +115,59 @@ def normal_force(p: Params, r, sigma):
     return jnp.where(inside, p.weight * jnp.exp((p.n + 1.0) * jnp.log(ratio)), 0.0)
 
 
-def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
-    """Eqs. 3-8 for one pair; `history[0]` is delta_F."""
-    n_hat, r = normal_and_distance(g.displacement)
-    sigma = g.radius_i + g.radius_j
-    cutoff = p.r0 * sigma
-    engaged = (r < cutoff) & (r > 0)
-    t_hat = perp(n_hat)
-    m_ref = 2.0 * g.effective_mass
+LEVER_ARMS = ("contact-point", "centre-distance")
+SLIP_MODES = ("hold", "accumulate")
 
-    f_elastic = normal_force(p, r, sigma)
-    stiffness = (p.n + 1.0) * f_elastic / jnp.where(engaged, r, 1.0)
-    v_n = dot2(g.velocity, n_hat)
-    f_n = f_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * stiffness) * v_n  # (3)
 
-    # contact lever arms: the contact point divides r in the ratio of the radii
-    lever_i = r * g.radius_i / sigma
-    lever_j = r * g.radius_j / sigma
-    v_t = dot2(g.velocity, t_hat) - (g.angular_velocity_i * lever_i + g.angular_velocity_j * lever_j)  # (6)
+def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold"):
+    """The eqs. 3-8 kernel in one reading (see the module docstring)."""
+    centre = lever_arm == "centre-distance"
+    hold = slip == "hold"
 
-    delta_max = p.alpha * p.mu * jnp.maximum(cutoff - r, 0.0)
-    delta = jnp.clip(history[0] + v_t * dt, -delta_max, delta_max)  # gross sliding holds it at delta_max
-    reserve = jnp.where(delta_max > 0, 1.0 - jnp.abs(delta) / jnp.where(delta_max > 0, delta_max, 1.0), 0.0)
-    mobilised = 1.0 - reserve * safe_sqrt(reserve)
-    f_t_elastic = -jnp.sign(delta) * p.mu * f_elastic * mobilised  # (5)
-    k_t = 1.5 * p.mu * f_elastic / jnp.where(delta_max > 0, delta_max, 1.0) * safe_sqrt(reserve)  # (7)
-    f_t = f_t_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * k_t) * v_t  # (4), (8)
+    def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+        """Eqs. 3-8 for one pair; `history[0]` is delta_F."""
+        n_hat, r = normal_and_distance(g.displacement)
+        sigma = g.radius_i + g.radius_j
+        cutoff = p.r0 * sigma
+        engaged = (r < cutoff) & (r > 0)
+        t_hat = perp(n_hat)
+        m_ref = 2.0 * g.effective_mass
 
-    force = f_n * n_hat + f_t * t_hat
-    torque = -lever_i * f_t  # (-lever_i n) x (f_t t)
-    torque_j = -lever_j * f_t  # (lever_j n) x (-f_t t)
-    return contact_result(engaged, force, torque, delta[None], f_n, torque_j)
+        f_elastic = normal_force(p, r, sigma)
+        stiffness = (p.n + 1.0) * f_elastic / jnp.where(engaged, r, 1.0)
+        v_n = dot2(g.velocity, n_hat)
+        f_n = f_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * stiffness) * v_n  # (3)
+
+        if centre:  # eqs. 6 and 13 as printed: the arm is r_ij for both disks
+            lever_i = lever_j = r
+        else:  # the contact point divides r in the ratio of the radii
+            lever_i = r * g.radius_i / sigma
+            lever_j = r * g.radius_j / sigma
+        v_t = dot2(g.velocity, t_hat) - (g.angular_velocity_i * lever_i + g.angular_velocity_j * lever_j)  # (6)
+
+        delta_max = p.alpha * p.mu * jnp.maximum(cutoff - r, 0.0)
+        delta = history[0] + v_t * dt
+        if hold:  # gross sliding holds it at delta_max
+            delta = jnp.clip(delta, -delta_max, delta_max)
+        safe_max = jnp.where(delta_max > 0, delta_max, 1.0)
+        reserve = jnp.where(delta_max > 0, jnp.maximum(1.0 - jnp.abs(delta) / safe_max, 0.0), 0.0)
+        mobilised = 1.0 - reserve * safe_sqrt(reserve)
+        f_t_elastic = -jnp.sign(delta) * p.mu * f_elastic * mobilised  # (5)
+        k_t = 1.5 * p.mu * f_elastic / safe_max * safe_sqrt(reserve)  # (7)
+        f_t = f_t_elastic - p.damping_fraction * 2.0 * safe_sqrt(m_ref * k_t) * v_t  # (4), (8)
+
+        force = f_n * n_hat + f_t * t_hat
+        torque = -lever_i * f_t  # (-lever_i n) x (f_t t)
+        torque_j = -lever_j * f_t  # (lever_j n) x (-f_t t)
+        return contact_result(engaged, force, torque, delta[None], f_n, torque_j)
+
+    return pair_force
+
+
+# one kernel object per reading, so that laws built with the same options are
+# equal (hashable alike) and a jit that closes over them compiles once
+_KERNELS = {(arm, slip): make_pair_force(arm, slip) for arm in LEVER_ARMS for slip in SLIP_MODES}
+pair_force = _KERNELS["contact-point", "hold"]
 
 
 def hooke_equivalent(n: float, r0: float, r_min: float, sigma: float = 1.0, weight: float = 1.0) -> float:
@@ -172,8 +208,20 @@ def validate(p: Params) -> None:
         raise InputError(f"{NAME} parameter weight must be > 0; got {p.weight}.")
 
 
-def law(rotation: bool = True) -> ContactLaw:
-    """The Baxter et al. law (disks rotate, eqs. 10, 12, 13)."""
-    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=pair_force,
+def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "hold") -> ContactLaw:
+    """The Baxter et al. law (disks rotate, eqs. 10, 12, 13).
+
+    Args:
+      rotation: integrate the spins (the paper's disks rotate).
+      lever_arm: `"contact-point"` (default) or `"centre-distance"` (eqs. 6 and
+        13 as printed); see the module docstring.
+      slip: `"hold"` (default: delta_F clipped to +-delta_max) or `"accumulate"`
+        (delta_F integrated on, only the force capped).
+    """
+    if lever_arm not in LEVER_ARMS:
+        raise InputError(f"unknown lever_arm {lever_arm!r} for {NAME}; choose one of {list(LEVER_ARMS)}.")
+    if slip not in SLIP_MODES:
+        raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {list(SLIP_MODES)}.")
+    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=_KERNELS[lever_arm, slip],
                       wall_params=wall_params, interaction_range=interaction_range,
                       stable_time_step=stable_time_step, validate=validate, params_type=Params)

@@ -478,7 +478,9 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
         substrate spacing wide centred on the notches of the row), `apex_x`,
         `height` (apex centre height above the substrate's centre line),
         `base_width` B, `angles` {"left", "right"}: `analysis.ReposeAngles` of each
-        flank (the contiguous columns only), `angle_height_base` = atan(2 h / B),
+        flank (the contiguous columns only), `angle_mid_flank` {"left", "right"}:
+        `analysis.mid_flank_angle` (the line through the columns between 20% and
+        80% of the apex height; None when fewer than 3), `angle_height_base` = atan(2 h / B),
         `asymmetry`: apex and centre-of-mass offsets from the pouring centre;
       `voidage` (`analysis.VoidageMap` over the heap, cells `voidage_cell` sigma)
         and `core_packing_fraction` (a rectangle B/4 wide and h/2 high under the apex).
@@ -526,10 +528,12 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
             angles[flank] = analysis.repose_angles(surface, flank=flank, x_range=(lo, hi), apex=apex)
         except InputError:
             angles[flank] = None  # fewer than 3 columns on that side
+    mid_flank = {flank: analysis.mid_flank_angle(surface, flank=flank, base=base_y, apex=apex)
+                 for flank in ("left", "right")}
     heap_x = pos[in_play, 0][heap_cols]
     heap_m = np.asarray(p.mass)[in_play][heap_cols]
     out.update(surface=surface, apex_x=apex, height=height, base_width=width, extent=(x_left, x_right),
-               angles=angles, angle_height_base=math.degrees(math.atan2(2.0 * height, width)),
+               angles=angles, angle_mid_flank=mid_flank, angle_height_base=math.degrees(math.atan2(2.0 * height, width)),
                asymmetry={"apex_offset": apex - centre_x,
                           "mass_centre_offset": float(np.sum(heap_m * heap_x) / np.sum(heap_m)) - centre_x})
     if forces.x.size:
@@ -559,6 +563,7 @@ def summary(measurements: dict) -> dict:
             flank: None if a is None else {"endpoints": a.endpoints, "least_squares": a.least_squares,
                                            "cumulative_parabola": a.cumulative_parabola}
             for flank, a in m["angles"].items()}
+        out["angle_mid_flank"] = dict(m["angle_mid_flank"])
     if "m_shape" in m:
         out["m_shape"] = {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
                           for k, v in m["m_shape"]._asdict().items()}
@@ -589,15 +594,20 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
 
 
 def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
-                   integrator: str = PAPER_SETTING["integrator"], chunk_steps: int = 2000, **kwargs):
+                   integrator: str = PAPER_SETTING["integrator"], chunk_steps: int = 2000,
+                   law_options: dict | None = None, **kwargs):
     """A `Simulator` running the pouring driver with a law by name (its own
-    default rotation unless given). One simulator serves every `pour` set-up with
-    this dt (the driver reads the set-up from the state)."""
+    default rotation unless given; `law_options` for the law's readings, e.g.
+    baxter's `lever_arm`). One simulator serves every `pour` set-up with this dt
+    (the driver reads the set-up from the state)."""
     from jaxpile.laws import get_law_module
     from jaxpile.simulate import Simulator
 
     module = get_law_module(law)
-    contact_law = module.law() if rotation is None else module.law(rotation=rotation)
+    options = dict(law_options or {})
+    if rotation is not None:
+        options["rotation"] = rotation
+    contact_law = module.law(**options)
     # The list is allocated while the disks to pour are parked far apart; head-room
     # for the packed heap saves a re-allocation and a recompile per heap (measured:
     # 48 disks, 21.5 s -> 15.6 s).
@@ -641,7 +651,8 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
         rotation: bool | None = None, integrator: str = PAPER_SETTING["integrator"],
         speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
         max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, bins: int | None = None,
-        voidage_cell: float = 3.0, dtype=None, checkpoint=None, resume=None, **options):
+        voidage_cell: float = 3.0, dtype=None, checkpoint=None, resume=None, law_options: dict | None = None,
+        **options):
     """Pours a heap with a law by name and measures it (the paper's run by default:
     1334 disks from 100 sigma on S = 1.1 sigma with baxter n = 36, r0 = 1.2 sigma).
 
@@ -653,6 +664,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       speed_tolerance, max_settle_steps: the rest criterion after pouring.
       bins, voidage_cell: for `measure`.
       checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
+      law_options: the law's readings (`baxter.law(lever_arm=..., slip=...)`).
       **options: for `pour` (spacing, polydispersity, release_height,
         insert_height, spread, interval, substrate_disks, seed).
 
@@ -662,7 +674,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
     """
     protocol = pour(n, dt=dt, dtype=dtype, **options)
     _, _, params = law_and_params(law, params, rotation, dtype=protocol.particles.position.dtype)
-    sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator)
+    sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, law_options=law_options)
     t0 = time.perf_counter()
     state, info = execute(sim, params, protocol, speed_tolerance=speed_tolerance,
                           max_settle_steps=max_settle_steps, progress=progress, checkpoint=checkpoint,
@@ -672,7 +684,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
     result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
                      "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
                      "total_seconds": total, "neighbor_reallocations": info.reallocations}
-    result["info"] = dict(protocol.info)
+    result["info"] = {**protocol.info, "law_options": dict(law_options or {})}
     result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
     return state, result
 
