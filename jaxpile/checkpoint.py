@@ -72,12 +72,22 @@ def _params_record(params) -> dict:
     return {k: (None if v is None else np.asarray(v).tolist()) for k, v in vars(params).items()}
 
 
-def metadata(state: SimState, law_name: str, params, **extra) -> dict:
-    """What a checkpoint records besides the arrays."""
+def _law_name_and_reading(law) -> tuple[str, dict | None]:
+    """`law` is a law's name or the `ContactLaw` itself; the latter also gives
+    its reading (rotation and options), which a checkpoint records and checks."""
+    if isinstance(law, str):
+        return law, None
+    return law.name, {"rotation": bool(law.rotation), **dict(law.options)}
+
+
+def metadata(state: SimState, law, params, **extra) -> dict:
+    """What a checkpoint records besides the arrays (`law`: the `ContactLaw`, or its name)."""
+    law_name, reading = _law_name_and_reading(law)
     return {
         "format": FORMAT,
         "jaxpile_version": _version(),
         "law": law_name,
+        "law_reading": reading,
         "params": _params_record(params),
         "precision": _precision(state),
         "n_particles": int(state.particles.count),
@@ -97,19 +107,20 @@ def _json_value(value):
     raise TypeError(f"{type(value).__name__} is not JSON-serialisable: record plain numbers, strings and lists.")
 
 
-def save(path, state: SimState, law_name: str, params, **extra) -> None:
+def save(path, state: SimState, law, params, **extra) -> None:
     """Writes `state` (every array of it) and its metadata to `path`, atomically.
 
     Args:
       path: the `.npz` file (replaced atomically if it exists).
       state: the state, at a chunk boundary of its run.
-      law_name: the law's name (`law.name`), checked on restore.
+      law: the `ContactLaw` (its name and reading are checked on restore), or
+        only its name.
       params: the law's parameters, recorded and checked on restore.
       **extra: JSON-able facts to keep with it (e.g. the command line).
     """
     names, leaves, _ = _leaves(state)
     arrays = {f"leaf:{name}": np.asarray(jax.device_get(leaf)) for name, leaf in zip(names, leaves)}
-    arrays["metadata"] = np.asarray(json.dumps(metadata(state, law_name, params, **extra), default=_json_value))
+    arrays["metadata"] = np.asarray(json.dumps(metadata(state, law, params, **extra), default=_json_value))
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
@@ -178,7 +189,7 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     return template.set(neighbors=neighbors, contacts=contacts)
 
 
-def restore(path, template: SimState, law_name: str, params) -> SimState:
+def restore(path, template: SimState, law, params) -> SimState:
     """The state saved in `path`, rebuilt on `template`'s structure.
 
     Args:
@@ -187,8 +198,10 @@ def restore(path, template: SimState, law_name: str, params) -> SimState:
         particles, boundaries and protocol state; `Ensemble.init` for a batch):
         it gives the pytree structure and the static fields; its arrays are
         all replaced.
-      law_name, params: the law and parameters the run continues with; they
-        must be those the checkpoint was written with.
+      law, params: the law (`ContactLaw`, or its name) and parameters the run
+        continues with; they must be those the checkpoint was written with, and
+        a `ContactLaw` must be in the same reading (rotation, options) when the
+        checkpoint recorded one.
 
     Raises:
       InputError: unreadable file, another jaxpile checkpoint format, another
@@ -196,11 +209,18 @@ def restore(path, template: SimState, law_name: str, params) -> SimState:
         count, array names or shapes).
     """
     meta = read_metadata(path)
+    law_name, reading = _law_name_and_reading(law)
     if meta.get("format") != FORMAT:
         raise InputError(f"{path} has checkpoint format {meta.get('format')}; this jaxpile reads format {FORMAT}.")
     if meta["law"] != law_name:
         raise InputError(f"{path} was written with the {meta['law']} law; resuming with {law_name} is not "
                          "the same run. Resume with the law it was written with.")
+    saved_reading = meta.get("law_reading")
+    if reading is not None and saved_reading is not None and saved_reading != reading:
+        differ = ", ".join(f"{k} {saved_reading.get(k)!r} there, {reading.get(k)!r} here"
+                           for k in sorted(set(saved_reading) | set(reading)) if saved_reading.get(k) != reading.get(k))
+        raise InputError(f"{path} was written with the {law_name} law in another reading ({differ}); "
+                         "resuming in another reading is not the same run.")
     if meta["precision"] != _precision(template):
         raise InputError(f"{path} holds a {meta['precision']} run; the set-up to resume is "
                          f"{_precision(template)}. Resume with --precision {meta['precision']}.")

@@ -420,7 +420,7 @@ def run_pile(args) -> dict:
     if resume is not None:
         from jaxpile import checkpoint
 
-        state = checkpoint.restore(resume, state, law.name, params)
+        state = checkpoint.restore(resume, state, law, params)
     t0 = time.perf_counter()
     with _trajectory(args, resumed_from):
         state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,

@@ -582,7 +582,7 @@ class Simulator:
         path, every, extra = (*checkpoint, {})[:3]
         if int(every) != every or every < 1:
             raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
-        return _Checkpointer(str(path), int(every), dict(extra), self.law.name, params)
+        return _Checkpointer(str(path), int(every), dict(extra), self.law, params)
 
     def run_until_rest(
         self,
@@ -641,14 +641,14 @@ class _Checkpointer:
     absolute step count (so a resumed run saves where the uninterrupted one
     did), at the run's end, and the last good state when NaN/inf appears."""
 
-    def __init__(self, path: str, every: int, extra: dict, law_name: str, params):
-        self.path, self.every, self.extra, self.law_name, self.params = path, every, extra, law_name, params
+    def __init__(self, path: str, every: int, extra: dict, law, params):
+        self.path, self.every, self.extra, self.law, self.params = path, every, extra, law, params
         self.last = None  # multiple of `every` last saved
 
     def _save(self, target: str, state: SimState, **extra) -> str:
         from jaxpile import checkpoint
 
-        checkpoint.save(target, state, self.law_name, self.params, **self.extra, **extra)
+        checkpoint.save(target, state, self.law, self.params, **self.extra, **extra)
         return target
 
     def _path(self, state: SimState) -> str:

@@ -249,7 +249,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         state = ens.init(prms, protocols)
         if resume is not None and start == first:
             saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
-            state = ens.shard(ckpt.restore(resume, state, sim.law.name, saved_params))
+            state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
         # the rows list is written as it stands at each save: the batches measured so far
         spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
                                batch_start=start, rows=rows)

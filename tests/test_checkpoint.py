@@ -94,6 +94,29 @@ def test_restore_refuses_another_law_parameters_precision_or_setup(setting, tmp_
         sim.run(params, state, 10, progress=False, checkpoint=str(path))
 
 
+def test_restore_refuses_another_reading_of_the_law(setting, tmp_path):
+    """A checkpoint records the law's reading (rotation and options such as
+    baxter's lever arm); resuming in another reading is refused, by name. A
+    checkpoint that recorded no reading (a law given by name) still restores."""
+    from jaxpile.laws import baxter
+
+    sim, params = setting
+    state = fresh(sim, params)
+    path = tmp_path / "ck.npz"
+    checkpoint.save(path, state, hooke.law(rotation=True), params)
+    assert checkpoint.read_metadata(path)["law_reading"] == {"rotation": True}
+    with pytest.raises(InputError, match="another reading .*rotation True there, False here"):
+        checkpoint.restore(path, state, hooke.law(rotation=False), params)
+    checkpoint.restore(path, state, hooke.law(rotation=True), params)
+    checkpoint.restore(path, state, "hooke", params)
+    bparams = baxter.make_params()
+    checkpoint.save(path, state, baxter.law(), bparams)
+    with pytest.raises(InputError, match="lever_arm 'contact-point' there, 'centre-distance' here"):
+        checkpoint.restore(path, state, baxter.law(lever_arm="centre-distance"), bparams)
+    checkpoint.save(path, state, "baxter", bparams)  # no reading recorded
+    checkpoint.restore(path, state, baxter.law(lever_arm="centre-distance"), bparams)
+
+
 WRITER = r"""
 import sys
 import jaxpile

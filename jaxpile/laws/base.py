@@ -85,6 +85,9 @@ class ContactLaw:
         of the largest stable explicit time step.
       validate: `params -> None`, raises `InputError` on a bad value.
       params_type: the params pytree class (for `--set NAME=VALUE`).
+      options: `((name, value), ...)`, the reading the law was built with
+        beyond `rotation` (e.g. baxter's `lever_arm` and `slip`): recorded in
+        checkpoints, so that a run is not resumed in another reading.
     """
 
     name: str
@@ -96,6 +99,7 @@ class ContactLaw:
     stable_time_step: Callable[..., float]
     validate: Callable[[Any], None]
     params_type: type
+    options: tuple = ()
 
 
 def contact_result(in_contact, force, torque, history, normal, torque_j) -> PairForce:

@@ -224,4 +224,5 @@ def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "ho
         raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {list(SLIP_MODES)}.")
     return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=_KERNELS[lever_arm, slip],
                       wall_params=wall_params, interaction_range=interaction_range,
-                      stable_time_step=stable_time_step, validate=validate, params_type=Params)
+                      stable_time_step=stable_time_step, validate=validate, params_type=Params,
+                      options=(("lever_arm", lever_arm), ("slip", slip)))

@@ -169,4 +169,5 @@ def law(rotation: bool = False, slip: str = "cundall-strack") -> ContactLaw:
         raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {sorted(SLIP_MODES)}.")
     return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=SLIP_MODES[slip],
                       wall_params=wall_params, interaction_range=interaction_range,
-                      stable_time_step=stable_time_step, validate=validate, params_type=Params)
+                      stable_time_step=stable_time_step, validate=validate, params_type=Params,
+                      options=(("slip", slip),))

@@ -665,7 +665,7 @@ def restore_sampled(resume, template: SimState, sim, params) -> tuple[SimState, 
     `template` (`checkpoint.restore`), and the samples saved with it."""
     from jaxpile import checkpoint as ckpt
 
-    state = ckpt.restore(resume, template, sim.law.name, params)
+    state = ckpt.restore(resume, template, sim.law, params)
     samples = ckpt.read_metadata(resume)["extra"].get("samples")
     if samples is None:
         raise InputError(f"{resume} does not hold a sampled protocol run (no samples recorded with it).")

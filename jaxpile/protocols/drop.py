@@ -380,7 +380,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
     if resume is not None:
         from jaxpile import checkpoint as ckpt
 
-        state = ckpt.restore(resume, state, sim.law.name, params)
+        state = ckpt.restore(resume, state, sim.law, params)
         fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
     t0 = time.perf_counter()
     fill = RunInfo()

@@ -641,7 +641,7 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
     state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
                      protocol_state=protocol.protocol_state)
     if resume is not None:
-        state = ckpt.restore(resume, state, sim.law.name, params)
+        state = ckpt.restore(resume, state, sim.law, params)
     return load_then_settle(sim, params, state, load_steps=protocol.info["pour_steps"],
                             max_settle_steps=int(max_settle_steps), speed_tolerance=speed_tolerance,
                             progress=progress, checkpoint=checkpoint)

@@ -321,7 +321,7 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
     if resume is not None:
         from jaxpile import checkpoint as ckpt
 
-        state = ckpt.restore(resume, state, sim.law.name, params)
+        state = ckpt.restore(resume, state, sim.law, params)
     t0 = time.perf_counter()
     state, info = lattice.relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
                                 max_steps=max_steps, progress=progress, checkpoint=checkpoint)
