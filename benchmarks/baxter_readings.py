@@ -6,7 +6,8 @@ Settings (`--settings`, comma-separated; see SETTINGS):
 - the readings of Baxter et al.'s printed equations, options of
   `jaxpile.laws.baxter.law` (see its docstring): `contact-point/hold` (the
   default law), `centre-distance/hold` (eqs. 6 and 13 as printed),
-  `contact-point/accumulate`, `centre-distance/accumulate` (delta_F past delta_max);
+  `contact-point/accumulate`, `centre-distance/accumulate` (delta_F past delta_max),
+  `disk-damping-mass` (the printed m in the damping against the fixed substrate);
 - the paper's other heaps, in the default reading: `n144-r1.047`, `n144-r1.2`,
   `hooke-k500` (the equivalent Hooke law, Fig. 5), `poly5`, `poly10`
   (polydisperse, Fig. 8), `mu0.2`, `mu0.6`.
@@ -43,12 +44,14 @@ import pathlib
 import sys
 import time
 
-_DEFAULT = {"law": "baxter", "params": {}, "law_options": {"lever_arm": "contact-point", "slip": "hold"}, "pour": {}}
+_DEFAULT = {"law": "baxter", "params": {}, "pour": {},
+            "law_options": {"lever_arm": "contact-point", "slip": "hold", "damping_mass": "pair"}}
 SETTINGS = {
     "contact-point/hold": {},
     "centre-distance/hold": {"law_options": {"lever_arm": "centre-distance", "slip": "hold"}},
     "contact-point/accumulate": {"law_options": {"lever_arm": "contact-point", "slip": "accumulate"}},
     "centre-distance/accumulate": {"law_options": {"lever_arm": "centre-distance", "slip": "accumulate"}},
+    "disk-damping-mass": {"law_options": {"lever_arm": "contact-point", "slip": "hold", "damping_mass": "disk"}},
     "n144-r1.047": {"params": {"n": 144.0, "r0": 1.047}},
     "n144-r1.2": {"params": {"n": 144.0, "r0": 1.2}},
     "hooke-k500": {"law": "hooke", "law_options": {}},  # pour.PAPER_SETTING's hooke: k = 500
@@ -57,7 +60,7 @@ SETTINGS = {
     "mu0.2": {"params": {"mu": 0.2}},
     "mu0.6": {"params": {"mu": 0.6}},
 }
-READINGS = tuple(SETTINGS)[:4]
+READINGS = tuple(SETTINGS)[:5]
 ANGLE_METHODS = ("mid_flank", "endpoints", "least_squares", "cumulative_parabola")
 
 

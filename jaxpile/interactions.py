@@ -49,7 +49,7 @@ class ContactForces(NamedTuple):
 
 
 _GEOMETRY_AXES = PairGeometry(displacement=1, radius_i=0, radius_j=0, velocity=1, angular_velocity_i=0,
-                              angular_velocity_j=0, effective_mass=0, step_displacements=2)
+                              angular_velocity_j=0, effective_mass=0, step_displacements=2, partner_fixed=0)
 _FORCE_AXES = PairForce(force=1, torque=0, history=1, normal=0, in_contact=0, torque_j=0)
 
 
@@ -96,6 +96,7 @@ def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positi
         angular_velocity_j=omega[j],
         effective_mass=m_eff,
         step_displacements=None if step_positions is None else jnp.stack([apart(x) for x in step_positions]),
+        partner_fixed=fixed_i | fixed_j,
     )
     return geometry, i, j
 
@@ -185,6 +186,7 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
                 effective_mass=jnp.where(mask, p.mass, 1.0),  # finite where masked (see _pair_geometry)
                 step_displacements=None if step_positions is None else jnp.stack(
                     [displacement(x, k, mask) for x in step_positions]),
+                partner_fixed=jnp.ones_like(mask),
             )
             wall = _kernel_over(law)(wall_law, geometry, wall_history[:, k].T, dt)
             return wall._replace(force=wall.force.T, history=wall.history.T)

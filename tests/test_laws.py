@@ -241,11 +241,35 @@ def test_eq6_eq13_baxter_lever_arm_readings(lever_arm):
     assert float(strained.torque_j) == pytest.approx(-arm * f_t, rel=1e-12)
 
 
+@pytest.mark.parametrize("damping_mass", baxter.DAMPING_MASSES)
+def test_eq3_eq8_baxter_damping_mass_against_a_fixed_partner(damping_mass):
+    """C_N = 50% of 2 sqrt(m k) (eq. 3). Between free disks both readings use
+    2 m_i m_j / (m_i + m_j) (= m for equal disks); against a fixed partner
+    (effective mass m_i) "pair" keeps 2 m_i, "disk" takes the printed m_i:
+    sqrt(2) less damping."""
+    law = baxter.law(damping_mass=damping_mass)
+    p = baxter.make_params(mu=0.5)
+    f = lambda x: jnp.asarray(x, jnp.float64)
+    r, m = 1.0, 1.0
+    k = 37.0 * r ** -38.0
+
+    def damping(partner_fixed, meff):
+        g = PairGeometry(f((r, 0.0)), f(0.5), f(0.5), f((-0.3, 0.0)), f(0.0), f(0.0), f(meff),
+                         partner_fixed=jnp.asarray(partner_fixed))
+        return float(law.pair_force(p, g, jnp.zeros(1), 0.0).normal) - 1.0  # F_e^N(sigma) = 1
+
+    assert damping(False, m / 2) == pytest.approx(0.5 * 2 * math.sqrt(m * k) * 0.3, rel=1e-12)
+    fixed_mass = m if damping_mass == "disk" else 2 * m
+    assert damping(True, m) == pytest.approx(0.5 * 2 * math.sqrt(fixed_mass * k) * 0.3, rel=1e-12)
+
+
 def test_baxter_unknown_reading_is_an_input_error():
     with pytest.raises(InputError, match="lever_arm"):
         baxter.law(lever_arm="rim")
     with pytest.raises(InputError, match="slip"):
         baxter.law(slip="reset")
+    with pytest.raises(InputError, match="damping_mass"):
+        baxter.law(damping_mass="reduced")
     assert baxter.law(lever_arm="centre-distance") == baxter.law(lever_arm="centre-distance")  # compiles once
 
 

@@ -32,6 +32,9 @@ class PairGeometry(NamedTuple):
         only by the implicit midpoint integrator (then `displacement` is their
         midpoint), for laws with a time-averaged spring (Liffman et al. 1992,
         eq. 24); None otherwise.
+      partner_fixed: bool, True against a wall or when one disk of the pair is
+        fixed (then `effective_mass` is the moving disk's own mass); None when
+        the caller does not say (a law then treats the partner as free).
     """
 
     displacement: Array
@@ -42,6 +45,7 @@ class PairGeometry(NamedTuple):
     angular_velocity_j: Array
     effective_mass: Array
     step_displacements: Array | None = None
+    partner_fixed: Array | None = None
 
 
 class PairForce(NamedTuple):

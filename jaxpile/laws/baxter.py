@@ -41,9 +41,12 @@ of `law(...)` (named after what they mean), measured against the paper's heap in
   hold). `"accumulate"` keeps integrating delta_F past delta_max and only caps the
   force (the reserve 1 - |delta_F|/delta_max is floored at 0): a contact that
   slid far must be strained back by as much before its force turns.
-- The mass in C_c = 2 sqrt(m k). It is taken as 2 m_i m_j / (m_i + m_j) (the
-  paper's m for equal disks, and the same on both sides of a pair). Against a
-  wall or a fixed disk this gives 2 m_i.
+- The mass m in C_c = 2 sqrt(m k) (eqs. 3 and 8), `damping_mass`. `"pair"`
+  (default) takes 2 m_i m_j / (m_i + m_j): the paper's m for two equal disks,
+  the same on both sides of a pair, and 2 m_i against a wall or a fixed disk
+  (the substrate). `"disk"` is the printed m against a fixed partner too: the
+  moving disk's own m_i there (its substrate contacts damped sqrt(2) less), and
+  2 m_i m_j / (m_i + m_j) between free disks as before.
 
 Walls act as partners of zero radius: sigma_ij = a_i, so a disk rests on the
 ground with its centre exactly a_i above it.
@@ -117,12 +120,14 @@ def normal_force(p: Params, r, sigma):
 
 LEVER_ARMS = ("contact-point", "centre-distance")
 SLIP_MODES = ("hold", "accumulate")
+DAMPING_MASSES = ("pair", "disk")
 
 
-def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold"):
+def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold", damping_mass: str = "pair"):
     """The eqs. 3-8 kernel in one reading (see the module docstring)."""
     centre = lever_arm == "centre-distance"
     hold = slip == "hold"
+    own_mass = damping_mass == "disk"
 
     def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
         """Eqs. 3-8 for one pair; `history[0]` is delta_F."""
@@ -132,6 +137,8 @@ def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold"):
         engaged = (r < cutoff) & (r > 0)
         t_hat = perp(n_hat)
         m_ref = 2.0 * g.effective_mass
+        if own_mass and g.partner_fixed is not None:  # the printed m: the moving disk's own mass
+            m_ref = jnp.where(g.partner_fixed, g.effective_mass, m_ref)
 
         f_elastic = normal_force(p, r, sigma)
         stiffness = (p.n + 1.0) * f_elastic / jnp.where(engaged, r, 1.0)
@@ -166,8 +173,9 @@ def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold"):
 
 # one kernel object per reading, so that laws built with the same options are
 # equal (hashable alike) and a jit that closes over them compiles once
-_KERNELS = {(arm, slip): make_pair_force(arm, slip) for arm in LEVER_ARMS for slip in SLIP_MODES}
-pair_force = _KERNELS["contact-point", "hold"]
+_KERNELS = {(arm, slip, mass): make_pair_force(arm, slip, mass)
+            for arm in LEVER_ARMS for slip in SLIP_MODES for mass in DAMPING_MASSES}
+pair_force = _KERNELS["contact-point", "hold", "pair"]
 
 
 def hooke_equivalent(n: float, r0: float, r_min: float, sigma: float = 1.0, weight: float = 1.0) -> float:
@@ -208,7 +216,8 @@ def validate(p: Params) -> None:
         raise InputError(f"{NAME} parameter weight must be > 0; got {p.weight}.")
 
 
-def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "hold") -> ContactLaw:
+def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "hold",
+        damping_mass: str = "pair") -> ContactLaw:
     """The Baxter et al. law (disks rotate, eqs. 10, 12, 13).
 
     Args:
@@ -217,12 +226,17 @@ def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "ho
         13 as printed); see the module docstring.
       slip: `"hold"` (default: delta_F clipped to +-delta_max) or `"accumulate"`
         (delta_F integrated on, only the force capped).
+      damping_mass: `"pair"` (default: 2 m_i m_j / (m_i + m_j), 2 m_i against a
+        fixed partner) or `"disk"` (the printed m: m_i against a fixed partner).
     """
     if lever_arm not in LEVER_ARMS:
         raise InputError(f"unknown lever_arm {lever_arm!r} for {NAME}; choose one of {list(LEVER_ARMS)}.")
     if slip not in SLIP_MODES:
         raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {list(SLIP_MODES)}.")
-    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=_KERNELS[lever_arm, slip],
+    if damping_mass not in DAMPING_MASSES:
+        raise InputError(f"unknown damping_mass {damping_mass!r} for {NAME}; choose one of {list(DAMPING_MASSES)}.")
+    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation),
+                      pair_force=_KERNELS[lever_arm, slip, damping_mass],
                       wall_params=wall_params, interaction_range=interaction_range,
                       stable_time_step=stable_time_step, validate=validate, params_type=Params,
-                      options=(("lever_arm", lever_arm), ("slip", slip)))
+                      options=(("lever_arm", lever_arm), ("slip", slip), ("damping_mass", damping_mass)))
