@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from typing import Any
 
 import jax
@@ -155,13 +156,35 @@ def in_folder(folder) -> str | None:
     return None
 
 
+def _unreadable(path, e: Exception) -> InputError:
+    """One line, in jaxpile's words, for a file `np.load` cannot give us."""
+    if isinstance(e, FileNotFoundError):
+        why = "there is no such file"
+    elif isinstance(e, IsADirectoryError):
+        why = "it is a folder"
+    elif isinstance(e, (zipfile.BadZipFile, EOFError)) or "zip" in str(e).lower():
+        why = "it is not a complete .npz file (truncated, or another kind of file)"
+    elif "pickle" in str(e).lower() or "object arrays" in str(e).lower():
+        why = "it holds Python objects, which a jaxpile checkpoint never does (it may not be safe to load)"
+    elif isinstance(e, KeyError):
+        why = "it is an .npz without jaxpile's metadata (written by another program)"
+    elif isinstance(e, PermissionError):
+        why = "it cannot be read (permissions)"
+    else:
+        why = f"it cannot be read as one ({type(e).__name__})"
+    return InputError(f"{path} is not a readable jaxpile checkpoint: {why}.")
+
+
 def read_metadata(path) -> dict:
     """The metadata of a checkpoint, without its arrays."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            return json.loads(str(data["metadata"]))
-    except (OSError, ValueError, KeyError) as e:
-        raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
+            meta = json.loads(str(data["metadata"]))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise _unreadable(path, e) from e
+    if not isinstance(meta, dict) or not isinstance(meta.get("format"), int):
+        raise InputError(f"{path} is not a readable jaxpile checkpoint: its metadata is not jaxpile's.")
+    return meta
 
 
 def read_leaves(path) -> dict:
@@ -169,8 +192,8 @@ def read_leaves(path) -> dict:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {k[len("leaf:"):]: data[k] for k in data.files if k.startswith("leaf:")}
-    except (OSError, ValueError) as e:
-        raise InputError(f"{path} is not a readable jaxpile checkpoint ({e}).") from e
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
+        raise _unreadable(path, e) from e
 
 
 def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs: int) -> SimState:
@@ -210,8 +233,15 @@ def restore(path, template: SimState, law, params) -> SimState:
     """
     meta = read_metadata(path)
     law_name, reading = _law_name_and_reading(law)
-    if meta.get("format") != FORMAT:
-        raise InputError(f"{path} has checkpoint format {meta.get('format')}; this jaxpile reads format {FORMAT}.")
+    if meta["format"] > FORMAT:
+        raise InputError(f"{path} was written by jaxpile {meta.get('jaxpile_version', '?')} in checkpoint format "
+                         f"{meta['format']}, newer than this jaxpile's {FORMAT}: update jaxpile to resume it.")
+    if meta["format"] < FORMAT:
+        raise InputError(f"{path} has the older checkpoint format {meta['format']} (jaxpile "
+                         f"{meta.get('jaxpile_version', '?')}); this jaxpile reads format {FORMAT}: run it again.")
+    missing = sorted({"law", "params", "precision", "n_particles", "neighbor_settings", "neighbor_capacity"} - set(meta))
+    if missing:
+        raise InputError(f"{path} is not a readable jaxpile checkpoint: its metadata lacks {', '.join(missing)}.")
     if meta["law"] != law_name:
         raise InputError(f"{path} was written with the {meta['law']} law; resuming with {law_name} is not "
                          "the same run. Resume with the law it was written with.")

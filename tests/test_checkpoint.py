@@ -117,6 +117,36 @@ def test_restore_refuses_another_reading_of_the_law(setting, tmp_path):
     checkpoint.restore(path, state, baxter.law(lever_arm="centre-distance"), bparams)
 
 
+def test_checkpoints_from_elsewhere_get_one_line_in_jaxpiles_words(setting, tmp_path):
+    """Truncated, foreign, pickled, folder, newer or older format: an InputError
+    whose message says what the file is, never numpy's own advice."""
+    sim, params = setting
+    state = fresh(sim, params)
+    good = tmp_path / "good.npz"
+    checkpoint.save(good, state, hooke.law(rotation=True), params)
+    data = good.read_bytes()
+    (tmp_path / "truncated.npz").write_bytes(data[: len(data) // 2])
+    np.savez(tmp_path / "foreign.npz", x=np.arange(3))
+    np.savez(tmp_path / "pickled.npz", metadata=np.array([{"format": 2}], dtype=object))
+    np.savez(tmp_path / "list.npz", metadata=np.asarray(json.dumps([1, 2])))
+    (tmp_path / "folder.npz").mkdir()
+    cases = {"truncated.npz": "not a complete .npz", "foreign.npz": "without jaxpile's metadata",
+             "pickled.npz": "holds Python objects", "list.npz": "metadata is not jaxpile's",
+             "folder.npz": "it is a folder", "missing.npz": "no such file"}
+    for name, words in cases.items():
+        with pytest.raises(InputError, match=words) as err:
+            checkpoint.restore(tmp_path / name, state, hooke.law(rotation=True), params)
+        assert "allow_pickle" not in str(err.value) and "\n" not in str(err.value)
+    for version, words in ((3, "newer than this jaxpile's 2: update jaxpile"), (1, "older checkpoint format 1")):
+        with np.load(good) as z:
+            arrays = {k: z[k] for k in z.files}
+        meta = json.loads(str(arrays["metadata"]))
+        arrays["metadata"] = np.asarray(json.dumps({**meta, "format": version, "jaxpile_version": "9.9"}))
+        np.savez(tmp_path / f"v{version}.npz", **arrays)
+        with pytest.raises(InputError, match=words):
+            checkpoint.restore(tmp_path / f"v{version}.npz", state, hooke.law(rotation=True), params)
+
+
 WRITER = r"""
 import sys
 import jaxpile
