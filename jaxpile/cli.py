@@ -24,6 +24,7 @@ and fit.png (loss curve; target, before and after).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -330,11 +331,53 @@ def _checkpoint_spec(args):
     if args.resume is None:  # a new run: an older run's checkpoints in OUT must not be taken for its own
         from jaxpile import checkpoint
 
-        for stale in (path, checkpoint.sibling(path, "box"), checkpoint.sibling(path, "last-good")):
-            if os.path.exists(stale):
-                print(f"jaxpile: removing {stale} of an earlier run in {args.out}", flush=True)
-                os.remove(stale)
+        args.stale_checkpoints = [stale for stale in (path, checkpoint.sibling(path, "box"),
+                                                      checkpoint.sibling(path, "last-good")) if os.path.exists(stale)]
     return path, args.checkpoint_every, {"argv": args.argv}
+
+
+@contextlib.contextmanager
+def _replacing_earlier(args):
+    """Removes an earlier run's checkpoints in OUT (found by `_checkpoint_spec`)
+    when this run starts stepping (its first observed state), not before it: a
+    command that fails while setting up leaves the earlier run as it was. A
+    batched run is not observed; its end removes them."""
+    from jaxpile.simulate import observing
+
+    stale = list(getattr(args, "stale_checkpoints", []))
+
+    def drop(*_):
+        while stale:
+            path = stale.pop(0)
+            if os.path.exists(path):
+                print(f"jaxpile: removing {path} of an earlier run in {args.out}", flush=True)
+                os.remove(path)
+
+    with observing(drop):
+        yield
+    drop()
+
+
+def check_out_folder(out: str, flag: str = "--out") -> None:
+    """Refuses, before anything runs, an output folder that cannot be one: a
+    path that is a file, lies inside a file, or is not writable. Creates it
+    (and its parents) when missing; never touches what is already in it."""
+    from jaxpile.errors import InputError
+
+    path = os.path.abspath(out)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"{flag} {out} is a file, not a folder; give a folder (it is created if missing).")
+    parent = path
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise InputError(f"{flag} {out} lies inside {parent}, which is a file; give a folder.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{flag} {out}: {parent} is not writable; give a folder you can write to.")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as e:
+        raise InputError(f"{flag} {out} cannot be created: {e.strerror}.") from None
 
 
 def main(argv=None) -> int:
@@ -351,6 +394,8 @@ def main(argv=None) -> int:
             args.argv = _run_command(argv)
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
+        if getattr(args, "out", None) is not None:
+            check_out_folder(args.out)
         if args.command == "pile":
             if args.protocol == "lattice":
                 run_pile(args)
@@ -369,6 +414,10 @@ def main(argv=None) -> int:
             run_fit(args)
     except (InputError, SimulationError) as err:
         print(f"jaxpile: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # the file system said no mid-run (disk full, a folder removed): one line, not a traceback
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"jaxpile: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
     return 0
 
@@ -422,9 +471,10 @@ def run_pile(args) -> dict:
 
         state = checkpoint.restore(resume, state, law, params)
     t0 = time.perf_counter()
-    with _trajectory(args, resumed_from):
+    spec = _checkpoint_spec(args)
+    with _trajectory(args, resumed_from), _replacing_earlier(args):
         state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
-                                    max_steps=max_steps, progress=progress, checkpoint=_checkpoint_spec(args))
+                                    max_steps=max_steps, progress=progress, checkpoint=spec)
     total = time.perf_counter() - t0
 
     base = analysis.base_forces(sim, params, state)
@@ -541,7 +591,7 @@ def run_protocol(args) -> dict:
         hard = kwargs["hard_collisions"]
         print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g})", flush=True)
     t0 = time.perf_counter()
-    with _trajectory(args, resumed_from):
+    with _trajectory(args, resumed_from), _replacing_earlier(args):
         state, m = module.run(lawmod.NAME, **kwargs)
     total = time.perf_counter() - t0
 
@@ -641,10 +691,11 @@ def run_sweep(args) -> dict:
           + ", ".join(f"{k} in {v}" for k, v in vary.items()) + f", {args.seeds} seeds: {members} members",
           flush=True)
     resume, _ = _resume_point(args)
-    result = sw.sweep(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
-                      max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
-                      progress=False if args.no_progress else None, checkpoint=_checkpoint_spec(args),
-                      resume=resume)
+    spec = _checkpoint_spec(args)
+    with _replacing_earlier(args):
+        result = sw.sweep(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options,
+                          dt=args.dt, max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
+                          progress=False if args.no_progress else None, checkpoint=spec, resume=resume)
     out = args.out
     os.makedirs(out, exist_ok=True)
     sw.write_csv(os.path.join(out, "sweep.csv"), result)
@@ -756,7 +807,7 @@ def run_fit(args) -> dict:
     if args.target == "smid-novosad":
         target = fit.smid_novosad_target()
     elif os.path.exists(args.target):
-        target = fit.load_profile_csv(args.target)
+        target = fit.load_profile_csv(args.target)  # a folder or unreadable file: one line from there
     else:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0

@@ -243,11 +243,18 @@ def load_profile_csv(path: str | os.PathLike) -> ProfileTarget:
         maximum is not positive.
     """
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise InputError(f"profile file {path!r} is a folder; give the path of a CSV file with {_CSV_HELP}.")
     if not os.path.isfile(path):
         raise InputError(f"profile file {path!r} does not exist; give the path of a CSV file with {_CSV_HELP}.")
-    with open(path, newline="", encoding="utf-8-sig") as f:
-        numbered = [(k + 1, line) for k, line in enumerate(f)
-                    if line.strip() and not line.lstrip().startswith("#")]
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            numbered = [(k + 1, line) for k, line in enumerate(f)
+                        if line.strip() and not line.lstrip().startswith("#")]
+    except UnicodeDecodeError:
+        raise InputError(f"profile file {path!r} is not text (UTF-8); it must be a CSV file with {_CSV_HELP}.") from None
+    except OSError as e:
+        raise InputError(f"profile file {path!r} cannot be read: {e.strerror}.") from None
     if not numbered:
         raise InputError(f"profile file {path!r} is empty; it needs a header row with {_CSV_HELP}.")
     rows = list(csv.reader([line for _, line in numbered]))

@@ -293,3 +293,32 @@ def test_a_new_cli_run_replaces_an_earlier_runs_checkpoints_in_its_folder(tmp_pa
     assert checkpoint.read_metadata(tmp_path / "checkpoint.npz")["extra"]["argv"][:3] == ["pile", "--protocol",
                                                                                         "lattice"]
 
+
+
+def test_a_failing_cli_command_leaves_an_earlier_run_in_its_folder(tmp_path, capsys):
+    """A command that fails while setting up (a disk count that cannot be) must
+    not remove the earlier run's checkpoints: they go only once the new run steps."""
+    from jaxpile.cli import main
+
+    for name in ("checkpoint.npz", "checkpoint.box.npz", "summary.json"):
+        (tmp_path / name).write_bytes(b"an earlier run")
+    assert main(["pile", "--protocol", "pour", "--n", "-5", "--checkpoint-every", "500", "--no-progress",
+                 "--out", str(tmp_path)]) == 2
+    assert "error" in capsys.readouterr().err
+    for name in ("checkpoint.npz", "checkpoint.box.npz", "summary.json"):
+        assert (tmp_path / name).read_bytes() == b"an earlier run"
+
+
+def test_output_paths_that_cannot_be_folders_are_refused_at_once(tmp_path, capsys):
+    from jaxpile.cli import main
+
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    run = ["pile", "--protocol", "lattice", "--layers", "3", "--no-progress", "--out"]
+    for out, words in ((a_file, "is a file, not a folder"), (a_file / "inner" / "deeper", "lies inside")):
+        assert main([*run, str(out)]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1 and "Traceback" not in err
+    assert main(["fit", "--target", str(tmp_path), "--protocol", "lattice", "--law", "hooke", "--params", "mu",
+                 "--out", str(tmp_path / "fit")]) == 2
+    assert "is a folder" in capsys.readouterr().err
