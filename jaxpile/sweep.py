@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from jaxpile import budget as memory
 from jaxpile import ensemble
 from jaxpile.errors import InputError
 from jaxpile.simulate import RunInfo, max_speed
@@ -246,6 +247,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         prms = member_params[start:start + batch_size]
         protocols = [a.setup(law, seed, dt, {**options, "dtype": dtype}) for _, seed in chunk]
         budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, options)
+        memory.check(protocols[0].particles.count, dtype or "float64", batch=len(chunk),
+                     what=f"a batch of the {protocol} sweep")  # before the batch is stacked and compiled
         state = ens.init(prms, protocols)
         if resume is not None and start == first:
             saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them

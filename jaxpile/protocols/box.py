@@ -74,7 +74,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis
+from jaxpile import analysis, budget
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.protocols.base import Protocol
@@ -479,6 +479,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
     if int(n) != n or n < 1:
         raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
     n = int(n)
+    budget.check(n, dtype or "float64", what="a box")  # before any array is allocated
     rng = np.random.default_rng(seed)
     radius_paper = gaussian_radii(n, rng, mean=mean, width=spread, low=low, high=high)
     if 2 * high > width:

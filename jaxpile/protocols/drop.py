@@ -68,6 +68,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import budget
 from jaxpile.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.protocols import lattice
@@ -228,6 +229,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
     if int(n) != n or n < 1:
         raise InputError(f"n (the number of disks to drop) must be a positive whole number; got {n!r}.")
     n = int(n)
+    budget.check(n, dtype or "float64", what="a drop")  # before any array is allocated
     dt = _positive("dt", dt)
     diameter = _positive("diameter", diameter)
     drop_height = _positive("drop_height", drop_height)

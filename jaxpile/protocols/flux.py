@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis
+from jaxpile import analysis, budget
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.protocols import box as boxes
@@ -258,6 +258,8 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
     if pool is None:
         pool = min(insertions, pool_size(width, radius=radius))
+    if int(pool) == pool and pool >= 1:
+        budget.check(pool, dtype or "float64", what="a flux pile's pool")
     if int(pool) != pool or pool < 1:
         raise InputError(f"pool must be a positive whole number; got {pool!r}.")
     pool = int(pool)

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from jaxpile import budget
 from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.state import Boundaries, Particles, make_particles
@@ -51,6 +52,8 @@ def lattice_angle(gap: float = 0.0) -> float:
 def equilateral_pile(layers: int, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0,
                      dtype=None) -> tuple[Particles, Boundaries]:
     """Particles and boundaries (the ground alone, no side-wall slots) of the k-layer pile."""
+    if int(layers) == layers and layers >= 1:  # before any array is allocated
+        budget.check(int(layers) * (int(layers) + 1) // 2, dtype or "float64", what=f"a {int(layers):,}-layer lattice pile")
     position = equilateral_positions(layers, diameter, gap=gap)
     particles = make_particles(position, 0.5 * diameter, mass=mass, dtype=dtype)
     return particles, make_boundaries(sides=False, dtype=particles.position.dtype)

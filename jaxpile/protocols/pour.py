@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxpile import analysis
+from jaxpile import analysis, budget
 from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.protocols import drivers
@@ -258,6 +258,7 @@ def pour(
     if int(n) != n or n < 1:
         raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
     n = int(n)
+    budget.check(1.1 * n, dtype or "float64", what="a pour (with its substrate row)")  # and its substrate row
     if not 0.0 <= polydispersity < 0.5:
         raise InputError(f"polydispersity must be a fraction in [0, 0.5) (0.05 for 5%); got {polydispersity!r}.")
     smallest = 1.0 - polydispersity

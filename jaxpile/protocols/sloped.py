@@ -31,6 +31,7 @@ import time
 
 import numpy as np
 
+from jaxpile import budget
 from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.protocols import lattice
@@ -176,8 +177,11 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
     if base is None:
         if n is None:
             raise InputError("give either n (a target disk count) or base (in diameters).")
+        if int(n) == n and n >= 1:  # the search for B is slow for a count far too big: refuse it first
+            budget.check(n, dtype or "float64", what="a sloped pile")
         base = base_for_count(n, alpha)
     base = _check_base(base)
+    budget.check(pile_count(base, alpha), dtype or "float64", what="a sloped pile")
     particles, boundaries = sloped_pile(base, alpha, dtype=dtype)
     rows = row_lengths(base, alpha)
     info = {
