@@ -186,6 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
     pile.add_argument("--resume", default=None, metavar="DIR",
                       help="continue the run saved in DIR/checkpoint.npz with its own settings "
                            "(`jaxpile pile --resume DIR`); ends as the uninterrupted run would")
+    pile.add_argument("--dry-run", action="store_true",
+                      help="print the set-up, the memory estimate and the steps it plans, then stop (runs nothing)")
     _output_args(pile)
 
     show = sub.add_parser("show", help="re-draw the figures of a finished or checkpointed pile run, a sweep or a "
@@ -358,10 +360,10 @@ def _replacing_earlier(args):
     drop()
 
 
-def check_out_folder(out: str, flag: str = "--out") -> None:
+def check_out_folder(out: str, flag: str = "--out", create: bool = True) -> None:
     """Refuses, before anything runs, an output folder that cannot be one: a
     path that is a file, lies inside a file, or is not writable. Creates it
-    (and its parents) when missing; never touches what is already in it."""
+    (and its parents) when missing and `create`; never touches what is already in it."""
     from jaxpile.errors import InputError
 
     path = os.path.abspath(out)
@@ -374,6 +376,8 @@ def check_out_folder(out: str, flag: str = "--out") -> None:
         raise InputError(f"{flag} {out} lies inside {parent}, which is a file; give a folder.")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"{flag} {out}: {parent} is not writable; give a folder you can write to.")
+    if not create:
+        return
     try:
         os.makedirs(path, exist_ok=True)
     except OSError as e:
@@ -395,7 +399,7 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         if getattr(args, "out", None) is not None:
-            check_out_folder(args.out)
+            check_out_folder(args.out, create=not getattr(args, "dry_run", False))
         if args.command == "pile":
             if args.protocol == "lattice":
                 run_pile(args)
@@ -459,6 +463,9 @@ def run_pile(args) -> dict:
         raise InputError(f"--max-steps must be >= 1; got {max_steps}.")
     print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
           f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
+    if args.dry_run:
+        return _dry_run_report(f"a {layers}-layer lattice pile", particles, {}, args.precision,
+                               {"ramp_steps": ramp, "max_steps": max_steps})
     hard = _parse_hard_collisions(args.hard_collisions)
     if hard is not None:
         print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g}); "
@@ -582,6 +589,8 @@ def run_protocol(args) -> dict:
         raise InputError(f"unknown --option {sorted(unknown)} for the {name} protocol; known: "
                          f"{', '.join(sorted(_accepted_options(module)))}.")
     kwargs.update(options)
+    if args.dry_run:
+        return _dry_run_protocol(args, module, kwargs)
     kwargs["checkpoint"] = _checkpoint_spec(args)
     kwargs["resume"], resumed_from = _resume_point(args)
 
@@ -641,6 +650,58 @@ def run_protocol(args) -> dict:
     print(_headline(name, summary), flush=True)
     print(f"jaxpile: wrote {out}/" + ", ".join(written))
     return summary
+
+
+_PHASE_STEPS = ("pour_steps", "ramp_steps", "max_steps", "max_settle_steps", "relax_steps")
+"""Step counts that are phases of a run (summed for the --dry-run bound)."""
+
+
+def _dry_run_protocol(args, module, kwargs) -> dict:
+    """`--dry-run` for a protocol: its set-up function (the box's for a tilt)
+    called with the arguments it takes from the run's."""
+    import inspect
+
+    from jaxpile.protocols import PROTOCOLS
+
+    name = args.protocol
+    setup, extra = module.protocol, {}
+    if name == "tilt":  # a tilt starts from a box pile: set that up
+        setup, extra = PROTOCOLS["box"].protocol, dict(kwargs.get("box_options") or {})
+        if "n" in kwargs:
+            extra["n"] = kwargs["n"]
+    accepted = inspect.signature(setup).parameters
+    given = {k: v for k, v in {**kwargs, **extra}.items() if k in accepted and k not in ("params", "progress")}
+    if "law" in accepted:
+        given["law"] = args.law or DEFAULT_LAW[name]
+    p = setup(**given)
+    run_defaults = {k: v.default for k, v in inspect.signature(module.run).parameters.items()
+                    if k.endswith("steps") and isinstance(v.default, int)}
+    steps = {**run_defaults, **{k: v for k, v in kwargs.items() if k.endswith("steps") and isinstance(v, int)}}
+    return _dry_run_report(f"a {name} pile", p.particles, dict(p.info), args.precision, steps)
+
+
+def _dry_run_report(what: str, particles, info: dict, precision: str, steps: dict) -> dict:
+    """`--dry-run`: the set-up, the memory estimate and the planned steps, printed;
+    nothing is run or written."""
+    import numpy as np
+
+    from jaxpile import budget
+
+    movable = int(np.sum(np.asarray(particles.active) & ~np.asarray(particles.fixed)))
+    total = int(particles.count)
+    planned = {k: int(v) for k, v in {**{k: v for k, v in info.items() if k.endswith("steps")}, **steps}.items()
+               if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    # the phases run one after another; the other step facts (intervals, hold times) are rules inside them
+    bound = sum(v for k, v in planned.items() if k in _PHASE_STEPS)
+    print(f"jaxpile: dry run of {what}: {total:,} disks ({movable:,} movable at the start), {precision}")
+    print(f"jaxpile: {budget.describe(total, precision)}")
+    if planned:
+        print("jaxpile: steps: " + ", ".join(f"{k} {v:,}" for k, v in planned.items())
+              + (f"; at most {bound:,} steps = {bound * total:.3g} particle-steps (a run that comes to rest "
+                 "stops sooner)" if bound else ""))
+    budget.check(total, precision, what=what)
+    return {"dry_run": True, "disks": total, "movable": movable, "estimate_bytes": budget.estimate(total, precision),
+            "steps": planned, "particle_steps_bound": bound * total}
 
 
 def _parse_values(name: str, text: str) -> list[float]:

@@ -322,3 +322,15 @@ def test_output_paths_that_cannot_be_folders_are_refused_at_once(tmp_path, capsy
     assert main(["fit", "--target", str(tmp_path), "--protocol", "lattice", "--law", "hooke", "--params", "mu",
                  "--out", str(tmp_path / "fit")]) == 2
     assert "is a folder" in capsys.readouterr().err
+
+
+def test_dry_run_prints_the_set_up_the_estimate_and_the_steps_and_runs_nothing(tmp_path, capsys):
+    from jaxpile.cli import main
+
+    out = tmp_path / "never"
+    assert main(["pile", "--protocol", "pour", "--n", "50", "--dry-run", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "dry run of a pour pile" in text and "memory: about" in text and "pour_steps 80,600" in text
+    assert not out.exists()  # nothing written, not even the folder
+    assert main(["pile", "--protocol", "lattice", "--layers", "30000", "--dry-run", "--out", str(out)]) == 2
+    assert "would fit" in capsys.readouterr().err
