@@ -360,10 +360,11 @@ def _replacing_earlier(args):
     drop()
 
 
-def check_out_folder(out: str, flag: str = "--out", create: bool = True) -> None:
+def check_out_folder(out: str, flag: str = "--out") -> None:
     """Refuses, before anything runs, an output folder that cannot be one: a
-    path that is a file, lies inside a file, or is not writable. Creates it
-    (and its parents) when missing and `create`; never touches what is already in it."""
+    path that is a file, lies inside a file, or is not writable. Creates and
+    touches nothing: a refused command leaves no folder behind, and the run
+    makes its folder when it first writes."""
     from jaxpile.errors import InputError
 
     path = os.path.abspath(out)
@@ -376,12 +377,6 @@ def check_out_folder(out: str, flag: str = "--out", create: bool = True) -> None
         raise InputError(f"{flag} {out} lies inside {parent}, which is a file; give a folder.")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(f"{flag} {out}: {parent} is not writable; give a folder you can write to.")
-    if not create:
-        return
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"{flag} {out} cannot be created: {e.strerror}.") from None
 
 
 def main(argv=None) -> int:
@@ -399,7 +394,7 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         if getattr(args, "out", None) is not None:
-            check_out_folder(args.out, create=not getattr(args, "dry_run", False))
+            check_out_folder(args.out)
         if args.command == "pile":
             if args.protocol == "lattice":
                 run_pile(args)
