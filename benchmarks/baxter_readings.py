@@ -129,6 +129,59 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+def figure(rows: list[dict], path: str, title: str) -> None:
+    """Each setting's base profile (every heap thin, the mean with its standard
+    error shaded; x/B on a common grid) and each heap's two flank angles
+    against the paper's 35 +- 5 deg."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    names = list(dict.fromkeys(name_of(r) for r in rows))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    grid = np.linspace(0.02, 0.98, 25)
+    for k, name in enumerate(names):
+        colour = f"C{k}"
+        mine = [r for r in rows if name_of(r) == name and r.get("base_profile")]
+        curves = np.array([np.interp(grid, r["base_profile"]["x_over_b"], r["base_profile"]["normalised"])
+                           for r in mine])
+        for c in curves:
+            left.plot(grid, c, color=colour, lw=0.5, alpha=0.4)
+        if len(curves):
+            mean = curves.mean(0)
+            err = curves.std(0, ddof=1) / np.sqrt(len(curves)) if len(curves) > 1 else 0 * mean
+            left.plot(grid, mean, color=colour, lw=2, label=f"{name} ({len(curves)} heaps)")
+            left.fill_between(grid, mean - err, mean + err, color=colour, alpha=0.25)
+        for j, r in enumerate(rows_of(rows, name)):
+            flanks = r.get("angle_mid_flank") or {}
+            x = k + 0.8 * (j + 0.5) / max(1, len(rows_of(rows, name))) - 0.4
+            for side, marker in (("left", "<"), ("right", ">")):
+                if flanks.get(side) is not None:
+                    right.plot(x, flanks[side], marker, color=colour)
+            ls = angle(r, "least_squares")
+            if ls is not None:
+                right.plot(x, ls, "o", color=colour, mfc="none")
+    left.set_xlabel("x / B")
+    left.set_ylabel("base normal force / max")
+    left.set_title("base normal force (mean +- s.e.)")
+    left.legend(fontsize=8)
+    right.axhspan(30, 40, color="0.85", label="paper: 35 +- 5 deg")
+    right.set_xticks(range(len(names)), names, fontsize=8)
+    right.set_ylabel("angle (deg)")
+    right.set_title("each heap: mid-flank < left, > right flank; o: least squares")
+    right.legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def rows_of(rows: list[dict], name: str) -> list[dict]:
+    return [r for r in rows if name_of(r) == name]
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=300, help="disks per heap (the paper: 1334)")
@@ -142,6 +195,7 @@ def main(argv=None) -> dict:
                         help="where disks appear, moving at their free-fall speed from 100 sigma (default: "
                              "6 sigma above a 45-degree heap; the paper's 100 sigma costs 14000 steps a disk)")
     parser.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "baxter_readings"))
+    parser.add_argument("--figure", default=None, help="also draw the profiles and angles to this PNG")
     args = parser.parse_args(argv)
     settings = args.settings.split(",")
     unknown = set(settings) - set(SETTINGS)
@@ -177,6 +231,9 @@ def main(argv=None) -> dict:
     out = json.loads(summary_file.read_text()) if summary_file.exists() else {"n": args.n, "settings": {}}
     out["settings"].update(table)
     summary_file.write_text(json.dumps(out, indent=1))
+    if args.figure:
+        figure(rows, args.figure, f"Baxter et al. 1997 heaps of {args.n} disks, poured onto S = 1.1 sigma")
+        print(f"figure: {args.figure}")
     return out
 
 
