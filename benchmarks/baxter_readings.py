@@ -103,6 +103,31 @@ def angle(row: dict, method: str) -> float | None:
     return sum(values) / len(values) if len(values) == 2 else None
 
 
+FLANK_WINDOWS = ((0.2, 0.4), (0.6, 0.8))
+CENTRE_WINDOW = (0.4, 0.6)
+
+
+def flank_over_centre(row: dict) -> float | None:
+    """The M depth without selection bias: the mean normalised base force in
+    fixed flank windows (x/B in 0.2-0.4 and 0.6-0.8) over its mean in the
+    centre window (0.4-0.6). The M ratio of `pour.m_shape` divides the largest of
+    ~10 noisy flank bins by one central bin, which noise alone pushes above 1."""
+    profile = row.get("base_profile")
+    if not profile:
+        return None
+    x, f = profile["x_over_b"], profile["normalised"]
+
+    def mean_in(lo, hi):
+        values = [v for xi, v in zip(x, f) if lo <= xi <= hi]
+        return sum(values) / len(values) if values else None
+
+    flanks = [mean_in(*w) for w in FLANK_WINDOWS]
+    centre = mean_in(*CENTRE_WINDOW)
+    if centre is None or centre <= 0 or None in flanks:
+        return None
+    return 0.5 * (flanks[0] + flanks[1]) / centre
+
+
 def mean_stderr(values) -> dict:
     values = [v for v in values if v is not None and math.isfinite(v)]
     k = len(values)
@@ -122,6 +147,7 @@ def summarise(rows: list[dict]) -> dict:
             "angle": {m: mean_stderr([angle(r, m) for r in mine]) for m in ANGLE_METHODS},
             "angle_height_base": mean_stderr([r.get("angle_height_base") for r in mine]),
             "m_ratio": mean_stderr([(r.get("m_shape") or {}).get("ratio") for r in mine]),
+            "flank_over_centre": mean_stderr([flank_over_centre(r) for r in mine]),
             "m_shaped": sum(bool((r.get("m_shape") or {}).get("m_shaped")) for r in mine),
             "lost": mean_stderr([r["counts"]["lost"] for r in mine]),
             "at_rest": sum(bool(r["run"]["at_rest"]) for r in mine),
@@ -218,11 +244,11 @@ def main(argv=None) -> dict:
     rows = [json.loads(pathlib.Path(path).read_text()) for _, _, path in jobs]
     table = summarise(rows)
     print(f"\n{'setting':28s} {'heaps':>5s} {'mid flank':>12s} {'endpoints':>12s} {'least sq.':>12s} {'cum. parab.':>12s} "
-          f"{'atan(2h/B)':>12s} {'M ratio':>12s}")
+          f"{'atan(2h/B)':>12s} {'M ratio':>12s} {'flank/centre':>12s}")
     fmt = lambda s: "—" if s["mean"] is None else f"{s['mean']:.1f}±{(s['stderr'] or float('nan')):.1f}"
     for reading, t in table.items():
         print(f"{reading:28s} {t['heaps']:5d} " + " ".join(f"{fmt(t['angle'][m]):>12s}" for m in ANGLE_METHODS)
-              + f" {fmt(t['angle_height_base']):>12s} {fmt(t['m_ratio']):>12s}")
+              + f" {fmt(t['angle_height_base']):>12s} {fmt(t['m_ratio']):>12s} {fmt(t['flank_over_centre']):>12s}")
     command = "python benchmarks/baxter_readings.py " + " ".join(argv if argv is not None else sys.argv[1:])
     for entry in table.values():
         entry["command"] = command
