@@ -216,6 +216,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="save the running batch and the rows so far to OUT/checkpoint.npz every STEPS steps")
     sweep.add_argument("--resume", default=None, metavar="DIR",
                        help="continue the sweep saved in DIR (`jaxpile sweep --resume DIR`)")
+    sweep.add_argument("--dry-run", action="store_true",
+                       help="print the members, one member's set-up, the batch's memory estimate and the steps; "
+                            "run nothing")
     _output_args(sweep)
 
     fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile (gradients + optax)")
@@ -746,6 +749,19 @@ def run_sweep(args) -> dict:
     print(f"jaxpile: sweep of the {args.protocol} protocol, law {law}: "
           + ", ".join(f"{k} in {v}" for k, v in vary.items()) + f", {args.seeds} seeds: {members} members",
           flush=True)
+    if args.dry_run:
+        from jaxpile import budget
+
+        a = sw.adapter(args.protocol)
+        dt = a.default_dt(law) if args.dt is None else float(args.dt)
+        setup = a.setup(law, 0, dt, {**options, "dtype": dtype})
+        batch = members if args.batch_size is None else min(int(args.batch_size), members)
+        steps = a.max_steps(setup.info, options) if args.max_steps is None else int(args.max_steps)
+        report = _dry_run_report(f"one {args.protocol} member", setup.particles, {}, args.precision,
+                                 {"max_steps": steps})
+        print(f"jaxpile: a batch of {batch} members: {budget.describe(setup.particles.count, args.precision, batch)}")
+        budget.check(setup.particles.count, args.precision, batch=batch, what=f"a batch of the {args.protocol} sweep")
+        return {**report, "members": members, "batch": batch}
     resume, _ = _resume_point(args)
     spec = _checkpoint_spec(args)
     with _replacing_earlier(args):

@@ -334,3 +334,14 @@ def test_dry_run_prints_the_set_up_the_estimate_and_the_steps_and_runs_nothing(t
     assert not out.exists()  # nothing written, not even the folder
     assert main(["pile", "--protocol", "lattice", "--layers", "30000", "--dry-run", "--out", str(out)]) == 2
     assert "would fit" in capsys.readouterr().err
+
+
+def test_sweep_dry_run_reports_the_batch_and_runs_nothing(tmp_path, capsys):
+    from jaxpile.cli import main
+
+    out = tmp_path / "never"
+    assert main(["sweep", "--protocol", "box", "--mu", "0.2,0.4", "--seeds", "3", "--n", "40", "--dry-run",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "6 members" in text and "dry run of one box member: 40 disks" in text and "a batch of 6 members" in text
+    assert not out.exists()
