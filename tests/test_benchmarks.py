@@ -79,3 +79,25 @@ def test_bench_lists_only_scripts_that_exist():
     for script, _, _ in run_all.BENCHMARKS.values():
         assert (pathlib.Path(run_all.HERE) / script).exists()
     assert np.all([name.isidentifier() for name in run_all.BENCHMARKS])
+
+
+def test_baxter_study_measures_the_m_without_selection_bias_and_averages_flanks():
+    """The 1997 study's M depth (Baxter et al. 1997, sec. III: flank maxima
+    20-30% above the centre) in fixed windows: an M profile reads above 1, a
+    humped one below, and a flat noisy one near 1 where the largest-bin ratio
+    of `pour.m_shape` reads above 1. Mean +- standard error over heaps."""
+    import baxter_readings as br
+
+    x = list(np.linspace(0.025, 0.975, 20))
+    m = {"base_profile": {"x_over_b": x, "normalised": [1.0 - 0.6 * abs(abs(v - 0.5) - 0.3) for v in x]}}
+    hump = {"base_profile": {"x_over_b": x, "normalised": [1.0 - abs(v - 0.5) for v in x]}}
+    assert br.flank_over_centre(m) > 1.05 and br.flank_over_centre(hump) < 0.95
+    noisy = np.random.default_rng(0).normal(1.0, 0.1, 20)
+    flat = {"base_profile": {"x_over_b": x, "normalised": list(noisy)}}
+    assert abs(br.flank_over_centre(flat) - 1.0) < 0.15 and max(noisy[:8]) / noisy[9] > 1.0
+    assert br.flank_over_centre({}) is None
+    s = br.mean_stderr([1.0, 2.0, 3.0, None])
+    assert s["mean"] == 2.0 and s["count"] == 3 and abs(s["stderr"] - 1 / np.sqrt(3)) < 1e-12
+    row = {"angle_mid_flank": {"left": 20.0, "right": 30.0},
+           "angle_of_repose": {"left": {"least_squares": 22.0}, "right": None}}
+    assert br.angle(row, "mid_flank") == 25.0 and br.angle(row, "least_squares") is None
