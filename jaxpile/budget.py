@@ -13,6 +13,7 @@ host-side set-up and measurement arrays) and a fixed allowance for JAX itself.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 
 from jaxpile.errors import InputError
@@ -99,7 +100,7 @@ def check(disks, precision="float64", batch: int = 1, what: str = "the run") -> 
 
     The message names the estimate, the memory there is and the largest disk
     count that would fit."""
-    if not (isinstance(disks, (int, float)) and math.isfinite(disks)):
+    if not (isinstance(disks, numbers.Real) and math.isfinite(disks)):  # numpy integers too
         return 0  # not a count: the set-up's own validation says so
     need = estimate(int(disks), precision, batch)
     memory, where = available()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import math
 import os
@@ -145,8 +146,16 @@ def _output_args(parser, precision: bool = True) -> None:
     parser.add_argument("--out", required=True, help="output folder")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with its errors in the same one-line form as every other refusal
+    (argparse prints the whole usage block first)."""
+
+    def error(self, message):
+        self.exit(2, f"jaxpile: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
+    parser = _Parser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     pile = sub.add_parser("pile", help="build a pile, relax it, measure its base forces and draw it")
@@ -241,8 +250,87 @@ def build_parser() -> argparse.ArgumentParser:
     fitp.add_argument("--horizontal-weight", type=float, default=1.0,
                       help="weight of the horizontal profile in the loss (when the target has one)")
     fitp.add_argument("--dip-weight", type=float, default=0.0, help="weight of the central-dip feature")
+    fitp.add_argument("--dry-run", action="store_true",
+                      help="print the pile the fit builds, the parameters' starting values, the memory estimate "
+                           "and the steps; run nothing")
     _output_args(fitp, precision=False)
+    for name, command in (("pile", pile), ("sweep", sweep), ("fit", fitp)):
+        for action in command._actions:
+            if action.dest in FLAG_RANGES[name]:
+                action.help = f"{action.help} [{FLAG_RANGES[name][action.dest].describe()}]"
+    pile.epilog = _ranges_epilog()
+    pile.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
+
+
+def _flag_ranges() -> dict:
+    from jaxpile.ranges import DISKS, NON_NEGATIVE, POSITIVE, SEED, SPEED, STEPS, TIME_STEP, Range
+
+    layers = Range(low=1, whole=True, unit="layers")
+    return {
+        "pile": {"layers": layers, "n": DISKS, "slope": Range(low=1, high=60, why="degrees"),
+                 "dt": TIME_STEP, "seed": SEED, "max_steps": STEPS,
+                 "ramp_steps": dataclasses.replace(STEPS, why="steps of the gravity ramp; the step counter is 32-bit"),
+                 "speed_tol": dataclasses.replace(SPEED, why="the speed_tolerance below which a pile is at rest"),
+                 "checkpoint_every": STEPS, "trajectory_every": STEPS},
+        "sweep": {"seeds": Range(low=1, whole=True, unit="seeds"), "n": DISKS, "dt": TIME_STEP, "max_steps": STEPS,
+                  "batch_size": Range(low=1, whole=True, unit="members"), "checkpoint_every": STEPS},
+        "fit": {"layers": layers, "n": DISKS, "seed": SEED, "steps": Range(low=0, whole=True, unit="optimiser steps"),
+                "lr": POSITIVE, "bins": Range(low=1, whole=True, unit="bins"), "window": STEPS,
+                "horizontal_weight": NON_NEGATIVE, "dip_weight": NON_NEGATIVE},
+    }
+
+
+FLAG_RANGES = _flag_ranges()
+"""Each numeric flag's valid range (`jaxpile.ranges`), by command: shown in `--help`
+and checked before anything is set up."""
+
+
+def _check_flags(args) -> None:
+    """Every numeric flag given, against its range (one message format)."""
+    for dest, range_ in FLAG_RANGES.get(args.command, {}).items():
+        value = getattr(args, dest, None)
+        if value is not None:
+            range_.check("--" + dest.replace("_", "-"), value)
+
+
+def ranges_markdown() -> str:
+    """The README's table of valid ranges, from the same tables the checks use
+    (tests/test_input_catalogue.py checks that the README holds it as it is)."""
+    from jaxpile.laws import LAWS, get_law_module
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.ranges import inline
+
+    rows = ["| input | valid ranges |", "|---|---|"]
+    rows += [f"| law `{name}` (`--set NAME=VALUE`) | {inline(get_law_module(name).RANGES)} |" for name in LAWS]
+    rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(module.OPTION_RANGES)} |"
+             for name, module in PROTOCOLS.items()]
+    rows += [f"| `jaxpile {command}` flags | "
+             + "; ".join(f"--{dest.replace('_', '-')} {r.describe()}" for dest, r in FLAG_RANGES[command].items())
+             + " |" for command in FLAG_RANGES]
+    return "\n".join(rows)
+
+
+def _ranges_epilog() -> str:
+    """`jaxpile pile --help`'s list of every law parameter's and protocol option's range."""
+    from jaxpile.laws import LAWS, get_law_module
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.ranges import inline
+
+    def entry(name, ranges_):  # wrapped between items only, never inside a range
+        lines, line = [], f"  {name}:"
+        for item in inline(ranges_).split("; "):
+            if len(line) + len(item) > 98:
+                lines.append(line + ";")
+                line = "     "
+            line += (" " if line.endswith(":") or not line.strip() else "; ") + item
+        return "\n".join(lines + [line])
+
+    out = ["law parameters (--set NAME=VALUE) and their valid ranges:"]
+    out += [entry(name, get_law_module(name).RANGES) for name in LAWS]
+    out += ["protocol options (--option NAME=VALUE) and their valid ranges:"]
+    out += [entry(name, module.OPTION_RANGES) for name, module in PROTOCOLS.items()]
+    return "\n".join(out)
 
 
 def _resume_argv(argv: list[str]) -> list[str]:
@@ -396,6 +484,7 @@ def main(argv=None) -> int:
             args.argv = _run_command(argv)
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
+        _check_flags(args)
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
         if args.command == "pile":
@@ -462,6 +551,7 @@ def run_pile(args) -> dict:
     print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
           f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
     if args.dry_run:
+        Simulator(law, dt, integrator=args.integrator).check_params(params, particles)  # as the run would
         return _dry_run_report(f"a {layers}-layer lattice pile", particles, {}, args.precision,
                                {"ramp_steps": ramp, "max_steps": max_steps})
     hard = _parse_hard_collisions(args.hard_collisions)
@@ -588,7 +678,7 @@ def run_protocol(args) -> dict:
                          f"{', '.join(sorted(_accepted_options(module)))}.")
     kwargs.update(options)
     if args.dry_run:
-        return _dry_run_protocol(args, module, kwargs)
+        return _dry_run_protocol(args, module, kwargs, contact_law)
     kwargs["checkpoint"] = _checkpoint_spec(args)
     kwargs["resume"], resumed_from = _resume_point(args)
 
@@ -654,7 +744,7 @@ _PHASE_STEPS = ("pour_steps", "ramp_steps", "max_steps", "max_settle_steps", "re
 """Step counts that are phases of a run (summed for the --dry-run bound)."""
 
 
-def _dry_run_protocol(args, module, kwargs) -> dict:
+def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     """`--dry-run` for a protocol: its set-up function (the box's for a tilt)
     called with the arguments it takes from the run's."""
     import inspect
@@ -672,6 +762,12 @@ def _dry_run_protocol(args, module, kwargs) -> dict:
     if "law" in accepted:
         given["law"] = args.law or DEFAULT_LAW[name]
     p = setup(**given)
+    from jaxpile.simulate import Simulator
+
+    setting = getattr(module, "SETTING", None) or getattr(module, "PAPER_SETTING", {})
+    dt = kwargs.get("dt") or p.info.get("dt") or setting.get("dt")
+    if dt is not None:  # the law's parameters and the time step's stability, as the run would check them
+        Simulator(contact_law, dt, integrator=args.integrator).check_params(kwargs["params"], p.particles)
     run_defaults = {k: v.default for k, v in inspect.signature(module.run).parameters.items()
                     if k.endswith("steps") and isinstance(v.default, int)}
     steps = {**run_defaults, **{k: v for k, v in kwargs.items() if k.endswith("steps") and isinstance(v, int)}}
@@ -850,6 +946,39 @@ def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int
         f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
 
 
+def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
+    """`fit --dry-run`: the pile the fit builds (set up, not run), the parameters
+    it fits from their starting values, the memory estimate and the steps."""
+    from jaxpile.protocols import lattice, pour
+    from jaxpile.simulate import Simulator
+
+    if args.protocol == "lattice":
+        if args.layers < 2:
+            from jaxpile.errors import InputError
+
+            raise InputError(f"--layers must be >= 2 for a profile; got {args.layers}.")
+        _, contact_law, params = _lattice_law_and_params(law, start)
+        particles, _ = lattice.equilateral_pile(args.layers)
+        Simulator(contact_law, lattice.PAPER_SETTING["dt"]).check_params(params, particles)
+        build, per_step = {}, 2 * max(600, 100 * args.layers)
+        what = f"a {args.layers}-layer lattice pile"
+    else:
+        p = pour.pour(args.n, seed=args.seed, **_parse_options(args.option))
+        _, contact_law, params = pour.law_and_params(law, start)
+        particles = p.particles
+        Simulator(contact_law, p.info["dt"]).check_params(params, particles)
+        build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": pour.PAPER_SETTING["max_settle_steps"]}
+        per_step, what = args.window, f"a {args.n}-disk poured heap (seed {args.seed})"
+    values = ", ".join(f"{n} = {float(getattr(params, n)):g}" for n in names)
+    print(f"jaxpile: dry run of a fit of {values} ({law} law) on {what}: {args.steps} optimiser steps, each "
+          f"differentiating {per_step:,} steps (a forward and a reverse pass)")
+    report = _dry_run_report(what, particles, {}, "float64", build)
+    total = args.steps * per_step * int(particles.count)
+    print(f"jaxpile: the fit: {args.steps} x {per_step:,} steps = {total:.3g} particle-steps forward "
+          "(the reverse pass costs ~5x more)")
+    return {**report, "fit_particle_steps": total}
+
+
 def _lattice_law_and_params(law: str, start: dict):
     from jaxpile.protocols import lattice
     from jaxpile.protocols.base import law_and_params
@@ -886,6 +1015,8 @@ def run_fit(args) -> dict:
     optimizer = _optimizer(args.optimizer, args.lr)
     start = _parse_set(args.set, lawmod.PARAM_NAMES)
     progress = False if args.no_progress else None
+    if args.dry_run:
+        return _dry_run_fit(args, law, names, start)
     sim, params, state, steps, setting, window, described = fit_problem(
         args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=_parse_options(args.option),
         bins=args.bins, window=args.window, progress=progress)

@@ -284,6 +284,10 @@ class Simulator:
         if not _is_concrete(params):
             return
         self.law.validate(params)
+        for name, value in vars(params).items():
+            if value is not None and np.ndim(value) != 0:
+                raise InputError(f"{self.law.name} parameter {name} has shape {np.shape(value)}: one pile takes one "
+                                 "value per parameter (batched parameters go to `jaxpile.Ensemble`).")
         movable = np.asarray(particles.movable)
         if not movable.any():
             movable = np.ones_like(movable)

@@ -336,6 +336,22 @@ def test_dry_run_prints_the_set_up_the_estimate_and_the_steps_and_runs_nothing(t
     assert "would fit" in capsys.readouterr().err
 
 
+def test_fit_dry_run_reports_the_pile_the_start_and_the_differentiated_steps(tmp_path, capsys):
+    from jaxpile.cli import main
+
+    out = tmp_path / "never"
+    assert main(["fit", "--target", "smid-novosad", "--protocol", "lattice", "--params", "mu,kt", "--set", "mu=0.3",
+                 "--layers", "5", "--steps", "7", "--dry-run", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "mu = 0.3" in text and "5-layer lattice pile: 15 disks" in text and "memory: about" in text
+    assert "7 x 1,200 steps = 1.26e+05 particle-steps" in text  # 2 x max(600, 100 x 5) steps, 15 disks
+    assert not out.exists()
+    # as the fit itself would refuse it: a start above the stability limit of the lattice's dt
+    assert main(["fit", "--target", "smid-novosad", "--protocol", "lattice", "--params", "kt", "--set", "kn=1e12",
+                 "--dry-run", "--out", str(out)]) == 2
+    assert "above the stability limit" in capsys.readouterr().err and not out.exists()
+
+
 def test_sweep_dry_run_reports_the_batch_and_runs_nothing(tmp_path, capsys):
     from jaxpile.cli import main
 

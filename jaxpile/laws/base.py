@@ -10,9 +10,12 @@ radius and infinite mass (Lee & Herrmann 1993, sec. 2).
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from typing import Any, Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxpile.errors import InputError
 
@@ -157,17 +160,49 @@ def cross2(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def check_finite_nonnegative(law_name: str, params, names, positive=()) -> None:
-    """Raises `InputError` if a named parameter is non-finite or negative, or if
-    one of `positive` is not > 0 (`None` values are skipped)."""
-    for name in names:
-        value = getattr(params, name)
-        if value is None:
+def param_arrays(law_name: str, values: dict, ranges: dict, dtype, optional=()) -> dict:
+    """`values` as arrays of `dtype`, for a law's `make_params`; a value that is
+    not a number (a string, None for a required parameter, a bool) is refused
+    with its range. `optional` names may be None (the `wall_*` defaults)."""
+    out = {}
+    for name, value in values.items():
+        if value is None and name in optional:
+            out[name] = None
             continue
-        v = jnp.asarray(value)
-        if not bool(jnp.all(jnp.isfinite(v))):
-            raise InputError(f"{law_name} parameter {name} must be finite; got {value}.")
-        if bool(jnp.any(v < 0)):
-            raise InputError(f"{law_name} parameter {name} must be >= 0; got {float(jnp.min(v))}.")
-        if name in positive and bool(jnp.any(v <= 0)):
-            raise InputError(f"{law_name} parameter {name} must be > 0; got {value}.")
+        if not _numeric(value):
+            raise InputError(f"{law_name} parameter {name} must be a number {ranges[name].describe()}; got {value!r}.")
+        if isinstance(value, numbers.Integral):  # a Python int beyond int64 would not convert
+            try:
+                value = float(value)
+            except OverflowError:
+                raise InputError(f"{law_name} parameter {name} must be finite and {ranges[name].describe()}; "
+                                 "got an integer beyond float range.") from None
+        out[name] = jnp.asarray(value, dtype)
+    return out
+
+
+def _numeric(value) -> bool:
+    if value is None or isinstance(value, (str, bytes, bool, np.bool_)):
+        return False
+    if isinstance(value, (numbers.Real, jax.core.Tracer)):
+        return True
+    try:
+        return np.asarray(value).dtype.kind in "iuf"
+    except Exception:  # a ragged list, an object numpy cannot read
+        return False
+
+
+def validate_ranges(law_name: str, params, ranges: dict) -> None:
+    """Raises `InputError` if a parameter lies outside its declared range
+    (`jaxpile.ranges`; None values, the unset `wall_*`, are skipped)."""
+    for name, range_ in ranges.items():
+        value = getattr(params, name)
+        if value is not None:
+            range_.check(f"{law_name} parameter {name}", value)
+
+
+def ranges_doc(ranges: dict) -> str:
+    """The `Valid ranges` section appended to a law's `Params` docstring."""
+    from jaxpile.ranges import table
+
+    return "\n\n    Valid ranges (checked by `validate`; `jaxpile.ranges`):\n" + table(ranges).replace("\n  ", "\n      ").replace("  ", "      ", 1) + "\n"

@@ -31,12 +31,16 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, cross2, dot2,
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
+                               validate_ranges, cross2, dot2,
                                normal_and_distance, perp, safe_norm)
+from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
 NAME = "hooke"
 PARAM_NAMES = ("kn", "kt", "gamma_n", "gamma_t", "mu", "wall_kn", "wall_kt", "wall_gamma_n", "wall_gamma_t", "wall_mu")
+RANGES = {name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES}
+"""Each parameter's valid range (`jaxpile.ranges`): the normal stiffness > 0, the rest >= 0."""
 
 
 @dataclasses.dataclass
@@ -66,17 +70,22 @@ class Params:
     wall_mu: Array = None
 
 
+Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+
+
 def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, dtype=None, **wall) -> Params:
     """`hooke` parameters with LAMMPS's defaults for what is left out:
     kt = 2/7 kn and gamma_t = gamma_n / 2; `wall_*` default to the disk values."""
     unknown = set(wall) - set(PARAM_NAMES[5:])
     if unknown:
         raise InputError(f"unknown hooke parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    # arrays (and refused if not numbers) before the defaults are computed from them
+    kn, gamma_n = param_arrays(NAME, dict(kn=kn, gamma_n=gamma_n), RANGES, dtype).values()
     kt = 2.0 / 7.0 * kn if kt is None else kt
     gamma_t = 0.5 * gamma_n if gamma_t is None else gamma_t
-    dtype = jnp.zeros(()).dtype if dtype is None else dtype
     values = dict(kn=kn, kt=kt, gamma_n=gamma_n, gamma_t=gamma_t, mu=mu, **wall)
-    return Params(**{k: None if v is None else jnp.asarray(v, dtype) for k, v in values.items()})
+    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=PARAM_NAMES[5:]))
 
 
 def wall_params(p: Params) -> Params:
@@ -157,7 +166,7 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
     k = max(float(p.kn), float(p.kt), float(w.kn), float(w.kt))
     gamma = max(float(p.gamma_n), float(p.gamma_t), float(w.gamma_n), float(w.gamma_t))
     omega = math.sqrt(8.0 * k / min_mass)
-    limits = [2.0 / omega]
+    limits = [2.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
     if gamma > 0:
         limits.append(2.0 / (4.0 * gamma))
     return min(limits)
@@ -165,7 +174,7 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
 
 def validate(p: Params) -> None:
     """Raises `InputError` on a negative or non-finite parameter, or a non-positive stiffness."""
-    check_finite_nonnegative("hooke", p, PARAM_NAMES, positive=("kn", "wall_kn"))
+    validate_ranges(NAME, p, RANGES)
 
 
 def law(rotation: bool = True) -> ContactLaw:

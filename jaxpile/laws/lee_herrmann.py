@@ -40,12 +40,16 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, dot2,
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
+                               validate_ranges, dot2,
                                normal_and_distance, perp, safe_sqrt)
+from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
 NAME = "lee-herrmann"
 PARAM_NAMES = ("kn", "ks", "gamma_n", "gamma_s", "mu", "wall_kn", "wall_ks", "wall_gamma_n", "wall_gamma_s", "wall_mu")
+RANGES = {name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES}
+"""Each parameter's valid range (`jaxpile.ranges`): the normal stiffness > 0, the rest >= 0."""
 
 
 @dataclasses.dataclass
@@ -72,6 +76,9 @@ class Params:
     wall_mu: Array = None
 
 
+Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+
+
 def make_params(kn=1.0e6, ks=None, gamma_n=5.0e2, gamma_s=None, mu=0.2, *, dtype=None, **wall) -> Params:
     """Parameters, with the paper's ratios for what is left out: k_s = k_n / 100
     and gamma_s = gamma_n / 100."""
@@ -79,9 +86,11 @@ def make_params(kn=1.0e6, ks=None, gamma_n=5.0e2, gamma_s=None, mu=0.2, *, dtype
     if unknown:
         raise InputError(f"unknown {NAME} parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    # arrays (and refused if not numbers) before the defaults are computed from them
+    kn, gamma_n = param_arrays(NAME, dict(kn=kn, gamma_n=gamma_n), RANGES, dtype).values()
     values = dict(kn=kn, ks=kn / 100.0 if ks is None else ks, gamma_n=gamma_n,
                   gamma_s=gamma_n / 100.0 if gamma_s is None else gamma_s, mu=mu, **wall)
-    return Params(**{k: None if v is None else jnp.asarray(v, dtype) for k, v in values.items()})
+    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=PARAM_NAMES[5:]))
 
 
 def paper_params(dtype=None) -> Params:
@@ -143,7 +152,8 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
     delta = 0.05 * min_radius
     k = max(1.5 * max(float(p.kn), float(w.kn)) * math.sqrt(delta), float(p.ks), float(w.ks))
     gamma = max(float(p.gamma_n), float(p.gamma_s), float(w.gamma_n), float(w.gamma_s))
-    limits = [2.0 / math.sqrt(8.0 * k / min_mass)]
+    omega = math.sqrt(8.0 * k / min_mass)
+    limits = [2.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
     if gamma > 0:
         limits.append(2.0 / (4.0 * gamma))
     return min(limits)
@@ -151,7 +161,7 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
 
 def validate(p: Params) -> None:
     """Raises `InputError` on a negative or non-finite parameter, or a non-positive stiffness."""
-    check_finite_nonnegative(NAME, p, PARAM_NAMES, positive=("kn", "wall_kn"))
+    validate_ranges(NAME, p, RANGES)
 
 
 SLIP_MODES = {"cundall-strack": pair_force, "literal": pair_force_literal}

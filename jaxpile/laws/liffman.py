@@ -44,12 +44,16 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, check_finite_nonnegative, contact_result, dot2,
+from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
+                               validate_ranges, dot2,
                                normal_and_distance, perp)
+from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
 NAME = "liffman"
 PARAM_NAMES = ("ks", "kd", "k_slip", "mu_roll", "mu_static", "well_width", "rest_speed")
+RANGES = {name: POSITIVE if name in ("ks", "well_width") else NON_NEGATIVE for name in PARAM_NAMES}
+"""Each parameter's valid range (`jaxpile.ranges`): K_s and the well width > 0, the rest >= 0."""
 
 
 @dataclasses.dataclass
@@ -76,12 +80,15 @@ class Params:
     rest_speed: Array
 
 
+Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+
+
 def make_params(ks=1.0e4, kd=50.0, k_slip=50.0, mu_roll=0.1, mu_static=1.0, well_width=0.05, rest_speed=1.0e-3,
                 *, dtype=None) -> Params:
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
     values = dict(ks=ks, kd=kd, k_slip=k_slip, mu_roll=mu_roll, mu_static=mu_static, well_width=well_width,
                   rest_speed=rest_speed)
-    return Params(**{k: jnp.asarray(v, dtype) for k, v in values.items()})
+    return Params(**param_arrays(NAME, values, RANGES, dtype))
 
 
 def paper_params(dtype=None) -> Params:
@@ -154,14 +161,14 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
     """The hooke estimate with K_s, and K_D, K_slip as damping rates per unit mass."""
     omega = math.sqrt(8.0 * float(p.ks) / min_mass)
     gamma = max(float(p.kd), float(p.k_slip)) / min_mass
-    limits = [2.0 / omega]
+    limits = [2.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
     if gamma > 0:
         limits.append(2.0 / (4.0 * gamma))
     return min(limits)
 
 
 def validate(p: Params) -> None:
-    check_finite_nonnegative(NAME, p, PARAM_NAMES, positive=("ks", "well_width"))
+    validate_ranges(NAME, p, RANGES)
 
 
 def law(rotation: bool = True) -> ContactLaw:

@@ -7,4 +7,27 @@ from jaxpile.protocols import box, drop, flux, lattice, pour, sloped, tilt
 
 PROTOCOLS = {"lattice": lattice, "sloped": sloped, "drop": drop, "box": box, "tilt": tilt, "flux": flux, "pour": pour}
 
+
+def _document_ranges() -> None:
+    """Appends each set-up and run function's argument ranges (its module's
+    `OPTION_RANGES`, which the function checks first) to its docstring, so that
+    `help(pour.pour)` states them; one table, no copy to keep in step."""
+    import inspect
+
+    from jaxpile.ranges import table
+
+    for module in PROTOCOLS.values():
+        for name in ("protocol", "pour", "run", "equilateral_pile"):
+            function = getattr(module, name, None)
+            if function is None or function.__module__ != module.__name__:
+                continue
+            taken = {k: r for k, r in module.OPTION_RANGES.items() if k in inspect.signature(function).parameters}
+            if taken:
+                function.__doc__ = ((function.__doc__ or "").rstrip() + "\n\n    Valid ranges (checked first; "
+                                    "`jaxpile.ranges`):\n" + table(taken).replace("  ", "      ", 1)
+                                    .replace("\n  ", "\n      ") + "\n")
+
+
+_document_ranges()
+
 __all__ = ["box", "drop", "flux", "lattice", "pour", "sloped", "tilt", "PROTOCOLS"]

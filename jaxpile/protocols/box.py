@@ -74,9 +74,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis, budget
+from jaxpile import analysis, budget, ranges
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
+from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols.base import Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.simulate import max_speed
@@ -121,6 +122,16 @@ PAPER_SETTING = {
 
 
 # ------------------------------------------------------------------- units
+OPTION_RANGES = {
+    "n": DISKS, "width": SIZE, "height": SIZE,
+    "packing_fraction": Range(low=0, high=0.91, low_open=True, high_open=True, why="a disk packing jams near 0.91"),
+    "placement_fraction": Range(low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
+    "rest_speed": SPEED, "hold_time": SPAN, "dt": TIME_STEP, "seed": SEED, "max_time": SIZE,
+    "chunk_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
 class Units(NamedTuple):
     """How the paper's units (cm, s, cm/s) map onto a law's simulation units.
 
@@ -466,6 +477,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
       InputError: on a bad count, size, speed, time or fraction, or when the
         disks cannot be placed.
     """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     u = units(law)
     dt = float(law_setting(law)["dt"]) if dt is None else _check_positive("dt", dt)
     width, height = _check_positive("width", width), _check_positive("height", height)
@@ -497,7 +509,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
     particles = make_particles(position, r, mass=mass, dtype=dtype)
     dtype = particles.position.dtype
     boundaries = make_boundaries(left=0.0, right=width * s, gravity=u.gravity, dtype=dtype)
-    hold = max(1, int(round(hold_time * u.time / dt)))
+    hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
     state = BoxState(
         edge=jnp.asarray(width * s, dtype),
         park=jnp.asarray(park, dtype),
@@ -582,7 +594,7 @@ def run_record(info, t0: float) -> dict:
 
 def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -> int:
     """`max_time` (paper seconds) in steps of dt."""
-    return max(1, int(round(_check_positive("max_time", max_time) * units(law).time / dt)))
+    return ranges.steps_of("max_time", _check_positive("max_time", max_time) * units(law).time, dt)
 
 
 def _sample(state: SimState):
@@ -728,6 +740,7 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
       >>> state, m = run("lee-herrmann", width=1.6, height=1.6)      # doctest: +SKIP
       >>> m["repose_cumulative_parabola"]                             # doctest: +SKIP
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     from jaxpile import theory
 
     _, _, params = law_and_params(law, params, rotation, dtype)

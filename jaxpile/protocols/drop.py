@@ -68,9 +68,10 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget
+from jaxpile import budget, ranges
 from jaxpile.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
+from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
@@ -96,6 +97,15 @@ SETTING = {
 }
 
 PARK_SPACING = 2.5  # diameters between parked disks: beyond any law's cut-off plus the skin
+
+
+OPTION_RANGES = {
+    "n": DISKS, "seed": SEED, "dt": TIME_STEP, "drop_height": SIZE,
+    "jitter": Range(low=0, high=1, high_open=True, why="diameters"), "settle_speed": SPEED, "quiet_time": SIZE,
+    "max_interval": SIZE, "diameter": SIZE, "mass": SIZE, "speed_tolerance": SPEED,
+    "relax_steps": STEPS, "bins": COUNT, "dip_threshold": SPAN, "chunk_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 class DropState(NamedTuple):
@@ -126,7 +136,7 @@ def _positive(name, value) -> float:
 
 
 def _steps(name, time_value, dt) -> int:
-    return max(1, int(math.ceil(_positive(name, time_value) / dt - 1e-9)))
+    return ranges.steps_of(name, _positive(name, time_value), dt, rounding=lambda c: math.ceil(c - 1e-9))
 
 
 def layout(n: int, diameter: float = 1.0, drop_height: float = 2.0):
@@ -226,6 +236,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
       `Protocol` with every disk parked inactive, the drop driver and its
       `DropState`, the neighbour-list box and `info` (counts, axis, step rules).
     """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     if int(n) != n or n < 1:
         raise InputError(f"n (the number of disks to drop) must be a positive whole number; got {n!r}.")
     n = int(n)
@@ -367,6 +378,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
       repose of each flank (Lee & Herrmann 1993 method 3, NaN when a flank is
       too small to fit), and step counts and times.
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     from jaxpile.simulate import RunInfo, Simulator
 
     _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)

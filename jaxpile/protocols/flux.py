@@ -51,9 +51,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis, budget
+from jaxpile import analysis, budget, ranges
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
+from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import drivers
 from jaxpile.protocols.base import Protocol
@@ -71,6 +72,14 @@ SETTING = {
     "max_time": 60.0,  # s: give up
     "steepest_slope_degrees": 35.0,  # sizes the default pool
 }
+
+
+OPTION_RANGES = {
+    "insertions": Range(low=1, whole=True, unit="insertions"), "width": SIZE, "pool": DISKS,
+    "v_cut": SPEED, "hold_time": SPAN, "gap": SPAN, "dt": TIME_STEP, "seed": SEED,
+    "max_time": SIZE, "chunk_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 class FluxState(NamedTuple):
@@ -243,6 +252,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     Raises:
       InputError: on a bad count, size, speed, gap or time.
     """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     if int(insertions) != insertions or insertions < 1:
         raise InputError(f"insertions must be a positive whole number; got {insertions!r}.")
     insertions = int(insertions)
@@ -259,7 +269,8 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     if pool is None:
         pool = min(insertions, pool_size(width, radius=radius))
     if int(pool) == pool and pool >= 1:
-        budget.check(pool, dtype or "float64", what="a flux pile's pool")
+        # each insertion keeps a record of the surface (a few hundred bytes): counted as one disk more
+        budget.check(pool + insertions, dtype or "float64", what="a flux pile's pool and insertion records")
     if int(pool) != pool or pool < 1:
         raise InputError(f"pool must be a positive whole number; got {pool!r}.")
     pool = int(pool)
@@ -286,8 +297,8 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
 
     column_width_wanted = 2.0 * float(np.mean(radius_all))
     columns = max(1, int(round(width * s / column_width_wanted)))
-    hold = max(1, int(round(hold_time * u.time / dt)))
-    fall_steps = int(math.ceil(math.sqrt(2.0 * gap * s / u.gravity) / dt))
+    hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
+    fall_steps = ranges.steps_of("the fall through gap", math.sqrt(2.0 * gap * s / u.gravity), dt, rounding=math.ceil) if gap > 0 else 0
     state = FluxState(
         edge=jnp.asarray(width * s, dtype),
         park=jnp.asarray(park, dtype),
@@ -423,6 +434,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
       the final pile's angles (`repose_*`), counts, the kinetic energy per chunk
       and timings.
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     from jaxpile import theory
 
     _, _, params = boxes.law_and_params(law, params, rotation, dtype)

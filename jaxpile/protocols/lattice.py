@@ -11,10 +11,18 @@ import math
 
 import numpy as np
 
-from jaxpile import budget
+from jaxpile import budget, ranges
 from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
+from jaxpile.ranges import SIZE, Range
 from jaxpile.state import Boundaries, Particles, make_particles
+
+
+OPTION_RANGES = {
+    "layers": Range(low=1, whole=True, unit="layers"), "diameter": SIZE, "mass": SIZE,
+    "gap": Range(low=0, high=0.1, high_open=True, why="diameters"),
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:
@@ -52,6 +60,7 @@ def lattice_angle(gap: float = 0.0) -> float:
 def equilateral_pile(layers: int, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0,
                      dtype=None) -> tuple[Particles, Boundaries]:
     """Particles and boundaries (the ground alone, no side-wall slots) of the k-layer pile."""
+    ranges.check_all(OPTION_RANGES, locals(), equilateral_pile)  # types, finiteness and ranges first: one message format
     if int(layers) == layers and layers >= 1:  # before any array is allocated
         budget.check(int(layers) * (int(layers) + 1) // 2, dtype or "float64", what=f"a {int(layers):,}-layer lattice pile")
     position = equilateral_positions(layers, diameter, gap=gap)

@@ -57,9 +57,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxpile import analysis, budget
+from jaxpile import analysis, budget, ranges
 from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
+from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import drivers
 from jaxpile.protocols.base import Protocol
 from jaxpile.state import SimState, make_particles
@@ -111,6 +112,16 @@ PAPER_SETTING = {
         "liffman": {},
     },
 }
+
+
+OPTION_RANGES = {
+    "n": DISKS, "spacing": Range(low=1, high=2, high_open=True, why="S >= one diameter, the gap narrower than a disk"),
+    "polydispersity": Range(low=0, high=0.5, high_open=True, why="a fraction: 0.05 for 5%"),
+    "release_height": SIZE, "insert_height": SIZE, "spread": SPAN, "interval": SIZE,
+    "dt": TIME_STEP, "substrate_disks": Range(low=3, whole=True, unit="disks"), "seed": SEED,
+    "speed_tolerance": SPEED, "max_settle_steps": STEPS, "bins": Range(low=3, whole=True), "voidage_cell": SIZE,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 class PourState(NamedTuple):
@@ -255,6 +266,7 @@ def pour(
     Raises:
       InputError: on a bad count, spacing, polydispersity, height, spread, interval or dt.
     """
+    ranges.check_all(OPTION_RANGES, locals(), pour)  # types, finiteness and ranges first: one message format
     if int(n) != n or n < 1:
         raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
     n = int(n)
@@ -272,7 +284,7 @@ def pour(
         raise InputError(f"dt must be positive and finite; got {dt!r}.")
     if not (interval > 0 and math.isfinite(interval)):
         raise InputError(f"interval must be a positive time; got {interval!r}.")
-    interval_steps = max(1, int(round(interval / dt)))
+    interval_steps = ranges.steps_of("interval", interval, dt)
     lowest = steepest_heap_height(n) + 3.0
     if not (math.isfinite(release_height) and release_height >= lowest):
         raise InputError(
@@ -673,6 +685,7 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       (final state, measurements): `measure`'s dict plus `run` (steps, timings,
       at_rest, final max speed), `info` (the set-up) and `summary` (plain numbers).
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     protocol = pour(n, dt=dt, dtype=dtype, **options)
     _, _, params = law_and_params(law, params, rotation, dtype=protocol.particles.position.dtype)
     sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, law_options=law_options)

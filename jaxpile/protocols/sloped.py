@@ -31,9 +31,10 @@ import time
 
 import numpy as np
 
-from jaxpile import budget
+from jaxpile import budget, ranges
 from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
+from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
@@ -53,6 +54,14 @@ SETTING = {
     "alpha_degrees": 30.0,
     "n": 360,
 }
+
+
+OPTION_RANGES = {
+    "alpha_degrees": Range(low=1, high=60, why="degrees; 60 is the lattice pile, below 1 a pile is one row"), "n": DISKS,
+    "base": SIZE, "ramp_steps": STEPS, "seed": SEED, "dt": TIME_STEP, "speed_tolerance": SPEED,
+    "max_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 def _check_alpha(alpha_degrees) -> float:
@@ -170,6 +179,7 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
       `Protocol` with a gravity-ramp schedule and no driver; `info` holds the
       slope, B, the row lengths, the disk count and x_c (eq. 49's text).
     """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     from jaxpile import theory
     from jaxpile.simulate import gravity_ramp
 
@@ -181,6 +191,10 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
             budget.check(n, dtype or "float64", what="a sloped pile")
         base = base_for_count(n, alpha)
     base = _check_base(base)
+    # counting the rows takes time and memory in B: refuse a base far too big from the
+    # continuum count first (within ~1% of the lattice's), then check the exact count
+    budget.check(math.ceil(base * base * math.tan(math.radians(alpha)) / (2.0 * SQRT3)), dtype or "float64",
+                 what="a sloped pile")
     budget.check(pile_count(base, alpha), dtype or "float64", what="a sloped pile")
     particles, boundaries = sloped_pile(base, alpha, dtype=dtype)
     rows = row_lengths(base, alpha)
@@ -315,6 +329,7 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
       >>> state, m = run("hooke", 30.0, n=40, ramp_steps=2000)       # doctest: +SKIP
       >>> m["central_slope_horizontal"], m["theory_central_slope_horizontal"]  # doctest: +SKIP
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     from jaxpile import analysis
     from jaxpile.simulate import Simulator
 

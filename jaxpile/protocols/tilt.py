@@ -41,8 +41,9 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import theory
+from jaxpile import ranges, theory
 from jaxpile.errors import InputError
+from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols.base import Protocol
 from jaxpile.state import SimState
@@ -58,6 +59,13 @@ SETTING = {
     "max_tilt_degrees": 45.0,  # give up tilting here
     "settle_time": 5.0,  # s: at most this long to come to rest after the pile moved
 }
+
+
+OPTION_RANGES = {
+    "n": DISKS, "rate_degrees": SIZE, "move_speed": SIZE, "rest_speed": SPEED, "hold_time": SPAN,
+    "max_tilt_degrees": ANGLE, "edge": FINITE, "dt": TIME_STEP, "settle_time": SPAN, "chunk_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
 class TiltState(NamedTuple):
@@ -171,6 +179,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
       InputError: on a bad rate, speed or angle, a pile whose gravity is
         already tilted, or a pile that is not a box pile when `edge` is missing.
     """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     if not isinstance(pile, SimState):
         raise InputError("pile must be a SimState (a settled pile, e.g. from box.run).")
     u = boxes.units(law)
@@ -203,7 +212,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         top = float(np.max(np.asarray(p.position)[:, 1] + r))
         park = boxes.parking_grid(p.count, spacing, top + 2 * spacing, spacing)
     left = int(before.left) if hasattr(before, "left") else 0
-    hold = max(1, int(round(hold_time * u.time / dt)))
+    hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
     state = TiltState(
         edge=jnp.asarray(edge, dtype),
         park=jnp.asarray(park, dtype),
@@ -385,6 +394,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
       onset and of the motion, counts, the kinetic energy per chunk, timings;
       `box` holds the box run's measurements when the pile was built here.
     """
+    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
     from jaxpile import checkpoint as ckpt
 
     _, _, tilt_params = boxes.law_and_params(law, params, rotation, dtype)

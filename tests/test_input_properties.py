@@ -1,0 +1,191 @@
+"""Property tests of the inputs at their edges (issue 19): values drawn across and
+beyond every declared range (`jaxpile.ranges`: each law's `RANGES`, each
+protocol's `OPTION_RANGES`, the CLI's `FLAG_RANGES`), zero, negatives, huge,
+tiny, NaN, inf and things that are not numbers. Every outcome must be a run (or
+a set-up) or one `InputError` line; the command line answers with exit status 2
+and one line, never a traceback.
+
+No example database is kept (`database=None`), and each test draws a few dozen
+examples so that the file stays within ~30 s on 2 cores."""
+
+import contextlib
+import inspect
+import io
+import math
+import re
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxpile import ranges
+from jaxpile.cli import FLAG_RANGES, main
+from jaxpile.errors import InputError
+from jaxpile.laws import LAWS, get_law_module
+from jaxpile.protocols import PROTOCOLS
+
+PROPERTY = settings(database=None, deadline=None, suppress_health_check=list(HealthCheck))
+
+EDGES = [0, -0.0, -1, 1, 0.5, 1.0 - 1e-12, 1e-300, 5e-324, 1e300, 1e308, 10**30, 2**63, 2**64, -(10**30),
+         math.nan, math.inf, -math.inf]
+NOT_NUMBERS = ["abc", "", "1.5", None, True, [1.0, 2.0], {}, b"1"]
+
+
+def edge_values(range_: ranges.Range | None = None):
+    """Numbers across and beyond a range: its bounds and their neighbours, the
+    generic edges, random floats and integers, and non-numbers."""
+    near = []
+    if range_ is not None:
+        for bound in (range_.low, range_.high):
+            if bound is not None:
+                near += [bound, math.nextafter(bound, -math.inf), math.nextafter(bound, math.inf), bound + 1, bound - 1]
+    return st.one_of(st.sampled_from(EDGES + near), st.floats(allow_nan=True, allow_infinity=True),
+                     st.integers(-(10**20), 10**20), st.floats(-2, 2), st.sampled_from(NOT_NUMBERS))
+
+
+ONE_LINE = re.compile(r"^.+ must be .+; got .+\.$")
+
+
+@settings(PROPERTY, max_examples=150)
+@given(data=st.data())
+def test_a_range_either_returns_a_value_inside_it_or_refuses_in_one_line(data):
+    range_ = data.draw(st.sampled_from(
+        [ranges.POSITIVE, ranges.NON_NEGATIVE, ranges.DISKS, ranges.STEPS, ranges.SEED, ranges.FRACTION,
+         ranges.FINITE, ranges.ANGLE, get_law_module("baxter").RANGES["n"], PROTOCOLS["pour"].OPTION_RANGES["spacing"]]))
+    value = data.draw(edge_values(range_))
+    try:
+        checked = range_.check("x", value)
+    except InputError as err:
+        message = str(err)
+        assert ONE_LINE.match(message) and "\n" not in message, message
+        return
+    for v in np.ravel(checked).tolist():  # a list of numbers (batched parameters) is checked element by element
+        assert range_.contains(float(v)), (value, checked)
+    if range_.whole and np.ndim(checked) == 0:
+        assert isinstance(checked, int)
+
+
+@settings(PROPERTY, max_examples=120)
+@given(data=st.data())
+def test_every_law_parameter_is_accepted_exactly_inside_its_declared_range(data):
+    """make_params + validate: a number inside `RANGES` passes, anything else is
+    one InputError naming the parameter (never OverflowError, TypeError...)."""
+    name = data.draw(st.sampled_from(sorted(LAWS)))
+    lawmod = get_law_module(name)
+    param = data.draw(st.sampled_from(lawmod.PARAM_NAMES))
+    value = data.draw(edge_values(lawmod.RANGES[param]))
+    defaults = inspect.signature(lawmod.make_params).parameters
+    default_is_none = param.startswith("wall_") or (param in defaults and defaults[param].default is None)
+    try:
+        lawmod.law().validate(lawmod.make_params(**{param: value}))
+    except InputError as err:
+        assert param in str(err) and "\n" not in str(err)
+        inside = _is_number(value) and lawmod.RANGES[param].contains(float(value))
+        assert not inside or "float range" in str(err), f"{name} {param}={value!r} is in range but refused: {err}"
+        return
+    if value is None:
+        assert default_is_none, f"{name} {param}=None accepted, but None is not its default"
+        return
+    if isinstance(value, list):  # batched parameters (an ensemble's): each member's value in range
+        assert all(lawmod.RANGES[param].contains(v) for v in value), f"{name} {param}={value!r} accepted"
+        return
+    assert _is_number(value) and lawmod.RANGES[param].contains(float(value)), f"{name} {param}={value!r} accepted"
+
+
+def _is_number(value) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+SETUPS = {  # each protocol's set-up at a size that builds in well under a second
+    "lattice": (lambda **o: PROTOCOLS["lattice"].equilateral_pile(o.pop("layers", 3), **o), {}),
+    "sloped": (lambda **o: PROTOCOLS["sloped"].protocol(o.pop("alpha_degrees", 30.0), **{"n": 20, **o}), {}),
+    "drop": (lambda **o: PROTOCOLS["drop"].protocol(**{"n": 12, **o}), {}),
+    "box": (lambda **o: PROTOCOLS["box"].protocol(**{"n": 12, **o}), {}),
+    "flux": (lambda **o: PROTOCOLS["flux"].protocol(**{"insertions": 3, **o}), {}),
+    "pour": (lambda **o: PROTOCOLS["pour"].pour(**{"n": 12, **o}), {}),
+}
+_SET_UP_ARGS = {  # the options each set-up function takes (the rest of OPTION_RANGES belong to `run`)
+    "lattice": {"layers", "diameter", "mass", "gap"},
+    "sloped": {"alpha_degrees", "n", "base", "ramp_steps", "seed"},
+    "drop": {"n", "seed", "dt", "drop_height", "jitter", "settle_speed", "quiet_time", "max_interval", "diameter",
+             "mass"},
+    "box": {"n", "width", "height", "packing_fraction", "placement_fraction", "rest_speed", "hold_time", "dt", "seed"},
+    "flux": {"insertions", "width", "pool", "v_cut", "hold_time", "gap", "dt", "seed"},
+    "pour": {"n", "spacing", "polydispersity", "release_height", "insert_height", "spread", "interval", "dt",
+             "substrate_disks", "seed"},
+}
+_SMALL = {"n": 12, "layers": 3, "insertions": 3, "pool": 12, "substrate_disks": 40, "ramp_steps": 10}
+
+
+@settings(PROPERTY, max_examples=60)
+@given(data=st.data())
+def test_every_protocol_option_sets_up_or_refuses_in_one_line(data):
+    """Each protocol's set-up with one option drawn at its edges: a `Protocol`
+    (or the lattice's particles) or one InputError; counts are drawn small when
+    valid so that a set-up stays cheap (their huge values are the memory
+    check's, tested in test_budget.py)."""
+    name = data.draw(st.sampled_from(sorted(SETUPS)))
+    setup, _ = SETUPS[name]
+    option = data.draw(st.sampled_from(sorted(_SET_UP_ARGS[name])))
+    range_ = PROTOCOLS[name].OPTION_RANGES[option]
+    value = data.draw(edge_values(range_))
+    if range_.whole and _is_number(value) and value > 60:
+        value = _SMALL.get(option, value)
+    try:
+        setup(**{option: value})
+    except InputError as err:
+        assert "\n" not in str(err).strip(), str(err)
+
+
+FLAG_TEXT = st.one_of(st.integers(-5, 40).map(str), edge_values().map(str))
+_PROTOCOL_OPTIONS = {name: sorted(_SET_UP_ARGS.get(name, set()) - {"n", "layers", "insertions", "seed", "dt"})
+                     for name in PROTOCOLS}
+
+
+@st.composite
+def pile_dry_runs(draw):
+    protocol = draw(st.sampled_from(["lattice", "sloped", "drop", "box", "flux", "pour"]))
+    law = draw(st.sampled_from(sorted(LAWS)))
+    argv = ["pile", "--protocol", protocol, "--law", law, "--dry-run", "--no-progress",
+            "--layers" if protocol == "lattice" else "--n", draw(st.integers(-2, 30).map(str) | FLAG_TEXT)]
+    for flag in draw(st.lists(st.sampled_from(sorted(set(FLAG_RANGES["pile"]) - {"layers", "n"})), max_size=2)):
+        argv += ["--" + flag.replace("_", "-"), draw(FLAG_TEXT)]
+    lawmod = get_law_module(law)
+    for param in draw(st.lists(st.sampled_from(lawmod.PARAM_NAMES), max_size=2)):
+        argv += ["--set", f"{param}={draw(FLAG_TEXT)}"]
+    if _PROTOCOL_OPTIONS[protocol] and draw(st.booleans()):
+        argv += ["--option", f"{draw(st.sampled_from(_PROTOCOL_OPTIONS[protocol]))}={draw(FLAG_TEXT)}"]
+    return argv
+
+
+@settings(PROPERTY, max_examples=40)
+@given(argv=pile_dry_runs())
+def test_the_command_line_answers_every_drawn_input_with_a_dry_run_or_one_line(argv, tmp_path_factory):
+    out = tmp_path_factory.mktemp("dry")
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        try:
+            status = main(argv + ["--out", str(out / "run")])
+        except SystemExit as exit_:  # argparse's own errors (a flag that is not a number)
+            status = exit_.code
+    err = stderr.getvalue().strip()
+    assert status in (0, 2), (argv, status, err)
+    if status == 2:
+        assert err.startswith("jaxpile: error:") and len(err.splitlines()) == 1, (argv, err)
+    assert "Traceback" not in err + stdout.getvalue()
+    assert not (out / "run").exists()  # a dry run, or a refusal, writes nothing
+
+
+@pytest.mark.parametrize("command", sorted(FLAG_RANGES))
+def test_every_ranged_flag_states_its_range_in_its_help(command, capsys):
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for dest, range_ in FLAG_RANGES[command].items():
+        assert f"[{range_.describe()}]" in text, (command, dest)
