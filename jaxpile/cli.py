@@ -209,7 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("dirs", nargs="+")
 
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
-    sweep.add_argument("--protocol", default="box", choices=["box", "pour"])
+    sweep.add_argument("--protocol", default="box", choices=["box", "pour", "lattice", "sloped", "drop"],
+                       help="box, pour; lattice, sloped (deterministic piles: vary the law); drop")
     sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
     sweep.add_argument("--vary", action="append", metavar="NAME=V1,V2,...",
@@ -820,7 +821,7 @@ def run_sweep(args) -> dict:
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or {"box": "lee-herrmann", "pour": "baxter"}[args.protocol]).NAME
+    law = get_law_module(args.law or sw.adapter(args.protocol).default_law).NAME
     vary = {}
     if args.mu is not None:
         vary["mu"] = _parse_values("--mu", args.mu)
@@ -876,7 +877,8 @@ def run_sweep(args) -> dict:
     s = summaries[main_angle]
     print(f"jaxpile: {main_angle} against {by} (mean +- standard error over seeds):")
     for x, m, e, c, miss in zip(s["x"], s["mean"], s["stderr"], s["count"], s["missing"]):
-        print(f"  {by} = {x:g}: {m:.2f} +- {e:.2f} deg  ({c} piles" + (f", {miss} not measurable)" if miss else ")"))
+        unit = result.info.get("unit", "deg")
+        print(f"  {by} = {x:g}: {m:.4g} +- {e:.2g} {unit}  ({c} piles" + (f", {miss} not measurable)" if miss else ")"))
     print(f"jaxpile: {result.info['members']} members x {result.info['n_particles']} disks, "
           f"{result.info['batch_steps']} batch steps in {result.info['run_seconds']:.1f} s "
           f"(+ {result.info['compile_seconds']:.1f} s compile): "

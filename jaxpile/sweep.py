@@ -9,8 +9,11 @@ measures each member as the protocol's own `run` does. The rows go to a CSV
 (`write_csv`), and `summarise` gives mean and standard error per grid point.
 
 Protocols (`ADAPTERS`): `box` (Lee & Herrmann 1993: angle of repose by the
-three methods) and `pour` (Baxter et al. 1997: flank angles, base-force M
-ratio, force balance).
+three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
+ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
+ground forces against eqs. 42-44 and 54-59, e.g. against K_s) and `drop`
+(1992 Fig. 20: the base profile's central dip over seeds). The tilt (two
+stages: a box pile, then the tilt) is not batched yet (issue 18's runner).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
+
+import jax.numpy as jnp
 
 from jaxpile import budget as memory
 from jaxpile import ensemble
@@ -44,6 +49,8 @@ class Adapter:
       angles: the angle columns to summarise and plot (the first is the headline).
       options: the set-up options a sweep accepts.
       theory: optional `(name, values) -> (label, degrees)` to overlay on angles.
+      unit: of the `angles` columns, for the printed summary.
+      default_law: the protocol paper's law.
     """
 
     setup: Callable
@@ -56,6 +63,8 @@ class Adapter:
     angles: tuple
     options: frozenset
     theory: Callable | None = None
+    unit: str = "deg"
+    default_law: str = "lee-herrmann"
 
 
 def _marginal_stability(name, values):
@@ -80,7 +89,7 @@ def _box_adapter() -> Adapter:
     def setup(law, seed, dt, options):
         return box.protocol(law=law, seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
 
-    def simulator(law, dt, options):
+    def simulator(law, dt, options, setup_options):
         return box.make_simulator(law, dt=dt, **options)
 
     def finished(info, options):
@@ -110,7 +119,7 @@ def _pour_adapter() -> Adapter:
         options = {k: v for k, v in options.items() if k not in ("speed_tolerance", "max_settle_steps")}
         return pour.pour(seed=seed, dt=dt, **options)
 
-    def simulator(law, dt, options):
+    def simulator(law, dt, options, setup_options):
         return pour.make_simulator(law, dt=dt, **options)
 
     def finished(info, options):
@@ -138,10 +147,122 @@ def _pour_adapter() -> Adapter:
 
     return Adapter(setup, simulator, finished, max_steps, measure, pour.law_and_params,
                    lambda law: float(pour.PAPER_SETTING["dt"]), ("repose_mean", "angle_height_base"),
-                   _option_names(pour.pour, "speed_tolerance", "max_settle_steps"), _marginal_stability)
+                   _option_names(pour.pour, "speed_tolerance", "max_settle_steps"), _marginal_stability,
+                   default_law="baxter")
 
 
-ADAPTERS: dict[str, Callable[[], Adapter]] = {"box": _box_adapter, "pour": _pour_adapter}
+# ------------------------------------------------------------ lattice, sloped
+def _loaded_pile_adapter(name: str) -> Adapter:
+    """The 1992 static piles: a gravity ramp, then a run to rest (as
+    `lattice.relax`; the batch's predicate: past the ramp and every member's
+    fastest disk below `speed_tolerance`). Deterministic piles: seeds repeat
+    the same pile, so a sweep varies the law (K_s, mu_roll, ...)."""
+    from jaxpile import analysis
+    from jaxpile.protocols import lattice, sloped
+    from jaxpile.protocols.base import Protocol, law_and_params as base_law_and_params
+    from jaxpile.simulate import Simulator, gravity_ramp
+
+    setting = lattice.PAPER_SETTING if name == "lattice" else sloped.SETTING
+    run_options = ("ramp_steps", "speed_tolerance", "max_steps")
+
+    def value(options, key):
+        return options.get(key, setting[key])
+
+    def setup(law, seed, dt, options):
+        dtype = options.get("dtype")
+        if name == "lattice":
+            layers = int(options.get("layers", options.get("n", setting["layers"])))
+            particles, boundaries = lattice.equilateral_pile(layers, dtype=dtype)
+            info = {"layers": layers}
+        else:
+            kwargs = {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
+            p = sloped.protocol(kwargs.pop("alpha_degrees", setting["alpha_degrees"]), dtype=dtype, **kwargs)
+            particles, boundaries, info = p.particles, p.boundaries, dict(p.info)
+        return Protocol(particles=particles, boundaries=boundaries,
+                        info={**info, "dt": dt, "speed_tolerance": float(value(options, "speed_tolerance"))})
+
+    def simulator(law, dt, options, setup_options):
+        _, contact_law, _ = law_and_params(law, None, options.get("rotation"))
+        return Simulator(contact_law, dt, schedule=gravity_ramp(int(value(setup_options, "ramp_steps"))))
+
+    def finished(info, options):
+        ramp, tolerance = int(value(options, "ramp_steps")), float(value(options, "speed_tolerance"))
+        return lambda s: (s.step >= ramp) & (max_speed(s) < tolerance)
+
+    def max_steps(info, options):
+        return int(value(options, "max_steps"))
+
+    def measure(sim, params, state, protocol):
+        base = analysis.base_forces(sim, params, state)
+        if name == "lattice":
+            m = lattice.compare_with_theory(base, protocol.info["layers"])
+        else:
+            n_in = int(np.asarray(state.particles.active).sum())
+            m = sloped.compare_with_theory(base, protocol.info["alpha_degrees"], protocol.info["base"], n_particles=n_in)
+        row = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
+        return row | {"at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
+                      "max_speed": float(max_speed(state))}
+
+    def law_and_params(law, params=None, rotation=None, dtype=None):
+        if name == "sloped":
+            return sloped.law_and_params(law, params, rotation, dtype=dtype)
+        return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype)
+
+    headline = (("max_rel_dev_normal", "max_rel_dev_horizontal") if name == "lattice"
+                else ("central_normal_rel_dev", "central_slope_horizontal"))
+    names = {"layers"} if name == "lattice" else _option_names(sloped.protocol) - {"seed"}
+    return Adapter(setup, simulator, finished, max_steps, measure, law_and_params, lambda law: float(setting["dt"]),
+                   headline, frozenset(names | set(run_options) | {"n"}), None, unit="", default_law="hooke")
+
+
+# ----------------------------------------------------------------------- drop
+def _drop_adapter() -> Adapter:
+    """Liffman et al. 1992 Fig. 20: disks dropped one at a time, then relaxed.
+    The batch's predicate: every disk in, the last one in for `quiet_time`, and
+    every member's fastest disk below `speed_tolerance` (a single run fills,
+    then relaxes; the batch checks both at each chunk's end)."""
+    from jaxpile.protocols import drop
+    from jaxpile.simulate import Simulator
+
+    setting = drop.SETTING
+    run_options = ("speed_tolerance", "relax_steps", "bins", "dip_threshold")
+
+    def setup_kwargs(options):
+        return {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
+
+    def setup(law, seed, dt, options):
+        p = drop.protocol(seed=seed, dt=dt, dtype=options.get("dtype"), **setup_kwargs(options))
+        info = {**p.info, "bins": int(options.get("bins", 15)), "dip_threshold": float(options.get("dip_threshold", 0.05))}
+        return p._replace(driver=None, info=info)  # the simulator's driver (the same constants for every member)
+
+    def simulator(law, dt, options, setup_options):
+        _, contact_law, _ = drop.law_and_params(law, None, options.get("rotation"))
+        driver = drop.protocol(seed=0, dt=dt, **setup_kwargs(setup_options)).driver
+        return Simulator(contact_law, dt, driver=driver, capacity_multiplier=4.0)
+
+    def finished(info, options):
+        quiet, tolerance = int(info["quiet_steps"]), float(options.get("speed_tolerance", setting["speed_tolerance"]))
+        return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
+                          & (max_speed(s) < tolerance))
+
+    def max_steps(info, options):
+        n = int(info["n_particles"])
+        return n * int(info["max_interval_steps"]) + 1000 + int(options.get("relax_steps", setting["relax_steps"]))
+
+    def measure(sim, params, state, protocol):
+        m = drop.measure(sim, params, state, bins=protocol.info["bins"], dip_threshold=protocol.info["dip_threshold"])
+        row = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
+        return row | {"all_inserted": bool(np.asarray(state.particles.active).all()),
+                      "max_speed": float(max_speed(state))}
+
+    return Adapter(setup, simulator, finished, max_steps, measure, drop.law_and_params,
+                   lambda law: float(setting["dt"]), ("central_dip",),
+                   _option_names(drop.protocol, *run_options), None, unit="", default_law="liffman")
+
+
+ADAPTERS: dict[str, Callable[[], Adapter]] = {
+    "box": _box_adapter, "pour": _pour_adapter, "lattice": lambda: _loaded_pile_adapter("lattice"),
+    "sloped": lambda: _loaded_pile_adapter("sloped"), "drop": _drop_adapter}
 
 
 def adapter(protocol: str) -> Adapter:
@@ -185,7 +306,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: `box` or `pour`.
+      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop).
       law: the contact law (default: the protocol paper's).
       vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
       seeds: a count (seeds 0..n-1) or a list of seeds.
@@ -207,7 +328,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
       `SweepResult`.
     """
     a = adapter(protocol)
-    law = law or {"box": "lee-herrmann", "pour": "baxter"}[protocol]
+    law = law or a.default_law
     vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
     options = dict(options or {})
     unknown = set(options) - a.options
@@ -220,7 +341,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         _, _, prm = a.law_and_params(law, {**(params or {}), **point}, rotation, dtype=dtype)  # checks the names
         member_params.append(prm)
     sim_options = {} if rotation is None else {"rotation": rotation}
-    sim = a.simulator(law, dt, sim_options)
+    sim = a.simulator(law, dt, sim_options, options)
     ens = ensemble.Ensemble(sim, devices=devices)
     batch_size = len(members) if batch_size is None else int(batch_size)
     if batch_size < 1:
@@ -272,7 +393,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
               "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
               "neighbor_reallocations": info.reallocations,
               "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
-              "angles": list(a.angles)}
+              "angles": list(a.angles), "unit": a.unit}
     return SweepResult(rows, record)
 
 
