@@ -209,8 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("dirs", nargs="+")
 
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
-    sweep.add_argument("--protocol", default="box", choices=["box", "pour", "lattice", "sloped", "drop"],
-                       help="box, pour; lattice, sloped (deterministic piles: vary the law); drop")
+    sweep.add_argument("--protocol", default="box", choices=["box", "pour", "lattice", "sloped", "drop", "flux"],
+                       help="box, pour, flux; lattice, sloped (deterministic piles: vary the law); drop")
     sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
     sweep.add_argument("--vary", action="append", metavar="NAME=V1,V2,...",

@@ -12,7 +12,8 @@ Protocols (`ADAPTERS`): `box` (Lee & Herrmann 1993: angle of repose by the
 three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
 ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
 ground forces against eqs. 42-44 and 54-59, e.g. against K_s) and `drop`
-(1992 Fig. 20: the base profile's central dip over seeds). The tilt (two
+(1992 Fig. 20: the base profile's central dip over seeds) and `flux`
+(1993 Fig. 5: the steady angle under a flux of disks). The tilt (two
 stages: a box pile, then the tilt) is not batched yet (issue 18's runner).
 """
 
@@ -260,7 +261,46 @@ def _drop_adapter() -> Adapter:
                    _option_names(drop.protocol, *run_options), None, unit="", default_law="liffman")
 
 
-ADAPTERS: dict[str, Callable[[], Adapter]] = {
+# ----------------------------------------------------------------------- flux
+def _flux_adapter() -> Adapter:
+    """Lee & Herrmann 1993 Fig. 5: disks fed one at a time onto a fixed layer;
+    per member the angle (method 3) before each insertion and its steady mean
+    over the second half of the insertions (as `flux.run`)."""
+    from jaxpile.protocols import box, flux
+
+    def setup(law, seed, dt, options):
+        kwargs = {k: v for k, v in options.items() if k not in ("max_time", "n")}
+        return flux.protocol(int(options.get("n", flux.SETTING["insertions"])), law=law, seed=seed, dt=dt, **kwargs)
+
+    def simulator(law, dt, options, setup_options):
+        return flux.make_simulator(law, dt=dt, **options)
+
+    def finished(info, options):
+        return lambda s: s.protocol_state.settled_at >= 0
+
+    def max_steps(info, options):
+        return box.max_steps_for(info["law"], info["dt"], options.get("max_time", flux.SETTING["max_time"]))
+
+    def measure(sim, params, state, protocol):
+        ps = state.protocol_state
+        done = int(ps.inserted)
+        record = flux.angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
+        main = np.asarray(record["cumulative_parabola"], dtype=float)
+        late = main[done // 2:]
+        late = late[np.isfinite(late)]
+        nan = float("nan")
+        final = box.repose(state, protocol.info["width"])
+        return {"inserted": done, "steady_mean": float(np.mean(late)) if late.size else nan,
+                "steady_std": float(np.std(late)) if late.size else nan,
+                "repose_cumulative_parabola": final["repose_cumulative_parabola"],
+                "at_rest": int(ps.settled_at) >= 0, "settled_step": int(ps.settled_at), "n_left": int(ps.left)}
+
+    return Adapter(setup, simulator, finished, max_steps, measure, flux.law_and_params,
+                   lambda law: float(box.law_setting(law)["dt"]), ("steady_mean", "repose_cumulative_parabola"),
+                   _option_names(flux.protocol, "max_time", "n") - {"insertions"}, _marginal_stability)
+
+
+ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter,
     "box": _box_adapter, "pour": _pour_adapter, "lattice": lambda: _loaded_pile_adapter("lattice"),
     "sloped": lambda: _loaded_pile_adapter("sloped"), "drop": _drop_adapter}
 
@@ -306,7 +346,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop).
+      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop, flux).
       law: the contact law (default: the protocol paper's).
       vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
       seeds: a count (seeds 0..n-1) or a list of seeds.

@@ -218,3 +218,18 @@ def test_drop_sweep_members_are_the_dropped_piles_of_their_seeds():
         _, alone = drop.run("liffman", 8, seed=row["seed"], relax_steps=20000)
         assert row["all_inserted"] and row["steps"] == alone["steps"]
         assert row["central_dip"] == pytest.approx(alone["central_dip"], rel=1e-6, abs=1e-9)
+
+
+def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
+    """1993 Fig. 5 batched: a member makes the insertions `flux.run` makes with
+    its seed, and its angle record gives the same steady mean (to round-off:
+    the batch shares one neighbour capacity)."""
+    from jaxpile import sweep
+    from jaxpile.protocols import flux
+
+    options = {"width": 1.0, "max_time": 0.3}
+    result = sweep.sweep("flux", LAW, vary={"mu": [0.3]}, seeds=[1], options={"n": 6, **options}, progress=False)
+    _, alone = flux.run(LAW, 6, params={"mu": 0.3}, seed=1, **options)
+    row = result.rows[0]
+    assert row["inserted"] == alone["inserted"] and row["n_left"] == alone["n_left"]
+    assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
