@@ -84,6 +84,18 @@ def _option_names(setup, *extra) -> frozenset:
 
 
 # ------------------------------------------------------------------------ box
+def _settled(info, options):
+    """The 1993 family's end (box, flux): the driver's rest detector has fired."""
+    return lambda s: s.protocol_state.settled_at >= 0
+
+
+def _max_time_steps(default_max_time: float):
+    """The 1993 family's budget: `max_time` (paper seconds) in steps of the member's dt."""
+    from jaxpile.protocols import box
+
+    return lambda info, options: box.max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
+
+
 def _box_adapter() -> Adapter:
     from jaxpile.protocols import box
 
@@ -93,12 +105,6 @@ def _box_adapter() -> Adapter:
     def simulator(law, dt, options, setup_options):
         return box.make_simulator(law, dt=dt, **options)
 
-    def finished(info, options):
-        return lambda s: s.protocol_state.settled_at >= 0
-
-    def max_steps(info, options):
-        return box.max_steps_for(info["law"], info["dt"], options.get("max_time", box.PAPER_SETTING["max_time"]))
-
     def measure(sim, params, state, protocol):
         ps = state.protocol_state
         angles = box.repose(state, protocol.info["width"])
@@ -106,7 +112,8 @@ def _box_adapter() -> Adapter:
             "at_rest": int(ps.settled_at) >= 0, "wall_removed_step": int(ps.removed_at),
             "settled_step": int(ps.settled_at), "n_left": int(ps.left), "fill_height": float(ps.fill_height)}
 
-    return Adapter(setup, simulator, finished, max_steps, measure, box.law_and_params,
+    return Adapter(setup, simulator, _settled, _max_time_steps(box.PAPER_SETTING["max_time"]), measure,
+                   box.law_and_params,
                    lambda law: float(box.law_setting(law)["dt"]),
                    ("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
                    _option_names(box.protocol, "max_time"), _marginal_stability)
@@ -275,12 +282,6 @@ def _flux_adapter() -> Adapter:
     def simulator(law, dt, options, setup_options):
         return flux.make_simulator(law, dt=dt, **options)
 
-    def finished(info, options):
-        return lambda s: s.protocol_state.settled_at >= 0
-
-    def max_steps(info, options):
-        return box.max_steps_for(info["law"], info["dt"], options.get("max_time", flux.SETTING["max_time"]))
-
     def measure(sim, params, state, protocol):
         ps = state.protocol_state
         done = int(ps.inserted)
@@ -295,7 +296,7 @@ def _flux_adapter() -> Adapter:
                 "repose_cumulative_parabola": final["repose_cumulative_parabola"],
                 "at_rest": int(ps.settled_at) >= 0, "settled_step": int(ps.settled_at), "n_left": int(ps.left)}
 
-    return Adapter(setup, simulator, finished, max_steps, measure, flux.law_and_params,
+    return Adapter(setup, simulator, _settled, _max_time_steps(flux.SETTING["max_time"]), measure, flux.law_and_params,
                    lambda law: float(box.law_setting(law)["dt"]), ("steady_mean", "repose_cumulative_parabola"),
                    _option_names(flux.protocol, "max_time", "n") - {"insertions"}, _marginal_stability)
 
