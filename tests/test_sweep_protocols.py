@@ -1,0 +1,62 @@
+"""`jaxpile sweep` for the 1992 piles and the 1993 flux (issue 18: every
+protocol sweeps): each batched member against the protocol's own run.
+
+In a module of their own so that the suite's workers (`--dist loadscope`,
+one module per worker) run them beside test_ensemble.py's batches."""
+
+import pytest
+
+from jaxpile.errors import InputError
+
+LAW = "lee-herrmann"
+
+
+def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol_run():
+    """The 1992 static piles batched over a law parameter (deterministic piles:
+    one seed): each member loads and relaxes as `lattice.relax` / `sloped.run`."""
+    from jaxpile import sweep
+    from jaxpile.protocols import sloped
+
+    lat = sweep.sweep("lattice", "hooke", vary={"kn": [5e3, 1e4]}, seeds=1,
+                      options={"layers": 5, "ramp_steps": 500, "max_steps": 4000}, progress=False)
+    assert [r["kn"] for r in lat.rows] == [5e3, 1e4] and all(r["pile_intact"] for r in lat.rows)
+    assert all(r["max_rel_dev_normal"] < 0.01 for r in lat.rows)  # eq. 42 at rest
+    slo = sweep.sweep("sloped", "hooke", vary={"kn": [1e4]}, seeds=1,
+                      options={"n": 20, "ramp_steps": 500, "max_steps": 4000}, progress=False)
+    _, alone = sloped.run("hooke", n=20, params={"kn": 1e4}, ramp_steps=500, max_steps=4000)
+    row = slo.rows[0]
+    # the batch checks rest at chunk ends counted from step 0, the single run from the ramp's end
+    # (as the pour sweep): both stop at rest, the batch up to one chunk sooner
+    assert row["at_rest"] and alone["at_rest"] and alone["steps"] - 1000 <= row["steps"] <= alone["steps"]
+    assert row["central_normal_rel_dev"] == pytest.approx(alone["central_normal_rel_dev"], abs=1e-4)  # N to 1e-4
+    with pytest.raises(InputError, match="unknown option"):
+        sweep.sweep("lattice", vary={"kn": [1e4]}, seeds=1, options={"width": 3})
+
+
+def test_drop_sweep_members_are_the_dropped_piles_of_their_seeds():
+    """1992 Fig. 20 over seeds in one batch: each member fills and relaxes as
+    `drop.run` with its seed (the same steps; the dip to round-off)."""
+    from jaxpile import sweep
+    from jaxpile.protocols import drop
+
+    result = sweep.sweep("drop", "liffman", vary={"ks": [1e4]}, seeds=2, options={"n": 8, "relax_steps": 20000},
+                         progress=False)
+    for row in result.rows:
+        _, alone = drop.run("liffman", 8, seed=row["seed"], relax_steps=20000)
+        assert row["all_inserted"] and row["steps"] == alone["steps"]
+        assert row["central_dip"] == pytest.approx(alone["central_dip"], rel=1e-6, abs=1e-9)
+
+
+def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
+    """1993 Fig. 5 batched: a member makes the insertions `flux.run` makes with
+    its seed, and its angle record gives the same steady mean (to round-off:
+    the batch shares one neighbour capacity)."""
+    from jaxpile import sweep
+    from jaxpile.protocols import flux
+
+    options = {"width": 1.0, "max_time": 0.3}
+    result = sweep.sweep("flux", LAW, vary={"mu": [0.3]}, seeds=[1], options={"n": 6, **options}, progress=False)
+    _, alone = flux.run(LAW, 6, params={"mu": 0.3}, seed=1, **options)
+    row = result.rows[0]
+    assert row["inserted"] == alone["inserted"] and row["n_left"] == alone["n_left"]
+    assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
