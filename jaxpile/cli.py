@@ -923,10 +923,8 @@ def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int
 
     if protocol == "lattice":
         _, contact_law, params = _lattice_law_and_params(law, start)
-        if layers < 2:
-            raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
+        ramp = _lattice_fit_ramp(layers)
         particles, boundaries = lattice.equilateral_pile(layers)
-        ramp = max(600, 100 * layers)
         sim = Simulator(contact_law, lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
         state = sim.init(params, particles, boundaries)
         setting = fit.ProfileSetting("ground", 0.5, layers + 0.5, bins or layers, 0.3)
@@ -948,6 +946,16 @@ def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int
         f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
 
 
+def _lattice_fit_ramp(layers: int) -> int:
+    """The gravity-ramp steps of the lattice pile a fit differentiates (it
+    settles for as many again); refuses a pile too small for a profile."""
+    from jaxpile.errors import InputError
+
+    if layers < 2:
+        raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
+    return max(600, 100 * layers)
+
+
 def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     """`fit --dry-run`: the pile the fit builds (set up, not run), the parameters
     it fits from their starting values, the memory estimate and the steps."""
@@ -955,14 +963,11 @@ def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     from jaxpile.simulate import Simulator
 
     if args.protocol == "lattice":
-        if args.layers < 2:
-            from jaxpile.errors import InputError
-
-            raise InputError(f"--layers must be >= 2 for a profile; got {args.layers}.")
+        per_step = 2 * _lattice_fit_ramp(args.layers)
         _, contact_law, params = _lattice_law_and_params(law, start)
         particles, _ = lattice.equilateral_pile(args.layers)
         Simulator(contact_law, lattice.PAPER_SETTING["dt"]).check_params(params, particles)
-        build, per_step = {}, 2 * max(600, 100 * args.layers)
+        build = {}
         what = f"a {args.layers}-layer lattice pile"
     else:
         p = pour.pour(args.n, seed=args.seed, **_parse_options(args.option))

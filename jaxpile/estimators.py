@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.ranges import COUNT, POSITIVE
 
 Array = jax.Array
 
@@ -60,13 +61,6 @@ def _theta(theta) -> np.ndarray:
     if theta.ndim != 1 or theta.size == 0 or not np.all(np.isfinite(theta)):
         raise InputError(f"theta must be a non-empty 1-D array of finite numbers; got {theta!r}.")
     return theta
-
-
-def _positive(name: str, value: float) -> float:
-    value = float(value)
-    if not (value > 0 and np.isfinite(value)):
-        raise InputError(f"{name} must be > 0 and finite; got {value!r}.")
-    return value
 
 
 def _members(members, theta) -> np.ndarray:
@@ -107,7 +101,7 @@ def central_differences(members: Callable, objective: Callable, theta, *, step: 
       `Estimate`: 2d + 1 ensemble runs (theta itself for the value).
     """
     theta = _theta(theta)
-    step = _positive("step", step)
+    step = POSITIVE.check("step", step, scalar=True)
     d = theta.size
     base = _members(members, theta)
     value = float(objective(jnp.asarray(base.mean(axis=0))))
@@ -142,10 +136,8 @@ def antithetic_smoothing(members_batch: Callable, objective: Callable, theta, ke
       unbiased estimate of the smoothed gradient on its own).
     """
     theta = _theta(theta)
-    sigma = _positive("sigma", sigma)
-    if int(pairs) != pairs or pairs < 1:
-        raise InputError(f"pairs must be a positive whole number; got {pairs!r}.")
-    pairs = int(pairs)
+    sigma = POSITIVE.check("sigma", sigma, scalar=True)
+    pairs = COUNT.check("pairs", pairs, scalar=True)
     u = np.asarray(jax.random.normal(key, (pairs, theta.size)), dtype=float)
     thetas = np.concatenate([theta + sigma * u, theta - sigma * u])
     s = np.asarray(members_batch(jnp.asarray(thetas)), dtype=float)

@@ -70,17 +70,14 @@ class Range:
         """`value` as a Python number (an int when `whole`), or `InputError`
         naming `name`, the range and the value. Arrays (batched parameters) are
         checked element by element and returned as they are, unless `scalar`."""
-        if isinstance(value, (bool, np.bool_)) or value is None or isinstance(value, (str, bytes)):
+        if not is_number_like(value):
             raise InputError(f"{name} must be a number {self.describe()}; got {value!r}.")
         if isinstance(value, numbers.Real):
             return self._check_scalar(name, value)
         if _is_tracer(value):
             return value  # inside a trace (a fit, a vmapped sweep): checked where it was made
-        try:
-            array = np.asarray(value)
-        except Exception:  # e.g. a ragged list
-            raise InputError(f"{name} must be a number {self.describe()}; got {value!r}.") from None
-        if array.dtype.kind not in "iuf" or array.size == 0:
+        array = np.asarray(value)
+        if array.size == 0:
             raise InputError(f"{name} must be a number {self.describe()}; got {value!r}.")
         if array.ndim == 0:
             self._check_scalar(name, array.item())
@@ -114,6 +111,19 @@ def _number(x: float) -> str:
     if float(x).is_integer():
         return f"{int(x):,}"
     return f"{x:g}"
+
+
+def is_number_like(value) -> bool:
+    """A number, a numeric array or a JAX tracer; not None, a bool, text or a
+    ragged list (the one test `Range.check` and the laws' `make_params` share)."""
+    if value is None or isinstance(value, (str, bytes, bool, np.bool_)):
+        return False
+    if isinstance(value, numbers.Real) or _is_tracer(value):
+        return True
+    try:
+        return np.asarray(value).dtype.kind in "iuf"
+    except Exception:  # a ragged list, an object numpy cannot read
+        return False
 
 
 def _is_tracer(value) -> bool:
@@ -168,6 +178,13 @@ def check_all(ranges: dict, values: dict, function=None) -> dict:
 def table(ranges: dict) -> str:
     """`name: range` lines, for docstrings and `--help`."""
     return "\n".join(f"  {name}: {r.describe()}{f' ({r.why})' if r.why else ''}" for name, r in ranges.items())
+
+
+def doc_section(ranges: dict, title: str) -> str:
+    """A docstring section listing `ranges` under `title`, indented as the
+    Google-style sections around it."""
+    body = "\n".join(f"      {line.strip()}" for line in table(ranges).splitlines())
+    return f"\n\n    {title}:\n{body}\n"
 
 
 def inline(ranges: dict) -> str:

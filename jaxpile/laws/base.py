@@ -13,11 +13,10 @@ import dataclasses
 import numbers
 from typing import Any, Callable, NamedTuple
 
-import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.ranges import doc_section, is_number_like
 
 Array = Any
 
@@ -169,7 +168,7 @@ def param_arrays(law_name: str, values: dict, ranges: dict, dtype, optional=()) 
         if value is None and name in optional:
             out[name] = None
             continue
-        if not _numeric(value):
+        if not is_number_like(value):
             raise InputError(f"{law_name} parameter {name} must be a number {ranges[name].describe()}; got {value!r}.")
         if isinstance(value, numbers.Integral):  # a Python int beyond int64 would not convert
             try:
@@ -179,17 +178,6 @@ def param_arrays(law_name: str, values: dict, ranges: dict, dtype, optional=()) 
                                  "got an integer beyond float range.") from None
         out[name] = jnp.asarray(value, dtype)
     return out
-
-
-def _numeric(value) -> bool:
-    if value is None or isinstance(value, (str, bytes, bool, np.bool_)):
-        return False
-    if isinstance(value, (numbers.Real, jax.core.Tracer)):
-        return True
-    try:
-        return np.asarray(value).dtype.kind in "iuf"
-    except Exception:  # a ragged list, an object numpy cannot read
-        return False
 
 
 def validate_ranges(law_name: str, params, ranges: dict) -> None:
@@ -203,6 +191,4 @@ def validate_ranges(law_name: str, params, ranges: dict) -> None:
 
 def ranges_doc(ranges: dict) -> str:
     """The `Valid ranges` section appended to a law's `Params` docstring."""
-    from jaxpile.ranges import table
-
-    return "\n\n    Valid ranges (checked by `validate`; `jaxpile.ranges`):\n" + table(ranges).replace("\n  ", "\n      ").replace("  ", "      ", 1) + "\n"
+    return doc_section(ranges, "Valid ranges (checked by `validate`; `jaxpile.ranges`)")

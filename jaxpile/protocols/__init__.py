@@ -14,7 +14,7 @@ def _document_ranges() -> None:
     `help(pour.pour)` states them; one table, no copy to keep in step."""
     import inspect
 
-    from jaxpile.ranges import table
+    from jaxpile.ranges import doc_section
 
     for module in PROTOCOLS.values():
         for name in ("protocol", "pour", "run", "equilateral_pile"):
@@ -23,9 +23,8 @@ def _document_ranges() -> None:
                 continue
             taken = {k: r for k, r in module.OPTION_RANGES.items() if k in inspect.signature(function).parameters}
             if taken:
-                function.__doc__ = ((function.__doc__ or "").rstrip() + "\n\n    Valid ranges (checked first; "
-                                    "`jaxpile.ranges`):\n" + table(taken).replace("  ", "      ", 1)
-                                    .replace("\n  ", "\n      ") + "\n")
+                function.__doc__ = (function.__doc__ or "").rstrip() + doc_section(
+                    taken, "Valid ranges (checked first; `jaxpile.ranges`)")
 
 
 _document_ranges()
