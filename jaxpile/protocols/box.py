@@ -492,7 +492,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
         raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
     n = int(n)
     budget.check(n, dtype or "float64", what="a box")  # before any array is allocated
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     radius_paper = gaussian_radii(n, rng, mean=mean, width=spread, low=low, high=high)
     if 2 * high > width:
         raise InputError(f"the box (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")

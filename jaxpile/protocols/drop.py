@@ -255,7 +255,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
     axis, parked, box = layout(n, diameter, drop_height)
     particles = make_particles(parked, 0.5 * diameter, mass=mass, active=np.zeros(n, bool), dtype=dtype)
     dtype = particles.position.dtype
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     drop_x = axis + diameter * rng.uniform(-jitter, jitter, n)
     state = DropState(
         drop_x=jnp.asarray(drop_x, dtype),

@@ -266,17 +266,20 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     mean, spread, low, high = boxes._radius_law(radius)
     if 2 * high > width:
         raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
+    base_count = int(width / (2 * low)) + 2  # the fixed floor's disks, drawn before the row is laid
+    budget.check(base_count, dtype or "float64", what="a flux pile's floor")
     if pool is None:
         pool = min(insertions, pool_size(width, radius=radius))
     if int(pool) == pool and pool >= 1:
         # each insertion keeps a record of the surface (a few hundred bytes): counted as one disk more
-        budget.check(pool + insertions, dtype or "float64", what="a flux pile's pool and insertion records")
+        budget.check(base_count + pool + insertions, dtype or "float64",
+                     what="a flux pile's floor, pool and insertion records")
     if int(pool) != pool or pool < 1:
         raise InputError(f"pool must be a positive whole number; got {pool!r}.")
     pool = int(pool)
 
-    rng = np.random.default_rng(seed)
-    base_radius = boxes.gaussian_radii(int(width / (2 * low)) + 2, rng, mean=mean, width=spread, low=low, high=high)
+    rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
+    base_radius = boxes.gaussian_radii(base_count, rng, mean=mean, width=spread, low=low, high=high)
     base_x = base_layer(base_radius, width)
     base_radius = base_radius[: base_x.size]
     pool_radius = boxes.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
@@ -310,7 +313,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         armed=jnp.asarray(True),  # the bottom layer starts at rest: insert at once
         gap=jnp.asarray(gap * s, dtype),
         spread=jnp.asarray(2.0 * mean * s, dtype),
-        key=jax.random.PRNGKey(seed),
+        key=jax.random.PRNGKey(int(seed)),
         x_min=jnp.asarray(0.0, dtype),
         column_width=jnp.asarray(width * s / columns, dtype),
         total=jnp.asarray(insertions, jnp.int32),

@@ -311,7 +311,7 @@ def pour(
         raise InputError(f"a row of {rows} disks ({rows * spacing:g} sigma) is narrower than the pouring "
                          f"interval +-{spread:g} sigma.")
 
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     diameter = 1.0 - polydispersity * rng.uniform(0.0, 1.0, n) if polydispersity > 0 else np.ones(n)
     base_y = 0.5
     x_substrate = spacing * np.arange(rows)
