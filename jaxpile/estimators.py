@@ -19,6 +19,12 @@ two thetas is not buried under the difference between two packings.
   antithetic pairs, all 2K ensembles in one batched call. Bias: the smoothing
   (none for a quadratic F); variance: falls as 1/K.
 
+None of these formulas is in the three papers: the smoothed-gradient estimator
+is Nesterov & Spokoiny's (Found. Comput. Math. 17, 2017, eq. 21 with antithetic
+pairs), the standard error of a leave-one-out set Quenouille-Tukey's jackknife
+(var = (B - 1)/B sum (g_(b) - mean)^2). tests/test_estimators.py checks each
+against exact gradients of synthetic ensembles.
+
 Each returns an `Estimate` with the standard error of every component: over
 the K pairs for the smoothing, and by the jackknife over members (leave one
 pile out, the same pile at every theta) for the others, which is right for a
