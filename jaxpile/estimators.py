@@ -20,8 +20,8 @@ two thetas is not buried under the difference between two packings.
   (none for a quadratic F); variance: falls as 1/K.
 
 None of these formulas is in the three papers: the smoothed-gradient estimator
-is Nesterov & Spokoiny's Gaussian smoothing (Found. Comput. Math. 17, 2017), with antithetic
-pairs), the standard error of a leave-one-out set Quenouille-Tukey's jackknife
+is Nesterov & Spokoiny's Gaussian smoothing (Found. Comput. Math. 17, 2017) with antithetic
+pairs; the standard error of a leave-one-out set is Quenouille-Tukey's jackknife
 (var = (B - 1)/B sum (g_(b) - mean)^2). tests/test_estimators.py checks each
 against exact gradients of synthetic ensembles.
 
