@@ -8,6 +8,8 @@
   jaxpile compare DIR [DIR ...]
   jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
   jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
+  jaxpile fit --protocol box|pour|drop|lattice|sloped|flux --params mu --truth mu=0.273 --set mu=0.19
+              --ensemble 16 [--estimator central|smoothing] --out DIR   (ensemble fits; --resume)
 
 Every protocol writes summary.json (the set-up and the protocol's measurements),
 base_forces.csv, contacts.csv (the force network), state.npz, final.xyz
@@ -18,7 +20,9 @@ Baxter et al. 1997). A sweep writes sweep.csv (one row per member), sweep.png
 (mean +- standard error against the varied parameter, theory overlaid) and
 sweep.json (the set-up, timings and the per-value summaries). A fit writes
 fit.json (the fitted values, the loss history, the profiles before and after)
-and fit.png (loss curve; target, before and after).
+and fit.png (loss curve; target, before and after); an ensemble fit adds the
+95 % interval to fit.json, target.json (the target's statistics and piles)
+and fit_checkpoint.json (the history, written every iteration).
 """
 
 from __future__ import annotations
@@ -231,19 +235,40 @@ def build_parser() -> argparse.ArgumentParser:
                             "run nothing")
     _output_args(sweep)
 
-    fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile (gradients + optax)")
-    fitp.add_argument("--target", required=True, metavar="FILE|smid-novosad",
-                      help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features")
-    fitp.add_argument("--protocol", default="lattice", choices=["lattice", "pour"])
-    fitp.add_argument("--law", default=None, help="contact law (default: hooke for lattice, baxter for pour)")
+    fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile or to an ensemble's "
+                                      "statistics (gradients + optax, or Gauss-Newton on ensemble means)")
+    fitp.add_argument("--target", default=None, metavar="FILE|smid-novosad",
+                      help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
+                           "pile, pathwise gradients); or a target.json written by an ensemble fit")
+    fitp.add_argument("--protocol", default="lattice", choices=["box", "pour", "lattice", "sloped", "drop", "flux"],
+                      help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
+    fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing"],
+                      help="the gradient: pathwise through one pile (default with a CSV target), or of the "
+                           "ensemble-mean loss by central differences (default with --truth or a target.json) or "
+                           "Gaussian smoothing with antithetic pairs")
+    fitp.add_argument("--ensemble", type=int, default=8, metavar="B", help="ensemble fits: piles per ensemble")
+    fitp.add_argument("--truth", action="append", metavar="NAME=VALUE",
+                      help="ensemble fits: make the target with jaxpile at these law values, from seeds the fit "
+                           "never sees (a recovery test)")
+    fitp.add_argument("--target-seeds", type=int, default=10_000, metavar="FIRST",
+                      help="ensemble fits: the target's seeds are FIRST .. FIRST + B - 1 (the fit's: 0 .. B - 1)")
+    fitp.add_argument("--statistics", default=None, metavar="COLUMN,COLUMN",
+                      help="ensemble fits: the per-pile measurements compared (default: the protocol's); with "
+                           "--bins, the base profile too")
+    fitp.add_argument("--resume", action="store_true",
+                      help="ensemble fits: continue the fit whose history is in OUT/fit_checkpoint.json")
+    fitp.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     fitp.add_argument("--params", required=True, metavar="NAME,NAME", help="the law parameters to fit")
     fitp.add_argument("--set", action="append", metavar="NAME=VALUE", help="a starting/fixed law parameter")
     fitp.add_argument("--layers", type=int, default=6, help="lattice: layers of the pile")
-    fitp.add_argument("--n", type=int, default=60, help="pour: disks to pour")
+    fitp.add_argument("--n", type=int, default=None, help="disks (pathwise pour: default 60; ensembles: the "
+                                                          "protocol's --n, default its own)")
     fitp.add_argument("--option", action="append", metavar="NAME=VALUE", help="pour: a set-up option")
     fitp.add_argument("--seed", type=int, default=0, help="pour: random seed")
     fitp.add_argument("--steps", type=int, default=40, help="optimiser steps")
-    fitp.add_argument("--optimizer", default="adam", help="an optax optimiser by name: adam, sgd, lbfgs, ...")
+    fitp.add_argument("--optimizer", default=None,
+                      help="an optax optimiser by name: adam, sgd, lbfgs, ... (default adam), or gauss-newton "
+                           "(ensemble fits with central differences: their default)")
     fitp.add_argument("--lr", type=float, default=0.05, help="learning rate (in log-parameter units)")
     fitp.add_argument("--bins", type=int, default=None, help="profile bins (default: layers, or 9 for pour)")
     fitp.add_argument("--window", type=int, default=2000,
@@ -277,6 +302,7 @@ def _flag_ranges() -> dict:
         "sweep": {"seeds": Range(low=1, whole=True, unit="seeds"), "n": DISKS, "dt": TIME_STEP, "max_steps": STEPS,
                   "batch_size": Range(low=1, whole=True, unit="members"), "checkpoint_every": STEPS},
         "fit": {"layers": layers, "n": DISKS, "seed": SEED, "steps": Range(low=0, whole=True, unit="optimiser steps"),
+                "ensemble": Range(low=1, whole=True, unit="piles"), "target_seeds": SEED,
                 "lr": POSITIVE, "bins": Range(low=1, whole=True, unit="bins"), "window": STEPS,
                 "horizontal_weight": NON_NEGATIVE, "dip_weight": NON_NEGATIVE},
     }
@@ -994,8 +1020,28 @@ def _lattice_law_and_params(law: str, start: dict):
 
 
 def run_fit(args) -> dict:
-    """`jaxpile fit`: gradient-based fit of law parameters to a base-force profile."""
+    """`jaxpile fit`: gradient-based fit of law parameters to a base-force
+    profile (one pile, pathwise) or to an ensemble target (`ensemble_fit`)."""
     import jax
+
+    from jaxpile.errors import InputError
+
+    ensemble_target = args.truth or (args.target or "").endswith(".json") or args.resume
+    estimator = args.estimator or ("central" if ensemble_target else "pathwise")
+    if estimator != "pathwise":
+        from jaxpile.ensemble_fit_command import run_ensemble_fit
+
+        return run_ensemble_fit(args, estimator)
+    if ensemble_target:
+        raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
+                         "smoothing.")
+    if args.protocol not in ("lattice", "pour"):
+        raise InputError(f"pathwise fits run on the lattice and pour protocols; fit the {args.protocol} protocol "
+                         "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
+    if args.target is None:
+        raise InputError("a pathwise fit needs --target FILE|smid-novosad.")
+    args.optimizer = args.optimizer or "adam"
+    args.n = 60 if args.n is None else args.n
 
     import jaxpile  # noqa: F401  (turns on float64)
     from jaxpile import fit, io

@@ -93,6 +93,48 @@ def _leave_one_out_means(s: np.ndarray) -> np.ndarray:
     return (s.sum(axis=0, keepdims=True) - s) / max(b - 1, 1)
 
 
+def central_points(theta, step: float = 0.05) -> np.ndarray:
+    """`[2d + 1, d]`: theta, then theta + h e_i and theta - h e_i for each i (the
+    thetas `central_from_members` expects, to run as one batch)."""
+    theta = _theta(theta)
+    step = POSITIVE.check("step", step, scalar=True)
+    e = step * np.eye(theta.size)
+    return np.concatenate([theta[None], theta + e, theta - e])
+
+
+def central_from_members(s, objective: Callable, step: float = 0.05) -> Estimate:
+    """Central differences from the members' statistics at `central_points`.
+
+    Args:
+      s: `[2d + 1, B, k]` statistics of the B members (common random numbers)
+        at each of `central_points(theta, step)`.
+      objective: `[k] -> scalar`, the loss of the ensemble mean.
+      step: h, as given to `central_points`.
+
+    Returns:
+      `Estimate` with the jackknife standard error over members: 2d + 1 runs.
+    """
+    s = np.asarray(s, dtype=float)
+    if s.ndim == 2:
+        s = s[..., None]
+    if s.ndim != 3 or s.shape[0] < 3 or s.shape[0] % 2 != 1:
+        raise InputError(f"central differences need statistics [2d + 1, B, k]; got shape {s.shape}.")
+    d = (s.shape[0] - 1) // 2
+
+    def f(m):
+        return float(objective(jnp.asarray(m)))
+
+    value = f(s[0].mean(axis=0))
+    gradient, loo = np.zeros(d), np.zeros((s.shape[1], d))
+    for i in range(d):
+        up, down = s[1 + i], s[1 + d + i]
+        gradient[i] = (f(up.mean(0)) - f(down.mean(0))) / (2 * step)
+        f_up = np.array([f(m) for m in _leave_one_out_means(up)])
+        f_down = np.array([f(m) for m in _leave_one_out_means(down)])
+        loo[:, i] = (f_up - f_down) / (2 * step)
+    return Estimate(jnp.asarray(gradient), jnp.asarray(_jackknife_stderr(loo)), value, 2 * d + 1)
+
+
 def central_differences(members: Callable, objective: Callable, theta, *, step: float = 0.05) -> Estimate:
     """Central differences of F(theta) = objective(mean_b members(theta)[b]).
 
@@ -106,21 +148,18 @@ def central_differences(members: Callable, objective: Callable, theta, *, step: 
     Returns:
       `Estimate`: 2d + 1 ensemble runs (theta itself for the value).
     """
-    theta = _theta(theta)
-    step = POSITIVE.check("step", step, scalar=True)
-    d = theta.size
-    base = _members(members, theta)
-    value = float(objective(jnp.asarray(base.mean(axis=0))))
-    gradient, loo = np.zeros(d), np.zeros((base.shape[0], d))
-    for i in range(d):
-        e = np.zeros(d)
-        e[i] = step
-        up, down = _members(members, theta + e), _members(members, theta - e)
-        gradient[i] = (float(objective(jnp.asarray(up.mean(0)))) - float(objective(jnp.asarray(down.mean(0))))) / (2 * step)
-        f_up = np.array([float(objective(jnp.asarray(m))) for m in _leave_one_out_means(up)])
-        f_down = np.array([float(objective(jnp.asarray(m))) for m in _leave_one_out_means(down)])
-        loo[:, i] = (f_up - f_down) / (2 * step)
-    return Estimate(jnp.asarray(gradient), jnp.asarray(_jackknife_stderr(loo)), value, 2 * d + 1)
+    thetas = central_points(theta, step)
+    return central_from_members(np.stack([_members(members, t) for t in thetas]), objective, step)
+
+
+def loss_stderr(s, objective: Callable) -> float:
+    """The jackknife standard error of objective(mean of the members `[B, k]`):
+    how much the loss of this ensemble would move with other piles."""
+    s = np.asarray(s, dtype=float)
+    if s.ndim == 1:
+        s = s[:, None]
+    values = np.array([[float(objective(jnp.asarray(m)))] for m in _leave_one_out_means(s)])
+    return float(_jackknife_stderr(values)[0])
 
 
 def antithetic_smoothing(members_batch: Callable, objective: Callable, theta, key, *, sigma: float = 0.05,

@@ -1,0 +1,560 @@
+"""Fitting law parameters to the ensemble a protocol builds (issue 17).
+
+A pile built at random (a box emptied by an avalanche, a poured heap, a
+dropped pile) is one draw from the distribution that a protocol makes at
+given law parameters. What a measurement can pin down is a property of that
+distribution, so the fit compares a target with the *ensemble mean* of per-pile
+statistics (an angle of repose, a binned base-force profile):
+
+    F(theta) = mean_k w_k (mean_b s_bk(exp theta) - t_k)^2,
+
+over log-parameters theta, with w_k = 1 / (the target's spread of s_k over
+piles)^2, so every statistic counts in units of its own pile-to-pile noise.
+Every ensemble is run with the same seeds at every theta (common random
+numbers): a difference between two thetas is then not buried under the
+difference between two packings.
+
+The gradient through a chaotic construction explodes (issue 17's measurements),
+so the estimators here use the construction as a black box, batched:
+
+- `"central"`: central differences of the ensemble means at theta +- h e_i
+  (`estimators.central_from_members`); all 2d + 1 ensembles in one batched
+  run. They give the Jacobian J of the means as well, so the default
+  optimiser is Gauss-Newton, theta <- theta - (J^T W J)^-1 J^T W r
+  (r: the mean minus the target), with its steps clipped to `max_step`.
+- `"smoothing"`: the gradient of the Gaussian-smoothed F from antithetic
+  pairs (`estimators.antithetic_smoothing`), all pairs in one batched run;
+  for an optax optimiser.
+
+The answer carries a confidence interval from the ensembles' own spread: near
+the optimum theta_hat is linear in the two ensemble means, so (the sandwich)
+Cov(theta_hat) = H^-1 J^T W (Sigma_fit / B + Sigma_target / B_t) W J H^-1 with
+H = J^T W J and Sigma the covariance of one pile's statistics.
+
+A fit checkpoints its history to JSON after every iteration; `resume` replays
+it (optax states are rebuilt by replaying the recorded gradients, which makes
+the resumed fit step for step the uninterrupted one).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from typing import Callable, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import estimators
+from jaxpile.errors import InputError
+from jaxpile.ranges import POSITIVE
+
+ESTIMATORS = ("central", "smoothing")
+
+
+class Statistics(NamedTuple):
+    """What each pile contributes to the fit.
+
+    Attributes:
+      columns: scalar columns of the protocol's sweep row (`sweep.adapter(P)`'s
+        measurement), e.g. `("repose_least_squares",)` or `("central_dip",)`.
+      bins: > 0: the pile's base-force profile on this many bins across the
+        protocol's fixed extent (`Adapter.extent`), normal force over its peak
+        (`fit.smooth_base_profile`); 0: no profile.
+      horizontal: the horizontal profile as well (on the same scale).
+      bandwidth: the profile's smoothing width (default one bin).
+    """
+
+    columns: tuple = ()
+    bins: int = 0
+    horizontal: bool = True
+    bandwidth: float | None = None
+
+    def labels(self) -> list[str]:
+        labels = list(self.columns)
+        if self.bins:
+            labels += [f"normal[{i}]" for i in range(self.bins)]
+            if self.horizontal:
+                labels += [f"horizontal[{i}]" for i in range(self.bins)]
+        return labels
+
+
+def _check_statistics(statistics: Statistics, adapter) -> Statistics:
+    if not isinstance(statistics, Statistics):
+        raise InputError(f"statistics must be an ensemble_fit.Statistics; got {type(statistics).__name__}.")
+    statistics = statistics._replace(columns=tuple(statistics.columns))
+    if int(statistics.bins) != statistics.bins or statistics.bins < 0:
+        raise InputError(f"bins must be a whole number >= 0; got {statistics.bins!r}.")
+    if not statistics.columns and not statistics.bins:
+        raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
+    if statistics.bins and adapter.extent is None:
+        raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
+    return statistics
+
+
+def _profile_hook(adapter, statistics: Statistics) -> Callable | None:
+    if not statistics.bins:
+        return None
+    from jaxpile import fit
+
+    def measure(sim, params, state, protocol):
+        base, x_left, x_right = adapter.extent(protocol)
+        load = fit.base_load(sim, params, state, base=base)
+        profile = fit.smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=int(statistics.bins),
+                                          bandwidth=statistics.bandwidth)
+        out = {"_profile_normal": np.asarray(profile.normal)}
+        if statistics.horizontal:
+            out["_profile_horizontal"] = np.asarray(profile.horizontal)
+        return out
+
+    return measure
+
+
+def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
+    values = []
+    for column in statistics.columns:
+        if column not in row:
+            raise InputError(f"the protocol's measurement has no column {column!r}; it has "
+                             f"{sorted(k for k in row if not k.startswith('_'))}.")
+        v = row[column]
+        values.append(float(v) if v is not None else math.nan)
+    if statistics.bins:
+        values += list(row["_profile_normal"])
+        if statistics.horizontal:
+            values += list(row["_profile_horizontal"])
+    return np.asarray(values, dtype=float)
+
+
+class Runner(NamedTuple):
+    """How the ensembles of a fit are built: everything `sweep.sweep` takes
+    except the parameter points and seeds."""
+
+    protocol: str
+    law: str | None = None
+    params: dict | None = None
+    options: dict | None = None
+    dt: float | None = None
+    max_steps: int | None = None
+    batch_size: int | None = None
+    dtype: object = None
+
+    def adapter(self):
+        from jaxpile import sweep
+
+        return sweep.adapter(self.protocol)
+
+    def check(self, statistics: Statistics) -> Statistics:
+        """The statistics, checked against what the protocol can measure."""
+        return _check_statistics(statistics, self.adapter())
+
+    def law_name(self) -> str:
+        return self.law or self.adapter().default_law
+
+    def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None) -> tuple[np.ndarray, dict]:
+        """`[len(points), B, k]` statistics (the B seeds at every point, one
+        batched run) and the sweep's record (`n_particles`, `batch_steps`,
+        `total_seconds` are used)."""
+        from jaxpile import sweep
+
+        a = self.adapter()
+        statistics = _check_statistics(statistics, a)
+        seeds = [int(s) for s in seeds]
+        result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
+                             options=self.options, dt=self.dt, max_steps=self.max_steps,
+                             batch_size=self.batch_size, progress=progress, dtype=self.dtype,
+                             extra_measure=_profile_hook(a, statistics))
+        rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
+        s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
+        return s, result.info
+
+
+def _fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:
+    """Statistics a pile could not give (NaN: e.g. no surface to fit an angle
+    to) take the mean of the other piles at the same point, so they move no
+    mean; the count is reported."""
+    s = np.array(s, dtype=float)
+    missing = int(np.isnan(s).sum())
+    if missing:
+        with np.errstate(all="ignore"):
+            fill = np.nanmean(s, axis=-2, keepdims=True)
+        if np.isnan(fill).any():
+            raise InputError("a statistic is missing from every pile at one point (e.g. no pile had a surface to "
+                             "measure); choose other statistics or a larger pile.")
+        s = np.where(np.isnan(s), np.broadcast_to(fill, s.shape), s)
+    return s, missing
+
+
+class EnsembleTarget(NamedTuple):
+    """The target of a fit: ensemble means of `Statistics` with the spread of
+    one pile about them.
+
+    Attributes:
+      labels: `[k]` what each statistic is.
+      mean: `[k]` the target values.
+      spread: `[k]` the standard deviation of one pile's statistic (weights).
+      members: `[B_t, k]` the target's own piles (its sampling error enters
+        the confidence interval), or None.
+      source: where it came from.
+      truth: the law parameters it was made with (a synthetic target), or None.
+      seeds: the seeds of its piles (a fit must use others), or None.
+    """
+
+    labels: list
+    mean: np.ndarray
+    spread: np.ndarray
+    members: np.ndarray | None
+    source: str
+    truth: dict | None = None
+    seeds: list | None = None
+
+    def to_json(self) -> dict:
+        return {"labels": list(self.labels), "mean": self.mean.tolist(), "spread": self.spread.tolist(),
+                "members": None if self.members is None else self.members.tolist(), "source": self.source,
+                "truth": self.truth, "seeds": self.seeds}
+
+    @classmethod
+    def from_json(cls, record: dict) -> "EnsembleTarget":
+        members = record.get("members")
+        return cls(list(record["labels"]), np.asarray(record["mean"], float), np.asarray(record["spread"], float),
+                   None if members is None else np.asarray(members, float), record.get("source", ""),
+                   record.get("truth"), record.get("seeds"))
+
+
+def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None) -> EnsembleTarget:
+    """A synthetic target: the ensemble of `seeds` at the law parameters
+    `truth` (use seeds the fit never sees)."""
+    s, _ = runner.run([truth], seeds, statistics, progress=progress)
+    s, _ = _fill_missing(s)
+    members = s[0]
+    spread = members.std(axis=0, ddof=1) if members.shape[0] > 1 else np.ones(members.shape[1])
+    return EnsembleTarget(statistics.labels(), members.mean(axis=0), spread, members,
+                          f"{runner.protocol} ensemble of {len(members)} at {truth}", dict(truth),
+                          [int(x) for x in seeds])
+
+
+def weights(target: EnsembleTarget, floor: float = 0.01) -> np.ndarray:
+    """`[k]` 1 / spread^2, with the spread held at least sqrt(floor) x the
+    largest (a profile bin outside every pile has no spread and must not weigh
+    infinitely)."""
+    spread2 = np.asarray(target.spread, float) ** 2
+    top = np.nanmax(spread2) if np.isfinite(spread2).any() and np.nanmax(spread2) > 0 else 1.0
+    return 1.0 / np.maximum(np.nan_to_num(spread2, nan=top), floor * top)
+
+
+def objective_for(target: EnsembleTarget, w: np.ndarray) -> Callable:
+    t, w = jnp.asarray(target.mean), jnp.asarray(w)
+    return lambda mean: jnp.mean(w * (mean - t) ** 2)
+
+
+class EnsembleFitResult(NamedTuple):
+    """A finished fit.
+
+    Attributes:
+      names: fitted parameters.
+      values: `{name: fitted value}`.
+      start: `{name: starting value}`.
+      interval: `{name: (low, high)}` the 95 % confidence interval.
+      stderr_log: `{name: standard error of log value}`.
+      history: one dict per iteration (values, loss, its standard error, the
+        gradient with its standard error, the ensembles' cost).
+      target: the `EnsembleTarget`.
+      fitted_mean, start_mean: `[k]` ensemble means at the end and the start.
+      fitted_members: `[B, k]` the fitted ensemble's piles.
+      record: the set-up (protocol, law, estimator, optimiser, seeds, cost).
+    """
+
+    names: list
+    values: dict
+    start: dict
+    interval: dict
+    stderr_log: dict
+    history: list
+    target: EnsembleTarget
+    fitted_mean: np.ndarray
+    start_mean: np.ndarray
+    fitted_members: np.ndarray
+    record: dict
+
+    def to_json(self) -> dict:
+        return {"names": self.names, "values": self.values, "start": self.start,
+                "interval": {k: list(v) for k, v in self.interval.items()}, "stderr_log": self.stderr_log,
+                "history": self.history, "target": self.target.to_json(),
+                "fitted_mean": self.fitted_mean.tolist(), "start_mean": self.start_mean.tolist(),
+                "fitted_members": self.fitted_members.tolist(), **self.record}
+
+
+def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target: EnsembleTarget) -> np.ndarray:
+    """`[d, d]` the covariance of the fitted log-parameters (the sandwich in
+    the module docstring), from the Jacobian `[k, d]` of the ensemble means,
+    the fitted piles `[B, k]` and the target's piles."""
+    jw = jacobian.T * w  # [d, k]
+    hessian = jw @ jacobian
+    if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < hessian.shape[0]:
+        return np.full(hessian.shape, np.nan)
+    inv = np.linalg.inv(hessian)
+
+    def projected(piles):
+        if piles is None or len(piles) < 2:
+            return np.zeros_like(hessian)
+        g = piles @ jw.T  # [B, d]
+        return np.atleast_2d(np.cov(g, rowvar=False)) / len(piles)
+
+    return inv @ (projected(members) + projected(target.members)) @ inv
+
+
+def _optimiser(name: str, lr: float):
+    import optax
+
+    if not hasattr(optax, name) or not callable(getattr(optax, name)):
+        raise InputError(f"unknown optimiser {name!r}: use gauss-newton or an optax optimiser (adam, sgd, ...).")
+    return getattr(optax, name)(lr)
+
+
+def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarget, *, seeds,
+        statistics: Statistics, estimator: str = "central", optimizer: str = "gauss-newton", steps: int = 6,
+        lr: float = 0.1, step: float = 0.05, sigma: float = 0.05, pairs: int = 4, key: int = 0,
+        max_step: float = 0.3, tolerance: float = 1e-3, progress: Callable | bool | None = True,
+        checkpoint: str | None = None, resume: str | None = None, interval: bool = True) -> EnsembleFitResult:
+    """Fits the law parameters `names` (positive; fitted as logs) so that the
+    ensemble of `seeds` matches `target`.
+
+    Args:
+      runner: the protocol, law and set-up the ensembles are built with.
+      names: parameters to fit; start: their starting values (and may hold no
+        others: fixed parameters go in `runner.params`).
+      target: from `make_target` (or `EnsembleTarget.from_json`).
+      seeds: the fit's piles (never the target's).
+      statistics: what each pile contributes (as the target was made).
+      estimator: `"central"` or `"smoothing"` (module docstring).
+      optimizer: `"gauss-newton"` (central only) or an optax name (`adam`, `sgd`...).
+      steps: iterations at most.
+      lr: the optax learning rate (log units).
+      step: central differences' h (log units); sigma, pairs, key: smoothing's.
+      max_step: the largest change of a log-parameter per Gauss-Newton step.
+      tolerance: stop when a Gauss-Newton step is below this (log units).
+      progress: print a line per iteration (True), or a callable given each
+        history entry.
+      checkpoint: a JSON path to write the history to after every iteration.
+      resume: a checkpoint JSON of this fit to continue from.
+      interval: run the final central differences for the confidence
+        interval (2d + 1 more ensembles); False: NaN interval.
+
+    Returns:
+      `EnsembleFitResult` (the interval from a final central-difference
+      Jacobian at the fitted values).
+    """
+    statistics = runner.check(statistics)
+    names = list(names)
+    if not names or len(set(names)) != len(names):
+        raise InputError(f"name the parameters to fit, each once; got {names!r}.")
+    missing = [n for n in names if n not in start]
+    if missing or set(start) - set(names):
+        raise InputError(f"start must give exactly the fitted parameters {names}; got {sorted(start)}.")
+    for n in names:
+        POSITIVE.check(f"the starting {n}", start[n], scalar=True)
+    if estimator not in ESTIMATORS:
+        raise InputError(f"estimator must be one of {ESTIMATORS}; got {estimator!r}.")
+    if optimizer == "gauss-newton" and estimator != "central":
+        raise InputError("Gauss-Newton needs the Jacobian of the means: use --estimator central, or an optax optimiser.")
+    if isinstance(steps, bool) or int(steps) != steps or steps < 0:
+        raise InputError(f"steps must be a whole number >= 0; got {steps!r}.")
+    steps = int(steps)
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("a fit needs at least one seed (2 or more for standard errors and an interval; one for "
+                         "a deterministic pile, e.g. the lattice, whose interval then has zero width).")
+    if set(seeds) & set(target.seeds or []):
+        raise InputError(f"the fit's seeds overlap the target's ({sorted(set(seeds) & set(target.seeds))}): "
+                         "a fit must not see the piles its target was made from.")
+    if len(target.mean) != len(statistics.labels()):
+        raise InputError(f"the target has {len(target.mean)} statistics, these Statistics give "
+                         f"{len(statistics.labels())}: make the target with the same statistics.")
+    w = weights(target)
+    objective = objective_for(target, w)
+    theta = np.log(np.array([float(start[n]) for n in names]))
+    opt = None if optimizer == "gauss-newton" else _optimiser(optimizer, lr)
+    opt_state = None if opt is None else opt.init(jnp.asarray(theta))
+    history: list = []
+    record = {"protocol": runner.protocol, "law": runner.law_name(), "estimator": estimator,
+              "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(), "steps": steps,
+              "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key, "max_step": max_step,
+              "options": runner.options or {}, "params": runner.params or {}}
+    if resume is not None:
+        with open(resume) as fh:
+            saved = json.load(fh)
+        if {k: saved.get(k) for k in ("protocol", "estimator", "optimizer", "seeds", "statistics")} != \
+                {k: record[k] for k in ("protocol", "estimator", "optimizer", "seeds", "statistics")}:
+            raise InputError(f"{resume} was written by another fit; resume it with the command that made it.")
+        for entry in saved["history"]:  # replay: the optax state is a function of the gradients seen
+            theta = np.asarray(entry["next_theta"], float)
+            if opt is not None:
+                _, opt_state = opt.update(jnp.asarray(entry["gradient"]), opt_state, jnp.asarray(entry["theta"]))
+            history.append(entry)
+    particles = None
+    first_s = None
+    t0 = time.perf_counter()
+
+    def params_of(t):
+        return {n: float(v) for n, v in zip(names, np.exp(t))}
+
+    def run(thetas):
+        nonlocal particles
+        s, info = runner.run([params_of(t) for t in thetas], seeds, statistics, progress=False)
+        particles = info["n_particles"] * info["batch_steps"] * len(thetas) * len(seeds)
+        s, missing = _fill_missing(s)
+        return s, missing, info
+
+    done = bool(history) and history[-1].get("converged", False)
+    for it in range(len(history), steps):
+        if done:
+            break
+        if estimator == "central":
+            thetas = estimators.central_points(theta, step)
+            s, missing, info = run(thetas)
+            est = estimators.central_from_members(s, objective, step)
+            d = len(names)
+            jac = (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)  # [k, d]
+            base = s[0]
+        else:
+            keys = jax.random.PRNGKey(int(key) + it)
+            cache = {}
+
+            def batch(ts):
+                cache["s"], cache["missing"], cache["info"] = run(np.asarray(ts))
+                return cache["s"]
+
+            est = estimators.antithetic_smoothing(batch, objective, theta, keys, sigma=sigma, pairs=pairs)
+            s, missing, info = cache["s"], cache["missing"], cache["info"]
+            base = s.reshape(-1, s.shape[-1])[:0]  # the smoothing does not run theta itself
+            jac = None
+        gradient = np.asarray(est.gradient, float)
+        if opt is None:
+            r = base.mean(axis=0) - target.mean
+            hessian = (jac.T * w) @ jac
+            try:
+                delta = -np.linalg.solve(hessian + 1e-9 * np.trace(hessian) * np.eye(len(names)), (jac.T * w) @ r)
+            except np.linalg.LinAlgError:
+                delta = -lr * gradient
+            largest = np.max(np.abs(delta))
+            if largest > max_step:
+                delta *= max_step / largest
+        else:
+            updates, opt_state = opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
+            delta = np.asarray(updates, float)
+        converged = bool(opt is None and np.max(np.abs(delta)) < tolerance)
+        loss_se = estimators.loss_stderr(base, objective) if len(base) else float("nan")
+        if first_s is None and it == 0 and len(base):
+            first_s = base
+        entry = {"iteration": it, "theta": theta.tolist(), "values": params_of(theta),
+                 "loss": float(est.value), "loss_stderr": loss_se, "gradient": gradient.tolist(),
+                 "gradient_stderr": np.asarray(est.stderr, float).tolist(), "ensembles": int(est.evaluations),
+                 "particle_steps": int(particles), "missing": missing, "next_theta": (theta + delta).tolist(),
+                 "converged": converged, "seconds": info["total_seconds"]}
+        history.append(entry)
+        theta = theta + delta
+        if progress is True:
+            vals = ", ".join(f"{n} = {v:.5g}" for n, v in entry["values"].items())
+            loss = "" if not math.isfinite(entry["loss"]) else f"loss {entry['loss']:.4g} +- {loss_se:.2g}, "
+            print(f"fit {it + 1}/{steps}: {vals}: {loss}step {np.round(delta, 4).tolist()} "
+                  f"({entry['seconds']:.0f} s)", flush=True)
+        elif callable(progress):
+            progress(entry)
+        if checkpoint is not None:
+            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+        if converged:
+            break
+
+    # the interval: a central-difference Jacobian at the fitted values
+    d = len(names)
+    thetas = estimators.central_points(theta, step) if interval else theta[None]
+    s, _, info = run(thetas)
+    if interval:
+        jac = (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
+        cov = confidence(jac, w, s[0], target)
+    else:
+        jac, cov = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan)
+    se = np.sqrt(np.clip(np.diag(cov), 0, None)) if np.all(np.isfinite(cov)) else np.full(d, np.nan)
+    values = params_of(theta)
+    interval = {n: (float(np.exp(theta[i] - 1.96 * se[i])), float(np.exp(theta[i] + 1.96 * se[i])))
+                for i, n in enumerate(names)}
+    final_loss = float(objective(jnp.asarray(s[0].mean(axis=0))))
+    record.update({"final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
+                   "jacobian": jac.tolist(), "fit_seconds": time.perf_counter() - t0,
+                   "particle_steps": int(sum(h["particle_steps"] for h in history) + particles)})
+    start_mean = first_s.mean(axis=0) if first_s is not None else np.full(len(target.mean), np.nan)
+    return EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
+                             {n: float(se[i]) for i, n in enumerate(names)}, history, target, s[0].mean(axis=0),
+                             start_mean, s[0], record)
+
+
+def _write_json(path: str, record: dict) -> None:
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as fh:
+        json.dump(record, fh, indent=1)
+    os.replace(tmp, path)
+
+
+def figure(result: EnsembleFitResult, path=None):
+    """The fit on one page: the parameters over the iterations with the final
+    95 % interval (and the truth of a synthetic target), the loss with its
+    standard error, and the statistics of the target, the start and the fit
+    (the base profile with its one-pile band where there is one)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names, hist = result.names, result.history
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4))
+    it = np.arange(len(hist) + 1)
+    for i, n in enumerate(names):
+        path_values = [h["values"][n] for h in hist] + [result.values[n]]
+        line, = axes[0].plot(it, np.asarray(path_values) / result.start[n], "o-", label=n)
+        lo, hi = result.interval[n]
+        axes[0].errorbar([it[-1]], [result.values[n] / result.start[n]],
+                         yerr=[[(result.values[n] - lo) / result.start[n]], [(hi - result.values[n]) / result.start[n]]],
+                         color=line.get_color(), capsize=4)
+        truth = (result.target.truth or {}).get(n)
+        if truth is not None:
+            axes[0].axhline(truth / result.start[n], color=line.get_color(), ls=":", label=f"{n} truth")
+    axes[0].set(xlabel="iteration", ylabel="value / start", title="parameters (95 % interval at the end)")
+    axes[0].legend(fontsize=8)
+    loss = np.array([h["loss"] for h in hist] + [result.record["final_loss"]])
+    err = np.array([h["loss_stderr"] for h in hist] + [result.record["final_loss_stderr"]])
+    axes[1].errorbar(it, loss, yerr=err, fmt="o-")
+    axes[1].set(xlabel="iteration", ylabel="loss (per-pile spread units^2)", yscale="log", title="loss +- s.e.")
+    labels = list(result.target.labels)
+    profile = [i for i, lab in enumerate(labels) if lab.startswith("normal[")]
+    ax = axes[2]
+    if profile:
+        x = (np.arange(len(profile)) + 0.5) / len(profile)
+        t = result.target
+        ax.fill_between(x, t.mean[profile] - t.spread[profile], t.mean[profile] + t.spread[profile], alpha=0.2,
+                        color="k", label="target +- one pile")
+        ax.plot(x, t.mean[profile], "k-", label="target")
+        ax.plot(x, result.start_mean[profile], "C1--", label="start")
+        ax.plot(x, result.fitted_mean[profile], "C0-", label="fit")
+        ax.set(xlabel="x / B", ylabel="normal base force / peak", title="ensemble-mean base profile")
+    else:
+        k = np.arange(len(labels))
+        ax.errorbar(k - 0.15, result.target.mean, yerr=result.target.spread, fmt="ks", label="target +- one pile")
+        ax.plot(k, result.start_mean, "C1o", label="start")
+        sd = result.fitted_members.std(axis=0, ddof=1) if len(result.fitted_members) > 1 else None
+        ax.errorbar(k + 0.15, result.fitted_mean, yerr=sd, fmt="C0o", label="fit +- one pile")
+        ax.set_xticks(k, labels, rotation=20, fontsize=8)
+        ax.set(title="ensemble means")
+    ax.legend(fontsize=8)
+    fig.suptitle(f"{result.record['protocol']} / {result.record['law']}: fit of {', '.join(names)} "
+                 f"({result.record['estimator']}, {result.record['optimizer']}, B = {len(result.record['seeds'])})")
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+    return fig
+
+
+__all__ = ["ESTIMATORS", "EnsembleFitResult", "EnsembleTarget", "Runner", "Statistics", "confidence", "figure",
+           "fit", "make_target", "objective_for", "weights"]

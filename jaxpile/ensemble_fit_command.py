@@ -1,0 +1,111 @@
+"""`jaxpile fit` with an ensemble target (`--truth` or a target.json): the
+command-line side of `jaxpile.ensemble_fit` (issue 17)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+from jaxpile.errors import InputError
+
+
+def _statistics(args, adapter):
+    from jaxpile.ensemble_fit import Statistics
+
+    default = adapter.fit_statistics
+    if args.statistics is not None:
+        columns = tuple(c.strip() for c in args.statistics.split(",") if c.strip())
+        bins = args.bins or 0
+    else:
+        columns, bins = tuple(default.get("columns", ())), default.get("bins", 0) if args.bins is None else args.bins
+    return Statistics(columns=columns, bins=int(bins))
+
+
+def _values(items, known, flag) -> dict:
+    from jaxpile.cli import _parse_set
+
+    try:
+        return _parse_set(items, known)
+    except InputError as err:
+        raise InputError(str(err).replace("--set", flag)) from None
+
+
+def run_ensemble_fit(args, estimator: str) -> dict:
+    """Builds the runner, the target (made here from `--truth`, or read from a
+    target.json), fits, and writes fit.json, target.json and fit.png to OUT;
+    the history goes to OUT/fit_checkpoint.json after every iteration, and
+    `--resume` continues from it."""
+    import jaxpile  # noqa: F401  (turns on float64)
+    from jaxpile import ensemble_fit, io, sweep
+    from jaxpile.cli import _parse_options, _plain
+    from jaxpile.laws import get_law_module
+
+    a = sweep.adapter(args.protocol)
+    law = get_law_module(args.law or a.default_law).NAME
+    lawmod = get_law_module(law)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    unknown = set(names) - set(lawmod.PARAM_NAMES)
+    if not names or unknown:
+        raise InputError(f"--params must name {law} parameters ({', '.join(lawmod.PARAM_NAMES)}); got {args.params!r}.")
+    given = _values(args.set, lawmod.PARAM_NAMES, "--set")
+    _, _, defaults = a.law_and_params(law, None)
+    start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
+    fixed = {k: v for k, v in given.items() if k not in names}
+    options = _parse_options(args.option)
+    if args.n is not None:
+        options["n"] = args.n
+    if args.protocol == "lattice" and "layers" not in options:
+        options["layers"] = args.layers
+    runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
+    statistics = _statistics(args, a)
+    b = int(args.ensemble)
+    seeds = list(range(b))
+    os.makedirs(args.out, exist_ok=True)
+    checkpoint = os.path.join(args.out, "fit_checkpoint.json")
+    if args.resume:
+        if not os.path.exists(checkpoint):
+            raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
+        with open(checkpoint) as fh:
+            target = ensemble_fit.EnsembleTarget.from_json(json.load(fh)["target"])
+    elif args.truth:
+        truth = _values(args.truth, lawmod.PARAM_NAMES, "--truth")
+        target_seeds = list(range(args.target_seeds, args.target_seeds + b))
+        print(f"jaxpile: making the target: {b} {args.protocol} piles at {truth} (seeds {target_seeds[0]}.."
+              f"{target_seeds[-1]})", flush=True)
+        target = ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
+                                          target_seeds, statistics, progress=False)
+    elif args.target and args.target.endswith(".json"):
+        if not os.path.exists(args.target):
+            raise InputError(f"--target {args.target}: no such file.")
+        with open(args.target) as fh:
+            record = json.load(fh)
+        target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record))
+    else:
+        raise InputError("an ensemble fit needs --truth NAME=VALUE or --target target.json.")
+    if args.dry_run:
+        print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}): {b} piles per "
+              f"ensemble, {args.steps} iterations of {2 * len(names) + 1 if estimator == 'central' else 8} "
+              f"ensembles, statistics {statistics.labels()}")
+        return {"start": start, "statistics": statistics.labels()}
+    io.write_json(os.path.join(args.out, "target.json"), _plain(target.to_json()))
+    optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
+    print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
+          f"({estimator}, {optimizer}) to {target.source}", flush=True)
+    result = ensemble_fit.fit(runner, names, start, target, seeds=seeds, statistics=statistics,
+                              estimator=estimator, optimizer=optimizer, steps=args.steps, lr=args.lr,
+                              progress=not args.no_progress, checkpoint=checkpoint,
+                              resume=checkpoint if args.resume else None)
+    record = result.to_json()
+    if target.truth:
+        record["truth_inside_interval"] = {n: bool(lo <= target.truth[n] <= hi)
+                                           for n, (lo, hi) in result.interval.items() if n in target.truth}
+    io.write_json(os.path.join(args.out, "fit.json"), _plain(record))
+    ensemble_fit.figure(result, path=os.path.join(args.out, "fit.png"))
+    for n in names:
+        lo, hi = result.interval[n]
+        truth = f" (truth {target.truth[n]:.5g})" if target.truth and n in target.truth else ""
+        print(f"jaxpile: {n} = {result.values[n]:.5g}, 95% interval [{lo:.5g}, {hi:.5g}]{truth}")
+    print(f"jaxpile: wrote {args.out}/fit.json, target.json, fit.png")
+    return record
