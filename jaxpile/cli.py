@@ -158,6 +158,9 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"jaxpile: error: {message} (see `{self.prog} --help`)\n")
 
 
+SWEEP_PROTOCOLS = ["box", "pour", "lattice", "sloped", "drop", "flux", "tilt"]  # sweep.ADAPTERS (a test keeps them equal)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -213,7 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("dirs", nargs="+")
 
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
-    sweep.add_argument("--protocol", default="box", choices=["box", "pour", "lattice", "sloped", "drop", "flux"],
+    sweep.add_argument("--protocol", default="box", choices=SWEEP_PROTOCOLS,
                        help="box, pour, flux; lattice, sloped (deterministic piles: vary the law); drop")
     sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
@@ -240,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     fitp.add_argument("--target", default=None, metavar="FILE|smid-novosad",
                       help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
                            "pile, pathwise gradients); or a target.json written by an ensemble fit")
-    fitp.add_argument("--protocol", default="lattice", choices=["box", "pour", "lattice", "sloped", "drop", "flux"],
+    fitp.add_argument("--protocol", default="lattice", choices=SWEEP_PROTOCOLS,
                       help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
     fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing"],
                       help="the gradient: pathwise through one pile (default with a CSV target), or of the "

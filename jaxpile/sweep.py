@@ -13,8 +13,9 @@ three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
 ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
 ground forces against eqs. 42-44 and 54-59, e.g. against K_s) and `drop`
 (1992 Fig. 20: the base profile's central dip over seeds) and `flux`
-(1993 Fig. 5: the steady angle under a flux of disks). The tilt (two
-stages: a box pile, then the tilt) is not batched yet (issue 18's runner).
+(1993 Fig. 5: the steady angle under a flux of disks) and `tilt` (1993
+Fig. 4: a box pile, then tilted until it moves: theta_T; two stages, each
+member starting the second where it ended the first).
 """
 
 from __future__ import annotations
@@ -34,6 +35,26 @@ from jaxpile import budget as memory
 from jaxpile import ensemble
 from jaxpile.errors import InputError
 from jaxpile.simulate import RunInfo, max_speed
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A later stage of a protocol (the tilt after the box): it starts from
+    each member's state at the end of the stage before it.
+
+    Attributes:
+      simulator: `(law, dt, sim_options, options) -> Simulator` for this stage.
+      start: `(law, dt, options, state, protocol) -> (state, protocol)`, on the
+        host, per member: the stage's start state (contact history kept) and
+        its protocol (whose `info` the measurement reads).
+      finished: `(protocol info, options) -> (state -> bool)`, traceable.
+      max_steps: `(protocol info, options) -> int`, this stage's budget.
+    """
+
+    simulator: Callable
+    start: Callable
+    finished: Callable
+    max_steps: Callable
 
 
 @dataclass(frozen=True)
@@ -58,6 +79,9 @@ class Adapter:
         for every member of a protocol's set-up, so profiles average.
       fit_statistics: what an ensemble fit compares by default:
         `{"columns": (...), "bins": b}` (`ensemble_fit.Statistics`).
+      stages: later `Stage`s (stage-synchronous: every member of a batch
+        finishes a stage before the next starts); `measure` then gets the
+        last stage's simulator, state and protocol.
     """
 
     setup: Callable
@@ -74,6 +98,7 @@ class Adapter:
     default_law: str = "lee-herrmann"
     extent: Callable | None = None
     fit_statistics: dict = dataclasses.field(default_factory=dict)
+    stages: tuple = ()
 
 
 def _heap_extent(base: str, centre_key: str, count_key: str):
@@ -237,7 +262,11 @@ def _loaded_pile_adapter(name: str) -> Adapter:
             n_in = int(np.asarray(state.particles.active).sum())
             m = sloped.compare_with_theory(base, protocol.info["alpha_degrees"], protocol.info["base"], n_particles=n_in)
         row = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
-        return row | {"at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
+        p = state.particles
+        active = np.asarray(p.active)
+        # the pile's top above the ground: it sinks by the contacts' compression, ~ weight / K_s
+        height = float(np.max((np.asarray(p.position[:, 1]) + np.asarray(p.radius))[active]))
+        return row | {"height": height, "at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
                       "max_speed": float(max_speed(state))}
 
     def law_and_params(law, params=None, rotation=None, dtype=None):
@@ -334,7 +363,60 @@ def _flux_adapter() -> Adapter:
                    fit_statistics={"columns": ("steady_mean",)})
 
 
-ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter,
+# ----------------------------------------------------------------------- tilt
+def _tilt_adapter() -> Adapter:
+    """Lee & Herrmann 1993 Fig. 4: a box pile (stage 1, as `box`), then tilted
+    at the paper's rate until it moves (stage 2, as `tilt.run` without
+    `settle`): theta_T, the pile's theta_R and the theory of sec. 6."""
+    from jaxpile.protocols import box, tilt
+
+    base = _box_adapter()
+    tilt_names = _option_names(tilt.protocol) - {"pile", "edge"}
+    box_names = base.options
+
+    def box_options(options):
+        return {k: v for k, v in options.items() if k in box_names}
+
+    def setup(law, seed, dt, options):
+        return base.setup(law, seed, dt, box_options(options) | {"dtype": options.get("dtype")})
+
+    def simulator(law, dt, options, setup_options):
+        return tilt.make_simulator(law, dt=dt, **options)
+
+    def start(law, dt, options, state, protocol):
+        p = tilt.protocol(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in tilt_names})
+        pile = box.repose(state, p.info["edge"])
+        info = {**p.info, "pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
+                "box_settled": int(state.protocol_state.settled_at) >= 0}
+        return state.set(protocol_state=p.protocol_state), p._replace(info=info)
+
+    def finished(info, options):
+        give_up = int(info["max_tilt_steps"])  # as tilt.execute: moved, or the largest tilt passed without motion
+        return lambda s: (s.protocol_state.phase >= 1) | (
+            (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
+
+    def max_steps(info, options):
+        return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000
+
+    def measure(sim, params, state, protocol):
+        ps = state.protocol_state
+        moved = int(ps.phase) >= 1
+        theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
+        theta_r = protocol.info["pile_repose"]["repose_cumulative_parabola"]
+        mu = box.friction_coefficient(params)
+        theory = tilt.compare_with_theory(theta_r, theta_t, mu)
+        return {"theta_t": theta_t, "theta_r": theta_r, "moved": moved,
+                "theta_r_plus_theta_t": theory["theta_r_plus_theta_t"], "theta_ms_theory": theory["theta_ms_theory"],
+                "theta_t_theory": theory["theta_t_theory"], "box_settled": protocol.info["box_settled"],
+                "tilt_held": math.degrees(float(ps.tilt)), "n_left": int(ps.left)}
+
+    return Adapter(setup, base.simulator, base.finished, base.max_steps, measure, box.law_and_params, base.default_dt,
+                   ("theta_t", "theta_r", "theta_r_plus_theta_t"), frozenset(box_names | tilt_names),
+                   _marginal_stability, fit_statistics={"columns": ("theta_t", "theta_r")},
+                   stages=(Stage(simulator, start, finished, max_steps),))
+
+
+ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter, "tilt": _tilt_adapter,
     "box": _box_adapter, "pour": _pour_adapter, "lattice": lambda: _loaded_pile_adapter("lattice"),
     "sloped": lambda: _loaded_pile_adapter("sloped"), "drop": _drop_adapter}
 
@@ -380,7 +462,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop, flux).
+      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop, flux, tilt).
       law: the contact law (default: the protocol paper's).
       vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
       seeds: a count (seeds 0..n-1) or a list of seeds.
@@ -407,6 +489,10 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """
     a = adapter(protocol)
     law = law or a.default_law
+    if a.stages and (checkpoint is not None or resume is not None):
+        raise InputError(f"a {protocol} sweep runs in {len(a.stages) + 1} stages and is not checkpointed yet; run it "
+                         "without --checkpoint-every, or run single piles (`jaxpile pile --protocol "
+                         f"{protocol} --checkpoint-every`), which resume.")
     vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
     options = dict(options or {})
     unknown = set(options) - a.options
@@ -465,12 +551,21 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
                                batch_start=start, rows=rows)
         state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
                         until=a.finished(protocols[0].info, options), progress=progress, info=info, checkpoint=spec)
+        last_sim = sim
+        for stage in a.stages:  # every member starts the next stage from where it ended this one
+            last_sim = stage.simulator(law, dt, sim_options, options)
+            started = [stage.start(law, dt, options, ensemble.member(state, k), p) for k, p in enumerate(protocols)]
+            protocols = [p for _, p in started]
+            stage_ens = ensemble.Ensemble(last_sim, devices=devices)
+            state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
+            state = stage_ens.run(prms, state, stage.max_steps(protocols[0].info, options),
+                                  until=stage.finished(protocols[0].info, options), progress=progress, info=info)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}
-            row.update(a.measure(sim, prm, s, p))
+            row.update(a.measure(last_sim, prm, s, p))
             if extra_measure is not None:
-                row.update(extra_measure(sim, prm, s, p))
+                row.update(extra_measure(last_sim, prm, s, p))
             row["steps"] = int(s.step)
             rows.append(row)
     n_particles = int(state.particles.position.shape[1])

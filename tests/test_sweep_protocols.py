@@ -60,3 +60,31 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
     row = result.rows[0]
     assert row["inserted"] == alone["inserted"] and row["n_left"] == alone["n_left"]
     assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
+
+
+def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run():
+    """1993 Fig. 4 batched: each member builds its box pile (stage 1), then is
+    tilted from where its pile settled, contact history kept (stage 2); its
+    theta_T, theta_R and last step are those of `tilt.run` with its seed.
+    A two-stage sweep refuses checkpoints (not built yet) in one line."""
+    from jaxpile import sweep
+    from jaxpile.protocols import tilt
+
+    options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.05}
+    result = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False)
+    state, alone = tilt.run(LAW, params={"mu": 0.3}, rate_degrees=0.05,
+                            box_options={"width": 1.2, "height": 1.2, "seed": 1})
+    row = result.rows[0]
+    assert row["moved"] and alone["moved"] and row["box_settled"]
+    assert row["theta_t"] == pytest.approx(alone["theta_t"], abs=1e-9)
+    assert row["theta_r"] == pytest.approx(alone["theta_r"], rel=1e-6)
+    assert row["steps"] == int(state.step)
+    assert row["theta_ms_theory"] == pytest.approx(alone["theta_ms_theory"])
+    with pytest.raises(InputError, match="not checkpointed"):
+        sweep.sweep("tilt", LAW, seeds=[1], options=options, checkpoint=("x-{step}.npz", 100), progress=False)
+
+
+def test_the_command_line_offers_every_sweepable_protocol():
+    from jaxpile import cli, sweep
+
+    assert sorted(cli.SWEEP_PROTOCOLS) == sorted(sweep.ADAPTERS)
