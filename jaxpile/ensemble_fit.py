@@ -289,7 +289,9 @@ class EnsembleFitResult(NamedTuple):
 def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target: EnsembleTarget) -> np.ndarray:
     """`[d, d]` the covariance of the fitted log-parameters (the sandwich in
     the module docstring), from the Jacobian `[k, d]` of the ensemble means,
-    the fitted piles `[B, k]` and the target's piles."""
+    the fitted piles `[B, k]` and the target's piles. With one pile on each
+    side (a deterministic protocol) there is no spread: then the
+    nonlinear-least-squares covariance from the residual."""
     jw = jacobian.T * w  # [d, k]
     hessian = jw @ jacobian
     if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < hessian.shape[0]:
@@ -302,6 +304,13 @@ def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target:
         g = piles @ jw.T  # [B, d]
         return np.atleast_2d(np.cov(g, rowvar=False)) / len(piles)
 
+    if (members is None or len(members) < 2) and (target.members is None or len(target.members) < 2):
+        # one pile on each side (a deterministic pile): no spread to propagate, so the
+        # nonlinear-least-squares covariance s^2 H^-1, s^2 = the weighted residual per
+        # degree of freedom: what the fit cannot explain, e.g. the rest tolerance
+        r = np.asarray(members, float).mean(axis=0) - target.mean
+        dof = max(len(r) - hessian.shape[0], 1)
+        return float(np.sum(w * r ** 2)) / dof * inv
     return inv @ (projected(members) + projected(target.members)) @ inv
 
 
@@ -481,8 +490,12 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     interval = {n: (float(np.exp(theta[i] - 1.96 * se[i])), float(np.exp(theta[i] + 1.96 * se[i])))
                 for i, n in enumerate(names)}
     final_loss = float(objective(jnp.asarray(s[0].mean(axis=0))))
+    # how strongly each parameter moves the weighted statistics (per unit log value): one that barely
+    # moves them is not determined by this target, whatever its interval says
+    sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
     record.update({"final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
-                   "jacobian": jac.tolist(), "fit_seconds": time.perf_counter() - t0,
+                   "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
+                   "fit_seconds": time.perf_counter() - t0,
                    "particle_steps": int(sum(h["particle_steps"] for h in history) + particles)})
     start_mean = first_s.mean(axis=0) if first_s is not None else np.full(len(target.mean), np.nan)
     return EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
