@@ -454,6 +454,26 @@ def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
     return [(point, seed) for point in points for seed in seeds]
 
 
+_ENSEMBLES: dict = {}  # the last few batched simulators, so repeated sweeps (a fit's iterations) compile once
+
+
+def _ensemble(protocol, stage, law, dt, sim_options, options, devices, build) -> ensemble.Ensemble:
+    """The `Ensemble` for this protocol stage and set-up: reused when a sweep
+    with the same law, dt, simulator and set-up options ran before (its
+    compiled loops are kept per batch shape); built afresh otherwise."""
+    try:
+        key = (protocol, stage, law, float(dt), tuple(sorted(sim_options.items())),
+               tuple(sorted(options.items())), None if devices is None else tuple(devices))
+        hash(key)
+    except TypeError:  # an option that is a dict or a list: no reuse
+        return ensemble.Ensemble(build(), devices=devices)
+    if key not in _ENSEMBLES:
+        if len(_ENSEMBLES) >= 4:
+            _ENSEMBLES.pop(next(iter(_ENSEMBLES)))
+        _ENSEMBLES[key] = ensemble.Ensemble(build(), devices=devices)
+    return _ENSEMBLES[key]
+
+
 def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
           seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
           rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
@@ -513,8 +533,9 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         _, _, prm = a.law_and_params(law, {**(params or {}), **point}, rotation, dtype=dtype)  # checks the names
         member_params.append(prm)
     sim_options = {} if rotation is None else {"rotation": rotation}
-    sim = a.simulator(law, dt, sim_options, options)
-    ens = ensemble.Ensemble(sim, devices=devices)
+    ens = _ensemble(protocol, 0, law, dt, sim_options, options, devices,
+                    lambda: a.simulator(law, dt, sim_options, options))
+    sim = ens.sim
     batch_size = len(members) if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise InputError(f"batch_size must be >= 1; got {batch_size}.")
@@ -553,10 +574,11 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
                         until=a.finished(protocols[0].info, options), progress=progress, info=info, checkpoint=spec)
         last_sim = sim
         for stage in a.stages:  # every member starts the next stage from where it ended this one
-            last_sim = stage.simulator(law, dt, sim_options, options)
+            stage_ens = _ensemble(protocol, 1 + a.stages.index(stage), law, dt, sim_options, options, devices,
+                                  lambda: stage.simulator(law, dt, sim_options, options))
+            last_sim = stage_ens.sim
             started = [stage.start(law, dt, options, ensemble.member(state, k), p) for k, p in enumerate(protocols)]
             protocols = [p for _, p in started]
-            stage_ens = ensemble.Ensemble(last_sim, devices=devices)
             state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
             state = stage_ens.run(prms, state, stage.max_steps(protocols[0].info, options),
                                   until=stage.finished(protocols[0].info, options), progress=progress, info=info)
