@@ -62,6 +62,15 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     statistics = _statistics(args, a)
     b = int(args.ensemble)
     seeds = list(range(b))
+    runner.check(statistics)
+    per_iteration = 2 * len(names) + 1 if estimator == "central" else 8  # 8: the smoothing's 4 antithetic pairs
+    if args.dry_run:
+        setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
+        print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
+              f"{setup.particles.count} disks a pile): {b} piles per ensemble, at most {args.steps} iterations of "
+              f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "
+              f"{statistics.labels()}; runs nothing")
+        return {"start": start, "statistics": statistics.labels(), "piles_per_iteration": per_iteration * b}
     os.makedirs(args.out, exist_ok=True)
     checkpoint = os.path.join(args.out, "fit_checkpoint.json")
     if args.resume:
@@ -84,11 +93,6 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record))
     else:
         raise InputError("an ensemble fit needs --truth NAME=VALUE or --target target.json.")
-    if args.dry_run:
-        print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}): {b} piles per "
-              f"ensemble, {args.steps} iterations of {2 * len(names) + 1 if estimator == 'central' else 8} "
-              f"ensembles, statistics {statistics.labels()}")
-        return {"start": start, "statistics": statistics.labels()}
     io.write_json(os.path.join(args.out, "target.json"), _plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "

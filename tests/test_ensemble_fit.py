@@ -110,3 +110,29 @@ def test_a_tiny_box_fit_from_the_command_line_moves_mu_toward_the_truth(tmp_path
     assert (out / "fit.png").stat().st_size > 0
     assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad",
                      "--estimator", "pathwise", "--out", str(tmp_path / "x")]) == 2  # pathwise: lattice/pour only
+
+
+@pytest.mark.parametrize("protocol", ["box", "pour", "lattice", "sloped", "drop", "flux", "tilt"])
+def test_every_protocol_offers_an_ensemble_fit(protocol, tmp_path, capsys):
+    """`jaxpile fit --protocol P` for every sweepable protocol (issue 18): the
+    dry run sets one pile up and checks the statistics, runs nothing."""
+    from jaxpile import cli
+
+    law_param = {"lattice": "kn", "sloped": "kn", "drop": "ks", "pour": "n"}.get(protocol, "mu")
+    assert cli.main(["fit", "--protocol", protocol, "--params", law_param, "--truth", f"{law_param}=0.3",
+                     "--ensemble", "2", "--dry-run", "--out", str(tmp_path)]) == 0
+    assert "runs nothing" in capsys.readouterr().out
+    assert not (tmp_path / "fit.json").exists()
+
+
+def test_a_deterministic_lattice_gives_back_its_stiffness_from_its_height():
+    """Liffman et al. 1992 lattice (4 layers, liffman law, one pile: no
+    randomness): K_s from a start 35 % low, through the pile's height (a static
+    pile's base forces are set by statics, eqs. 42-44, whatever K_s)."""
+    runner = ef.Runner("lattice", "liffman", options={"layers": 4, "ramp_steps": 1000})
+    statistics = ef.Statistics(columns=("height",), bins=4)
+    target = ef.make_target(runner, {"ks": 13_700.0}, [7], statistics)
+    result = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, seeds=[0], statistics=statistics, steps=4,
+                    progress=False)
+    assert abs(result.values["ks"] / 13_700.0 - 1) < 1e-3
+    assert result.record["sensitivity"]["ks"] > 0
