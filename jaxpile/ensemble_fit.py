@@ -285,6 +285,18 @@ class EnsembleFitResult(NamedTuple):
                 "fitted_mean": self.fitted_mean.tolist(), "start_mean": self.start_mean.tolist(),
                 "fitted_members": self.fitted_members.tolist(), **self.record}
 
+    @classmethod
+    def from_json(cls, record: dict) -> "EnsembleFitResult":
+        """The result `to_json` wrote (fit.json): what `jaxpile show` redraws from."""
+        own = ("names", "values", "start", "interval", "stderr_log", "history", "target", "fitted_mean",
+               "start_mean", "fitted_members")
+        return cls(list(record["names"]), dict(record["values"]), dict(record["start"]),
+                   {k: tuple(v) for k, v in record["interval"].items()}, dict(record["stderr_log"]),
+                   list(record["history"]), EnsembleTarget.from_json(record["target"]),
+                   np.asarray(record["fitted_mean"], float), np.asarray(record["start_mean"], float),
+                   np.asarray(record["fitted_members"], float),
+                   {k: v for k, v in record.items() if k not in own})
+
 
 def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target: EnsembleTarget) -> np.ndarray:
     """`[d, d]` the covariance of the fitted log-parameters (the sandwich in

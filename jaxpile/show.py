@@ -130,6 +130,11 @@ def _fit(folder: str, out: str) -> list[str]:
     from jaxpile import fit
 
     record = json.loads(open(os.path.join(folder, "fit.json")).read())
+    if "interval" in record and "names" in record:  # an ensemble fit (jaxpile.ensemble_fit)
+        from jaxpile import ensemble_fit
+
+        ensemble_fit.figure(ensemble_fit.EnsembleFitResult.from_json(record), path=os.path.join(out, "fit.png"))
+        return ["fit.png"]
     saved = record.get("target_profile")
     if saved is not None:
         horizontal = None if saved["horizontal"] is None else np.asarray(saved["horizontal"])

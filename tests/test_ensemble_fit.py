@@ -108,6 +108,8 @@ def test_a_tiny_box_fit_from_the_command_line_moves_mu_toward_the_truth(tmp_path
     assert record["values"]["mu"] > 0.2 and record["history"][0]["gradient"][0] < 0
     assert len(record["target"]["labels"]) == 1 + 4 + 4 and record["target"]["truth"] == {"mu": 0.35}
     assert (out / "fit.png").stat().st_size > 0
+    assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0  # `show` redraws fit.png
+    assert (tmp_path / "redrawn" / "fit.png").stat().st_size > 0
     assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad",
                      "--estimator", "pathwise", "--out", str(tmp_path / "x")]) == 2  # pathwise: lattice/pour only
 
