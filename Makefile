@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO   ?= demo
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench papers clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -35,6 +35,11 @@ test: $(STAMP)
 # JSON in benchmarks/results/<backend>/, README table regenerated. BENCH=--full for full sizes.
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py $(BENCH)
+
+# The papers' numbers as ensembles (hours on 2 CPU cores; resumable: rerun to continue), then
+# README's papers table from benchmarks/results/. PAPERS=--only=lattice,tilt picks studies.
+papers: $(STAMP)
+	$(BIN)/python benchmarks/papers.py --run $(PAPERS)
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache

@@ -101,3 +101,12 @@ def test_baxter_study_measures_the_m_without_selection_bias_and_averages_flanks(
     row = {"angle_mid_flank": {"left": 20.0, "right": 30.0},
            "angle_of_repose": {"left": {"least_squares": 22.0}, "right": None}}
     assert br.angle(row, "mid_flank") == 25.0 and br.angle(row, "least_squares") is None
+
+
+def test_readme_papers_table_is_the_one_the_results_give():
+    """benchmarks/papers.py writes README's papers-side-by-side table from the
+    committed results JSON (issue 16): README must hold exactly that table."""
+    import papers
+
+    assert papers.rewrite_readme(check=True), "run `python benchmarks/papers.py` and commit README.md"
+    assert "| 1993 | θ_T against" in papers.table()

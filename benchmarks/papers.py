@@ -1,0 +1,271 @@
+"""The papers side by side (issue 16, item 4): one script for README's table.
+
+    python benchmarks/papers.py             # rewrite README's table from the results JSON (seconds)
+    python benchmarks/papers.py --check     # exit 1 when README's table is not the one the JSON gives
+    python benchmarks/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
+                                            # first run what is missing (resumable; hours on 2 cores)
+
+Every number in the table is read from a results file that a committed command
+wrote (the command is in the file): the 1992 lattice and sloped piles
+(`jaxpile pile`, summary.json), the 1993 tilt ensemble and the 1992 dropped
+piles (`paper_ensembles.py`, one JSON per pile), and the 1997 heaps
+(`baxter_readings.py`, one JSON per heap). A study with fewer piles than its
+target shows what it has ("k of 8"); one not run yet says how to run it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import math
+import os
+import pathlib
+import shutil
+import subprocess
+import sys
+import tempfile
+
+HERE = pathlib.Path(__file__).resolve().parent
+ROOT = HERE.parent
+RESULTS = HERE / "results"
+README = ROOT / "README.md"
+START, END = "<!-- papers-table:start -->\n", "<!-- papers-table:end -->"
+sys.path.insert(0, str(HERE))
+
+PILES = 8  # the ensembles' target size (issue 16)
+
+
+def _pm(stat: dict | None, digits: int = 1, unit: str = "°") -> str:
+    if not stat or stat.get("mean") is None or not math.isfinite(stat["mean"]):
+        return "—"
+    se = stat.get("stderr")
+    if se is None or not math.isfinite(se):
+        return f"{stat['mean']:.{digits}f}{unit}"
+    return f"{stat['mean']:.{digits}f} ± {se:.{digits}f}{unit}"
+
+
+def _load(path: pathlib.Path) -> dict | None:
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _missing(study: str) -> str:
+    return f"not run yet (`python benchmarks/papers.py --run --only {study}`)"
+
+
+# ----------------------------------------------------------------- 1992
+LATTICE = RESULTS / "liffman_1992" / "lattice45_liffman.json"
+SLOPED = RESULTS / "liffman_1992" / "sloped30_n5490.json"
+DROP = RESULTS / "liffman_1992" / "drop_n968"
+
+
+def rows_1992() -> list[list[str]]:
+    rows = []
+    lat = _load(LATTICE)
+    rows.append(["1992", "45-layer lattice pile, max deviation of N, H from eqs. 42, 44", "< 1%",
+                 f"{100 * lat['max_rel_dev_normal']:.2f}%, {100 * lat['max_rel_dev_horizontal']:.2f}% (`liffman` law)"
+                 if lat else _missing("lattice")])
+    slo = _load(SLOPED)
+    if slo:
+        dip = "a dip" if slo.get("central_normal_dip", 0) > 0.05 else "no dip"
+        rows.append(["1992", "sloped pile 30°, 5490 disks: central N vs eq. 56", "plateau, no dip",
+                     f"{100 * slo['central_normal_rel_dev']:+.1f}%, {dip}"])
+        rows.append(["1992", "the same: central slope of H vs eq. 57", "close, not equal",
+                     f"{100 * slo['central_slope_rel_dev']:+.0f}%"])
+    else:
+        rows.append(["1992", "sloped pile 30°, 5490 disks: central N and H vs eqs. 56, 57", "plateau, no dip",
+                     _missing("sloped")])
+    piles = [json.loads(pathlib.Path(p).read_text()) for p in sorted(glob.glob(str(DROP / "seed*.json")))]
+    if piles:
+        import paper_ensembles as pe
+
+        s = pe.summarise_drop(piles)
+        rows.append(["1992", f"dropped pile, 968 disks (Fig. 20): central dip of the base normal force "
+                             f"({len(piles)} of {PILES} piles)", "a slight depression; Smid–Novosad 20–30%",
+                     f"{_pm(s['central_dip'], 2, '')} (dip > 5% in {s['has_central_dip']} of {len(piles)})"])
+    else:
+        rows.append(["1992", "dropped pile, 968 disks (Fig. 20): central dip", "a slight depression",
+                     _missing("drop")])
+    return rows
+
+
+# ----------------------------------------------------------------- 1993
+TILT = RESULTS / "lee_herrmann_1993" / "tilt_n409" / "summary.json"
+
+
+def rows_1993() -> list[list[str]]:
+    tilt = _load(TILT)
+    if not tilt:
+        return [["1993", "θ_R, θ_T against μ (Figs. 3, 4, 7)", "", _missing("tilt")]]
+    s = tilt["summary"]
+    mus = sorted(s, key=float)
+    piles = min(s[m]["piles"] for m in mus)
+
+    def series(key, digits=1):
+        return ", ".join(_pm(s[m][key], digits, "") for m in mus) + "°"
+
+    ms = ", ".join(f"{s[m]['theta_ms_theory']:.1f}" for m in mus) + "°"
+    mu_text = f"μ = {mus[0]} … {mus[-1]}"
+    return [
+        ["1993", f"θ_R against {mu_text} (W = H = 4, 409 disks, method 3), {piles} piles each",
+         "θ_R < θ_MS; 17.9 ± 1.8° at μ = 0.2", f"{series('theta_r')} (θ_MS = arctan 3μ: {ms})"],
+        ["1993", f"θ_T against {mu_text}, tilting 1e-3 °/step (Fig. 4), same piles", "a few degrees",
+         series("theta_t")],
+        ["1993", "the same against eq. 4 at each pile's θ_R (Fig. 7b)", "\"the difference is small\"",
+         f"eq. 4: {series('theta_t_theory')}"],
+        ["1993", "θ_R + θ_T against θ_MS = arctan 3μ (Fig. 7a)", "below θ_MS (\"there is a difference\")",
+         f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)"],
+    ]
+
+
+# ----------------------------------------------------------------- 1997
+HEAPS = RESULTS / "baxter_readings"
+HEAP_SETTINGS = {  # setting -> what the paper says of it
+    "hooke-k500": ("the equivalent Hooke law k = 500", "no clear M with a Hooke law"),
+    "n144-r1.2": ("n = 144, r0 = 1.2 σ", "short tail: no clear M"),
+    "n144-r1.047": ("n = 144, r0 = 1.047 σ", "short tail: no clear M"),
+    "poly10": ("10% polydisperse", "flatter heaps"),
+    "poly5": ("5% polydisperse", "flatter heaps"),
+    "mu0.2": ("μ = 0.2", "insensitive to μ in 0.2–0.6"),
+    "mu0.6": ("μ = 0.6", "insensitive to μ in 0.2–0.6"),
+}
+
+
+def _heaps(n: int) -> dict[str, list[dict]]:
+    import baxter_readings as br
+
+    out: dict[str, list[dict]] = {}
+    for path in sorted(glob.glob(str(HEAPS / f"n{n}" / "*_seed*.json"))):
+        row = json.loads(pathlib.Path(path).read_text())
+        out.setdefault(br.name_of(row), []).append(row)
+    return out
+
+
+def _angles(s: dict) -> str:
+    a = s["angle"]
+    return (f"{_pm(a['mid_flank'])} mid-flank, {_pm(a['least_squares'])} least squares, "
+            f"{_pm(s['angle_height_base'])} from height and base")
+
+
+def rows_1997() -> list[list[str]]:
+    import baxter_readings as br
+
+    rows = []
+    paper = _heaps(1334).get("contact-point/hold", [])
+    if paper:
+        s = br.summarise(paper)["contact-point/hold"]
+        rows.append(["1997", f"1334-disk heap (n = 36, r0 = 1.2 σ, S = 1.1 σ, dt = 1e-3), {len(paper)} heaps: "
+                             "angle of repose", "35 ± 5°",
+                     f"{_angles(s)}: about 10° flatter; no reading of the printed law closes the gap "
+                     "(`docs/baxter1997_audit.md`)"])
+        m = "no M" if s["flank_over_centre"]["mean"] < 1 else "an M"
+        rows.append(["1997", "the same: base normal force", "M, flank maxima 20–30% above the centre",
+                     f"{m}: mean force at x/B 0.2–0.4 and 0.6–0.8 over 0.4–0.6 is "
+                     f"{_pm(s['flank_over_centre'], 3, '')}"])
+    else:
+        rows.append(["1997", "1334-disk heap: angle of repose and base force", "35 ± 5°, M", _missing("heap")])
+    heaps = _heaps(1000)
+    for name, (what, says) in HEAP_SETTINGS.items():
+        mine = heaps.get(name)
+        if not mine:
+            continue
+        s = br.summarise(mine)[name]
+        count = f"{len(mine)} heaps" if len(mine) >= PILES else f"{len(mine)} of {PILES} heaps"
+        m = "no M" if s["flank_over_centre"]["mean"] < 1 else "an M"
+        rows.append(["1997", f"1000-disk heaps, {what} ({count})", says,
+                     f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}"])
+    return rows
+
+
+# ----------------------------------------------------------------- table
+def table() -> str:
+    rows = rows_1992() + rows_1993() + rows_1997()
+    lines = ["| paper | quantity | paper | jaxpile |", "|---|---|---|---|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def rewrite_readme(check: bool = False) -> bool:
+    """Writes the table into README (between its markers); with `check`, only
+    says whether it is already there. Returns True when README holds it."""
+    text = README.read_text()
+    if START not in text or END not in text:
+        raise SystemExit(f"README.md has no {START.strip()} ... {END} block.")
+    i, j = text.index(START) + len(START), text.index(END)
+    new = table()
+    if text[i:j] == new:
+        return True
+    if not check:
+        README.write_text(text[:i] + new + text[j:])
+    return False
+
+
+# ------------------------------------------------------------------- runs
+def _pile_summary(args: list[str], dest: pathlib.Path) -> None:
+    """`jaxpile pile ARGS` into a scratch folder; its summary.json kept as `dest`."""
+    scratch = tempfile.mkdtemp(prefix="papers-")
+    try:
+        jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
+        subprocess.run([jaxpile, "pile", *args, "--out", scratch, "--no-progress"], check=True)
+        summary = json.loads((pathlib.Path(scratch) / "summary.json").read_text())
+        summary["command"] = "jaxpile pile " + " ".join(args)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        dest.write_text(json.dumps(summary, indent=1))
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def run(studies: list[str]) -> None:
+    """Runs each study that has fewer results than its target (each resumes)."""
+    if "lattice" in studies and not LATTICE.exists():
+        _pile_summary(["--protocol", "lattice", "--layers", "45", "--law", "liffman"], LATTICE)
+    if "sloped" in studies and not SLOPED.exists():
+        _pile_summary(["--protocol", "sloped", "--slope", "30", "--n", "5490"], SLOPED)
+    if "tilt" in studies:
+        import paper_ensembles as pe
+
+        pe.main(["tilt", "--seeds", str(PILES), "--checkpoint-every", "20000",
+                 "--figure", str(ROOT / "docs" / "lee_herrmann1993_tilt_ensemble.png")])
+    if "drop" in studies:
+        import paper_ensembles as pe
+
+        pe.main(["drop", "--seeds", str(PILES), "--checkpoint-every", "50000",
+                 "--figure", str(ROOT / "docs" / "liffman1992_drop_ensemble.png")])
+    if "heap" in studies:
+        import baxter_readings as br
+
+        br.main(["--n", "1334", "--seeds", str(PILES), "--settings", "contact-point/hold",
+                 "--figure", str(ROOT / "docs" / "baxter1997_n1334.png")])
+    if "heap1000" in studies:
+        import baxter_readings as br
+
+        br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(HEAP_SETTINGS), "--workers", "1"])
+
+
+STUDIES = ("lattice", "sloped", "tilt", "drop", "heap", "heap1000")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", action="store_true", help="run the missing studies first (hours on 2 cores)")
+    parser.add_argument("--only", default=",".join(STUDIES), help=f"with --run: among {', '.join(STUDIES)}")
+    parser.add_argument("--check", action="store_true", help="exit 1 when README's table is out of date")
+    args = parser.parse_args(argv)
+    if args.run:
+        chosen = [s.strip() for s in args.only.split(",") if s.strip()]
+        unknown = set(chosen) - set(STUDIES)
+        if unknown:
+            parser.error(f"unknown studies {sorted(unknown)}; choose from {', '.join(STUDIES)}")
+        run(chosen)
+    if args.check:
+        ok = rewrite_readme(check=True)
+        print("README's papers table is " + ("up to date" if ok else "out of date: run python benchmarks/papers.py"))
+        return 0 if ok else 1
+    same = rewrite_readme()
+    print("README's papers table " + ("was already up to date" if same else "rewritten") + f":\n{table()}")
+    return 0
+
+
+if __name__ == "__main__":
+    os.chdir(ROOT)
+    raise SystemExit(main())
