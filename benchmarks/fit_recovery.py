@@ -11,6 +11,7 @@ hour on 2 CPU cores each.
     python benchmarks/fit_recovery.py lattice      # Liffman lattice: K_s and mu_roll together
     python benchmarks/fit_recovery.py lattice-ks   # Liffman lattice: K_s alone
     python benchmarks/fit_recovery.py pour         # Baxter heap: n
+    python benchmarks/fit_recovery.py --table      # README's recovery table from the JSON
 
 Writes benchmarks/results/fit_recovery/CASE.json (with the command), the
 fit's history as CASE_checkpoint.json while it runs (a rerun resumes), and
@@ -51,7 +52,57 @@ CASES = {
 }
 
 
+README = os.path.join(os.path.dirname(HERE), "README.md")
+START, END = "<!-- fit-recovery:start -->\n", "<!-- fit-recovery:end -->"
+
+
+def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
+    """README's recovery table, from the cases' result JSON (a case not run yet is left out)."""
+    lines = ["| case | fitted | truth | start | recovered | 95 % interval | truth inside | piles a side | "
+             "sensitivity | cost |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for case in CASES:
+        path = os.path.join(folder, f"{case}.json")
+        if not os.path.exists(path):
+            continue
+        with open(path) as fh:
+            r = json.load(fh)
+        what = CASES[case]
+        setting = f"{case}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in what["options"].items())
+        for name in r["names"]:
+            lo, hi = r["interval"][name]
+            err = 100 * r["relative_error"][name]
+            err = f"{err:+.1f} %" if abs(err) >= 0.05 else f"{err:+.1e} %"
+            d = 5 if hi - lo > 1e-4 * abs(r["values"][name]) else 10  # a deterministic pile's interval is narrow
+            lines.append(
+                f"| {setting} | {name} | {r['truth'][name]:.5g} | {r['start'][name]:.5g} | {r['values'][name]:.{d}g} "
+                f"({err}) | {lo:.{d}g} – {hi:.{d}g} | "
+                f"{'yes' if r['truth_inside_interval'][name] else 'no'} | {r['ensemble']} | "
+                f"{r['sensitivity'][name]:.2g} | {len(r['history'])} iterations, {r['particle_steps']:.2g} "
+                f"particle-steps, {r['wall_seconds'] / 60:.0f} min |")
+    return "\n".join(lines) + "\n"
+
+
+def rewrite_readme(check: bool = False) -> bool:
+    """Writes `table()` between README's markers (with `check`: only compares)."""
+    with open(README) as fh:
+        text = fh.read()
+    i, j = text.index(START) + len(START), text.index(END)
+    new = table()
+    if text[i:j] == new:
+        return True
+    if not check:
+        with open(README, "w") as fh:
+            fh.write(text[:i] + new + text[j:])
+    return False
+
+
 def main(argv=None) -> dict:
+    if argv is None:
+        argv = sys.argv[1:]
+    if argv and argv[0] == "--table":
+        rewrite_readme()
+        print(table())
+        return {}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("case", choices=sorted(CASES))
     parser.add_argument("--ensemble", type=int, default=None, help="piles per ensemble (default: the case's, 32)")
@@ -90,7 +141,7 @@ def main(argv=None) -> dict:
     record["relative_error"] = {n: result.values[n] / case["truth"][n] - 1 for n in result.names}
     record["truth_inside_interval"] = {n: bool(lo <= case["truth"][n] <= hi) for n, (lo, hi) in result.interval.items()}
     record["ensemble"] = b
-    record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv)
     record["wall_seconds"] = time.perf_counter() - t0
     with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
         json.dump(record, fh, indent=1)
@@ -102,6 +153,8 @@ def main(argv=None) -> dict:
               f"{100 * record['relative_error'][n]:+.2f} %, 95 % interval [{lo:.5g}, {hi:.5g}], truth inside: "
               f"{record['truth_inside_interval'][n]}")
     print(f"wrote {args.out}/{args.case}.json and {figure} ({record['wall_seconds']:.0f} s)")
+    if args.out == os.path.join(HERE, "results", "fit_recovery"):
+        rewrite_readme()
     return record
 
 

@@ -110,3 +110,11 @@ def test_readme_papers_table_is_the_one_the_results_give():
 
     assert papers.rewrite_readme(check=True), "run `python benchmarks/papers.py` and commit README.md"
     assert "| 1993 | θ_T against" in papers.table()
+
+
+def test_readme_recovery_table_is_the_one_the_results_give():
+    """benchmarks/fit_recovery.py writes README's recovery table (issue 17)
+    from the committed results JSON: README must hold exactly that table."""
+    import fit_recovery
+
+    assert fit_recovery.rewrite_readme(check=True), "run `python benchmarks/fit_recovery.py --table`"
