@@ -46,15 +46,20 @@ class Stage:
       simulator: `(law, dt, sim_options, options) -> Simulator` for this stage.
       start: `(law, dt, options, state, protocol) -> (state, protocol)`, on the
         host, per member: the stage's start state (contact history kept) and
-        its protocol (whose `info` the measurement reads).
+        its protocol. Structure only (it also builds a resume's template).
       finished: `(protocol info, options) -> (state -> bool)`, traceable.
       max_steps: `(protocol info, options) -> int`, this stage's budget.
+      describe: optional `(state) -> dict` of plain numbers measured on the
+        previous stage's end state, merged into the protocol's `info` (and
+        saved with each checkpoint of this stage, for the measurement after a
+        resume).
     """
 
     simulator: Callable
     start: Callable
     finished: Callable
     max_steps: Callable
+    describe: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -385,10 +390,12 @@ def _tilt_adapter() -> Adapter:
 
     def start(law, dt, options, state, protocol):
         p = tilt.protocol(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in tilt_names})
-        pile = box.repose(state, p.info["edge"])
-        info = {**p.info, "pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
+        return state.set(protocol_state=p.protocol_state), p
+
+    def describe(state):
+        pile = box.repose(state, float(state.protocol_state.edge))
+        return {"pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
                 "box_settled": int(state.protocol_state.settled_at) >= 0}
-        return state.set(protocol_state=p.protocol_state), p._replace(info=info)
 
     def finished(info, options):
         give_up = int(info["max_tilt_steps"])  # as tilt.execute: moved, or the largest tilt passed without motion
@@ -413,7 +420,7 @@ def _tilt_adapter() -> Adapter:
     return Adapter(setup, base.simulator, base.finished, base.max_steps, measure, box.law_and_params, base.default_dt,
                    ("theta_t", "theta_r", "theta_r_plus_theta_t"), frozenset(box_names | tilt_names),
                    _marginal_stability, fit_statistics={"columns": ("theta_t", "theta_r")},
-                   stages=(Stage(simulator, start, finished, max_steps),))
+                   stages=(Stage(simulator, start, finished, max_steps, describe),))
 
 
 ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter, "tilt": _tilt_adapter,
@@ -509,10 +516,6 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """
     a = adapter(protocol)
     law = law or a.default_law
-    if a.stages and (checkpoint is not None or resume is not None):
-        raise InputError(f"a {protocol} sweep runs in {len(a.stages) + 1} stages and is not checkpointed yet; run it "
-                         "without --checkpoint-every, or run single piles (`jaxpile pile --protocol "
-                         f"{protocol} --checkpoint-every`), which resume.")
     vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
     options = dict(options or {})
     unknown = set(options) - a.options
@@ -544,7 +547,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
 
     rows, info = [], RunInfo()
     plan = [[point, seed] for point, seed in members]
-    first = 0
+    first, saved = 0, {}
     if resume is not None:
         saved = ckpt.read_metadata(resume)["extra"]
         if saved.get("grid") != plan or saved.get("batch_size") != batch_size:
@@ -564,24 +567,49 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         memory.check(protocols[0].particles.count, dtype or "float64", batch=len(chunk),
                      what=f"a batch of the {protocol} sweep")  # before the batch is stacked and compiled
         state = ens.init(prms, protocols)
-        if resume is not None and start == first:
-            saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
-            state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
-        # the rows list is written as it stands at each save: the batches measured so far
-        spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
-                               batch_start=start, rows=rows)
-        state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
-                        until=a.finished(protocols[0].info, options), progress=progress, info=info, checkpoint=spec)
+        resuming = resume is not None and start == first
+        at_stage = int(saved.get("stage", 0)) if resuming else 0
+        saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
+        if at_stage == 0:
+            if resuming:
+                state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
+            # the rows list is written as it stands at each save: the batches measured so far
+            spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
+                                   batch_start=start, rows=rows, stage=0)
+            state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
+                            until=a.finished(protocols[0].info, options), progress=progress, info=info,
+                            checkpoint=spec)
         last_sim = sim
-        for stage in a.stages:  # every member starts the next stage from where it ended this one
-            stage_ens = _ensemble(protocol, 1 + a.stages.index(stage), law, dt, sim_options, options, devices,
+        for k, stage in enumerate(a.stages, 1):  # every member starts the next stage from where it ended the last
+            stage_ens = _ensemble(protocol, k, law, dt, sim_options, options, devices,
                                   lambda: stage.simulator(law, dt, sim_options, options))
             last_sim = stage_ens.sim
-            started = [stage.start(law, dt, options, ensemble.member(state, k), p) for k, p in enumerate(protocols)]
-            protocols = [p for _, p in started]
-            state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
-            state = stage_ens.run(prms, state, stage.max_steps(protocols[0].info, options),
-                                  until=stage.finished(protocols[0].info, options), progress=progress, info=info)
+            if k < at_stage:  # a resume past this stage: its start only shapes the template
+                started = [stage.start(law, dt, options, ensemble.member(state, i), p) for i, p in enumerate(protocols)]
+                protocols = [p for _, p in started]
+                state = ensemble.stack_states([s for s, _ in started])
+                continue
+            started = [stage.start(law, dt, options, ensemble.member(state, i), p) for i, p in enumerate(protocols)]
+            if k == at_stage:  # the saved stage: its start steps and measured infos come from the file
+                infos, starts = saved["stage_infos"], [int(x) for x in saved["stage_start_steps"]]
+                protocols = [p._replace(info=info) for (_, p), info in zip(started, infos)]
+                template = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
+                state = stage_ens.shard(ckpt.restore(resume, template, last_sim.law, saved_params))
+                steps = ensemble.members(state, len(chunk))
+                done = max(int(m.step) - s0 for m, s0 in zip(steps, starts))
+            else:
+                described = [stage.describe(ensemble.member(state, i)) if stage.describe else {}
+                             for i in range(len(chunk))]
+                protocols = [p._replace(info={**p.info, **d}) for (_, p), d in zip(started, described)]
+                starts = [int(s.step) for s, _ in started]
+                state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
+                done = 0
+            spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
+                                   batch_start=start, rows=rows, stage=k, stage_start_steps=starts,
+                                   stage_infos=[p.info for p in protocols])
+            state = stage_ens.run(prms, state, max(stage.max_steps(protocols[0].info, options) - done, 0),
+                                  until=stage.finished(protocols[0].info, options), progress=progress, info=info,
+                                  checkpoint=spec)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}

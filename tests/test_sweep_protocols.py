@@ -4,6 +4,8 @@ protocol sweeps): each batched member against the protocol's own run.
 In a module of their own so that the suite's workers (`--dist loadscope`,
 one module per worker) run them beside test_ensemble.py's batches."""
 
+import json
+
 import pytest
 
 from jaxpile.errors import InputError
@@ -62,17 +64,19 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
     assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
 
 
-def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run():
+def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     """1993 Fig. 4 batched: each member builds its box pile (stage 1), then is
     tilted from where its pile settled, contact history kept (stage 2); its
     theta_T, theta_R and last step are those of `tilt.run` with its seed.
-    A two-stage sweep refuses checkpoints (not built yet) in one line."""
-    from jaxpile import sweep
+    Resumed from a save in the middle of the tilt, the sweep ends with the
+    same rows (the tilt's start steps and the pile's theta_R come from the file)."""
+    from jaxpile import checkpoint, sweep
     from jaxpile.protocols import tilt
 
-    options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.05}
-    result = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False)
-    state, alone = tilt.run(LAW, params={"mu": 0.3}, rate_degrees=0.05,
+    options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.01}
+    result = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
+                         checkpoint=(str(tmp_path / "ck-{step}.npz"), 500))
+    state, alone = tilt.run(LAW, params={"mu": 0.3}, rate_degrees=0.01,
                             box_options={"width": 1.2, "height": 1.2, "seed": 1})
     row = result.rows[0]
     assert row["moved"] and alone["moved"] and row["box_settled"]
@@ -80,8 +84,12 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run():
     assert row["theta_r"] == pytest.approx(alone["theta_r"], rel=1e-6)
     assert row["steps"] == int(state.step)
     assert row["theta_ms_theory"] == pytest.approx(alone["theta_ms_theory"])
-    with pytest.raises(InputError, match="not checkpointed"):
-        sweep.sweep("tilt", LAW, seeds=[1], options=options, checkpoint=("x-{step}.npz", 100), progress=False)
+    saves = sorted(tmp_path.glob("ck-*.npz"), key=lambda f: int(f.stem[3:]))
+    tilting = [f for f in saves if checkpoint.read_metadata(f)["extra"]["stage"] == 1]
+    assert len(tilting) >= 2 and any(checkpoint.read_metadata(f)["extra"]["stage"] == 0 for f in saves)
+    resumed = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
+                          resume=str(tilting[len(tilting) // 2]))
+    assert json.dumps(resumed.rows) == json.dumps(result.rows)  # equal, NaN theory included
 
 
 def test_the_command_line_offers_every_sweepable_protocol():
