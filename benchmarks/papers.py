@@ -156,8 +156,8 @@ def rows_1997() -> list[list[str]]:
         s = br.summarise(paper)["contact-point/hold"]
         rows.append(["1997", f"1334-disk heap (n = 36, r0 = 1.2 σ, S = 1.1 σ, dt = 1e-3), {len(paper)} heaps: "
                              "angle of repose", "35 ± 5°",
-                     f"{_angles(s)}: about 10° flatter; no reading of the printed law closes the gap "
-                     "(`docs/baxter1997_audit.md`)"])
+                     f"{_angles(s)}: {35 - s['angle']['mid_flank']['mean']:.0f}° flatter than the paper's 35°; "
+                     "no reading of the printed law closes the gap (`docs/baxter1997_audit.md`)"])
         m = "no M" if s["flank_over_centre"]["mean"] < 1 else "an M"
         rows.append(["1997", "the same: base normal force", "M, flank maxima 20–30% above the centre",
                      f"{m}: mean force at x/B 0.2–0.4 and 0.6–0.8 over 0.4–0.6 is "

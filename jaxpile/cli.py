@@ -249,7 +249,12 @@ def build_parser() -> argparse.ArgumentParser:
                       help="the gradient: pathwise through one pile (default with a CSV target), or of the "
                            "ensemble-mean loss by central differences (default with --truth or a target.json) or "
                            "Gaussian smoothing with antithetic pairs")
-    fitp.add_argument("--ensemble", type=int, default=8, metavar="B", help="ensemble fits: piles per ensemble")
+    fitp.add_argument("--ensemble", type=int, default=None, metavar="B",
+                      help="ensemble fits: piles per ensemble (default 8; 1 for the deterministic lattice and sloped "
+                           "piles)")
+    fitp.add_argument("--difference-step", type=float, default=0.05, metavar="H",
+                      help="ensemble fits: central differences at log-parameters +- H (a chaotic protocol such as "
+                           "the pour needs a wide one, ~0.2)")
     fitp.add_argument("--truth", action="append", metavar="NAME=VALUE",
                       help="ensemble fits: make the target with jaxpile at these law values, from seeds the fit "
                            "never sees (a recovery test)")
@@ -268,7 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                           "protocol's --n, default its own)")
     fitp.add_argument("--option", action="append", metavar="NAME=VALUE", help="pour: a set-up option")
     fitp.add_argument("--seed", type=int, default=0, help="pour: random seed")
-    fitp.add_argument("--steps", type=int, default=40, help="optimiser steps")
+    fitp.add_argument("--steps", type=int, default=None,
+                      help="optimiser steps (default 40; ensemble fits: at most 6 Gauss-Newton iterations)")
     fitp.add_argument("--optimizer", default=None,
                       help="an optax optimiser by name: adam, sgd, lbfgs, ... (default adam), or gauss-newton "
                            "(ensemble fits with central differences: their default)")
@@ -306,6 +312,7 @@ def _flag_ranges() -> dict:
                   "batch_size": Range(low=1, whole=True, unit="members"), "checkpoint_every": STEPS},
         "fit": {"layers": layers, "n": DISKS, "seed": SEED, "steps": Range(low=0, whole=True, unit="optimiser steps"),
                 "ensemble": Range(low=1, whole=True, unit="piles"), "target_seeds": SEED,
+                "difference_step": Range(low=0, high=1, low_open=True, why="log units"),
                 "lr": POSITIVE, "bins": Range(low=1, whole=True, unit="bins"), "window": STEPS,
                 "horizontal_weight": NON_NEGATIVE, "dip_weight": NON_NEGATIVE},
     }
@@ -1045,6 +1052,7 @@ def run_fit(args) -> dict:
         raise InputError("a pathwise fit needs --target FILE|smid-novosad.")
     args.optimizer = args.optimizer or "adam"
     args.n = 60 if args.n is None else args.n
+    args.steps = 40 if args.steps is None else args.steps
 
     import jaxpile  # noqa: F401  (turns on float64)
     from jaxpile import fit, io

@@ -120,6 +120,8 @@ def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
             raise InputError(f"the protocol's measurement has no column {column!r}; it has "
                              f"{sorted(k for k in row if not k.startswith('_'))}.")
         v = row[column]
+        if v is not None and not isinstance(v, (int, float, np.number)):
+            raise InputError(f"the column {column!r} is not a number per pile ({type(v).__name__}); fit a numeric one.")
         values.append(float(v) if v is not None else math.nan)
     if statistics.bins:
         values += list(row["_profile_normal"])
@@ -153,6 +155,11 @@ class Runner(NamedTuple):
     def law_name(self) -> str:
         return self.law or self.adapter().default_law
 
+    def setting(self) -> dict:
+        """What a target made with this runner was made with (fixed law
+        parameters other than the fitted ones are compared by name)."""
+        return {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
+
     def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None) -> tuple[np.ndarray, dict]:
         """`[len(points), B, k]` statistics (the B seeds at every point, one
         batched run) and the sweep's record (`n_particles`, `batch_steps`,
@@ -168,22 +175,28 @@ class Runner(NamedTuple):
                              extra_measure=_profile_hook(a, statistics))
         rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
         s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
-        return s, result.info
+        # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)
+        return s, {**result.info, "particle_steps": result.info["n_particles"] * sum(int(r["steps"]) for r in rows)}
 
 
 def _fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:
-    """Statistics a pile could not give (NaN: e.g. no surface to fit an angle
-    to) take the mean of the other piles at the same point, so they move no
-    mean; the count is reported."""
+    """`[m, B, k]` statistics with the piles that could not give one (NaN: e.g.
+    no surface to fit an angle to, a tilted pile that never moved) left out of
+    that statistic at *every* point, so a difference between two points
+    compares the same piles (common random numbers). They are left out by
+    taking, at each point, the mean of the piles that gave the statistic at all
+    points, which moves no mean (it narrows the spread a little: the count of
+    such (pile, statistic) pairs is returned, to report)."""
     s = np.array(s, dtype=float)
-    missing = int(np.isnan(s).sum())
+    bad = np.isnan(s).any(axis=0)  # [B, k]: missing at some point
+    missing = int(bad.sum())
     if missing:
-        with np.errstate(all="ignore"):
-            fill = np.nanmean(s, axis=-2, keepdims=True)
-        if np.isnan(fill).any():
-            raise InputError("a statistic is missing from every pile at one point (e.g. no pile had a surface to "
-                             "measure); choose other statistics or a larger pile.")
-        s = np.where(np.isnan(s), np.broadcast_to(fill, s.shape), s)
+        if bad.all(axis=0).any():
+            raise InputError("a statistic is missing from every pile at some point (e.g. no pile had a surface "
+                             "to measure, or none moved); choose other statistics or a larger pile.")
+        good = np.where(bad[None], np.nan, s)
+        fill = np.nanmean(good, axis=1, keepdims=True)  # [m, 1, k]: the mean of the complete piles
+        s = np.where(bad[None], np.broadcast_to(fill, s.shape), s)
     return s, missing
 
 
@@ -200,6 +213,8 @@ class EnsembleTarget(NamedTuple):
       source: where it came from.
       truth: the law parameters it was made with (a synthetic target), or None.
       seeds: the seeds of its piles (a fit must use others), or None.
+      setting: the protocol, law, options and fixed parameters it was made
+        with (a fit of another set-up is refused), or None (from data).
     """
 
     labels: list
@@ -209,18 +224,19 @@ class EnsembleTarget(NamedTuple):
     source: str
     truth: dict | None = None
     seeds: list | None = None
+    setting: dict | None = None
 
     def to_json(self) -> dict:
         return {"labels": list(self.labels), "mean": self.mean.tolist(), "spread": self.spread.tolist(),
                 "members": None if self.members is None else self.members.tolist(), "source": self.source,
-                "truth": self.truth, "seeds": self.seeds}
+                "truth": self.truth, "seeds": self.seeds, "setting": self.setting}
 
     @classmethod
     def from_json(cls, record: dict) -> "EnsembleTarget":
         members = record.get("members")
         return cls(list(record["labels"]), np.asarray(record["mean"], float), np.asarray(record["spread"], float),
                    None if members is None else np.asarray(members, float), record.get("source", ""),
-                   record.get("truth"), record.get("seeds"))
+                   record.get("truth"), record.get("seeds"), record.get("setting"))
 
 
 def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None) -> EnsembleTarget:
@@ -232,16 +248,33 @@ def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, prog
     spread = members.std(axis=0, ddof=1) if members.shape[0] > 1 else np.ones(members.shape[1])
     return EnsembleTarget(statistics.labels(), members.mean(axis=0), spread, members,
                           f"{runner.protocol} ensemble of {len(members)} at {truth}", dict(truth),
-                          [int(x) for x in seeds])
+                          [int(x) for x in seeds], runner.setting())
+
+
+def _groups(labels) -> list[np.ndarray]:
+    """Indices of the statistics that share a unit: each column alone, the
+    normal profile's bins, the horizontal profile's bins."""
+    labels = list(labels)
+    groups = {}
+    for i, label in enumerate(labels):
+        key = label.split("[")[0] if label.endswith("]") else label
+        groups.setdefault(key, []).append(i)
+    return [np.asarray(g) for g in groups.values()]
 
 
 def weights(target: EnsembleTarget, floor: float = 0.01) -> np.ndarray:
-    """`[k]` 1 / spread^2, with the spread held at least sqrt(floor) x the
-    largest (a profile bin outside every pile has no spread and must not weigh
-    infinitely)."""
-    spread2 = np.asarray(target.spread, float) ** 2
-    top = np.nanmax(spread2) if np.isfinite(spread2).any() and np.nanmax(spread2) > 0 else 1.0
-    return 1.0 / np.maximum(np.nan_to_num(spread2, nan=top), floor * top)
+    """`[k]` 1 / spread^2 of each statistic, in its own units. Within a group
+    of one unit (the bins of a profile) the spread is held at least
+    sqrt(floor) x the group's largest: a bin outside every pile has no spread
+    and must not weigh infinitely. A statistic with no spread at all (one
+    pile, or a deterministic protocol) weighs 1."""
+    spread2 = np.nan_to_num(np.asarray(target.spread, float) ** 2, nan=0.0)
+    w = np.ones_like(spread2)
+    for g in _groups(target.labels):
+        top = spread2[g].max()
+        if top > 0:
+            w[g] = 1.0 / np.maximum(spread2[g], floor * top)
+    return w
 
 
 def objective_for(target: EnsembleTarget, w: np.ndarray) -> Callable:
@@ -298,32 +331,47 @@ class EnsembleFitResult(NamedTuple):
                    {k: v for k, v in record.items() if k not in own})
 
 
-def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target: EnsembleTarget) -> np.ndarray:
-    """`[d, d]` the covariance of the fitted log-parameters (the sandwich in
-    the module docstring), from the Jacobian `[k, d]` of the ensemble means,
-    the fitted piles `[B, k]` and the target's piles. With one pile on each
-    side (a deterministic protocol) there is no spread: then the
-    nonlinear-least-squares covariance from the residual."""
+def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target: EnsembleTarget
+               ) -> tuple[np.ndarray, float]:
+    """The covariance `[d, d]` of the fitted log-parameters and the degrees of
+    freedom of its estimate (for a Student-t interval).
+
+    From the Jacobian `[k, d]` of the ensemble means, the fitted piles `[B, k]`
+    and the target's: the sandwich in the module docstring, with B - 1 degrees
+    of freedom (the smaller ensemble's). When neither side has any spread (one
+    pile each, or a deterministic protocol whose piles are all the same), the
+    nonlinear-least-squares covariance s^2 H^-1 from the weighted residual per
+    degree of freedom (k - d): what the fit cannot explain, e.g. the rest
+    tolerance."""
     jw = jacobian.T * w  # [d, k]
     hessian = jw @ jacobian
-    if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < hessian.shape[0]:
-        return np.full(hessian.shape, np.nan)
+    d = hessian.shape[0]
+    if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < d:
+        return np.full(hessian.shape, np.nan), float("nan")
     inv = np.linalg.inv(hessian)
 
+    def spread(piles):
+        return piles is not None and len(piles) > 1 and float(np.ptp(np.asarray(piles), axis=0).max()) > 0
+
     def projected(piles):
-        if piles is None or len(piles) < 2:
+        if not spread(piles):
             return np.zeros_like(hessian)
         g = piles @ jw.T  # [B, d]
         return np.atleast_2d(np.cov(g, rowvar=False)) / len(piles)
 
-    if (members is None or len(members) < 2) and (target.members is None or len(target.members) < 2):
-        # one pile on each side (a deterministic pile): no spread to propagate, so the
-        # nonlinear-least-squares covariance s^2 H^-1, s^2 = the weighted residual per
-        # degree of freedom: what the fit cannot explain, e.g. the rest tolerance
+    if not spread(members) and not spread(target.members):
         r = np.asarray(members, float).mean(axis=0) - target.mean
-        dof = max(len(r) - hessian.shape[0], 1)
-        return float(np.sum(w * r ** 2)) / dof * inv
-    return inv @ (projected(members) + projected(target.members)) @ inv
+        dof = max(len(r) - d, 1)
+        return float(np.sum(w * r ** 2)) / dof * inv, float(dof)
+    sizes = [len(p) for p in (members, target.members) if spread(p)]
+    return inv @ (projected(members) + projected(target.members)) @ inv, float(min(sizes) - 1)
+
+
+def _quantile(dof: float) -> float:
+    """The two-sided 95 % Student-t quantile (1.96 for many degrees of freedom)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, dof)) if math.isfinite(dof) and dof > 0 else float("nan")
 
 
 def _optimiser(name: str, lr: float):
@@ -390,89 +438,95 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     if set(seeds) & set(target.seeds or []):
         raise InputError(f"the fit's seeds overlap the target's ({sorted(set(seeds) & set(target.seeds))}): "
                          "a fit must not see the piles its target was made from.")
-    if len(target.mean) != len(statistics.labels()):
-        raise InputError(f"the target has {len(target.mean)} statistics, these Statistics give "
-                         f"{len(statistics.labels())}: make the target with the same statistics.")
+    if list(target.labels) != statistics.labels():
+        raise InputError(f"the target holds the statistics {list(target.labels)}, this fit compares "
+                         f"{statistics.labels()}: make the target with the same statistics.")
+    here = runner.setting() if hasattr(runner, "setting") else None
+    if target.setting is not None and here is not None and target.setting != here:
+        raise InputError(f"the target was made with {target.setting}, this fit builds {here}: the piles must be "
+                         "built the same way (only the fitted parameters may differ).")
     w = weights(target)
     objective = objective_for(target, w)
     theta = np.log(np.array([float(start[n]) for n in names]))
     opt = None if optimizer == "gauss-newton" else _optimiser(optimizer, lr)
     opt_state = None if opt is None else opt.init(jnp.asarray(theta))
     history: list = []
-    record = {"protocol": runner.protocol, "law": runner.law_name(), "estimator": estimator,
-              "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(), "steps": steps,
-              "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key, "max_step": max_step,
-              "options": runner.options or {}, "params": runner.params or {}}
+    record = {"protocol": runner.protocol, "law": runner.law_name(), "names": names, "start": dict(start),
+              "estimator": estimator, "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(),
+              "steps": steps, "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key,
+              "max_step": max_step, "tolerance": tolerance, "options": dict(runner.options or {}),
+              "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
     if resume is not None:
         with open(resume) as fh:
             saved = json.load(fh)
-        if {k: saved.get(k) for k in ("protocol", "estimator", "optimizer", "seeds", "statistics")} != \
-                {k: record[k] for k in ("protocol", "estimator", "optimizer", "seeds", "statistics")}:
-            raise InputError(f"{resume} was written by another fit; resume it with the command that made it.")
+        same = [k for k in record if k != "steps"]
+        differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
+        if differ:
+            raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
+                             "with the command that made it.")
         for entry in saved["history"]:  # replay: the optax state is a function of the gradients seen
             theta = np.asarray(entry["next_theta"], float)
             if opt is not None:
                 _, opt_state = opt.update(jnp.asarray(entry["gradient"]), opt_state, jnp.asarray(entry["theta"]))
             history.append(entry)
-    particles = None
-    first_s = None
     t0 = time.perf_counter()
+    d = len(names)
 
     def params_of(t):
         return {n: float(v) for n, v in zip(names, np.exp(t))}
 
     def run(thetas):
-        nonlocal particles
         s, info = runner.run([params_of(t) for t in thetas], seeds, statistics, progress=False)
-        particles = info["n_particles"] * info["batch_steps"] * len(thetas) * len(seeds)
         s, missing = _fill_missing(s)
         return s, missing, info
 
+    def jacobian_of(s):  # [k, d] from the means at theta +- h e_i
+        return (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
+
+    message = ""
     done = bool(history) and history[-1].get("converged", False)
     for it in range(len(history), steps):
         if done:
             break
+        mean = None
         if estimator == "central":
-            thetas = estimators.central_points(theta, step)
-            s, missing, info = run(thetas)
+            s, missing, info = run(estimators.central_points(theta, step))
             est = estimators.central_from_members(s, objective, step)
-            d = len(names)
-            jac = (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)  # [k, d]
-            base = s[0]
+            jac, base = jacobian_of(s), s[0]
+            mean = base.mean(axis=0)
         else:
-            keys = jax.random.PRNGKey(int(key) + it)
             cache = {}
 
             def batch(ts):
                 cache["s"], cache["missing"], cache["info"] = run(np.asarray(ts))
                 return cache["s"]
 
-            est = estimators.antithetic_smoothing(batch, objective, theta, keys, sigma=sigma, pairs=pairs)
+            est = estimators.antithetic_smoothing(batch, objective, theta, jax.random.PRNGKey(int(key) + it),
+                                                  sigma=sigma, pairs=pairs)
             s, missing, info = cache["s"], cache["missing"], cache["info"]
-            base = s.reshape(-1, s.shape[-1])[:0]  # the smoothing does not run theta itself
-            jac = None
+            base, jac = None, None  # the smoothing does not run theta itself
         gradient = np.asarray(est.gradient, float)
         if opt is None:
-            r = base.mean(axis=0) - target.mean
+            r = mean - target.mean
             hessian = (jac.T * w) @ jac
-            try:
-                delta = -np.linalg.solve(hessian + 1e-9 * np.trace(hessian) * np.eye(len(names)), (jac.T * w) @ r)
-            except np.linalg.LinAlgError:
-                delta = -lr * gradient
-            largest = np.max(np.abs(delta))
-            if largest > max_step:
-                delta *= max_step / largest
+            if not np.any(hessian):
+                message = "the statistics do not move with the parameters (a zero Jacobian): nothing to fit"
+                delta = np.zeros(d)
+            else:
+                # Levenberg-Marquardt damping, and each component clipped on its own: a poorly
+                # determined parameter must not take a huge step nor shrink the others'
+                damped = hessian + 1e-3 * np.diag(np.diag(hessian)) + 1e-12 * np.trace(hessian) * np.eye(d)
+                delta = np.clip(-np.linalg.solve(damped, (jac.T * w) @ r), -max_step, max_step)
         else:
             updates, opt_state = opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
             delta = np.asarray(updates, float)
-        converged = bool(opt is None and np.max(np.abs(delta)) < tolerance)
-        loss_se = estimators.loss_stderr(base, objective) if len(base) else float("nan")
-        if first_s is None and it == 0 and len(base):
-            first_s = base
+        converged = bool(opt is None and not message and np.max(np.abs(delta)) < tolerance)
+        loss_se = estimators.loss_stderr(base, objective) if base is not None else float("nan")
         entry = {"iteration": it, "theta": theta.tolist(), "values": params_of(theta),
                  "loss": float(est.value), "loss_stderr": loss_se, "gradient": gradient.tolist(),
                  "gradient_stderr": np.asarray(est.stderr, float).tolist(), "ensembles": int(est.evaluations),
-                 "particle_steps": int(particles), "missing": missing, "next_theta": (theta + delta).tolist(),
+                 "particle_steps": int(info["particle_steps"]), "missing": missing,
+                 "mean": None if mean is None else mean.tolist(), "next_theta": (theta + delta).tolist(),
                  "converged": converged, "seconds": info["total_seconds"]}
         history.append(entry)
         theta = theta + delta
@@ -485,31 +539,35 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
             progress(entry)
         if checkpoint is not None:
             _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
-        if converged:
+        if converged or message:
             break
 
     # the interval: a central-difference Jacobian at the fitted values
-    d = len(names)
-    thetas = estimators.central_points(theta, step) if interval else theta[None]
-    s, _, info = run(thetas)
+    s, _, info = run(estimators.central_points(theta, step) if interval else theta[None])
     if interval:
-        jac = (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
-        cov = confidence(jac, w, s[0], target)
+        jac = jacobian_of(s)
+        cov, dof = confidence(jac, w, s[0], target)
     else:
-        jac, cov = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan)
+        jac, cov, dof = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan), float("nan")
     se = np.sqrt(np.clip(np.diag(cov), 0, None)) if np.all(np.isfinite(cov)) else np.full(d, np.nan)
+    z = _quantile(dof)
     values = params_of(theta)
-    interval = {n: (float(np.exp(theta[i] - 1.96 * se[i])), float(np.exp(theta[i] + 1.96 * se[i])))
+    interval = {n: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
                 for i, n in enumerate(names)}
     final_loss = float(objective(jnp.asarray(s[0].mean(axis=0))))
     # how strongly each parameter moves the weighted statistics (per unit log value): one that barely
     # moves them is not determined by this target, whatever its interval says
     sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
+    converged = bool(history) and bool(history[-1]["converged"])
     record.update({"final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
                    "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
+                   "interval_dof": dof, "interval_quantile": z, "converged": converged,
+                   "message": message or ("" if converged or opt is not None else
+                                          f"not converged in {steps} iterations: the interval is at the last one"),
                    "fit_seconds": time.perf_counter() - t0,
-                   "particle_steps": int(sum(h["particle_steps"] for h in history) + particles)})
-    start_mean = first_s.mean(axis=0) if first_s is not None else np.full(len(target.mean), np.nan)
+                   "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"])})
+    first = history[0]["mean"] if history and history[0].get("mean") is not None else None
+    start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
     return EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
                              {n: float(se[i]) for i, n in enumerate(names)}, history, target, s[0].mean(axis=0),
                              start_mean, s[0], record)
@@ -518,7 +576,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
 def _write_json(path: str, record: dict) -> None:
     tmp = f"{path}.tmp"
     with open(tmp, "w") as fh:
-        json.dump(record, fh, indent=1)
+        json.dump(record, fh, indent=1, default=float)  # numpy scalars in options or params
     os.replace(tmp, path)
 
 

@@ -58,16 +58,29 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         options["n"] = args.n
     if args.protocol == "lattice" and "layers" not in options:
         options["layers"] = args.layers
+    unknown = set(options) - a.options
+    if unknown:
+        raise InputError(f"unknown option(s) {sorted(unknown)} for the {args.protocol} protocol; known: "
+                         f"{sorted(a.options)}.")
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
     statistics = _statistics(args, a)
-    b = int(args.ensemble)
+    b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
     seeds = list(range(b))
+    steps = 6 if args.steps is None else int(args.steps)
+    truth = _values(args.truth, lawmod.PARAM_NAMES, "--truth") if args.truth else None
+    if truth is not None and set(truth) - set(names):
+        raise InputError(f"--truth gives {sorted(set(truth) - set(names))}, which this fit does not fit "
+                         f"({', '.join(names)}): the target and the fit would differ in them. Fix them with --set.")
+    target_seeds = list(range(args.target_seeds, args.target_seeds + b))
+    if truth is not None and set(target_seeds) & set(seeds):
+        raise InputError(f"--target-seeds {args.target_seeds} overlaps the fit's seeds 0..{b - 1}: a fit must not "
+                         "see the piles its target was made from.")
     runner.check(statistics)
     per_iteration = 2 * len(names) + 1 if estimator == "central" else 8  # 8: the smoothing's 4 antithetic pairs
     if args.dry_run:
         setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
-              f"{setup.particles.count} disks a pile): {b} piles per ensemble, at most {args.steps} iterations of "
+              f"{setup.particles.count} disks a pile): {b} piles per ensemble, at most {steps} iterations of "
               f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "
               f"{statistics.labels()}; runs nothing")
         return {"start": start, "statistics": statistics.labels(), "piles_per_iteration": per_iteration * b}
@@ -78,9 +91,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
             raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
         with open(checkpoint) as fh:
             target = ensemble_fit.EnsembleTarget.from_json(json.load(fh)["target"])
-    elif args.truth:
-        truth = _values(args.truth, lawmod.PARAM_NAMES, "--truth")
-        target_seeds = list(range(args.target_seeds, args.target_seeds + b))
+    elif truth is not None:
         print(f"jaxpile: making the target: {b} {args.protocol} piles at {truth} (seeds {target_seeds[0]}.."
               f"{target_seeds[-1]})", flush=True)
         target = ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
@@ -98,7 +109,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
           f"({estimator}, {optimizer}) to {target.source}", flush=True)
     result = ensemble_fit.fit(runner, names, start, target, seeds=seeds, statistics=statistics,
-                              estimator=estimator, optimizer=optimizer, steps=args.steps, lr=args.lr,
+                              estimator=estimator, optimizer=optimizer, steps=steps, lr=args.lr,
+                              step=args.difference_step,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None)
     record = result.to_json()

@@ -84,6 +84,8 @@ class Adapter:
         for every member of a protocol's set-up, so profiles average.
       fit_statistics: what an ensemble fit compares by default:
         `{"columns": (...), "bins": b}` (`ensemble_fit.Statistics`).
+      deterministic: every seed builds the same pile (the 1992 lattice and
+        sloped piles): one seed is an ensemble.
       stages: later `Stage`s (stage-synchronous: every member of a batch
         finishes a stage before the next starts); `measure` then gets the
         last stage's simulator, state and protocol.
@@ -104,6 +106,7 @@ class Adapter:
     extent: Callable | None = None
     fit_statistics: dict = dataclasses.field(default_factory=dict)
     stages: tuple = ()
+    deterministic: bool = False
 
 
 def _heap_extent(base: str, centre_key: str, count_key: str):
@@ -284,7 +287,7 @@ def _loaded_pile_adapter(name: str) -> Adapter:
     names = {"layers"} if name == "lattice" else _option_names(sloped.protocol) - {"seed"}
     return Adapter(setup, simulator, finished, max_steps, measure, law_and_params, lambda law: float(setting["dt"]),
                    headline, frozenset(names | set(run_options) | {"n"}), None, unit="", default_law="hooke",
-                   extent=_bottom_row_extent, fit_statistics={"bins": 9})
+                   extent=_bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True)
 
 
 # ----------------------------------------------------------------------- drop
@@ -496,7 +499,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
       params: fixed overrides of the protocol's law setting.
       options: for the protocol's set-up (e.g. `n`, `width`, `height`).
       dt, rotation: for the simulator (default: the protocol's).
-      max_steps: step budget (default: the protocol's).
+      max_steps: step budget of the first stage (default: the protocol's;
+        a later stage, e.g. the tilt, has its own).
       batch_size: members per compiled batch (default: all at once).
       devices: to shard each batch over (default: all `jax.devices()`).
       progress: progress bars (default: when stderr is a terminal).

@@ -36,7 +36,7 @@ class ToyRunner:
         e = self.noise * np.sin(1.7 * seeds + 0.3)[None, :]
         f = self.noise * 0.2 * np.cos(2.3 * seeds)[None, :]
         s = np.stack([20 * np.log(mu) + e, 5 * mu ** 2 + f], axis=-1) * np.ones((1, len(seeds), 1))
-        return s, {"n_particles": 1, "batch_steps": 1, "total_seconds": 0.0}
+        return s, {"n_particles": 1, "batch_steps": 1, "total_seconds": 0.0, "particle_steps": s.shape[0] * s.shape[1]}
 
 
 STATS = ef.Statistics(columns=("angle", "feature"))
@@ -138,3 +138,45 @@ def test_a_deterministic_lattice_gives_back_its_stiffness_from_its_height():
                     progress=False)
     assert abs(result.values["ks"] / 13_700.0 - 1) < 1e-3
     assert result.record["sensitivity"]["ks"] > 0
+
+
+def test_missing_statistics_weights_and_resume_guards(tmp_path):
+    """A pile missing a statistic at any point is left out of it at every
+    point (common random numbers kept); each unit group is weighted by its own
+    spread; a resume of another fit, or a target of other statistics, is refused."""
+    s = np.array([[[1.0, 10.0], [3.0, 30.0], [5.0, 50.0]],
+                  [[2.0, 20.0], [np.nan, 40.0], [6.0, 60.0]]])  # [points, piles, k]
+    filled, missing = ef._fill_missing(s)
+    assert missing == 1
+    # pile 1 is out of statistic 0 at both points: each point's mean is that of piles 0 and 2
+    assert filled[0, :, 0].mean() == pytest.approx(3.0) and filled[1, :, 0].mean() == pytest.approx(4.0)
+    np.testing.assert_array_equal(filled[:, :, 1], s[:, :, 1])
+    with pytest.raises(InputError, match="every pile"):
+        ef._fill_missing(np.full((1, 2, 1), np.nan))
+
+    target = ef.EnsembleTarget(["angle", "normal[0]", "normal[1]"], np.zeros(3), np.array([5.0, 0.2, 0.0]), None, "t")
+    w = ef.weights(target)
+    assert w[0] == pytest.approx(1 / 25) and w[1] == pytest.approx(1 / 0.04)
+    assert w[2] == pytest.approx(1 / (0.01 * 0.04))  # a bin with no spread: floored within its own group
+
+    runner = ToyRunner()
+    toy = _target(runner)
+    ck = str(tmp_path / "fit.json")
+    ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, steps=1, checkpoint=ck,
+           progress=False, interval=False)
+    with pytest.raises(InputError, match="another fit.*step"):
+        ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, steps=2, step=0.1, resume=ck,
+               progress=False)
+    renamed = toy._replace(labels=["angle", "dip"])
+    with pytest.raises(InputError, match="same statistics"):
+        ef.fit(runner, ["mu"], {"mu": 0.2}, renamed, seeds=range(4), statistics=STATS, progress=False)
+
+
+def test_a_deterministic_fit_takes_its_interval_from_the_residual():
+    """Identical piles (a deterministic protocol run with several seeds) have
+    no spread: the interval comes from what the fit cannot explain, not zero."""
+    jac = np.array([[2.0], [1.0]])
+    piles = np.array([[1.0, 2.0], [1.0, 2.0], [1.0, 2.0]])
+    target = ef.EnsembleTarget(["a", "b"], np.array([1.1, 1.9]), np.zeros(2), piles, "t")
+    cov, dof = ef.confidence(jac, np.ones(2), piles, target)
+    assert dof == 1 and cov[0, 0] == pytest.approx((0.1 ** 2 + 0.1 ** 2) / 1 / 5.0)
