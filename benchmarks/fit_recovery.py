@@ -77,7 +77,8 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
                 f"| {setting} | {name} | {r['truth'][name]:.5g} | {r['start'][name]:.5g} | {r['values'][name]:.{d}g} "
                 f"({err}) | {lo:.{d}g} – {hi:.{d}g} | "
                 f"{'yes' if r['truth_inside_interval'][name] else 'no'} | {r['ensemble']} | "
-                f"{r['sensitivity'][name]:.2g} | {len(r['history'])} iterations, {r['particle_steps']:.2g} "
+                f"{r['sensitivity'][name]:.2g} | {len(r['history'])} iterations"
+                f"{'' if r.get('converged', True) else ' (not converged)'}, {r['particle_steps']:.2g} "
                 f"particle-steps, {r['wall_seconds'] / 60:.0f} min |")
     return "\n".join(lines) + "\n"
 
@@ -143,6 +144,13 @@ def main(argv=None) -> dict:
     record["ensemble"] = b
     record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv)
     record["wall_seconds"] = time.perf_counter() - t0
+    try:  # the code that made it
+        import subprocess
+
+        record["revision"] = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE, capture_output=True,
+                                            text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        record["revision"] = None
     with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
         json.dump(record, fh, indent=1)
     figure = args.figure or os.path.join(os.path.dirname(HERE), "docs", f"fit_recovery_{args.case}.png")
