@@ -149,7 +149,11 @@ def central_differences(members: Callable, objective: Callable, theta, *, step: 
       `Estimate`: 2d + 1 ensemble runs (theta itself for the value).
     """
     thetas = central_points(theta, step)
-    return central_from_members(np.stack([_members(members, t) for t in thetas]), objective, step)
+    runs = [_members(members, t) for t in thetas]
+    if len({r.shape for r in runs}) > 1:
+        raise InputError(f"members(theta) must return the same [B, k] at every theta (the same piles: common random "
+                         f"numbers); got shapes {sorted({r.shape for r in runs})}.")
+    return central_from_members(np.stack(runs), objective, step)
 
 
 def loss_stderr(s, objective: Callable) -> float:

@@ -103,3 +103,9 @@ def test_on_a_chaotic_response_smoothing_stays_bounded_where_the_pathwise_gradie
 def test_bad_estimator_settings_are_refused_in_one_line(call, message):
     with pytest.raises(InputError, match=message):
         call()
+
+
+def test_central_differences_refuse_ensembles_of_different_sizes():
+    calls = iter([2, 3, 2])
+    with pytest.raises(InputError, match="same"):
+        central_differences(lambda t: np.ones((next(calls), 1)), lambda m: m.sum(), [0.0])
