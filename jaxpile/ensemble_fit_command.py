@@ -56,7 +56,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     options = _parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
-    if args.protocol == "lattice" and "layers" not in options:
+    if "layers" in a.options and "layers" not in options:  # the protocols built in layers (the lattice)
         options["layers"] = args.layers
     unknown = set(options) - a.options
     if unknown:
