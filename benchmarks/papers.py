@@ -131,6 +131,17 @@ HEAP_SETTINGS = {  # setting -> what the paper says of it
 }
 
 
+def _m_shape(stat: dict) -> str:
+    """What the flank/centre ratio of base force says, with its standard error:
+    an M only when the flanks carry more than the centre by two errors."""
+    mean, se = stat["mean"], stat.get("stderr")
+    if se is None or not math.isfinite(se):
+        return "one heap: " + ("flanks above the centre" if mean > 1 else "no M")
+    if mean - 2 * se > 1:
+        return "an M"
+    return "no M" if mean + 2 * se < 1 else "no clear M"
+
+
 def _heaps(n: int) -> dict[str, list[dict]]:
     import baxter_readings as br
 
@@ -158,7 +169,7 @@ def rows_1997() -> list[list[str]]:
                              "angle of repose", "35 ± 5°",
                      f"{_angles(s)}: {35 - s['angle']['mid_flank']['mean']:.0f}° flatter than the paper's 35°; "
                      "no reading of the printed law closes the gap (`docs/baxter1997_audit.md`)"])
-        m = "no M" if s["flank_over_centre"]["mean"] < 1 else "an M"
+        m = _m_shape(s["flank_over_centre"])
         rows.append(["1997", "the same: base normal force", "M, flank maxima 20–30% above the centre",
                      f"{m}: mean force at x/B 0.2–0.4 and 0.6–0.8 over 0.4–0.6 is "
                      f"{_pm(s['flank_over_centre'], 3, '')}"])
@@ -171,7 +182,7 @@ def rows_1997() -> list[list[str]]:
             continue
         s = br.summarise(mine)[name]
         count = f"{len(mine)} heaps" if len(mine) >= PILES else f"{len(mine)} of {PILES} heaps"
-        m = "no M" if s["flank_over_centre"]["mean"] < 1 else "an M"
+        m = _m_shape(s["flank_over_centre"])
         rows.append(["1997", f"1000-disk heaps, {what} ({count})", says,
                      f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}"])
     return rows
