@@ -52,7 +52,6 @@ CASES = {
 }
 
 
-README = os.path.join(os.path.dirname(HERE), "README.md")
 START, END = "<!-- fit-recovery:start -->\n", "<!-- fit-recovery:end -->"
 
 
@@ -85,16 +84,9 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
 
 def rewrite_readme(check: bool = False) -> bool:
     """Writes `table()` between README's markers (with `check`: only compares)."""
-    with open(README) as fh:
-        text = fh.read()
-    i, j = text.index(START) + len(START), text.index(END)
-    new = table()
-    if text[i:j] == new:
-        return True
-    if not check:
-        with open(README, "w") as fh:
-            fh.write(text[:i] + new + text[j:])
-    return False
+    import readme_block
+
+    return readme_block.rewrite(START, END, table(), check=check)
 
 
 def main(argv=None) -> dict:

@@ -199,16 +199,9 @@ def table() -> str:
 def rewrite_readme(check: bool = False) -> bool:
     """Writes the table into README (between its markers); with `check`, only
     says whether it is already there. Returns True when README holds it."""
-    text = README.read_text()
-    if START not in text or END not in text:
-        raise SystemExit(f"README.md has no {START.strip()} ... {END} block.")
-    i, j = text.index(START) + len(START), text.index(END)
-    new = table()
-    if text[i:j] == new:
-        return True
-    if not check:
-        README.write_text(text[:i] + new + text[j:])
-    return False
+    import readme_block
+
+    return readme_block.rewrite(START, END, table(), check=check, readme=README)
 
 
 # ------------------------------------------------------------------- runs
