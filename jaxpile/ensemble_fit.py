@@ -31,6 +31,13 @@ the optimum theta_hat is linear in the two ensemble means, so (the sandwich)
 Cov(theta_hat) = H^-1 J^T W (Sigma_fit / B + Sigma_target / B_t) W J H^-1 with
 H = J^T W J and Sigma the covariance of one pile's statistics.
 
+None of these formulas is in the three papers (they fit no parameters):
+Gauss-Newton with Levenberg-Marquardt damping (Levenberg 1944, Marquardt
+1963); the sandwich covariance of an M-estimator (Huber 1967, White 1982),
+with a Student-t quantile for its B - 1 degrees of freedom; for a
+deterministic pile, the nonlinear-least-squares covariance s^2 H^-1.
+tests/test_ensemble_fit.py checks each on a toy whose answer is known.
+
 A fit checkpoints its history to JSON after every iteration; `resume` replays
 it (optax states are rebuilt by replaying the recorded gradients, which makes
 the resumed fit step for step the uninterrupted one).
