@@ -46,6 +46,7 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxpile import blocks
 from jaxpile import neighbors as nb
 from jaxpile.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
@@ -161,6 +162,11 @@ class Ensemble:
             self._advance_jit = jax.jit(self._advance, in_shardings=(split, split, split, whole), out_shardings=split)
             self._start_jit = jax.jit(jax.vmap(sim.start), in_shardings=(split, split), out_shardings=split)
         self._compiled: dict = {}
+        # the simulator's `in_play` blocks, for every member at once (see `_block_for`)
+        self._take_jit = jax.jit(lambda s, size, room: jax.vmap(lambda m: blocks.take(m, size, room))(s),
+                                 static_argnums=(1, 2))
+        self._put_jit = jax.jit(jax.vmap(blocks.put))
+        self._block_pairs: dict[int, int] = {}  # pair entries each block size has needed
 
     # --------------------------------------------------------------- set-up
     def init(self, params, protocols: Sequence[Protocol]) -> SimState:
@@ -274,7 +280,35 @@ class Ensemble:
         members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))
 
+    def _block_for(self, state: SimState, n: int) -> tuple[int, list] | None:
+        """The block of leading disks that every member's next n steps can run
+        on (`Simulator._block_for` with the largest `in_play` of the batch, and
+        every member must `blocks.fits` it), with the members on the host; or
+        None (the chunk runs on every disk)."""
+        if self.sim.in_play is None:
+            return None
+        host = jax.device_get(state)
+        count = host.particles.position.shape[1]
+        each = [member(host, i) for i in range(batch_size(host))]
+        size = blocks.block_size(max(int(self.sim.in_play(m, n)) for m in each), count)
+        if size is None or not all(blocks.fits(m, size) for m in each):
+            return None
+        return size, each
+
     def _chunk(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
+        """n steps of every member, on the leading block of disks the simulator's
+        `in_play` allows (a pour pays for the disks poured, as one pile does in
+        `Simulator._chunk`; the same arithmetic, so the same result bit for bit)."""
+        block = self._block_for(state, n)
+        if block is None:
+            return self._chunk_on(params, state, frozen, n, info)
+        size, each = block
+        room = max(blocks.pair_room(m, size, self._block_pairs.get(size, 0)) for m in each)
+        new = self._chunk_on(params, self.shard(self._take_jit(state, size, room)), frozen, n, info)
+        self._block_pairs[size] = max(room, int(new.contacts.pairs.shape[1]))
+        return self.shard(self._put_jit(state, new))
+
+    def _chunk_on(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
         for _ in range(20):
             fn = self._compiled_advance(params, state, frozen, info)
             t0 = time.perf_counter()

@@ -312,8 +312,10 @@ def _drop_adapter() -> Adapter:
 
     def simulator(law, dt, options, setup_options):
         _, contact_law, _ = drop.law_and_params(law, None, options.get("rotation"))
-        driver = drop.protocol(seed=0, dt=dt, **setup_kwargs(setup_options)).driver
-        return Simulator(contact_law, dt, driver=driver, capacity_multiplier=4.0)
+        p = drop.protocol(seed=0, dt=dt, **setup_kwargs(setup_options))
+        # each chunk on the block of disks dropped by its end, as `drop.run`
+        return Simulator(contact_law, dt, driver=p.driver, capacity_multiplier=4.0,
+                         in_play=drop.make_in_play(p.info["quiet_steps"]))
 
     def finished(info, options):
         quiet, tolerance = int(info["quiet_steps"]), float(options.get("speed_tolerance", setting["speed_tolerance"]))

@@ -167,6 +167,31 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
     assert cli.main(argv[:-2] + ["--option", "colour=red", "--out", str(out)]) == 2  # unknown option refused
 
 
+def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_to_the_full_batch():
+    """Issue 15 (pours pay for what is poured), in a batch: with the simulator's
+    `in_play`, every chunk runs on the block of leading disks that holds each
+    member's poured disks (here 64 of 145 for two chunks, then all), the
+    same arithmetic as carrying every parked disk, so the same batch bit for bit."""
+    from jaxpile.ensemble import Ensemble
+    from jaxpile.protocols import pour
+
+    protocols = [pour.pour(100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5)]
+    params = [pour.law_params("hooke")] * 2
+    states = {}
+    for blocked in (True, False):
+        ens = Ensemble(pour.make_simulator("hooke", chunk_steps=1000, **({} if blocked else {"in_play": None})))
+        state = ens.init(params, protocols)
+        if blocked:
+            assert ens._block_for(state, 1000)[0] == 64
+        states[blocked] = ens.run(params, state, 4000, progress=False)
+    a, b = states[True], states[False]
+    assert a.particles.position.shape == (2, 145, 2) and np.all(np.asarray(a.protocol_state.poured) == 27)
+    for x, y in zip(jax.tree.leaves(a.particles), jax.tree.leaves(b.particles)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    np.testing.assert_array_equal(a.contacts.history, b.contacts.history)
+    np.testing.assert_array_equal(a.neighbors.idx, b.neighbors.idx)
+
+
 def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
     from jaxpile import sweep
 
