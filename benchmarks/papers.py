@@ -1,6 +1,6 @@
 """The papers side by side (issue 16, item 4): one script for README's table.
 
-    python benchmarks/papers.py             # rewrite README's table from the results JSON (seconds)
+    python benchmarks/papers.py             # rewrite README's table and the docs/ figures from the results JSON
     python benchmarks/papers.py --check     # exit 1 when README's table is not the one the JSON gives
     python benchmarks/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
@@ -204,6 +204,48 @@ def rewrite_readme(check: bool = False) -> bool:
     return readme_block.rewrite(START, END, table(), check=check, readme=README)
 
 
+# ---------------------------------------------------------------- figures
+def _rows(folder: pathlib.Path, pattern: str) -> list[dict]:
+    return [json.loads(pathlib.Path(p).read_text()) for p in sorted(glob.glob(str(folder / pattern)))]
+
+
+def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("1992", "1993", "1997")) -> list[str]:
+    """The ensembles' figures, drawn from the same results JSON as the table
+    (a study with no results draws nothing): the dropped piles' mean base
+    profile with its band (1992 Fig. 20), theta_R, theta_T and theta_R + theta_T
+    against mu with theta_MS (1993 Figs. 4, 7a), and each 1997 heap size's mean
+    base profiles and flank angles. Returns the paths written."""
+    import baxter_readings as br
+    import paper_ensembles as pe
+
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    drawn = []
+    if "1992" in papers and (piles := _rows(DROP, "seed*.json")):
+        drawn.append(str(folder / "liffman1992_drop_ensemble.png"))
+        pe.figure_drop(piles, drawn[-1])
+    if "1993" in papers and (tilts := _rows(TILT.parent, "mu*_seed*.json")):
+        drawn.append(str(folder / "lee_herrmann1993_tilt_ensemble.png"))
+        pe.figure_tilt(tilts, drawn[-1])
+    for n in ((1334, 1000) if "1997" in papers else ()):
+        if heaps := _rows(HEAPS / f"n{n}", "*_seed*.json"):
+            drawn.append(str(folder / f"baxter1997_n{n}.png"))
+            br.figure(heaps, drawn[-1], f"Baxter et al. 1997 heaps of {n} disks, poured onto S = 1.1 sigma")
+    return drawn
+
+
+def notebook_section(paper: str, folder: str = ".") -> list[str]:
+    """A paper notebook's view of its ensembles at the paper's sizes: prints
+    the paper's rows of README's papers table and draws its ensemble figures
+    into `folder` (the notebooks' full-size numbers are these files, which a
+    committed command wrote; `make papers` runs what is missing). Returns the
+    figure paths."""
+    rows = {"1992": rows_1992, "1993": rows_1993, "1997": rows_1997}[paper]()
+    for _, quantity, says, ours in rows:
+        print(f"{quantity}\n    paper:   {says or '—'}\n    jaxpile: {ours}")
+    return figures(pathlib.Path(folder), (paper,))
+
+
 # ------------------------------------------------------------------- runs
 def _pile_summary(args: list[str], dest: pathlib.Path) -> None:
     """`jaxpile pile ARGS` into a scratch folder; its summary.json kept as `dest`."""
@@ -267,6 +309,7 @@ def main(argv=None) -> int:
         return 0 if ok else 1
     same = rewrite_readme()
     print("README's papers table " + ("was already up to date" if same else "rewritten") + f":\n{table()}")
+    print("figures: " + ", ".join(os.path.relpath(p, ROOT) for p in figures()))
     return 0
 
 
