@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import batch
 from jaxpile import neighbors as nb
 from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
@@ -200,10 +201,8 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     """The template with its neighbour list (each member's, for a batch) at
     the saved capacity; its arrays are then all replaced from the file."""
     if batch_of(template) is not None:
-        from jaxpile import ensemble
-
-        members = [ensemble.member(template, i) for i in range(batch_of(template))]
-        return ensemble.stack([ensemble.at_capacity(m, slots, cells, pairs) for m in members])
+        members = [batch.member(template, i) for i in range(batch_of(template))]
+        return batch.stack([batch.at_capacity(m, slots, cells, pairs) for m in members])
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
                                        template.neighbor_settings)
     c = template.contacts

@@ -15,3 +15,43 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             "assert callable(quantity.force)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_the_engine_imports_no_protocol_and_no_module_of_it_imports_itself_back():
+    """Issue 18: the engine (state, neighbours, blocks, batches, checkpoints,
+    the simulator and the batched runner) is read at import time without the
+    protocol layer, and its top-level imports form no circle (the old one:
+    checkpoint -> ensemble -> simulate -> checkpoint)."""
+    import ast
+    import pathlib
+
+    root = pathlib.Path(__file__).parent.parent / "jaxpile"
+    engine = ["state", "neighbors", "blocks", "batch", "checkpoint", "simulate", "ensemble", "interactions",
+              "integrators", "collisions", "boundaries", "io", "errors"]
+
+    def imports(name):
+        """jaxpile modules imported at a module's top level, or inside its functions (lazy)."""
+        tree = ast.parse((root / f"{name}.py").read_text())
+        top, lazy = set(), set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("jaxpile"):
+                found = {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                found = {a.name for a in node.names if a.name.startswith("jaxpile")}
+            else:
+                continue
+            found = {f.split(".")[1] for f in found if f.count(".") >= 1}
+            (top if node in tree.body else lazy).update(found)
+        return top, lazy
+
+    graph = {}
+    for name in engine:
+        top, lazy = imports(name)
+        assert "protocols" not in top, f"jaxpile.{name} imports the protocol layer at import time"
+        graph[name] = {m for m in top | lazy if m in engine and m != name}
+
+    def reaches(start, goal, seen=()):
+        return any(m == goal or (m not in seen and reaches(m, goal, seen + (m,))) for m in graph[start])
+
+    circles = [name for name in engine if reaches(name, name)]
+    assert not circles, f"import circles through {circles}: {graph}"
