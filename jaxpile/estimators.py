@@ -219,12 +219,19 @@ def pathwise(members: Callable, objective: Callable, theta) -> Estimate:
     if s.ndim == 1:
         s = s[:, None]
     jac = jax.jacfwd(lambda x: jnp.reshape(members(x), s.shape))(t)  # [B, k, d]
+    return _from_jacobians(s, jac, objective)
+
+
+def _from_jacobians(s, jac, objective: Callable) -> Estimate:
+    """The gradient of objective(mean_b s_b) from the members' statistics
+    `[B, k]` and their Jacobians `[B, k, d]`, with the jackknife standard error
+    (leave one member out of both means; NaN for one member)."""
     mean = s.mean(axis=0)
     value, outer = jax.value_and_grad(objective)(mean)
     gradient = outer @ jac.mean(axis=0)
     b = s.shape[0]
     if b < 2:
-        return Estimate(gradient, jnp.full(theta.size, jnp.nan), float(value), 1)
+        return Estimate(gradient, jnp.full(jac.shape[-1], jnp.nan), float(value), 1)
     loo_means = (s.sum(0, keepdims=True) - s) / (b - 1)
     loo_jacs = (jac.sum(0, keepdims=True) - jac) / (b - 1)
     loo = jax.vmap(lambda m, j: jax.grad(objective)(m) @ j)(loo_means, loo_jacs)
@@ -313,13 +320,4 @@ def truncated_pathwise(advance: Callable, statistics: Callable, objective: Calla
     jac = jnp.moveaxis(jnp.asarray(jac), 0, -1)  # [B, k, d]
     if stats.ndim == 1:
         stats, jac = stats[None, :], jac[None, ...]
-    mean = stats.mean(axis=0)
-    value, outer = jax.value_and_grad(objective)(mean)
-    gradient = outer @ jac.mean(axis=0)
-    b = stats.shape[0]
-    if b < 2:
-        return Estimate(gradient, jnp.full(theta.size, jnp.nan), float(value), 1)
-    loo_means = (stats.sum(0, keepdims=True) - stats) / (b - 1)
-    loo_jacs = (jac.sum(0, keepdims=True) - jac) / (b - 1)
-    loo = jax.vmap(lambda m, j: jax.grad(objective)(m) @ j)(loo_means, loo_jacs)
-    return Estimate(gradient, jnp.asarray(_jackknife_stderr(np.asarray(loo))), float(value), 1)
+    return _from_jacobians(stats, jac, objective)
