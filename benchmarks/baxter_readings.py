@@ -94,14 +94,18 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
     _, result = pour.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None, **dt,
                          law_options=spec["law_options"], progress=False,
                          checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
-    import jax
-
-    device = jax.devices()[0]
     row = {"setting": setting, "seed": seed, "n": n, "insert_height": insert_height,
-           "seconds": time.perf_counter() - t0, **result["summary"],
-           "device": f"{device.platform}: {device.device_kind}, jax {jax.__version__}"}
+           "seconds": time.perf_counter() - t0, **result["summary"], "device": device()}
     pathlib.Path(out).write_text(json.dumps(row, indent=1))
     return row
+
+
+def device() -> str:
+    """What ran a heap (a row's `device`): platform, device kind, jax version."""
+    import jax
+
+    d = jax.devices()[0]
+    return f"{d.platform}: {d.device_kind}, jax {jax.__version__}"
 
 
 def groups(settings: list[str]) -> list[list[str]]:
@@ -123,7 +127,6 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     itself every `checkpoint_every` steps and a rerun resumes it. Each member
     runs until the whole batch is poured and at rest (a heap at rest stays so)."""
     import jaxpile  # noqa: F401  (float64)
-    import jax
     from jaxpile import sweep
     from jaxpile.protocols import pour
     from jaxpile.simulate import max_speed
@@ -151,14 +154,13 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
                          options={"n": n, "insert_height": insert_height, **pour_options}, dt=dt,
                          checkpoint=(state_file, checkpoint_every), resume=resume, extra_measure=extra)
     seconds = time.perf_counter() - t0
-    device = jax.devices()[0]
     written = []
     for k, member in enumerate(result.rows):
         setting, seed = settings[k // len(seeds)], int(member["seed"])
         run = {"steps": member["steps"], "at_rest": member["max_speed"] < tolerance, "max_speed": member["max_speed"],
                "batch_members": result.info["members"], "batch_steps": result.info["batch_steps"],
                "wall_seconds": result.info["run_seconds"], "compile_seconds": result.info["compile_seconds"],
-               "device": f"{device.platform}: {device.device_kind}, jax {jax.__version__}"}
+               "device": device()}
         row = {"setting": setting, "seed": seed, "n": n, "insert_height": insert_height, "seconds": seconds,
                **member["summary"], "run": run, "setup": member["setup"]}
         path = os.path.join(folder, f"{setting.replace('/', '_')}_seed{seed}.json")
@@ -298,7 +300,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--batched", action="store_true",
                         help="each group of settings (same law and pour options) as one batched ensemble of all "
-                             "its missing heaps (a GPU's way; the batch integrates every disk from the start)")
+                             "its missing heaps (meant for a GPU; measured slow there so far: see the module notes)")
     parser.add_argument("--checkpoint-every", type=int, default=200_000,
                         help="steps between saved states of a heap in progress (a rerun resumes from them)")
     parser.add_argument("--insert-height", type=float, default=None,

@@ -17,7 +17,6 @@ import argparse
 import json
 import os
 import pathlib
-import re
 import subprocess
 import sys
 import time
@@ -69,12 +68,15 @@ def table(results_root: pathlib.Path) -> str:
 
 
 def update_readme(text: str) -> bool:
+    """Writes `text` as README's benchmark table; False (and a warning) when
+    README has no table block."""
+    import readme_block
+
     readme = README.read_text()
     if START not in readme or END not in readme:
         print(f"README has no {START} ... {END} block; table not written", file=sys.stderr)
         return False
-    new = re.sub(re.escape(START) + ".*?" + re.escape(END), lambda _: f"{START}\n{text}\n{END}", readme, flags=re.S)
-    README.write_text(new)
+    readme_block.rewrite(START + "\n", END, text + "\n", readme=README)
     return True
 
 

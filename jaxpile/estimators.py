@@ -16,8 +16,8 @@ two thetas is not buried under the difference between two packings.
   the ensemble; the reference, and a usable estimator for one or two parameters.
 - `truncated_pathwise`: the construction cut into windows of W steps; each
   window's sensitivity to theta is taken through that window alone (forward
-  mode, its start held fixed) and the windows' sensitivities are summed and
-  carried to the end as they are. W = the whole construction is `pathwise`;
+  mode, its start held fixed) and the windows' sensitivities are summed (or
+  averaged) and carried to the end as they are. W = the whole construction is `pathwise`;
   shorter windows cut the products of step Jacobians that explode in a chaotic
   pour, at the price of a bias (bias traded for variance, W set by measuring).
 - `antithetic_smoothing`: the gradient of the Gaussian-smoothed F,
@@ -295,13 +295,14 @@ def truncated_pathwise(advance: Callable, statistics: Callable, objective: Calla
             return jax.jvp(lambda x: advance(x, s, n), (x0,), (e,))
         return jax.vmap(along, out_axes=(None, 0))(directions)
 
+    moving = [i for i, x in enumerate(jax.tree.leaves(state)) if _is_float(x)]  # integer leaves have no tangent
     total, s, done = None, state, 0
     while done < steps:
         n = min(int(window), int(steps) - done)
         s, v = window_run(t, s, n)
-        leaves = jax.tree.leaves(s)
-        moving = [i for i, x in enumerate(leaves) if _is_float(x)]  # integer leaves (lists, counters) have no tangent
-        v = [jax.tree.leaves(v)[i] * (n / steps if combine == "mean" else 1.0) for i in moving]
+        weight = n / steps if combine == "mean" else 1.0
+        v = jax.tree.leaves(v)
+        v = [v[i] * weight for i in moving]
         total = v if total is None else [a + b for a, b in zip(total, v)]
         done += n
     leaves, tree = jax.tree.flatten(s)
