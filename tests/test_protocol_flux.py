@@ -134,3 +134,14 @@ def test_angles_of_synthetic_records():
 def test_bad_arguments_raise_input_error(kwargs, match):
     with pytest.raises(InputError, match=match):
         flux.protocol(**{"insertions": 5, **kwargs})
+
+
+def test_a_long_hold_time_sets_up_with_its_fallback_at_the_step_counters_limit():
+    """hold_time = 10738 s is ~5.4e8 steps, within the 32-bit counter; the
+    fallback (4x the hold) is not, and saturates at the counter's limit
+    instead of overflowing (found by tests/test_input_properties.py)."""
+    from jaxpile.ranges import MAX_STEPS
+
+    p = flux.protocol(insertions=3, hold_time=10738.0)
+    assert int(p.protocol_state.fallback) == MAX_STEPS
+    assert 0 < 4 * int(p.protocol_state.hold) > MAX_STEPS  # the hold itself is kept as asked

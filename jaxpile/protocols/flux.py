@@ -308,7 +308,8 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         v_cut=jnp.asarray(v_cut * u.speed, dtype),
         use_max=jnp.asarray(boxes._measure_flag(rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
-        fallback=jnp.asarray(max(4 * hold, 10 * fall_steps), jnp.int32),
+        # saturates at the step counter's limit: no run is longer, so "never" is the same there
+        fallback=jnp.asarray(min(max(4 * hold, 10 * fall_steps), ranges.MAX_STEPS), jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(True),  # the bottom layer starts at rest: insert at once
         gap=jnp.asarray(gap * s, dtype),
