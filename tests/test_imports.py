@@ -1,6 +1,7 @@
 """`import jaxpile` loads only the jax-md modules it uses (jaxpile/_jax_md.py),
 and jax-md stays whole for a user who imports it after jaxpile."""
 
+import os
 import subprocess
 import sys
 
@@ -12,9 +13,22 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             "import jax_md\n"
             "assert callable(jax_md.energy.soft_sphere) and callable(jax_md.simulate.nve)\n"
             "from jax_md import quantity\n"
-            "assert callable(quantity.force)\n")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+            "assert callable(quantity.force)\n"
+            # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
+            "import os\n"
+            "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n")
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_a_vector_width_the_user_gave_xla_is_kept():
+    code = ("import os, jaxpile\n"
+            "print(os.environ['XLA_FLAGS'])\n")
+    env = {**os.environ, "XLA_FLAGS": "--xla_cpu_prefer_vector_width=256"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["--xla_cpu_prefer_vector_width=256"]
 
 
 def test_the_engine_imports_no_protocol_and_no_module_of_it_imports_itself_back():
