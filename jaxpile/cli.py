@@ -128,18 +128,84 @@ def _parse_options(items) -> dict:
 
 
 def _accepted_options(module) -> set:
-    """Keyword arguments `--option` may set: those of the protocol's `run`, plus
-    those of its set-up function where `run` forwards `**options` to it."""
-    import inspect
+    """Keyword arguments `--option` may set (`protocols.options.accepted`)."""
+    from jaxpile.protocols import options
 
-    run_params = inspect.signature(module.run).parameters
-    names = {k for k, v in run_params.items() if v.kind is inspect.Parameter.KEYWORD_ONLY or
-             v.kind is inspect.Parameter.POSITIONAL_OR_KEYWORD}
-    if any(v.kind is inspect.Parameter.VAR_KEYWORD for v in run_params.values()):
-        names |= set(inspect.signature(module.protocol).parameters)
-    reserved = {"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "insertions", "pile",
-                "alpha_degrees", "hard_collisions", "pile_params", "box_options", "checkpoint", "resume"}
-    return names - reserved
+    return set(options.accepted(module))
+
+
+DEFAULT_PROTOCOL = {"pile": "lattice", "sweep": "box", "fit": "lattice"}
+
+
+def _command_and_protocol(argv: list[str]) -> tuple[str | None, str | None]:
+    """The command and the protocol an argument list names (its default when
+    it names none), read before the full parse: the protocol's own flags are
+    added to the parser for it."""
+    command = argv[0] if argv and not argv[0].startswith("-") else None
+    protocol = None
+    for k, a in enumerate(argv):
+        if a == "--protocol" and k + 1 < len(argv):
+            protocol = argv[k + 1]
+        elif a.startswith("--protocol="):
+            protocol = a.split("=", 1)[1]
+    return command, protocol or DEFAULT_PROTOCOL.get(command)
+
+
+def _protocol_flags(command: str, protocol: str) -> dict:
+    """`{name: options.Option}`: the options of `protocol` that `command` takes
+    as flags of their own: for `pile`, those of the protocol's `run` and set-up
+    that no generic flag (`--seed`, `--max-steps`, ...) sets; for `sweep` and
+    `fit`, the set-up options a batch takes. Options without a type the
+    command line can give (a dict, no default and no range) stay `--option`'s."""
+    from jaxpile import sweep
+    from jaxpile.protocols import PROTOCOLS, options
+
+    module = PROTOCOLS.get(protocol)
+    if module is None or not hasattr(module, "run") or command not in DEFAULT_PROTOCOL:
+        return {}
+    if command == "pile":
+        names = options.accepted(module) - set(_FLAG_ARGS.get(protocol, {}).values()) - {"seed"}
+    else:
+        names = sweep.adapter(protocol).options & options.accepted(module)
+    return {k: o for k, o in options.declared(module, names).items() if o.default is not None or o.range is not None}
+
+
+def _add_protocol_flags(parser, command: str, protocol: str) -> None:
+    """One `--NAME` flag per option of `protocol` (`_protocol_flags`), in a group
+    of `--help` of their own, each with its docstring's help, range and default.
+    A name the command already has a flag for keeps that flag."""
+    flags = {k: o for k, o in _protocol_flags(command, protocol).items()
+             if o.flag not in parser._option_string_actions}
+    if not flags:
+        return
+    group = parser.add_argument_group(f"options of the {protocol} protocol (the same as --option NAME=VALUE)")
+    for o in flags.values():
+        words = [o.help or o.name.replace("_", " ")]
+        if o.range is not None:
+            words.append(f"[{o.range.describe()}]")
+        if o.default is not None:
+            words.append(f"(default {o.default})")
+        kind = {bool: _on_off, int: int, float: float, str: str}[o.kind]
+        group.add_argument(o.flag, dest=f"protocol_option__{o.name}", type=kind, default=None,
+                           metavar={bool: "on|off", int: "N", float: "X", str: "TEXT"}[o.kind],
+                           help=" ".join(words).replace("%", "%%"))
+
+
+def _merge_protocol_flags(args) -> None:
+    """The protocol's own flags given, appended to `args.option` as
+    `NAME=VALUE` (one path from there on); a name given both ways is refused."""
+    from jaxpile.errors import InputError
+
+    given = {k.split("__", 1)[1]: v for k, v in vars(args).items()
+             if k.startswith("protocol_option__") and v is not None}
+    if not given:
+        return
+    twice = sorted(set(_parse_options(args.option)) & set(given))
+    if twice:
+        raise InputError(f"{', '.join(twice)} given both as a flag and as --option: give it once.")
+    text = {True: "on", False: "off"}
+    args.option = list(args.option or []) + [
+        f"{k}={text[v] if isinstance(v, bool) else v}" for k, v in given.items()]
 
 
 def _output_args(parser, precision: bool = True) -> None:
@@ -161,7 +227,9 @@ class _Parser(argparse.ArgumentParser):
 SWEEP_PROTOCOLS = ["box", "pour", "lattice", "sloped", "drop", "flux", "tilt"]  # sweep.ADAPTERS (a test keeps them equal)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser; with `argv`, its command's parser also has the flags of the
+    protocol `argv` names (`_add_protocol_flags`)."""
     parser = _Parser(prog="jaxpile", description="Differentiable 2D granular piles in JAX.")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -295,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
                 action.help = f"{action.help} [{FLAG_RANGES[name][action.dest].describe()}]"
     pile.epilog = _ranges_epilog()
     pile.formatter_class = argparse.RawDescriptionHelpFormatter
+    command, protocol = _command_and_protocol(list(argv or []))
+    if argv is not None and command in DEFAULT_PROTOCOL:
+        _add_protocol_flags({"pile": pile, "sweep": sweep, "fit": fitp}[command], command, protocol)
     return parser
 
 
@@ -365,7 +436,8 @@ def _ranges_epilog() -> str:
 
     out = ["law parameters (--set NAME=VALUE) and their valid ranges:"]
     out += [entry(name, get_law_module(name).RANGES) for name in LAWS]
-    out += ["protocol options (--option NAME=VALUE) and their valid ranges:"]
+    out += ["protocol options (--option NAME=VALUE, or a flag of its own: `jaxpile pile --protocol P --help`) "
+            "and their valid ranges:"]
     out += [entry(name, module.OPTION_RANGES) for name, module in PROTOCOLS.items()]
     return "\n".join(out)
 
@@ -516,7 +588,8 @@ def main(argv=None) -> int:
         argv = [t for a in argv for t in (a.split("=", 1) if a.startswith("--resume=") else [a])]
         if argv[:1] in (["pile"], ["sweep"]) and "--resume" in argv:
             argv = _resume_argv(argv)
-        args = build_parser().parse_args(argv)
+        args = build_parser(argv).parse_args(argv)
+        _merge_protocol_flags(args)
         if args.command in ("pile", "sweep"):
             args.argv = _run_command(argv)
             if args.resume is not None:

@@ -16,11 +16,11 @@ CASES = {
     "sloped": (["--slope", "45", "--n", "21", "--max-steps", "40000"],
                ("central_slope_horizontal", "theory_central_slope_horizontal", "alpha_degrees"), None),
     "drop": (["--n", "6", "--seed", "1"], ("central_dip", "all_inserted", "weight_balance"), None),
-    "box": (["--n", "30", "--option", "width=1.2", "--option", "height=1.0"],
+    "box": (["--n", "30", "--width", "1.2", "--option", "height=1.0"],  # a protocol's option as its own flag
             ("repose_cumulative_parabola", "theta_ms_theory", "wall_removed_step"), "energy.png"),
     "tilt": (["--n", "30", "--option", "rate_degrees=0.05"], ("theta_t", "theta_t_theory", "theta_r"), "energy.png"),
     "flux": (["--n", "4", "--option", "width=1.0"], ("steady_mean", "angle_cumulative_parabola"), "angles.png"),
-    "pour": (["--n", "12", "--option", "release_height=8", "--option", "substrate_disks=15", "--speed-tol", "1e-3"],
+    "pour": (["--n", "12", "--release-height", "8", "--option", "substrate_disks=15", "--speed-tol", "1e-3"],
              ("counts", "height", "weight_mg"), None),
 }
 
@@ -89,3 +89,59 @@ def test_a_base_force_table_with_no_contacts_reads_back_as_empty_columns(tmp_pat
     write_csv(path, {"x": [], "normal": [], "horizontal": []})
     table = read_csv(path)
     assert set(table) == {"x", "normal", "horizontal"} and all(len(v) == 0 for v in table.values())
+
+
+# ----------------------------------------------------- the protocols' own flags
+def test_every_option_of_every_protocol_is_a_flag_of_pile_sweep_and_fit_with_its_help_and_range(capsys):
+    """Issue 18: a protocol's options appear as `--NAME` flags, read from its
+    own signatures, docstrings and OPTION_RANGES (no table beside them)."""
+    from jaxpile.cli import _merge_protocol_flags, _protocol_flags, build_parser
+    from jaxpile.protocols import PROTOCOLS
+
+    for command in ("pile", "sweep", "fit"):
+        for protocol in PROTOCOLS:
+            argv = [command, "--protocol", protocol]
+            flags = _protocol_flags(command, protocol)
+            assert bool(flags) == (protocol != "lattice"), (command, protocol)
+            subparser = build_parser(argv)._subparsers._group_actions[0].choices[command]
+            for option in flags.values():
+                assert option.flag in subparser._option_string_actions, (command, protocol, option.flag)
+    with pytest.raises(SystemExit) as done:
+        main(["pile", "--protocol", "pour", "--help"])
+    assert done.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "options of the pour protocol" in text
+    assert "--polydispersity X delta (a fraction, 0.05 for the paper's 5%)" in text and "[>= 0 and < 0.5]" in text
+    argv = ["pile", "--protocol", "tilt", "--settle", "on", "--rate-degrees", "0.05", "--out", "x"]
+    args = build_parser(argv).parse_args(argv)
+    _merge_protocol_flags(args)
+    assert args.option == ["settle=on", "rate_degrees=0.05"]
+
+
+def test_a_flag_of_another_protocol_or_an_option_given_twice_is_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit) as done:  # box has no polydispersity
+        main(["pile", "--protocol", "box", "--polydispersity", "0.05", "--out", str(tmp_path)])
+    assert done.value.code == 2 and "unrecognized arguments: --polydispersity" in capsys.readouterr().err
+    assert main(["pile", "--protocol", "pour", "--polydispersity", "0.05", "--option", "polydispersity=0.1",
+                 "--out", str(tmp_path)]) == 2
+    assert "given both as a flag and as --option" in capsys.readouterr().err
+
+
+def test_docstring_args_reads_shared_and_continued_entries():
+    from jaxpile.protocols.options import docstring_args
+
+    def f(a, b, c, **options):
+        """Does f.
+
+        Args:
+          a, b: the first two,
+            continued here.
+          c: the third.
+          **options: not an option's help.
+
+        Returns:
+          nothing.
+        """
+
+    assert docstring_args(f) == {"a": "the first two, continued here.", "b": "the first two, continued here.",
+                                 "c": "the third."}

@@ -16,11 +16,13 @@ def _document_ranges() -> None:
 
     from jaxpile.ranges import doc_section
 
+    seen = set()  # pour.protocol is pour.pour: its section once
     for module in PROTOCOLS.values():
         for name in ("protocol", "pour", "run", "equilateral_pile"):
             function = getattr(module, name, None)
-            if function is None or function.__module__ != module.__name__:
+            if function is None or function.__module__ != module.__name__ or function in seen:
                 continue
+            seen.add(function)
             taken = {k: r for k, r in module.OPTION_RANGES.items() if k in inspect.signature(function).parameters}
             if taken:
                 function.__doc__ = (function.__doc__ or "").rstrip() + doc_section(

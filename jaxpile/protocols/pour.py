@@ -675,7 +675,8 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       params: None (`law_params(law)`, PAPER_SETTING), a dict of overrides, or a params pytree.
       dt, rotation, integrator: for the `Simulator` (leapfrog, eqs. 9-12, by default).
       speed_tolerance, max_settle_steps: the rest criterion after pouring.
-      bins, voidage_cell: for `measure`.
+      bins: bins of the base-force profile (made odd; default about one per 4 substrate spacings).
+      voidage_cell: side of the voidage map's cells, in sigma.
       checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
       law_options: the law's readings (`baxter.law(lever_arm=..., slip=...)`).
       **options: for `pour` (spacing, polydispersity, release_height,
