@@ -80,29 +80,18 @@ def _parse_hard_collisions(text):
     return hard
 
 
-PROTOCOL_HELP = {
-    "lattice": "the 1992 equilateral pile (--layers)",
-    "sloped": "the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)",
-    "drop": "disks dropped one at a time (1992 Fig. 20)",
-    "box": "a box filled, its right wall removed (1993 Fig. 1)",
-    "tilt": "a box pile tilted until it moves (1993 Fig. 4)",
-    "flux": "disks fed at the upper left whenever the pile rests (1993 Fig. 5)",
-    "pour": "a heap poured onto a row of fixed disks (1997)",
-}
-DEFAULT_LAW = {"lattice": "hooke", "sloped": "hooke", "drop": "liffman", "box": "lee-herrmann", "tilt": "lee-herrmann",
-               "flux": "lee-herrmann", "pour": "baxter"}
-# The run() keyword each generic flag maps to, per protocol (absent: the flag is refused).
-_SIZE_ARG = {"sloped": "n", "drop": "n", "box": "n", "tilt": "n", "flux": "insertions", "pour": "n"}
-_FLAG_ARGS = {
-    "sloped": {"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
-               "hard_collisions": "hard_collisions", "seed": "seed"},
-    "drop": {"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
-             "seed": "seed"},
-    "box": {"seed": "seed"},
-    "tilt": {},
-    "flux": {"seed": "seed"},
-    "pour": {"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
-}
+def _entry(name: str):
+    """The protocol's registry entry (`protocols.base.CommandLine`): its help,
+    default law, the keyword `--n` sets, the generic flags it takes, its headline."""
+    from jaxpile.protocols import PROTOCOLS
+
+    return PROTOCOLS[name].CLI
+
+
+def _protocol_names() -> list[str]:
+    from jaxpile.protocols import PROTOCOLS
+
+    return list(PROTOCOLS)
 
 
 def _parse_options(items) -> dict:
@@ -164,7 +153,7 @@ def _protocol_flags(command: str, protocol: str) -> dict:
     if module is None or not hasattr(module, "run") or command not in DEFAULT_PROTOCOL:
         return {}
     if command == "pile":
-        names = options.accepted(module) - set(_FLAG_ARGS.get(protocol, {}).values()) - {"seed"}
+        names = options.accepted(module) - set(module.CLI.flags.values()) - {"seed"}
     else:
         names = sweep.adapter(protocol).options & options.accepted(module)
     return {k: o for k, o in options.declared(module, names).items() if o.default is not None or o.range is not None}
@@ -234,8 +223,8 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     pile = sub.add_parser("pile", help="build a pile, relax it, measure its base forces and draw it")
-    pile.add_argument("--protocol", default="lattice", choices=list(PROTOCOL_HELP),
-                      help="how the pile is built: " + "; ".join(f"{k}: {v}" for k, v in PROTOCOL_HELP.items()))
+    pile.add_argument("--protocol", default="lattice", choices=_protocol_names(),
+                      help="how the pile is built: " + "; ".join(f"{k}: {_entry(k).help}" for k in _protocol_names()))
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
     pile.add_argument("--n", type=int, default=None,
                       help="disks (sloped, drop, box, tilt, pour) or insertions (flux); default: the paper's")
@@ -756,7 +745,7 @@ def run_protocol(args) -> dict:
         raise InputError(f"--layers is for the lattice protocol; the {name} protocol's size is --n.")
     if args.slope is not None and name != "sloped":
         raise InputError(f"--slope is for the sloped protocol, not {name}.")
-    lawmod = get_law_module(args.law or DEFAULT_LAW[name])
+    lawmod = get_law_module(args.law or _entry(name).default_law)
     dtype = jnp.float64 if args.precision == "float64" else jnp.float32
     overrides = _parse_set(args.set, lawmod.PARAM_NAMES)
     _, contact_law, params = module.law_and_params(lawmod.NAME, overrides, args.rotation, dtype=dtype)
@@ -766,7 +755,7 @@ def run_protocol(args) -> dict:
     if args.dt is not None:
         kwargs["dt"] = args.dt
     if args.n is not None:
-        kwargs[_SIZE_ARG[name]] = args.n
+        kwargs[_entry(name).size] = args.n
     if args.slope is not None:
         kwargs["alpha_degrees"] = args.slope
     flags = {"ramp_steps": args.ramp_steps, "max_steps": args.max_steps, "speed_tol": args.speed_tol,
@@ -777,8 +766,8 @@ def run_protocol(args) -> dict:
             continue
         if flag == "seed" and name == "tilt":
             kwargs["box_options"] = {"seed": value}
-        elif flag in _FLAG_ARGS[name]:
-            kwargs[_FLAG_ARGS[name][flag]] = value
+        elif flag in _entry(name).flags:
+            kwargs[_entry(name).flags[flag]] = value
         else:
             raise InputError(f"--{flag.replace('_', '-')} is not used by the {name} protocol.")
     options = _parse_options(args.option)
@@ -792,7 +781,7 @@ def run_protocol(args) -> dict:
     kwargs["checkpoint"] = _checkpoint_spec(args)
     kwargs["resume"], resumed_from = _resume_point(args)
 
-    print(f"jaxpile: {name} pile ({PROTOCOL_HELP[name]}), law {contact_law.name} "
+    print(f"jaxpile: {name} pile ({_entry(name).help}), law {contact_law.name} "
           f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)
     if kwargs.get("hard_collisions") is not None:
         hard = kwargs["hard_collisions"]
@@ -870,7 +859,7 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     accepted = inspect.signature(setup).parameters
     given = {k: v for k, v in {**kwargs, **extra}.items() if k in accepted and k not in ("params", "progress")}
     if "law" in accepted:
-        given["law"] = args.law or DEFAULT_LAW[name]
+        given["law"] = args.law or _entry(name).default_law
     p = setup(**given)
     from jaxpile.simulate import Simulator
 
@@ -1255,25 +1244,9 @@ def _plain(value):
     return str(value)
 
 
-# What `jaxpile pile` prints at the end of each protocol: its headline numbers.
-HEADLINES = {
-    "sloped": ("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
-               "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
-    "drop": ("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance"),
-    "box": ("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
-            "repose_cumulative_parabola", "theta_ms_theory"),
-    "tilt": ("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
-    "flux": ("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
-    "pour": ("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
-             "angle_mid_flank.left", "angle_mid_flank.right",
-             "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
-             "m_shape.ratio", "m_shape.m_shaped"),
-}
-
-
 def _headline(name: str, summary: dict) -> str:
     parts = []
-    for key in HEADLINES.get(name, ()):
+    for key in _entry(name).headline:
         v = summary
         for part in key.split("."):  # dotted keys reach into nested dicts
             v = v.get(part) if isinstance(v, dict) else None

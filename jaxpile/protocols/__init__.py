@@ -3,9 +3,25 @@
 (schedule, driver); each module also has a `run(...)` that takes it to its end
 and returns the final state and the protocol's measurements."""
 
-from jaxpile.protocols import box, drop, flux, lattice, pour, sloped, tilt
+import importlib
+import pkgutil
 
-PROTOCOLS = {"lattice": lattice, "sloped": sloped, "drop": drop, "box": box, "tilt": tilt, "flux": flux, "pour": pour}
+from jaxpile.protocols.base import CommandLine
+
+
+def _registered() -> dict:
+    """`{name: module}` of every module in this package that declares a
+    `CLI = CommandLine(...)`, in the order it declares: a new protocol is
+    registered by its own module, with no list here to edit."""
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        if isinstance(getattr(module, "CLI", None), CommandLine):
+            found[info.name] = module
+    return dict(sorted(found.items(), key=lambda item: item[1].CLI.order))
+
+
+PROTOCOLS = _registered()  # importing a submodule also binds it here: `protocols.pour` as before
 
 
 def _document_ranges() -> None:
@@ -31,4 +47,4 @@ def _document_ranges() -> None:
 
 _document_ranges()
 
-__all__ = ["box", "drop", "flux", "lattice", "pour", "sloped", "tilt", "PROTOCOLS"]
+__all__ = [*PROTOCOLS, "PROTOCOLS"]

@@ -40,6 +40,30 @@ class Protocol(NamedTuple):
     info: dict = {}
 
 
+class CommandLine(NamedTuple):
+    """How a protocol appears on the command line: a protocol module that
+    declares one as `CLI` is registered (`jaxpile.protocols.PROTOCOLS`) and
+    `jaxpile pile|sweep|fit` take it, with no table elsewhere to edit.
+
+    Attributes:
+      order: its place in listings (the papers' order).
+      help: one line for `--protocol`'s help.
+      default_law: the law of its paper (`--law`'s default).
+      size: the `run` keyword `--n` sets, or None (`--n` refused).
+      flags: generic flag (`seed`, `max_steps`, `speed_tol`, `ramp_steps`,
+        `hard_collisions`) -> the `run` keyword it sets; absent: refused.
+      headline: summary keys `jaxpile pile` prints at its end (dotted keys
+        reach into nested dicts).
+    """
+
+    order: int
+    help: str
+    default_law: str
+    size: str | None = "n"
+    flags: dict = {}
+    headline: tuple = ()
+
+
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):
     """`(law module, ContactLaw, params)` for a protocol run.
 

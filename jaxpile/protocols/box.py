@@ -78,7 +78,7 @@ from jaxpile import analysis, budget, ranges
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.simulate import max_speed
 from jaxpile.state import SimState, make_particles
@@ -130,6 +130,14 @@ OPTION_RANGES = {
     "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=3, help="a box filled, its right wall removed (1993 Fig. 1)", default_law="lee-herrmann",
+    flags={"seed": "seed"},
+    headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
+              "repose_cumulative_parabola", "theta_ms_theory"))
 
 
 class Units(NamedTuple):

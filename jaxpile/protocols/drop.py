@@ -73,7 +73,7 @@ from jaxpile.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.state import SimState, make_particles
@@ -106,6 +106,14 @@ OPTION_RANGES = {
     "relax_steps": STEPS, "bins": COUNT, "dip_threshold": SPAN, "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=2, help="disks dropped one at a time (1992 Fig. 20)", default_law="liffman",
+    flags={"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
+           "seed": "seed"},
+    headline=("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance"))
 
 
 class DropState(NamedTuple):

@@ -57,7 +57,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import drivers
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState, make_particles
 
 Array = Any
@@ -80,6 +80,13 @@ OPTION_RANGES = {
     "max_time": SIZE, "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", default_law="lee-herrmann",
+    size="insertions", flags={"seed": "seed"},
+    headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"))
 
 
 class FluxState(NamedTuple):

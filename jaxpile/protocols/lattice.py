@@ -16,6 +16,7 @@ from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import SIZE, Range
 from jaxpile.state import Boundaries, Particles, make_particles
+from jaxpile.protocols.base import CommandLine
 
 
 OPTION_RANGES = {
@@ -23,6 +24,10 @@ OPTION_RANGES = {
     "gap": Range(low=0, high=0.1, high_open=True, why="diameters"),
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(order=0, help="the 1992 equilateral pile (--layers)", default_law="hooke", size=None)
 
 
 def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:

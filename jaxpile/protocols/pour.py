@@ -62,7 +62,7 @@ from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, s
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import drivers
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState, make_particles
 
 Array = Any
@@ -122,6 +122,16 @@ OPTION_RANGES = {
     "speed_tolerance": SPEED, "max_settle_steps": STEPS, "bins": Range(low=3, whole=True), "voidage_cell": SIZE,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=6, help="a heap poured onto a row of fixed disks (1997)", default_law="baxter",
+    flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
+    headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
+              "angle_mid_flank.left", "angle_mid_flank.right",
+              "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
+              "m_shape.ratio", "m_shape.m_shaped"))
 
 
 class PourState(NamedTuple):

@@ -36,7 +36,7 @@ from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.state import Boundaries, Particles, make_particles
 
@@ -62,6 +62,15 @@ OPTION_RANGES = {
     "max_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=1, help="the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)", default_law="hooke",
+    flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
+           "hard_collisions": "hard_collisions", "seed": "seed"},
+    headline=("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
+              "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"))
 
 
 def _check_alpha(alpha_degrees) -> float:

@@ -45,7 +45,7 @@ from jaxpile import ranges, theory
 from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState
 
 Array = Any
@@ -66,6 +66,12 @@ OPTION_RANGES = {
     "max_tilt_degrees": ANGLE, "edge": FINITE, "dt": TIME_STEP, "settle_time": SPAN, "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
+CLI = CommandLine(
+    order=4, help="a box pile tilted until it moves (1993 Fig. 4)", default_law="lee-herrmann",
+    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"))
 
 
 class TiltState(NamedTuple):
