@@ -213,7 +213,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"jaxpile: error: {message} (see `{self.prog} --help`)\n")
 
 
-SWEEP_PROTOCOLS = ["box", "pour", "lattice", "sloped", "drop", "flux", "tilt"]  # sweep.ADAPTERS (a test keeps them equal)
+def _sweep_protocols() -> list[str]:
+    """The registered protocols a sweep and an ensemble fit run (`sweep.adapters`)."""
+    from jaxpile import sweep
+
+    runs = sweep.adapters()
+    return [name for name in _protocol_names() if name in runs]
+
+
+def __getattr__(name):  # SWEEP_PROTOCOLS, read from the registry when asked for
+    if name == "SWEEP_PROTOCOLS":
+        return _sweep_protocols()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -273,7 +284,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     compare.add_argument("dirs", nargs="+")
 
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
-    sweep.add_argument("--protocol", default="box", choices=SWEEP_PROTOCOLS,
+    sweep.add_argument("--protocol", default="box", choices=_sweep_protocols(),
                        help="box, pour, flux; lattice, sloped (deterministic piles: vary the law); drop")
     sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
@@ -300,7 +311,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     fitp.add_argument("--target", default=None, metavar="FILE|smid-novosad",
                       help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
                            "pile, pathwise gradients); or a target.json written by an ensemble fit")
-    fitp.add_argument("--protocol", default="lattice", choices=SWEEP_PROTOCOLS,
+    fitp.add_argument("--protocol", default="lattice", choices=_sweep_protocols(),
                       help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
     fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing"],
                       help="the gradient: pathwise through one pile (default with a CSV target), or of the "
@@ -401,7 +412,7 @@ def ranges_markdown() -> str:
     rows = ["| input | valid ranges |", "|---|---|"]
     rows += [f"| law `{name}` (`--set NAME=VALUE`) | {inline(get_law_module(name).RANGES)} |" for name in LAWS]
     rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(module.OPTION_RANGES)} |"
-             for name, module in PROTOCOLS.items()]
+             for name, module in PROTOCOLS.items() if getattr(module, "OPTION_RANGES", None)]
     rows += [f"| `jaxpile {command}` flags | "
              + "; ".join(f"--{dest.replace('_', '-')} {r.describe()}" for dest, r in FLAG_RANGES[command].items())
              + " |" for command in FLAG_RANGES]
@@ -427,7 +438,8 @@ def _ranges_epilog() -> str:
     out += [entry(name, get_law_module(name).RANGES) for name in LAWS]
     out += ["protocol options (--option NAME=VALUE, or a flag of its own: `jaxpile pile --protocol P --help`) "
             "and their valid ranges:"]
-    out += [entry(name, module.OPTION_RANGES) for name, module in PROTOCOLS.items()]
+    out += [entry(name, module.OPTION_RANGES) for name, module in PROTOCOLS.items()
+            if getattr(module, "OPTION_RANGES", None)]
     return "\n".join(out)
 
 

@@ -433,10 +433,24 @@ ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter, "tilt": _ti
     "sloped": lambda: _loaded_pile_adapter("sloped"), "drop": _drop_adapter}
 
 
+def adapters() -> dict[str, Callable[[], Adapter]]:
+    """Every protocol a sweep (and an ensemble fit) runs: the papers' seven
+    (`ADAPTERS`), and any registered protocol whose module has a
+    `sweep_adapter() -> Adapter` (a new protocol brings its own)."""
+    from jaxpile.protocols import PROTOCOLS
+
+    found = dict(ADAPTERS)
+    for name, module in PROTOCOLS.items():
+        if name not in found and callable(getattr(module, "sweep_adapter", None)):
+            found[name] = module.sweep_adapter
+    return found
+
+
 def adapter(protocol: str) -> Adapter:
-    if protocol not in ADAPTERS:
-        raise InputError(f"sweeps run the protocols {sorted(ADAPTERS)}; got {protocol!r}.")
-    return ADAPTERS[protocol]()
+    known = adapters()
+    if protocol not in known:
+        raise InputError(f"sweeps run the protocols {sorted(known)}; got {protocol!r}.")
+    return known[protocol]()
 
 
 # ---------------------------------------------------------------------- sweep

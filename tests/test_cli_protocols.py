@@ -172,3 +172,22 @@ def test_every_protocol_module_registers_itself_and_its_entry_names_what_its_run
                                  if any(p.kind is p.VAR_KEYWORD for p in takes.values()) else set())
         assert entry.size in keywords, (name, entry.size)
         assert set(entry.flags.values()) <= keywords, (name, set(entry.flags.values()) - keywords)
+
+
+def test_a_new_protocol_module_appears_in_pile_sweep_and_fit_by_declaring_itself(monkeypatch):
+    """A protocol module with `CLI` (and, for batches, `sweep_adapter`) is all
+    a new protocol needs for the commands to take it (issue 18)."""
+    import types
+
+    from jaxpile import cli, sweep
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.base import CommandLine
+
+    hopper = types.ModuleType("hopper")
+    hopper.CLI = CommandLine(order=7, help="a silo emptied through an orifice", default_law="hooke")
+    hopper.sweep_adapter = lambda: "the hopper's adapter"
+    monkeypatch.setitem(PROTOCOLS, "hopper", hopper)
+    assert cli.SWEEP_PROTOCOLS[-1] == "hopper" and sweep.adapter("hopper") == "the hopper's adapter"
+    for command in ("pile", "sweep", "fit"):
+        argv = [command, "--protocol", "hopper", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
+        assert cli.build_parser(argv).parse_args(argv).protocol == "hopper"

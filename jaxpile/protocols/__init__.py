@@ -39,7 +39,7 @@ def _document_ranges() -> None:
             if function is None or function.__module__ != module.__name__ or function in seen:
                 continue
             seen.add(function)
-            taken = {k: r for k, r in module.OPTION_RANGES.items() if k in inspect.signature(function).parameters}
+            taken = {k: r for k, r in getattr(module, "OPTION_RANGES", {}).items() if k in inspect.signature(function).parameters}
             if taken:
                 function.__doc__ = (function.__doc__ or "").rstrip() + doc_section(
                     taken, "Valid ranges (checked first; `jaxpile.ranges`)")
