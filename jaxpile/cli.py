@@ -31,7 +31,6 @@ import argparse
 import contextlib
 import dataclasses
 import json
-import math
 import os
 import sys
 import time
@@ -805,12 +804,9 @@ def run_protocol(args) -> dict:
 
     dt = args.dt if args.dt is not None else _protocol_dt(module, m)
     sim = Simulator(contact_law, dt)
-    if name == "pour":
-        base = m["substrate_forces"]
-    elif name == "flux":  # the pile stands on a fixed layer of disks: its base forces are the contacts with it
-        base = analysis.substrate_forces(sim, params, state)
-    else:
-        base = analysis.base_forces(sim, params, state)
+    entry = _entry(name)
+    base = (analysis.base_forces(sim, params, state) if entry.base_forces is None
+            else entry.base_forces(sim, params, state, m))  # e.g. the fixed row a heap stands on
     network = analysis.contact_network(sim, params, state)
     p = state.particles
     active = np.asarray(p.active)
@@ -830,8 +826,8 @@ def run_protocol(args) -> dict:
         "particle_steps_per_second": steps * int(active.sum()) / wall if wall > 0 else None,
         "cli_total_seconds": total,
         "resumed_from_step": resumed_from,
-        # pour's own `summary` is its measurements as plain numbers (the rest are maps and arrays)
-        **(m["summary"] if name == "pour" else _plain(m)),
+        # a protocol may give its own plain-number summary (pour: the rest are maps and arrays)
+        **(_plain(m) if entry.summary is None else entry.summary(m)),
     }
     summary["protocol"], summary["law"] = name, contact_law.name
     out = args.out
@@ -1270,45 +1266,23 @@ def _headline(name: str, summary: dict) -> str:
 
 
 def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
-    """pile.png and profile.png for every protocol, and the protocol's own figure."""
-    from jaxpile import plot, theory
+    """pile.png and profile.png for every protocol, and the protocol's own
+    figures (its registry entry's `figures`, `profile_theory`, `length_unit`)."""
+    from jaxpile import plot
 
+    entry = _entry(name)
     p = state.particles
     title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} disks"
-    cgs = name in ("box", "tilt", "flux") and law_name == "lee-herrmann"  # the 1993 setting is in the paper's cm
     plot.pile_figure(p.position, p.radius, network, active=np.asarray(p.active), title=title,
-                     length_unit="cm" if cgs else "diameters", path=os.path.join(out, "pile.png"))
-    th_n = th_h = None
-    if name == "sloped" and len(base.x):
-        alpha, width = math.radians(m["alpha_degrees"]), m["base"]
-        th_n = theory.continuum_ground_normal_force(np.asarray(base.x), alpha, width)
-        th_h = theory.continuum_ground_horizontal_force(np.asarray(base.x), alpha, width)
+                     length_unit="diameters" if entry.length_unit is None else entry.length_unit(law_name),
+                     path=os.path.join(out, "pile.png"))
+    theory_lines = None if entry.profile_theory is None else entry.profile_theory(m, base)
+    th_n, th_h, label = theory_lines or (None, None, None)
     plot.base_profile_figure(base.x, base.normal, base.horizontal, theory_normal=th_n, theory_horizontal=th_h,
-                             title=title + (" vs Liffman et al. 1992 eqs. 54-59" if th_n is not None else ""),
-                             path=os.path.join(out, "profile.png"))
+                             title=title + (f" vs {label}" if label else ""), path=os.path.join(out, "profile.png"))
     written = ["pile.png", "profile.png"]
-    if name in ("box", "tilt") and m.get("kinetic_energy"):
-        ke = m["kinetic_energy"]
-        energy = np.maximum(np.asarray(ke["kinetic_energy"], dtype=float), 1e-300)
-        plot.series_figure(ke["time"], {"kinetic energy per disk": energy}, xlabel="time", ylabel="E_kin per disk",
-                           logy=True, title=title + " (Lee & Herrmann 1993 Fig. 1b)",
-                           path=os.path.join(out, "energy.png"))
-        written.append("energy.png")
-    if name == "flux" and m.get("inserted"):
-        k = np.arange(1, m["inserted"] + 1)
-        series = {f"method {i}": m[f"angle_{key}"] for i, key in
-                  enumerate(("endpoints", "least_squares", "cumulative_parabola"), start=1)}
-        plot.series_figure(k, series, xlabel="insertion", ylabel="pile angle (deg)",
-                           hlines={"theta_MS (eq. 3)": m.get("theta_ms_theory"), "steady mean": m.get("steady_mean")},
-                           title=title + " (Lee & Herrmann 1993 Fig. 5)", path=os.path.join(out, "angles.png"))
-        written.append("angles.png")
-    if name == "pour" and m.get("base_profile") is not None:
-        prof = m["base_profile"]
-        plot.series_figure(prof.x_over_b, {"F / F_max": prof.normalised}, xlabel="x / B",
-                           ylabel="binned base normal force / max",
-                           title=title + " (Baxter et al. 1997 Figs. 3b, 5b, 7)",
-                           path=os.path.join(out, "heap_profile.png"))
-        written.append("heap_profile.png")
+    for figure in entry.figures:
+        written += figure(m, title, out)
     return written
 
 

@@ -54,6 +54,15 @@ class CommandLine(NamedTuple):
         `hard_collisions`) -> the `run` keyword it sets; absent: refused.
       headline: summary keys `jaxpile pile` prints at its end (dotted keys
         reach into nested dicts).
+      base_forces: `(sim, params, state, measured) -> BaseForces` written to
+        base_forces.csv; None: the ground's (`analysis.base_forces`).
+      summary: `measured -> dict` of plain numbers for summary.json; None:
+        the measurements as they are, arrays as lists.
+      length_unit: `law name -> unit` of pile.png's axes; None: diameters.
+      profile_theory: `(measured, base) -> (N, H, label) | None`, drawn on
+        profile.png.
+      figures: `(measured, title, out) -> [files]`, the protocol's own
+        figures (`jaxpile.protocols.outputs`).
     """
 
     order: int
@@ -62,6 +71,11 @@ class CommandLine(NamedTuple):
     size: str | None = "n"
     flags: dict = {}
     headline: tuple = ()
+    base_forces: Callable | None = None
+    summary: Callable | None = None
+    length_unit: Callable | None = None
+    profile_theory: Callable | None = None
+    figures: tuple = ()
 
 
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):

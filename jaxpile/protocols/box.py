@@ -78,6 +78,7 @@ from jaxpile import analysis, budget, ranges
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
+from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.simulate import max_speed
@@ -137,7 +138,8 @@ CLI = CommandLine(
     order=3, help="a box filled, its right wall removed (1993 Fig. 1)", default_law="lee-herrmann",
     flags={"seed": "seed"},
     headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
-              "repose_cumulative_parabola", "theta_ms_theory"))
+              "repose_cumulative_parabola", "theta_ms_theory"),
+    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,))
 
 
 class Units(NamedTuple):

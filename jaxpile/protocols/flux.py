@@ -57,6 +57,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import drivers
+from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState, make_particles
 
@@ -86,7 +87,9 @@ OPTION_RANGES = {
 CLI = CommandLine(
     order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", default_law="lee-herrmann",
     size="insertions", flags={"seed": "seed"},
-    headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"))
+    headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
+    base_forces=outputs.substrate_base, length_unit=outputs.cm_for_lee_herrmann,
+    figures=(outputs.angles_figure,))
 
 
 class FluxState(NamedTuple):

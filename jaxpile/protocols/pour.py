@@ -62,6 +62,7 @@ from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, s
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import drivers
+from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState, make_particles
 
@@ -131,7 +132,9 @@ CLI = CommandLine(
     headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
               "angle_mid_flank.left", "angle_mid_flank.right",
               "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
-              "m_shape.ratio", "m_shape.m_shaped"))
+              "m_shape.ratio", "m_shape.m_shaped"),
+    base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
+    summary=lambda measured: measured["summary"], figures=(outputs.heap_profile_figure,))
 
 
 class PourState(NamedTuple):

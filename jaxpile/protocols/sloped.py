@@ -36,6 +36,7 @@ from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
+from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.state import Boundaries, Particles, make_particles
@@ -70,7 +71,8 @@ CLI = CommandLine(
     flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
            "hard_collisions": "hard_collisions", "seed": "seed"},
     headline=("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
-              "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"))
+              "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
+    profile_theory=outputs.sloped_theory)
 
 
 def _check_alpha(alpha_degrees) -> float:

@@ -45,6 +45,7 @@ from jaxpile import ranges, theory
 from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
+from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.state import SimState
 
@@ -71,7 +72,8 @@ OPTION_RANGES = {
 # How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
 CLI = CommandLine(
     order=4, help="a box pile tilted until it moves (1993 Fig. 4)", default_law="lee-herrmann",
-    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"))
+    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
+    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,))
 
 
 class TiltState(NamedTuple):
