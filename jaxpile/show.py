@@ -3,7 +3,8 @@ drawn again from its files, without running anything.
 
 A finished pile run is drawn from `state.npz` (the disks), `contacts.csv` (the
 force network) and `base_forces.csv` + `summary.json` (the profile, with the
-1992 lattice theory where the run has it). A run still going, or stopped, is
+1992 theory where the run has it, and the protocol's own figures: energy,
+angles, heap profile). A run still going, or stopped, is
 drawn from its checkpoint (`checkpoint.in_folder`): the law and parameters
 recorded there give the contact forces of the saved state (evaluated, not
 advanced), and the kinetic energy samples saved with a box, tilt or flux run
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import json
 import os
+from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
@@ -50,10 +52,23 @@ def _finished(folder: str, out: str) -> list[str]:
     if summary.get("protocol") == "lattice" and summary.get("pile_intact") and layers == len(base["x"]):
         n_theory = np.full(len(base["x"]), theory.lattice_ground_normal_force(layers))
         h_theory = theory.lattice_ground_horizontal_force(layers)
+    entry = _registered(summary.get("protocol"))
+    if entry is not None and entry.profile_theory is not None and len(base["x"]):
+        n_theory, h_theory, label = entry.profile_theory(summary, SimpleNamespace(**base)) or (None, None, "")
     plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,
                              theory_horizontal=h_theory, title=title, path=os.path.join(out, "profile.png"))
     written.append("profile.png")
+    for figure in () if entry is None else entry.figures:  # the protocol's own (energy, angles, heap profile)
+        written += figure(summary, title, out)
     return written
+
+
+def _registered(name):
+    """The registry entry (`protocols.base.CommandLine`) of a protocol by name, or None."""
+    from jaxpile.protocols import PROTOCOLS
+
+    module = PROTOCOLS.get(name)
+    return None if module is None else module.CLI
 
 
 def state_from_checkpoint(path):

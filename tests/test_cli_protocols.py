@@ -49,6 +49,10 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     assert f"{protocol} pile" in printed and "wrote" in printed
     assert main(["compare", str(out)]) == 0
     assert protocol in capsys.readouterr().out
+    # `jaxpile show` draws the protocol's own figure again from the files, without running
+    assert main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
+    for name in ("pile.png", "profile.png") + ((figure,) if figure else ()):
+        assert (tmp_path / "redrawn" / name).stat().st_size > 10_000, name
 
     # the run was checkpointed (the tilt also saved the box run that built its pile);
     # resuming the finished run takes no step and writes the same pile

@@ -4,8 +4,9 @@ names the functions it uses in its `CLI = CommandLine(...)` entry, so the CLI
 branches on no protocol's name (issue 18).
 
 Each figure function takes `(measured, title, out)` (the protocol's `run`
-measurements, the figure title, the output folder) and returns the files it
-wrote (none when the run measured nothing to draw).
+measurements, or the summary.json `jaxpile show` reads them back from; the
+figure title; the output folder) and returns the files it wrote (none when
+the run measured nothing to draw).
 """
 
 from __future__ import annotations
@@ -49,10 +50,11 @@ def heap_profile_figure(measured: dict, title: str, out: str) -> list[str]:
     """heap_profile.png: the binned base normal force over x / B (Baxter et al. 1997)."""
     from jaxpile import plot
 
-    prof = measured.get("base_profile")
+    prof = measured.get("base_profile")  # pour.BaseProfile, or its summary.json form
     if prof is None:
         return []
-    plot.series_figure(prof.x_over_b, {"F / F_max": prof.normalised}, xlabel="x / B",
+    x, f = (prof["x_over_b"], prof["normalised"]) if isinstance(prof, dict) else (prof.x_over_b, prof.normalised)
+    plot.series_figure(x, {"F / F_max": f}, xlabel="x / B",
                        ylabel="binned base normal force / max", title=title + " (Baxter et al. 1997 Figs. 3b, 5b, 7)",
                        path=os.path.join(out, "heap_profile.png"))
     return ["heap_profile.png"]
