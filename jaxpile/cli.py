@@ -771,16 +771,17 @@ def run_protocol(args) -> dict:
         kwargs["alpha_degrees"] = args.slope
     flags = {"ramp_steps": args.ramp_steps, "max_steps": args.max_steps, "speed_tol": args.speed_tol,
              "hard_collisions": _parse_hard_collisions(args.hard_collisions),
-             "seed": args.seed if args.seed != 0 or name == "tilt" else None}
+             "seed": args.seed if args.seed != 0 else None}
     for flag, value in flags.items():
         if value is None:
             continue
-        if flag == "seed" and name == "tilt":
-            kwargs["box_options"] = {"seed": value}
-        elif flag in _entry(name).flags:
-            kwargs[_entry(name).flags[flag]] = value
-        else:
+        if flag not in _entry(name).flags:
             raise InputError(f"--{flag.replace('_', '-')} is not used by the {name} protocol.")
+        keyword, _, key = _entry(name).flags[flag].partition(".")  # "box_options.seed": a key of a dict argument
+        if key:
+            kwargs.setdefault(keyword, {})[key] = value
+        else:
+            kwargs[keyword] = value
     options = _parse_options(args.option)
     unknown = set(options) - _accepted_options(module)
     if unknown:
@@ -856,14 +857,10 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     called with the arguments it takes from the run's."""
     import inspect
 
-    from jaxpile.protocols import PROTOCOLS
-
     name = args.protocol
     setup, extra = module.protocol, {}
-    if name == "tilt":  # a tilt starts from a box pile: set that up
-        setup, extra = PROTOCOLS["box"].protocol, dict(kwargs.get("box_options") or {})
-        if "n" in kwargs:
-            extra["n"] = kwargs["n"]
+    if _entry(name).dry_run_setup is not None:  # e.g. a tilt starts from a box pile: set that up
+        setup, extra = _entry(name).dry_run_setup(kwargs)
     accepted = inspect.signature(setup).parameters
     given = {k: v for k, v in {**kwargs, **extra}.items() if k in accepted and k not in ("params", "progress")}
     if "law" in accepted:

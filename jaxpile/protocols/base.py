@@ -63,6 +63,9 @@ class CommandLine(NamedTuple):
         profile.png.
       figures: `(measured, title, out) -> [files]`, the protocol's own
         figures (`jaxpile.protocols.outputs`).
+      dry_run_setup: `run keywords -> (set-up function, its extra keywords)`
+        for `--dry-run`, when the run starts from another protocol's set-up
+        (the tilt from a box); None: the module's `protocol`.
     """
 
     order: int
@@ -76,6 +79,7 @@ class CommandLine(NamedTuple):
     length_unit: Callable | None = None
     profile_theory: Callable | None = None
     figures: tuple = ()
+    dry_run_setup: Callable | None = None
 
 
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):

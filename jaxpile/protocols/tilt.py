@@ -72,8 +72,18 @@ OPTION_RANGES = {
 # How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
 CLI = CommandLine(
     order=4, help="a box pile tilted until it moves (1993 Fig. 4)", default_law="lee-herrmann",
-    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
-    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,))
+    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"), flags={"seed": "box_options.seed"},
+    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,),
+    dry_run_setup=lambda kwargs: _box_setup(kwargs))
+
+
+def _box_setup(kwargs: dict):
+    """The box set-up a tilt run starts from, with the run's box options and n
+    (`jaxpile pile --protocol tilt --dry-run`)."""
+    extra = dict(kwargs.get("box_options") or {})
+    if "n" in kwargs:
+        extra["n"] = kwargs["n"]
+    return boxes.protocol, extra
 
 
 class TiltState(NamedTuple):
