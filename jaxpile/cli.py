@@ -82,9 +82,9 @@ def _parse_hard_collisions(text):
 def _entry(name: str):
     """The protocol's registry entry (`protocols.base.CommandLine`): its help,
     default law, the keyword `--n` sets, the generic flags it takes, its headline."""
-    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols import entry
 
-    return PROTOCOLS[name].CLI
+    return entry(name)
 
 
 def _protocol_names() -> list[str]:
@@ -113,13 +113,6 @@ def _parse_options(items) -> dict:
             value = {"on": True, "true": True, "off": False, "false": False}.get(lowered, text)
         options[name.replace("-", "_")] = value
     return options
-
-
-def _accepted_options(module) -> set:
-    """Keyword arguments `--option` may set (`protocols.options.accepted`)."""
-    from jaxpile.protocols import options
-
-    return set(options.accepted(module))
 
 
 DEFAULT_PROTOCOL = {"pile": "lattice", "sweep": "box", "fit": "lattice"}
@@ -748,6 +741,7 @@ def run_protocol(args) -> dict:
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
     from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols import options as protocol_options
     from jaxpile.simulate import Simulator
 
     name = args.protocol
@@ -783,10 +777,11 @@ def run_protocol(args) -> dict:
         else:
             kwargs[keyword] = value
     options = _parse_options(args.option)
-    unknown = set(options) - _accepted_options(module)
+    known = protocol_options.accepted(module)
+    unknown = set(options) - known
     if unknown:
         raise InputError(f"unknown --option {sorted(unknown)} for the {name} protocol; known: "
-                         f"{', '.join(sorted(_accepted_options(module)))}.")
+                         f"{', '.join(sorted(known))}.")
     kwargs.update(options)
     if args.dry_run:
         return _dry_run_protocol(args, module, kwargs, contact_law)

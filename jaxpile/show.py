@@ -52,7 +52,9 @@ def _finished(folder: str, out: str) -> list[str]:
     if summary.get("protocol") == "lattice" and summary.get("pile_intact") and layers == len(base["x"]):
         n_theory = np.full(len(base["x"]), theory.lattice_ground_normal_force(layers))
         h_theory = theory.lattice_ground_horizontal_force(layers)
-    entry = _registered(summary.get("protocol"))
+    from jaxpile.protocols import entry as registered
+
+    entry = registered(summary.get("protocol"))
     if entry is not None and entry.profile_theory is not None and len(base["x"]):
         n_theory, h_theory, label = entry.profile_theory(summary, SimpleNamespace(**base)) or (None, None, "")
     plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,
@@ -61,14 +63,6 @@ def _finished(folder: str, out: str) -> list[str]:
     for figure in () if entry is None else entry.figures:  # the protocol's own (energy, angles, heap profile)
         written += figure(summary, title, out)
     return written
-
-
-def _registered(name):
-    """The registry entry (`protocols.base.CommandLine`) of a protocol by name, or None."""
-    from jaxpile.protocols import PROTOCOLS
-
-    module = PROTOCOLS.get(name)
-    return None if module is None else module.CLI
 
 
 def state_from_checkpoint(path):
@@ -122,12 +116,10 @@ def _checkpointed(path: str, out: str) -> list[str]:
     plot.base_profile_figure(base.x, base.normal, base.horizontal, title=title, path=os.path.join(out, "profile.png"))
     written = ["pile.png", "profile.png"]
     samples = meta["extra"].get("samples")
-    if samples and samples.get("time"):
-        energy = np.maximum(np.asarray(samples["kinetic_energy"], dtype=float), 1e-300)
-        plot.series_figure(samples["time"], {"kinetic energy per disk": energy}, xlabel="time",
-                           ylabel="E_kin per disk", logy=True, title=title + " (Lee & Herrmann 1993 Fig. 1b)",
-                           path=os.path.join(out, "energy.png"))
-        written.append("energy.png")
+    if samples and samples.get("time"):  # the kinetic energy sampled so far: the run's own energy figure
+        from jaxpile.protocols.outputs import energy_figure
+
+        written += energy_figure({"kinetic_energy": samples}, title, out)
     return written
 
 

@@ -53,6 +53,9 @@ def test_pile_command_runs_every_protocol_and_writes_its_files(protocol, tmp_pat
     assert main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
     for name in ("pile.png", "profile.png") + ((figure,) if figure else ()):
         assert (tmp_path / "redrawn" / name).stat().st_size > 10_000, name
+    if figure == "energy.png":  # and from the checkpoint, with the energy sampled so far
+        assert main(["show", str(out), "--checkpoint", "--out", str(tmp_path / "from_checkpoint")]) == 0
+        assert (tmp_path / "from_checkpoint" / "energy.png").stat().st_size > 10_000
 
     # the run was checkpointed (the tilt also saved the box run that built its pile);
     # resuming the finished run takes no step and writes the same pile

@@ -24,6 +24,12 @@ def _registered() -> dict:
 PROTOCOLS = _registered()  # importing a submodule also binds it here: `protocols.pour` as before
 
 
+def entry(name) -> CommandLine | None:
+    """A registered protocol's `CommandLine` entry by name, or None."""
+    module = PROTOCOLS.get(name)
+    return None if module is None else module.CLI
+
+
 def _document_ranges() -> None:
     """Appends each set-up and run function's argument ranges (its module's
     `OPTION_RANGES`, which the function checks first) to its docstring, so that
@@ -47,4 +53,4 @@ def _document_ranges() -> None:
 
 _document_ranges()
 
-__all__ = [*PROTOCOLS, "PROTOCOLS"]
+__all__ = [*PROTOCOLS, "PROTOCOLS", "entry"]
