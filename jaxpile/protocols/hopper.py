@@ -1,0 +1,357 @@
+"""A flat-bottomed silo emptied through an orifice, against Beverloo's law.
+
+None of the three papers has it; it is what DEM users ask for next, and it is
+the proof of issue 18 that a new protocol is one module: this file and its
+test, with nothing to edit elsewhere (the registry finds `CLI`, the sweep and
+the ensemble fit find `sweep_adapter`).
+
+The set-up, in units of the mean diameter d = 1, g = 1, a disk of diameter 1
+of mass 1 (the 1993 protocols' reduced units):
+
+* a silo of width W between two walls; its floor is a row of fixed unit disks,
+  touching, at y = `FLOOR_Y`. The floor disks in the middle of width D (the
+  orifice, measured between the edges of the floor disks on either side) are
+  the gate: in place while the silo fills, taken away when it has come to rest.
+  Every orifice uses the same number of floor slots (the unused ones parked), so
+  piles with different orifices have the same shapes;
+* n disks of diameters uniform in d (1 +- `dispersity`) (polydisperse, so that
+  the 2D packing does not crystallise), placed at random without overlap above
+  the floor (`box.random_positions`), fall and settle;
+* one compiled `driver` runs the stages: 0 filling (the 1993 rest detector,
+  `box.rest_detector`, on the rms speed); 1 discharging: the gate goes, and a
+  disk more than `EXIT_DROP` below the floor's centres is taken out and its step
+  logged; 2 stopped, when every disk is out or none has come out for
+  `clog_time` (an arch over the orifice, or the dead zones beside it that a
+  flat bottom keeps).
+
+Measured: the discharge N(t) and its flow rate Q (disks per unit time, the
+least-squares slope of N(t) between 10 % and 60 % of the disks that came out,
+where the rate is steady), and Beverloo's law in 2D (Beverloo, Leniger & van de
+Velde 1961, written for a slot): Q = C n_A sqrt(g) (D - k d)^(3/2), with n_A the
+number of disks per unit area of the filled silo. `beverloo_c` is C at the
+given k; `beverloo_fit` finds C and k from runs at several orifices.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile import budget, ranges
+from jaxpile.boundaries import GROUND, make_boundaries, set_wall
+from jaxpile.errors import InputError
+from jaxpile.protocols import box, outputs
+from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
+from jaxpile.state import SimState, make_particles
+
+Array = Any
+
+SETTING = {
+    "width": 20.0, "orifice": 5.0, "dispersity": 0.1, "placement_fraction": 0.4,
+    "rest_speed": 0.01, "hold_time": 1.0,  # the fill is at rest: rms speed < 0.01 sqrt(g d) for 1 time unit
+    "clog_time": 10.0, "max_time": 1000.0, "beverloo_k": 1.5, "dt": 1.0e-3, "chunk_steps": 1000,
+    "params": {"hooke": {"kn": 1.0e4, "gamma_n": 50.0, "mu": 0.5},
+               "baxter": {"n": 36.0, "r0": 1.2, "mu": 0.5}},  # other laws: their own defaults
+    "rotation": True,
+}
+FLOOR_Y = 3.0
+"""Height of the floor disks' centres: everything in play stays at y > 0."""
+EXIT_DROP = 2.5
+"""A disk this far below the floor's centres has left the silo."""
+
+OPTION_RANGES = {
+    "n": DISKS, "width": SIZE, "orifice": Range(low=0, low_open=True, high=1e9, why="diameters; < width - 2"),
+    "dispersity": Range(low=0, high=0.5, high_open=True, why="diameters 1 +- dispersity stay positive"),
+    "placement_fraction": Range(low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
+    "rest_speed": SPEED, "hold_time": SPAN, "clog_time": SPAN, "max_time": SIZE, "dt": TIME_STEP, "seed": SEED,
+    "chunk_steps": STEPS,
+}
+"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+    """`(law module, ContactLaw, params)`: `SETTING["params"]` under the overrides; rotation on."""
+    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+
+
+class HopperState(NamedTuple):
+    """What the driver carries: the gate `[N]` (floor disks that close the
+    orifice), `park [N, 2]` (where a disk that came out goes), the exit level,
+    the fill's rest rule (`rest_speed` for `hold` steps; `quiet`, `armed` as in
+    `box.rest_detector`), `clog_steps` without a disk out that stop the run,
+    how many disks are `movable`, the `phase` (0 filling, 1 discharging, 2
+    stopped), the steps the gate opened and the run stopped at (-1 before),
+    the `last_out` step, `out_count`, each disk's `out_step [N]` (-1: still in)
+    and the highest disk top when the gate opened (`fill_top`)."""
+
+    gate: Array
+    park: Array
+    exit_level: Array
+    rest_speed: Array
+    hold: Array
+    clog_steps: Array
+    movable: Array
+    phase: Array
+    quiet: Array
+    armed: Array
+    opened_at: Array
+    stopped_at: Array
+    last_out: Array
+    out_count: Array
+    out_step: Array
+    fill_top: Array
+
+
+def driver(state: SimState) -> SimState:
+    """Before every step: disks below the exit level leave and are logged; the
+    gate goes when the filled silo is at rest; the stop is recorded."""
+    hs: HopperState = state.protocol_state
+    p = state.particles
+    out = p.active & ~p.fixed & (p.position[:, 1] < hs.exit_level)
+    p = p.set(active=p.active & ~out, position=jnp.where(out[:, None], hs.park, p.position),
+              velocity=jnp.where(out[:, None], 0.0, p.velocity), force=jnp.where(out[:, None], 0.0, p.force),
+              angular_velocity=jnp.where(out, 0.0, p.angular_velocity), torque=jnp.where(out, 0.0, p.torque))
+    state = state.set(particles=p)
+    quiet, armed, rested = box.rest_detector(box.rms_speed(state), hs.rest_speed, hs.quiet, hs.armed, hs.hold,
+                                             4 * hs.hold)
+    opening = rested & (hs.phase == 0)
+    count = hs.out_count + jnp.sum(out).astype(jnp.int32)
+    last_out = jnp.where(jnp.any(out) | opening, state.step, hs.last_out)
+    stopping = (hs.phase == 1) & ((count >= hs.movable) | (state.step - last_out >= hs.clog_steps))
+    top = jnp.max(jnp.where(p.active & ~p.fixed, p.position[:, 1] + p.radius, 0.0))
+    p = p.set(active=p.active & ~(hs.gate & opening))
+    hs = hs._replace(
+        phase=hs.phase + opening.astype(jnp.int32) + stopping.astype(jnp.int32),
+        quiet=jnp.where(opening, 0, quiet), armed=armed & ~opening,
+        opened_at=jnp.where(opening, state.step, hs.opened_at),
+        stopped_at=jnp.where(stopping, state.step, hs.stopped_at),
+        last_out=last_out, out_count=count, out_step=jnp.where(out, state.step, hs.out_step),
+        fill_top=jnp.where(opening, top, hs.fill_top))
+    return state.set(particles=p, protocol_state=hs)
+
+
+def floor(width: float, orifice: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Floor disk centres `[F]` (x), which of them are the gate, and F = the slots
+    every orifice of this width uses (`width + 8`; unused slots are parked).
+
+    The disks beside the orifice have their edges at W/2 -+ D/2; the floor goes
+    out from them in steps of d to a disk touching each wall; the gate is
+    ceil(D) disks spread evenly between them, so no gap in the closed floor is
+    wider than the spacing (<= d)."""
+    if not orifice < width - 2.0:
+        raise InputError(f"the orifice ({orifice:g}) must leave a floor disk on each side: < width - 2 = "
+                         f"{width - 2.0:g}.")
+    left = width / 2 - orifice / 2 - 0.5
+    side = np.arange(left, 0.5, -1.0)
+    side = np.append(side, 0.5) if side[-1] > 0.5 + 1e-9 else side  # a disk touching the wall closes the gap
+    gates = int(math.ceil(orifice))
+    gate_x = left + (orifice + 1.0) * np.arange(1, gates + 1) / (gates + 1)
+    x = np.concatenate([side, width - side, gate_x])
+    gate = np.arange(x.size) >= 2 * side.size
+    slots = int(math.ceil(width)) + 8
+    return x, gate, slots
+
+
+def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = SETTING["orifice"],
+             dispersity: float = SETTING["dispersity"], placement_fraction: float = SETTING["placement_fraction"],
+             rest_speed: float = SETTING["rest_speed"], hold_time: float = SETTING["hold_time"],
+             clog_time: float = SETTING["clog_time"], dt: float | None = None, seed: int = 0,
+             dtype=None) -> Protocol:
+    """The silo, filled at random, its gate closed, ready to run with `driver`.
+
+    Args:
+      n: disks to fill the silo with.
+      width: W, between the walls (diameters).
+      orifice: D, between the edges of the floor disks beside it (diameters).
+      dispersity: diameters are uniform in 1 +- this.
+      placement_fraction: the disks start at random, without overlap, filling
+        this fraction of the silo's area up to the height it takes.
+      rest_speed, hold_time: the fill is at rest when the rms speed stays below
+        `rest_speed` (sqrt(g d)) for `hold_time`; then the gate opens.
+      clog_time: the discharge stops when no disk has come out for this long.
+      dt: the time step the run will use (default `SETTING["dt"]`).
+      seed: draws the diameters and the positions.
+      dtype: float dtype (default float64).
+    """
+    ranges.check_all(OPTION_RANGES, locals(), protocol)
+    n, dt = int(n), float(SETTING["dt"] if dt is None else dt)
+    budget.check(n + int(math.ceil(width)) + 8, dtype or "float64", what="a hopper")
+    x_floor, gate, slots = floor(float(width), float(orifice))
+    rng = np.random.default_rng(int(seed))
+    diameter = rng.uniform(1.0 - dispersity, 1.0 + dispersity, n)
+    area = math.pi * float(np.sum(diameter**2)) / 4
+    fill = area / (placement_fraction * width)
+    inside = box.random_positions(0.5 * diameter, width, fill, rng) + [0.0, FLOOR_Y + 0.5]
+    park = box.parking_grid(n + slots, 1.0, FLOOR_Y + 0.5 + fill + 4.0, box.PARK_SPACING * (1.0 + dispersity))
+    unused = slots - x_floor.size
+    floor_xy = np.concatenate([np.stack([x_floor, np.full(x_floor.size, FLOOR_Y)], 1), park[n:n + unused]])
+    particles = make_particles(np.concatenate([floor_xy, inside]),
+                               np.concatenate([np.full(slots, 0.5), 0.5 * diameter]),
+                               fixed=np.arange(slots + n) < slots,
+                               active=(np.arange(slots + n) < x_floor.size) | (np.arange(slots + n) >= slots),
+                               dtype=dtype)
+    dtype = particles.position.dtype
+    boundaries = set_wall(make_boundaries(left=0.0, right=float(width), dtype=dtype), GROUND, active=False)
+    hold = ranges.steps_of("hold_time", hold_time, dt)
+    as_int = lambda v: jnp.asarray(v, jnp.int32)
+    state = HopperState(
+        gate=jnp.asarray(np.concatenate([gate, np.zeros(unused + n, bool)])),
+        park=jnp.asarray(np.concatenate([np.zeros((slots, 2)), park[:n]]), dtype),
+        exit_level=jnp.asarray(FLOOR_Y - EXIT_DROP, dtype), rest_speed=jnp.asarray(rest_speed, dtype),
+        hold=as_int(hold), clog_steps=as_int(ranges.steps_of("clog_time", clog_time, dt)), movable=as_int(n),
+        phase=as_int(0), quiet=as_int(0), armed=jnp.asarray(False), opened_at=as_int(-1), stopped_at=as_int(-1),
+        last_out=as_int(-1), out_count=as_int(0), out_step=jnp.full(slots + n, -1, jnp.int32),
+        fill_top=jnp.asarray(0.0, dtype))
+    info = {"protocol": "hopper", "n": n, "width": float(width), "orifice": float(orifice),
+            "dispersity": float(dispersity), "floor_disks": int(x_floor.size), "gate_disks": int(gate.sum()),
+            "floor_top": FLOOR_Y + 0.5, "dt": dt, "hold_steps": hold, "seed": int(seed)}
+    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
+                    box=box.neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
+
+
+# ------------------------------------------------------------------ measuring
+def flow_rate(times, low: float = 0.1, high: float = 0.6) -> float:
+    """Disks per unit time: the least-squares slope of the count N against the
+    sorted exit times, over the disks from `low` to `high` of those out (the
+    steady part: after the start, before the heap runs low); NaN below 5."""
+    t = np.sort(np.asarray(times, dtype=float))
+    k = np.arange(1, t.size + 1)
+    window = slice(int(low * t.size), int(math.ceil(high * t.size)))
+    if k[window].size < 5 or np.ptp(t[window]) == 0:
+        return float("nan")
+    return float(np.polyfit(t[window], k[window], 1)[0])
+
+
+def beverloo_fit(orifice, rate, number_density: float, g: float = 1.0) -> dict:
+    """C and k of Q = C n_A sqrt(g) (D - k)^(3/2) from rates at several orifices:
+    Q^(2/3) is linear in D, its root is k and its slope (C n_A sqrt g)^(2/3)."""
+    orifice, rate = np.asarray(orifice, float), np.asarray(rate, float)
+    if orifice.size < 2 or np.ptp(orifice) == 0 or not np.all(rate > 0):
+        raise InputError("a Beverloo fit needs positive rates at two or more orifices.")
+    slope, intercept = np.polyfit(orifice, rate ** (2 / 3), 1)
+    return {"c": float(slope**1.5 / (number_density * math.sqrt(g))), "k": float(-intercept / slope)}
+
+
+def measure(state: SimState, info: dict, beverloo_k: float = SETTING["beverloo_k"]) -> dict:
+    """Plain numbers of a run (the sweep's row) and the discharge N(t)."""
+    hs: HopperState = state.protocol_state
+    p = state.particles
+    dt, opened = info["dt"], int(hs.opened_at)
+    steps = np.asarray(hs.out_step)
+    times = np.sort(steps[steps >= 0] - opened) * dt
+    rate = flow_rate(times)
+    height = float(hs.fill_top) - info["floor_top"]
+    density = info["n"] / (info["width"] * height) if opened >= 0 and height > 0 else float("nan")
+    gap = info["orifice"] - beverloo_k
+    in_play = np.asarray(p.active & ~p.fixed)
+    x, y = np.asarray(p.position[:, 0]), np.asarray(p.position[:, 1])
+    over = in_play & (np.abs(x - info["width"] / 2) < info["orifice"] / 2) & (y < info["floor_top"] + 1.5)
+    return {
+        "opened_step": opened, "stopped_step": int(hs.stopped_at), "at_rest": int(hs.stopped_at) >= 0,
+        "discharged": int(hs.out_count), "remaining": int(in_play.sum()), "clogged": bool(over.any()),
+        "flow_rate": rate, "mass_flow_rate": rate * float(np.mean(np.asarray(p.mass)[~np.asarray(p.fixed)])),
+        "number_density": density, "fill_height": height,
+        "beverloo_c": rate / (density * gap**1.5) if gap > 0 else float("nan"), "beverloo_k": beverloo_k,
+        "discharge": {"time": times.tolist(), "count": list(range(1, times.size + 1))},
+    }
+
+
+def discharge_figure(measured: dict, title: str, out: str) -> list[str]:
+    """discharge.png: disks out against time since the gate opened, with the flow rate."""
+    from jaxpile import plot
+
+    d = measured.get("discharge") or {}
+    if not d.get("time"):
+        return []
+    t = np.asarray(d["time"])
+    rate = measured.get("flow_rate", float("nan"))
+    series = {"disks out": np.asarray(d["count"], float)}
+    if math.isfinite(rate):
+        middle = t.size // 3
+        series[f"Q = {rate:.3g} disks / time"] = d["count"][middle] + rate * (t - t[middle])
+    plot.series_figure(t, series, xlabel="time since the gate opened (sqrt(d / g))", ylabel="disks out",
+                       title=title + " (Beverloo's law)", path=f"{out}/discharge.png")
+    return ["discharge.png"]
+
+
+CLI = CommandLine(
+    order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", default_law="hooke",
+    flags={"seed": "seed"},
+    headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
+    base_forces=outputs.substrate_base, figures=(discharge_figure,))
+
+
+# ---------------------------------------------------------------- running it
+def make_simulator(law="hooke", *, dt: float | None = None, rotation: bool | None = None,
+                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
+    """A `Simulator` running the hopper's `driver`; one serves every set-up with this dt."""
+    from jaxpile.simulate import Simulator
+
+    _, contact_law, _ = law_and_params(law, {}, rotation)
+    return Simulator(contact_law, SETTING["dt"] if dt is None else dt, integrator=integrator, driver=driver,
+                     chunk_steps=chunk_steps or SETTING["chunk_steps"], **kwargs)
+
+
+def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None, dt: float | None = None,
+        integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"], chunk_steps: int | None = None,
+        beverloo_k: float = SETTING["beverloo_k"], progress=False, dtype=None, checkpoint=None, resume=None,
+        **options):
+    """Fills the silo, opens the gate at rest, lets it run out, and measures the flow.
+
+    Args:
+      law, params, rotation: the contact law (default hooke, `SETTING`) and overrides.
+      n: disks in the silo.
+      dt, integrator, chunk_steps: for the `Simulator`.
+      max_time: give up after this much simulated time (sqrt(d / g)).
+      beverloo_k: k of Beverloo's law at which `beverloo_c` is reported.
+      checkpoint, resume: save the run as it goes; continue a saved run (bit-identical).
+      **options: for `protocol` (width, orifice, dispersity, placement_fraction,
+        rest_speed, hold_time, clog_time, seed).
+
+    Returns:
+      `(state, measurements)`: `measure`'s numbers, the kinetic energy per
+      chunk, timings and the set-up (`info`).
+    """
+    ranges.check_all(OPTION_RANGES, locals(), run)
+    _, _, params = law_and_params(law, params, rotation, dtype)
+    p = protocol(n, dt=dt, dtype=dtype, **options)
+    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
+    budget_steps = ranges.steps_of("max_time", max_time, p.info["dt"])
+    t0 = time.perf_counter()
+    state, samples = box.start(sim, params, p, resume)
+    if int(state.step) > budget_steps:
+        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {budget_steps} steps.")
+    state, info, samples = box.run_sampled(sim, params, state, max_steps=budget_steps - int(state.step),
+                                           finished=lambda s: int(s.protocol_state.stopped_at) >= 0,
+                                           progress=progress, checkpoint=checkpoint, samples=samples)
+    return state, {"protocol": "hopper", **measure(state, p.info, beverloo_k), "kinetic_energy": samples,
+                   **box.run_record(info, t0), "info": dict(p.info)}
+
+
+def sweep_adapter():
+    """What a sweep and an ensemble fit need: the flow rate (and Beverloo's C) per member."""
+    from jaxpile.sweep import Adapter
+
+    keys = ("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density")
+
+    def setup(law, seed, dt, options):
+        return protocol(seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
+
+    def measure_row(sim, params, state, p):
+        m = measure(state, p.info)
+        return {k: m[k] for k in keys}
+
+    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options),
+                   lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
+                   lambda info, options: ranges.steps_of("max_time", options.get("max_time", SETTING["max_time"]),
+                                                         info["dt"]),
+                   measure_row, law_and_params, lambda law: float(SETTING["dt"]), ("flow_rate", "beverloo_c"),
+                   frozenset({"n", "width", "orifice", "dispersity", "placement_fraction", "rest_speed", "hold_time",
+                              "clog_time", "max_time"}),
+                   unit="disks / time", default_law="hooke", fit_statistics={"columns": ("flow_rate",)})
