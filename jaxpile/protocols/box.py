@@ -70,7 +70,6 @@ import math
 import time
 from typing import Any, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -80,46 +79,16 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
-from jaxpile.protocols.base import law_and_params as base_law_and_params
-from jaxpile.simulate import max_speed
+from jaxpile.protocols.drivers import motion, rest_detector, rms_speed  # noqa: F401  (box.X as before)
+from jaxpile.protocols.geometry import (PARK_SPACING, _check_positive, neighbor_box, parking_grid,  # noqa: F401
+                                        random_positions, take_out)
+from jaxpile.protocols.paper1993 import (PAPER_G, PAPER_SETTING, Units, _measure_flag, _radius_law,  # noqa: F401
+                                         fill_count, friction_coefficient, gaussian_radii, law_and_params, law_name,
+                                         law_setting, mean_square_radius, units)
+from jaxpile.runner import check_dt, restore_sampled, run_record, run_sampled, run_to_finish, start  # noqa: F401
 from jaxpile.state import SimState, make_particles
 
 Array = Any
-
-PAPER_G = 981.0
-"""g in the paper's units (cm / s^2), used to convert speeds and times."""
-
-PARK_SPACING = 2.5
-"""Distance between parked disks, in largest diameters: beyond every law's reach plus skin."""
-
-PAPER_SETTING = {
-    # geometry, in the paper's units (cm)
-    "width": 4.0,  # W = H = 4 for theta_R(mu), sec. 4
-    "height": 4.0,
-    "radius": {"mean": 0.1, "width": 0.02, "low": 0.07, "high": 0.13},  # sec. 4
-    "packing_fraction": 0.82,  # random polydisperse packing: N = 400 fills 4 x 4 (sec. 3)
-    "placement_fraction": 0.4,  # area fraction of the random, non-overlapping start
-    # rest and timing, in the paper's units (cm/s, s)
-    "rest_speed": 0.1,  # the paper's v_cut (sec. 5), here on the rms speed
-    "rest_measure": "rms",  # "rms": mass-weighted rms speed (Fig. 1(b)'s energy); "max": max_speed
-    "hold_time": 0.005,  # how long the largest speed must stay below rest_speed
-    "max_time": 5.0,  # give up after this much simulated time
-    "chunk_time": 0.01,  # kinetic energy sampled once per chunk (Fig. 1(b))
-    "laws": {
-        # the paper's own law and values (sec. 3), in cgs; glass spheres. With the
-        # law's literal delta_s these piles do not settle (see the module notes)
-        "lee-herrmann": {"scale": 1.0, "gravity": PAPER_G, "sphere_density": 2.5, "dt": 2.0e-5,
-                         "params": {"kn": 1.0e6, "ks": 1.0e4, "gamma_n": 5.0e2, "gamma_s": 5.0, "mu": 0.2,
-                                    "wall_kn": 2.0e6}},
-        # ours, in reduced units (mean diameter 1, g = 1, diameter-1 disk of mass 1)
-        "hooke": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3,
-                  "params": {"kn": 1.0e4, "gamma_n": 50.0, "mu": 0.2}},
-        "baxter": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3,
-                   "params": {"n": 36.0, "r0": 1.2, "mu": 0.2}},
-        "liffman": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3, "params": {}},
-    },
-    "rotation": False,  # "The rotation of the particles is not included" (sec. 2)
-}
 
 
 # ------------------------------------------------------------------- units
@@ -142,211 +111,9 @@ CLI = CommandLine(
     length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,))
 
 
-class Units(NamedTuple):
-    """How the paper's units (cm, s, cm/s) map onto a law's simulation units.
-
-    Attributes:
-      scale: simulation length of 1 cm.
-      gravity: g in simulation units.
-      time: simulation time of 1 s (Froude scaling: sqrt(scale g_paper / g)).
-      speed: simulation speed of 1 cm/s (scale / time).
-      sphere_density: disks weigh as spheres of this density (simulation units);
-        None: uniform areal density, a disk of diameter 1 has mass 1.
-    """
-
-    scale: float
-    gravity: float
-    time: float
-    speed: float
-    sphere_density: float | None
-
-
-def law_name(law) -> str:
-    """The registry name of a law given by name, module or `ContactLaw`."""
-    from jaxpile.laws import get_law_module
-
-    if isinstance(law, str):
-        return get_law_module(law).NAME
-    name = getattr(law, "NAME", None) or getattr(law, "name", None)
-    if name is None:
-        raise InputError(f"law must be a law name, module or ContactLaw; got {type(law).__name__}.")
-    return get_law_module(name).NAME
-
-
-def law_setting(law) -> dict:
-    """`PAPER_SETTING["laws"][law]`: units, dt and parameters for one law."""
-    return PAPER_SETTING["laws"][law_name(law)]
-
-
-def units(law) -> Units:
-    """The `Units` a law runs this paper's protocols in."""
-    s = law_setting(law)
-    scale, gravity = float(s["scale"]), float(s["gravity"])
-    t = math.sqrt(scale * PAPER_G / gravity)
-    return Units(scale=scale, gravity=gravity, time=t, speed=scale / t, sphere_density=s["sphere_density"])
-
-
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
-    """`(law module, ContactLaw, params)` for this paper's protocols.
-
-    Args:
-      law: a law name (`lee-herrmann`, `hooke`, `baxter`, `liffman`) or module.
-      params: None (the setting's values), a dict of overrides on top of them,
-        or a ready params pytree of that law.
-      rotation: integrate spins; default off (the paper's disks do not rotate).
-    """
-    name = law_name(law)
-    setting = {"params": {name: law_setting(name)["params"]}, "rotation": PAPER_SETTING["rotation"]}
-    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype)
-
-
-def friction_coefficient(params) -> float | None:
-    """The disk-disk Coulomb mu of a params pytree, or None for a law without one (liffman)."""
-    mu = getattr(params, "mu", None)
-    return None if mu is None else float(mu)
-
 
 # -------------------------------------------------------------- the disks
-def _check_positive(name: str, value) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise InputError(f"{name} must be a positive number; got {value!r}.") from None
-    if not (value > 0 and math.isfinite(value)):
-        raise InputError(f"{name} must be positive and finite; got {value!r}.")
-    return value
 
-
-def _radius_law(radius: dict | None) -> tuple[float, float, float, float]:
-    r = {**PAPER_SETTING["radius"], **(radius or {})}
-    unknown = set(r) - {"mean", "width", "low", "high"}
-    if unknown:
-        raise InputError(f"unknown radius setting(s) {sorted(unknown)}; known: mean, width, low, high.")
-    mean, width, low, high = (float(r[k]) for k in ("mean", "width", "low", "high"))
-    if not (0 < low <= mean <= high and width >= 0 and all(map(math.isfinite, (mean, width, low, high)))):
-        raise InputError(f"radii need 0 < low <= mean <= high and width >= 0; got {r}.")
-    return mean, width, low, high
-
-
-def gaussian_radii(n: int, rng: np.random.Generator, *, mean: float = 0.1, width: float = 0.02,
-                   low: float = 0.07, high: float = 0.13) -> np.ndarray:
-    """`[n]` radii from the Gaussian of Lee & Herrmann 1993, sec. 4 (mean 0.1,
-    standard deviation 0.02, cut to [0.07, 0.13]); values outside the cut-offs
-    are drawn again. In the paper's units: multiply by `Units.scale`."""
-    if int(n) != n or n < 0:
-        raise InputError(f"n must be a whole number >= 0; got {n!r}.")
-    mean, width, low, high = _radius_law({"mean": mean, "width": width, "low": low, "high": high})
-    out = np.empty(0)
-    while out.size < n:
-        draw = rng.normal(mean, width, max(16, 2 * (int(n) - out.size)))
-        out = np.concatenate([out, draw[(draw >= low) & (draw <= high)]])
-    return out[: int(n)]
-
-
-def mean_square_radius(mean: float = 0.1, width: float = 0.02, low: float = 0.07, high: float = 0.13) -> float:
-    """E[a^2] of the truncated Gaussian (exact), so pi E[a^2] is the mean disk area."""
-    if width == 0:
-        return mean * mean
-    phi = lambda z: math.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
-    cdf = lambda z: 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))
-    a, b = (low - mean) / width, (high - mean) / width
-    z = cdf(b) - cdf(a)
-    shift = (phi(a) - phi(b)) / z
-    var = width**2 * (1.0 + (a * phi(a) - b * phi(b)) / z - shift**2)
-    m = mean + width * shift
-    return var + m * m
-
-
-def fill_count(width: float = 4.0, height: float = 4.0, *, packing_fraction: float = 0.82,
-               radius: dict | None = None) -> int:
-    """N disks that fill a W x H box (the paper's units) at `packing_fraction`:
-    round(phi W H / (pi E[a^2])); 409 for the paper's 4 x 4 box (its
-    "400 particle system", sec. 3)."""
-    width, height = _check_positive("width", width), _check_positive("height", height)
-    if not 0 < packing_fraction < 0.91:
-        raise InputError(f"packing_fraction must be in (0, 0.91); got {packing_fraction!r}.")
-    area = math.pi * mean_square_radius(*_radius_law(radius))
-    return max(1, int(round(packing_fraction * width * height / area)))
-
-
-def random_positions(radius, width: float, height: float, rng: np.random.Generator, *,
-                     gap: float = 0.01, attempts: int = 20_000) -> np.ndarray:
-    """`[n, 2]` centres of non-overlapping disks placed at random in
-    [0, width] x [0, height] (random sequential addition, largest disks first):
-    every disk inside the box and at least `gap` (a fraction of the contact
-    distance) away from every other.
-
-    Raises:
-      InputError: when a disk finds no free place in `attempts` tries (the box
-        is too full: make it taller or use fewer disks).
-    """
-    radius = np.asarray(radius, dtype=np.float64)
-    n = radius.size
-    if n == 0:
-        return np.zeros((0, 2))
-    width, height = _check_positive("width", width), _check_positive("height", height)
-    r_max = float(radius.max())
-    if 2 * r_max > min(width, height):
-        raise InputError(f"a disk of diameter {2 * r_max:g} does not fit in a {width:g} x {height:g} box.")
-    cell = 2.0 * r_max * (1.0 + gap)
-    nx, ny = max(1, int(width // cell)), max(1, int(height // cell))
-    cx, cy = width / nx, height / ny
-    grid: dict = {}
-    position = np.zeros((n, 2))
-    for i in np.argsort(-radius, kind="stable"):
-        r = radius[i]
-        for _ in range(int(attempts)):
-            p = rng.uniform((r, r), (width - r, height - r))
-            gx, gy = min(int(p[0] // cx), nx - 1), min(int(p[1] // cy), ny - 1)
-            near = [j for ix in (gx - 1, gx, gx + 1) for iy in (gy - 1, gy, gy + 1) for j in grid.get((ix, iy), ())]
-            if near:
-                d = np.linalg.norm(position[near] - p, axis=1)
-                if np.any(d < (radius[near] + r) * (1.0 + gap)):
-                    continue
-            position[i] = p
-            grid.setdefault((gx, gy), []).append(i)
-            break
-        else:
-            raise InputError(f"could not place {n} disks without overlap in a {width:g} x {height:g} box "
-                             f"({np.pi * np.sum(radius**2) / (width * height):.0%} of its area); "
-                             "make it taller or use fewer disks.")
-    return position
-
-
-def parking_grid(n: int, x0: float, y0: float, spacing: float) -> np.ndarray:
-    """`[n, 2]` places for disks out of play: a square-ish grid with its lower left
-    corner at (x0, y0) and `spacing` between neighbours."""
-    columns = max(1, int(math.ceil(math.sqrt(max(n, 1)))))
-    k = np.arange(n)
-    return np.stack([x0 + spacing * (k % columns), y0 + spacing * (k // columns)], axis=1).astype(np.float64)
-
-
-def neighbor_box(position, radius) -> tuple[float, float]:
-    """A cell-list box covering every position with a margin of two largest diameters."""
-    position, radius = np.asarray(position), np.asarray(radius)
-    margin = 4.0 * float(radius.max())
-    top = position.max(axis=0) + margin
-    return float(top[0]), float(top[1])
-
-
-def take_out(state: SimState, edge, park) -> tuple[SimState, Array]:
-    """Active, non-fixed disks whose centre passed x = `edge` (fell off the end
-    of the floor) taken out of play: inactive, at rest, at their `park` place.
-
-    Returns:
-      (state, how many were taken out at this step).
-    """
-    p = state.particles
-    out = p.active & ~p.fixed & (p.position[:, 0] > edge)
-    p = p.set(
-        active=p.active & ~out,
-        position=jnp.where(out[:, None], park, p.position),
-        velocity=jnp.where(out[:, None], 0.0, p.velocity),
-        angular_velocity=jnp.where(out, 0.0, p.angular_velocity),
-        force=jnp.where(out[:, None], 0.0, p.force),
-        torque=jnp.where(out, 0.0, p.torque),
-    )
-    return state.set(particles=p), jnp.sum(out).astype(jnp.int32)
 
 
 # --------------------------------------------------------- the compiled run
@@ -382,45 +149,6 @@ class BoxState(NamedTuple):
     fill_height: Array
 
 
-def rms_speed(state: SimState) -> Array:
-    """sqrt(2 E / M): the mass-weighted rms speed of the movable disks, E their
-    kinetic energy (translation and rotation) and M their mass; the kinetic
-    energy per disk of Fig. 1(b) expressed as a speed."""
-    p = state.particles
-    movable = p.movable
-    energy = p.mass * jnp.sum(p.velocity**2, -1) + p.inertia * p.angular_velocity**2
-    total = jnp.sum(jnp.where(movable, energy, 0.0))
-    mass = jnp.sum(jnp.where(movable, p.mass, 0.0))
-    return jnp.sqrt(total / jnp.maximum(mass, jnp.finfo(p.mass.dtype).tiny))
-
-
-def motion(state: SimState, use_max) -> Array:
-    """The speed the rest criteria read: `max_speed` where `use_max`, else `rms_speed`."""
-    return jnp.where(use_max, max_speed(state), rms_speed(state))
-
-
-def _measure_flag(rest_measure: str) -> bool:
-    if rest_measure not in ("rms", "max"):
-        raise InputError(f"rest_measure must be 'rms' (mass-weighted rms speed) or 'max' (largest speed); "
-                         f"got {rest_measure!r}.")
-    return rest_measure == "max"
-
-
-def rest_detector(speed, rest_speed, quiet, armed, hold, fallback):
-    """One step of the rest detector shared by this paper's drivers.
-
-    Returns:
-      (quiet, armed, rested): `quiet` counts consecutive steps with `speed <
-      rest_speed`, `armed` records that the speed reached `rest_speed` (so a
-      pile that starts at rest is not taken as settled before it moved), and
-      `rested` is true once armed and quiet for `hold` steps, or quiet for
-      `fallback` steps without ever moving.
-    """
-    still = speed < rest_speed
-    quiet = jnp.where(still, quiet + 1, 0)
-    armed = armed | ~still
-    rested = (quiet >= hold) & (armed | (quiet >= fallback))
-    return quiet, armed, rested
 
 
 def driver(state: SimState) -> SimState:
@@ -591,130 +319,21 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
                      chunk_steps=chunk_steps, **kwargs)
 
 
-def run_record(info, t0: float) -> dict:
-    """Steps and timings of a run, for the measurements dict."""
-    return {
-        "steps": info.steps,
-        "wall_seconds": info.wall_seconds,
-        "compile_seconds": info.compile_seconds,
-        "total_seconds": time.perf_counter() - t0,
-        "neighbor_reallocations": info.reallocations,
-    }
-
-
 def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -> int:
     """`max_time` (paper seconds) in steps of dt."""
     return ranges.steps_of("max_time", _check_positive("max_time", max_time) * units(law).time, dt)
 
 
-def _sample(state: SimState):
-    """(step, kinetic energy per movable disk, max_speed): `analysis.mean_kinetic_energy` on device."""
-    p = state.particles
-    energy = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.angular_velocity**2
-    count = jnp.maximum(jnp.sum(p.movable), 1)
-    return state.step, jnp.sum(jnp.where(p.movable, energy, 0.0)) / count, max_speed(state)
-
-
-_sample_jit = jax.jit(_sample)
-
-
-def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progress=None, checkpoint=None,
-                samples: dict | None = None):
-    """Runs `state` until the host predicate `finished(state)` holds (checked
-    after each chunk) or `max_steps`, sampling once per chunk.
-
-    Args:
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`; the samples so
-        far are saved with each checkpoint (under `extra["samples"]`).
-      samples: the samples of the run so far, when `state` is a resumed
-        checkpoint (its `extra["samples"]`): continued, and nothing is run if
-        the resumed state is already finished.
-
-    Returns:
-      (state, RunInfo, samples): samples is a dict of per-chunk lists `step`,
-      `time`, `kinetic_energy` (per movable disk, `analysis.mean_kinetic_energy`;
-      Fig. 1(b)) and `max_speed`, starting with the run's first state.
-    """
-    from jaxpile import checkpoint as ckpt
-    from jaxpile.simulate import RunInfo
-
-    if int(max_steps) != max_steps or max_steps < 0 or (max_steps == 0 and samples is None):
-        raise InputError(f"max_steps must be a whole number >= 1; got {max_steps!r}.")
-    resumed = samples is not None
-    samples = {k: list(v) for k, v in samples.items()} if resumed else {
-        "step": [], "time": [], "kinetic_energy": [], "max_speed": []}
-
-    def sample(s: SimState) -> None:
-        step, energy, speed = (x.item() for x in _sample_jit(s))
-        samples["step"].append(int(step))
-        samples["time"].append(int(step) * sim.dt)
-        samples["kinetic_energy"].append(float(energy))
-        samples["max_speed"].append(float(speed))
-
-    def stop(s: SimState) -> bool:
-        sample(s)
-        return bool(finished(s))
-
-    if not resumed:
-        sample(state)
-    info = RunInfo()
-    info._n = state.particles.count
-    if not (resumed and finished(state)):
-        # the samples dict is written as it stands at each save: always up to date
-        state = sim.run(params, state, int(max_steps), progress=progress, info=info, until=stop,
-                        checkpoint=ckpt.with_facts(checkpoint, samples=samples))
-    info.max_speed = float(max_speed(state))
-    info.at_rest = bool(finished(state))
-    return state, info, samples
-
-
-def check_dt(sim, p: Protocol) -> None:
-    """InputError unless the simulator steps with the dt the protocol was set up for."""
-    if abs(sim.dt - p.info["dt"]) > 1e-12 * p.info["dt"]:
-        raise InputError(f"the protocol was set up for dt = {p.info['dt']:g} but the simulator uses "
-                         f"dt = {sim.dt:g}; pass the same dt to both.")
-
-
-def start(sim, params, p: Protocol, resume=None) -> tuple[SimState, dict | None]:
-    """The protocol's first state, or with `resume` (a checkpoint file of this
-    same run) the state saved there, with the samples saved beside it."""
-    check_dt(sim, p)
-    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    return (state, None) if resume is None else restore_sampled(resume, state, sim, params)
-
-
-def restore_sampled(resume, template: SimState, sim, params) -> tuple[SimState, dict]:
-    """The state a sampled run (`run_sampled`) saved in `resume`, rebuilt on
-    `template` (`checkpoint.restore`), and the samples saved with it."""
-    from jaxpile import checkpoint as ckpt
-
-    state = ckpt.restore(resume, template, sim.law, params)
-    samples = ckpt.read_metadata(resume)["extra"].get("samples")
-    if samples is None:
-        raise InputError(f"{resume} does not hold a sampled protocol run (no samples recorded with it).")
-    return state, samples
-
-
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Starts a box protocol and runs it until its driver records the final rest
-    (`BoxState.settled_at`) or `max_steps`.
-
-    Args:
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
-      resume: a checkpoint file of this same run to continue from: the run
-        ends bit-identical to the uninterrupted one, samples included.
+    (`BoxState.settled_at`) or `max_steps` (`runner.run_to_finish`: checkpoint,
+    resume bit-identical, samples).
 
     Returns:
-      (state, RunInfo, samples) as `run_sampled`.
+      (state, RunInfo, samples) as `runner.run_sampled`.
     """
-    state, samples = start(sim, params, p, resume)
-    if int(state.step) > max_steps:
-        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {max_steps} steps: "
-                         "resume with the budget (max_time) it was written with.")
-    return run_sampled(sim, params, state, max_steps=max_steps - int(state.step), progress=progress,
-                       finished=lambda s: int(s.protocol_state.settled_at) >= 0, checkpoint=checkpoint,
-                       samples=samples)
-
+    return run_to_finish(sim, params, p, max_steps=max_steps, finished=lambda s: int(s.protocol_state.settled_at) >= 0,
+                         progress=progress, checkpoint=checkpoint, resume=resume)
 
 def count_check(state: SimState) -> dict:
     """Where every disk is: in play (active, movable), fixed, or out of play."""

@@ -6,12 +6,15 @@ and inactive, and a driver activates them.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import jax.numpy as jnp
 from jax import lax
 
+from jaxpile.simulate import max_speed
 from jaxpile.state import SimState
+
+Array = Any
 
 
 def next_inactive(state: SimState):
@@ -68,3 +71,38 @@ def when(condition: Callable[[SimState], jnp.ndarray], driver: Callable[[SimStat
         return lax.cond(condition(state), driver, lambda s: s, state)
 
     return conditional
+
+
+# ------------------------------------------------ rest, shared by the 1993 drivers and the hopper
+def rms_speed(state: SimState) -> Array:
+    """sqrt(2 E / M): the mass-weighted rms speed of the movable disks, E their
+    kinetic energy (translation and rotation) and M their mass; the kinetic
+    energy per disk of Fig. 1(b) expressed as a speed."""
+    p = state.particles
+    movable = p.movable
+    energy = p.mass * jnp.sum(p.velocity**2, -1) + p.inertia * p.angular_velocity**2
+    total = jnp.sum(jnp.where(movable, energy, 0.0))
+    mass = jnp.sum(jnp.where(movable, p.mass, 0.0))
+    return jnp.sqrt(total / jnp.maximum(mass, jnp.finfo(p.mass.dtype).tiny))
+
+
+def motion(state: SimState, use_max) -> Array:
+    """The speed the rest criteria read: `max_speed` where `use_max`, else `rms_speed`."""
+    return jnp.where(use_max, max_speed(state), rms_speed(state))
+
+
+def rest_detector(speed, rest_speed, quiet, armed, hold, fallback):
+    """One step of the rest detector shared by this paper's drivers.
+
+    Returns:
+      (quiet, armed, rested): `quiet` counts consecutive steps with `speed <
+      rest_speed`, `armed` records that the speed reached `rest_speed` (so a
+      pile that starts at rest is not taken as settled before it moved), and
+      `rested` is true once armed and quiet for `hold` steps, or quiet for
+      `fallback` steps without ever moving.
+    """
+    still = speed < rest_speed
+    quiet = jnp.where(still, quiet + 1, 0)
+    armed = armed | ~still
+    rested = (quiet >= hold) & (armed | (quiet >= fallback))
+    return quiet, armed, rested

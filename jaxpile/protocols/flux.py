@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis, budget, ranges
+from jaxpile import analysis, budget, ranges, runner
 from jaxpile.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
@@ -416,10 +416,10 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
 
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps`: `box.execute`, whose
-    predicate is the same field of this driver's state. Returns as `box.run_sampled`."""
-    return boxes.execute(sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
-                         resume=resume)
+    rest (`FluxState.settled_at`), or `max_steps` (`runner.run_to_finish`).
+    Returns as `runner.run_sampled`."""
+    return runner.run_to_finish(sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
+                                resume=resume, finished=lambda s: int(s.protocol_state.settled_at) >= 0)
 
 
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
@@ -484,7 +484,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
         "starved_steps": int(ps.starved),
         **boxes.count_check(state),
         "kinetic_energy": samples,
-        **boxes.run_record(info, t0),
+        **runner.run_record(info, t0),
         "info": dict(p.info),
     }
     return state, out

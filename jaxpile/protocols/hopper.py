@@ -16,9 +16,9 @@ of mass 1 (the 1993 protocols' reduced units):
   piles with different orifices have the same shapes;
 * n disks of diameters uniform in d (1 +- `dispersity`) (polydisperse, so that
   the 2D packing does not crystallise), placed at random without overlap above
-  the floor (`box.random_positions`), fall and settle;
+  the floor (`geometry.random_positions`), fall and settle;
 * one compiled `driver` runs the stages: 0 filling (the 1993 rest detector,
-  `box.rest_detector`, on the rms speed); 1 discharging: the gate goes, and a
+  `drivers.rest_detector`, on the rms speed); 1 discharging: the gate goes, and a
   disk more than `EXIT_DROP` below the floor's centres is taken out and its step
   logged; 2 stopped, when every disk is out or none has come out for
   `clog_time` (an arch over the orifice, or the dead zones beside it that a
@@ -44,7 +44,10 @@ import numpy as np
 from jaxpile import budget, ranges
 from jaxpile.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.errors import InputError
-from jaxpile.protocols import box, outputs
+from jaxpile import runner
+from jaxpile.protocols import outputs
+from jaxpile.protocols.drivers import rest_detector, rms_speed
+from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, parking_grid, random_positions
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
@@ -84,7 +87,7 @@ class HopperState(NamedTuple):
     """What the driver carries: the gate `[N]` (floor disks that close the
     orifice), `park [N, 2]` (where a disk that came out goes), the exit level,
     the fill's rest rule (`rest_speed` for `hold` steps; `quiet`, `armed` as in
-    `box.rest_detector`), `clog_steps` without a disk out that stop the run,
+    `drivers.rest_detector`), `clog_steps` without a disk out that stop the run,
     how many disks are `movable`, the `phase` (0 filling, 1 discharging, 2
     stopped), the steps the gate opened and the run stopped at (-1 before),
     the `last_out` step, `out_count`, each disk's `out_step [N]` (-1: still in)
@@ -118,7 +121,7 @@ def driver(state: SimState) -> SimState:
               velocity=jnp.where(out[:, None], 0.0, p.velocity), force=jnp.where(out[:, None], 0.0, p.force),
               angular_velocity=jnp.where(out, 0.0, p.angular_velocity), torque=jnp.where(out, 0.0, p.torque))
     state = state.set(particles=p)
-    quiet, armed, rested = box.rest_detector(box.rms_speed(state), hs.rest_speed, hs.quiet, hs.armed, hs.hold,
+    quiet, armed, rested = rest_detector(rms_speed(state), hs.rest_speed, hs.quiet, hs.armed, hs.hold,
                                              4 * hs.hold)
     opening = rested & (hs.phase == 0)
     count = hs.out_count + jnp.sum(out).astype(jnp.int32)
@@ -187,8 +190,8 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
     diameter = rng.uniform(1.0 - dispersity, 1.0 + dispersity, n)
     area = math.pi * float(np.sum(diameter**2)) / 4
     fill = area / (placement_fraction * width)
-    inside = box.random_positions(0.5 * diameter, width, fill, rng) + [0.0, FLOOR_Y + 0.5]
-    park = box.parking_grid(n + slots, 1.0, FLOOR_Y + 0.5 + fill + 4.0, box.PARK_SPACING * (1.0 + dispersity))
+    inside = random_positions(0.5 * diameter, width, fill, rng) + [0.0, FLOOR_Y + 0.5]
+    park = parking_grid(n + slots, 1.0, FLOOR_Y + 0.5 + fill + 4.0, PARK_SPACING * (1.0 + dispersity))
     unused = slots - x_floor.size
     floor_xy = np.concatenate([np.stack([x_floor, np.full(x_floor.size, FLOOR_Y)], 1), park[n:n + unused]])
     particles = make_particles(np.concatenate([floor_xy, inside]),
@@ -212,7 +215,7 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
             "dispersity": float(dispersity), "floor_disks": int(x_floor.size), "gate_disks": int(gate.sum()),
             "floor_top": FLOOR_Y + 0.5, "dt": dt, "hold_steps": hold, "seed": int(seed)}
     return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
-                    box=box.neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
+                    box=neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
 
 
 # ------------------------------------------------------------------ measuring
@@ -322,16 +325,12 @@ def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None,
     _, _, params = law_and_params(law, params, rotation, dtype)
     p = protocol(n, dt=dt, dtype=dtype, **options)
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    budget_steps = ranges.steps_of("max_time", max_time, p.info["dt"])
     t0 = time.perf_counter()
-    state, samples = box.start(sim, params, p, resume)
-    if int(state.step) > budget_steps:
-        raise InputError(f"{resume} is at step {int(state.step)}, past this run's budget of {budget_steps} steps.")
-    state, info, samples = box.run_sampled(sim, params, state, max_steps=budget_steps - int(state.step),
-                                           finished=lambda s: int(s.protocol_state.stopped_at) >= 0,
-                                           progress=progress, checkpoint=checkpoint, samples=samples)
+    state, info, samples = runner.run_to_finish(
+        sim, params, p, max_steps=ranges.steps_of("max_time", max_time, p.info["dt"]), progress=progress,
+        finished=lambda s: int(s.protocol_state.stopped_at) >= 0, checkpoint=checkpoint, resume=resume)
     return state, {"protocol": "hopper", **measure(state, p.info, beverloo_k), "kinetic_energy": samples,
-                   **box.run_record(info, t0), "info": dict(p.info)}
+                   **runner.run_record(info, t0), "info": dict(p.info)}
 
 
 def sweep_adapter():

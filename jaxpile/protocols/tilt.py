@@ -41,7 +41,7 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import ranges, theory
+from jaxpile import ranges, runner, theory
 from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
@@ -293,11 +293,11 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         same `pile`).
 
     Returns:
-      (state, RunInfo, samples) as `box.run_sampled`.
+      (state, RunInfo, samples) as `runner.run_sampled`.
     """
     from jaxpile import checkpoint as ckpt
 
-    boxes.check_dt(sim, p)
+    runner.check_dt(sim, p)
     if pile is None:
         state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     else:
@@ -306,7 +306,7 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         state = pile.set(protocol_state=p.protocol_state)
     samples = None
     if resume is not None:
-        state, samples = boxes.restore_sampled(resume, state, sim, params)
+        state, samples = runner.restore_sampled(resume, state, sim, params)
     u = boxes.units(sim.law.name)
     settle_steps = int(round(boxes._check_positive("settle_time", settle_time) * u.time / sim.dt)) if settle else 0
     max_steps = p.info["max_tilt_steps"] + sim.chunk_steps + settle_steps
@@ -319,7 +319,7 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
         return int(ps.phase) == 0 and int(s.step) - p.info["start_step"] > p.info["max_tilt_steps"] + int(ps.hold)
 
     done = int(state.step) - p.info["start_step"]
-    return boxes.run_sampled(sim, params, state, max_steps=max_steps - done, finished=finished, progress=progress,
+    return runner.run_sampled(sim, params, state, max_steps=max_steps - done, finished=finished, progress=progress,
                              checkpoint=ckpt.with_facts(checkpoint, stage="tilt"), samples=samples)
 
 
@@ -457,7 +457,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         "n_left": int(ps.left),
         **boxes.count_check(state),
         "kinetic_energy": samples,
-        **boxes.run_record(info, t0),
+        **runner.run_record(info, t0),
         "info": dict(p.info),
     }
     if settle and out["at_rest"]:

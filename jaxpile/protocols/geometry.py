@@ -1,0 +1,109 @@
+"""Placing disks, parking the ones out of play and taking disks out: the
+geometry the protocols share (the box, the flux, the tilt, the hopper)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile.errors import InputError
+from jaxpile.state import SimState
+
+Array = Any
+
+
+PARK_SPACING = 2.5
+"""Distance between parked disks, in largest diameters: beyond every law's reach plus skin."""
+
+
+def _check_positive(name: str, value) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a positive number; got {value!r}.") from None
+    if not (value > 0 and math.isfinite(value)):
+        raise InputError(f"{name} must be positive and finite; got {value!r}.")
+    return value
+
+
+def random_positions(radius, width: float, height: float, rng: np.random.Generator, *,
+                     gap: float = 0.01, attempts: int = 20_000) -> np.ndarray:
+    """`[n, 2]` centres of non-overlapping disks placed at random in
+    [0, width] x [0, height] (random sequential addition, largest disks first):
+    every disk inside the box and at least `gap` (a fraction of the contact
+    distance) away from every other.
+
+    Raises:
+      InputError: when a disk finds no free place in `attempts` tries (the box
+        is too full: make it taller or use fewer disks).
+    """
+    radius = np.asarray(radius, dtype=np.float64)
+    n = radius.size
+    if n == 0:
+        return np.zeros((0, 2))
+    width, height = _check_positive("width", width), _check_positive("height", height)
+    r_max = float(radius.max())
+    if 2 * r_max > min(width, height):
+        raise InputError(f"a disk of diameter {2 * r_max:g} does not fit in a {width:g} x {height:g} box.")
+    cell = 2.0 * r_max * (1.0 + gap)
+    nx, ny = max(1, int(width // cell)), max(1, int(height // cell))
+    cx, cy = width / nx, height / ny
+    grid: dict = {}
+    position = np.zeros((n, 2))
+    for i in np.argsort(-radius, kind="stable"):
+        r = radius[i]
+        for _ in range(int(attempts)):
+            p = rng.uniform((r, r), (width - r, height - r))
+            gx, gy = min(int(p[0] // cx), nx - 1), min(int(p[1] // cy), ny - 1)
+            near = [j for ix in (gx - 1, gx, gx + 1) for iy in (gy - 1, gy, gy + 1) for j in grid.get((ix, iy), ())]
+            if near:
+                d = np.linalg.norm(position[near] - p, axis=1)
+                if np.any(d < (radius[near] + r) * (1.0 + gap)):
+                    continue
+            position[i] = p
+            grid.setdefault((gx, gy), []).append(i)
+            break
+        else:
+            raise InputError(f"could not place {n} disks without overlap in a {width:g} x {height:g} box "
+                             f"({np.pi * np.sum(radius**2) / (width * height):.0%} of its area); "
+                             "make it taller or use fewer disks.")
+    return position
+
+
+def parking_grid(n: int, x0: float, y0: float, spacing: float) -> np.ndarray:
+    """`[n, 2]` places for disks out of play: a square-ish grid with its lower left
+    corner at (x0, y0) and `spacing` between neighbours."""
+    columns = max(1, int(math.ceil(math.sqrt(max(n, 1)))))
+    k = np.arange(n)
+    return np.stack([x0 + spacing * (k % columns), y0 + spacing * (k // columns)], axis=1).astype(np.float64)
+
+
+def neighbor_box(position, radius) -> tuple[float, float]:
+    """A cell-list box covering every position with a margin of two largest diameters."""
+    position, radius = np.asarray(position), np.asarray(radius)
+    margin = 4.0 * float(radius.max())
+    top = position.max(axis=0) + margin
+    return float(top[0]), float(top[1])
+
+
+def take_out(state: SimState, edge, park) -> tuple[SimState, Array]:
+    """Active, non-fixed disks whose centre passed x = `edge` (fell off the end
+    of the floor) taken out of play: inactive, at rest, at their `park` place.
+
+    Returns:
+      (state, how many were taken out at this step).
+    """
+    p = state.particles
+    out = p.active & ~p.fixed & (p.position[:, 0] > edge)
+    p = p.set(
+        active=p.active & ~out,
+        position=jnp.where(out[:, None], park, p.position),
+        velocity=jnp.where(out[:, None], 0.0, p.velocity),
+        angular_velocity=jnp.where(out, 0.0, p.angular_velocity),
+        force=jnp.where(out[:, None], 0.0, p.force),
+        torque=jnp.where(out, 0.0, p.torque),
+    )
+    return state.set(particles=p), jnp.sum(out).astype(jnp.int32)

@@ -1,0 +1,176 @@
+"""Lee & Herrmann 1993's setting, shared by its three protocols (box, tilt,
+flux): the paper's units and how each law runs in them, and its radius law.
+
+The paper's values are in its own units (energies "in erg": cgs). For the
+lee-herrmann law a run is in those units; the other laws run in reduced units
+(the paper's lengths times 5, g = 1), with speeds and times converted by
+Froude scaling (see `box`'s module notes).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxpile.errors import InputError
+from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.geometry import _check_positive
+
+
+PAPER_G = 981.0
+"""g in the paper's units (cm / s^2), used to convert speeds and times."""
+
+
+PAPER_SETTING = {
+    # geometry, in the paper's units (cm)
+    "width": 4.0,  # W = H = 4 for theta_R(mu), sec. 4
+    "height": 4.0,
+    "radius": {"mean": 0.1, "width": 0.02, "low": 0.07, "high": 0.13},  # sec. 4
+    "packing_fraction": 0.82,  # random polydisperse packing: N = 400 fills 4 x 4 (sec. 3)
+    "placement_fraction": 0.4,  # area fraction of the random, non-overlapping start
+    # rest and timing, in the paper's units (cm/s, s)
+    "rest_speed": 0.1,  # the paper's v_cut (sec. 5), here on the rms speed
+    "rest_measure": "rms",  # "rms": mass-weighted rms speed (Fig. 1(b)'s energy); "max": max_speed
+    "hold_time": 0.005,  # how long the largest speed must stay below rest_speed
+    "max_time": 5.0,  # give up after this much simulated time
+    "chunk_time": 0.01,  # kinetic energy sampled once per chunk (Fig. 1(b))
+    "laws": {
+        # the paper's own law and values (sec. 3), in cgs; glass spheres. With the
+        # law's literal delta_s these piles do not settle (see the module notes)
+        "lee-herrmann": {"scale": 1.0, "gravity": PAPER_G, "sphere_density": 2.5, "dt": 2.0e-5,
+                         "params": {"kn": 1.0e6, "ks": 1.0e4, "gamma_n": 5.0e2, "gamma_s": 5.0, "mu": 0.2,
+                                    "wall_kn": 2.0e6}},
+        # ours, in reduced units (mean diameter 1, g = 1, diameter-1 disk of mass 1)
+        "hooke": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3,
+                  "params": {"kn": 1.0e4, "gamma_n": 50.0, "mu": 0.2}},
+        "baxter": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3,
+                   "params": {"n": 36.0, "r0": 1.2, "mu": 0.2}},
+        "liffman": {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3, "params": {}},
+    },
+    "rotation": False,  # "The rotation of the particles is not included" (sec. 2)
+}
+
+
+class Units(NamedTuple):
+    """How the paper's units (cm, s, cm/s) map onto a law's simulation units.
+
+    Attributes:
+      scale: simulation length of 1 cm.
+      gravity: g in simulation units.
+      time: simulation time of 1 s (Froude scaling: sqrt(scale g_paper / g)).
+      speed: simulation speed of 1 cm/s (scale / time).
+      sphere_density: disks weigh as spheres of this density (simulation units);
+        None: uniform areal density, a disk of diameter 1 has mass 1.
+    """
+
+    scale: float
+    gravity: float
+    time: float
+    speed: float
+    sphere_density: float | None
+
+
+def law_name(law) -> str:
+    """The registry name of a law given by name, module or `ContactLaw`."""
+    from jaxpile.laws import get_law_module
+
+    if isinstance(law, str):
+        return get_law_module(law).NAME
+    name = getattr(law, "NAME", None) or getattr(law, "name", None)
+    if name is None:
+        raise InputError(f"law must be a law name, module or ContactLaw; got {type(law).__name__}.")
+    return get_law_module(name).NAME
+
+
+def law_setting(law) -> dict:
+    """`PAPER_SETTING["laws"][law]`: units, dt and parameters for one law."""
+    return PAPER_SETTING["laws"][law_name(law)]
+
+
+def units(law) -> Units:
+    """The `Units` a law runs this paper's protocols in."""
+    s = law_setting(law)
+    scale, gravity = float(s["scale"]), float(s["gravity"])
+    t = math.sqrt(scale * PAPER_G / gravity)
+    return Units(scale=scale, gravity=gravity, time=t, speed=scale / t, sphere_density=s["sphere_density"])
+
+
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+    """`(law module, ContactLaw, params)` for this paper's protocols.
+
+    Args:
+      law: a law name (`lee-herrmann`, `hooke`, `baxter`, `liffman`) or module.
+      params: None (the setting's values), a dict of overrides on top of them,
+        or a ready params pytree of that law.
+      rotation: integrate spins; default off (the paper's disks do not rotate).
+    """
+    name = law_name(law)
+    setting = {"params": {name: law_setting(name)["params"]}, "rotation": PAPER_SETTING["rotation"]}
+    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype)
+
+
+def friction_coefficient(params) -> float | None:
+    """The disk-disk Coulomb mu of a params pytree, or None for a law without one (liffman)."""
+    mu = getattr(params, "mu", None)
+    return None if mu is None else float(mu)
+
+
+def _radius_law(radius: dict | None) -> tuple[float, float, float, float]:
+    r = {**PAPER_SETTING["radius"], **(radius or {})}
+    unknown = set(r) - {"mean", "width", "low", "high"}
+    if unknown:
+        raise InputError(f"unknown radius setting(s) {sorted(unknown)}; known: mean, width, low, high.")
+    mean, width, low, high = (float(r[k]) for k in ("mean", "width", "low", "high"))
+    if not (0 < low <= mean <= high and width >= 0 and all(map(math.isfinite, (mean, width, low, high)))):
+        raise InputError(f"radii need 0 < low <= mean <= high and width >= 0; got {r}.")
+    return mean, width, low, high
+
+
+def gaussian_radii(n: int, rng: np.random.Generator, *, mean: float = 0.1, width: float = 0.02,
+                   low: float = 0.07, high: float = 0.13) -> np.ndarray:
+    """`[n]` radii from the Gaussian of Lee & Herrmann 1993, sec. 4 (mean 0.1,
+    standard deviation 0.02, cut to [0.07, 0.13]); values outside the cut-offs
+    are drawn again. In the paper's units: multiply by `Units.scale`."""
+    if int(n) != n or n < 0:
+        raise InputError(f"n must be a whole number >= 0; got {n!r}.")
+    mean, width, low, high = _radius_law({"mean": mean, "width": width, "low": low, "high": high})
+    out = np.empty(0)
+    while out.size < n:
+        draw = rng.normal(mean, width, max(16, 2 * (int(n) - out.size)))
+        out = np.concatenate([out, draw[(draw >= low) & (draw <= high)]])
+    return out[: int(n)]
+
+
+def mean_square_radius(mean: float = 0.1, width: float = 0.02, low: float = 0.07, high: float = 0.13) -> float:
+    """E[a^2] of the truncated Gaussian (exact), so pi E[a^2] is the mean disk area."""
+    if width == 0:
+        return mean * mean
+    phi = lambda z: math.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+    cdf = lambda z: 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))
+    a, b = (low - mean) / width, (high - mean) / width
+    z = cdf(b) - cdf(a)
+    shift = (phi(a) - phi(b)) / z
+    var = width**2 * (1.0 + (a * phi(a) - b * phi(b)) / z - shift**2)
+    m = mean + width * shift
+    return var + m * m
+
+
+def fill_count(width: float = 4.0, height: float = 4.0, *, packing_fraction: float = 0.82,
+               radius: dict | None = None) -> int:
+    """N disks that fill a W x H box (the paper's units) at `packing_fraction`:
+    round(phi W H / (pi E[a^2])); 409 for the paper's 4 x 4 box (its
+    "400 particle system", sec. 3)."""
+    width, height = _check_positive("width", width), _check_positive("height", height)
+    if not 0 < packing_fraction < 0.91:
+        raise InputError(f"packing_fraction must be in (0, 0.91); got {packing_fraction!r}.")
+    area = math.pi * mean_square_radius(*_radius_law(radius))
+    return max(1, int(round(packing_fraction * width * height / area)))
+
+
+def _measure_flag(rest_measure: str) -> bool:
+    if rest_measure not in ("rms", "max"):
+        raise InputError(f"rest_measure must be 'rms' (mass-weighted rms speed) or 'max' (largest speed); "
+                         f"got {rest_measure!r}.")
+    return rest_measure == "max"
