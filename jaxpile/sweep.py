@@ -8,14 +8,16 @@ all 32 members in batches of `batch_size` in one compiled loop each, and
 measures each member as the protocol's own `run` does. The rows go to a CSV
 (`write_csv`), and `summarise` gives mean and standard error per grid point.
 
-Protocols (`ADAPTERS`): `box` (Lee & Herrmann 1993: angle of repose by the
+Protocols (`adapters()`: every registered protocol module's `sweep_adapter`):
+`box` (Lee & Herrmann 1993: angle of repose by the
 three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
 ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
 ground forces against eqs. 42-44 and 54-59, e.g. against K_s) and `drop`
 (1992 Fig. 20: the base profile's central dip over seeds) and `flux`
 (1993 Fig. 5: the steady angle under a flux of disks) and `tilt` (1993
 Fig. 4: a box pile, then tilted until it moves: theta_T; two stages, each
-member starting the second where it ended the first).
+member starting the second where it ended the first) and `hopper` (a silo's
+flow rate, Beverloo's law).
 """
 
 from __future__ import annotations
@@ -29,7 +31,6 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-import jax.numpy as jnp
 
 from jaxpile import budget as memory
 from jaxpile import ensemble
@@ -109,7 +110,7 @@ class Adapter:
     deterministic: bool = False
 
 
-def _heap_extent(base: str, centre_key: str, count_key: str):
+def heap_extent(base: str, centre_key: str, count_key: str):
     """A random heap's profile range: its axis +- 1.6 sqrt(n) diameters, wider
     than a heap of n unit disks at 20 degrees (base 2.9 sqrt(n) at packing 0.82)."""
     def extent(protocol):
@@ -119,7 +120,7 @@ def _heap_extent(base: str, centre_key: str, count_key: str):
     return extent
 
 
-def _bottom_row_extent(protocol):
+def bottom_row_extent(protocol):
     """A deterministic pile on the ground: the bottom row's outer edges."""
     p = protocol.particles
     y, x, r = np.asarray(p.position[:, 1]), np.asarray(p.position[:, 0]), np.asarray(p.radius)
@@ -127,7 +128,8 @@ def _bottom_row_extent(protocol):
     return "ground", float((x - r)[row].min()), float((x + r)[row].max())
 
 
-def _marginal_stability(name, values):
+def marginal_stability(name, values):
+    """The sweep figure's overlay against mu: theta_MS = arctan(3 mu) (1993 eq. 3)."""
     from jaxpile import theory
 
     if name != "mu":
@@ -135,119 +137,39 @@ def _marginal_stability(name, values):
     return "theta_MS = arctan(3 mu) (1993 eq. 3)", np.degrees(theory.marginal_stability_angle(np.asarray(values)))
 
 
-def _option_names(setup, *extra) -> frozenset:
+def option_names(setup, *extra) -> frozenset:
+    """The options a sweep of this set-up accepts: its arguments, and `extra` run options."""
     import inspect
 
     names = set(inspect.signature(setup).parameters) - {"law", "seed", "dt", "dtype"}
     return frozenset(names | set(extra))
 
 
-# ------------------------------------------------------------------------ box
-def _settled(info, options):
-    """The 1993 family's end (box, flux): the driver's rest detector has fired."""
-    return lambda s: s.protocol_state.settled_at >= 0
+def loaded_pile_adapter(setting: dict, build: Callable, compare: Callable, law_and_params: Callable,
+                        headline: tuple, names) -> Adapter:
+    """A 1992 static pile in a batch (lattice, sloped): a gravity ramp, then a
+    run to rest (as `lattice.relax`; the batch's predicate: past the ramp and
+    every member's fastest disk below `speed_tolerance`). Deterministic piles:
+    seeds repeat the same pile, so a sweep varies the law (K_s, mu_roll, ...).
 
-
-def _max_time_steps(default_max_time: float):
-    """The 1993 family's budget: `max_time` (paper seconds) in steps of the member's dt."""
-    from jaxpile.protocols import box
-
-    return lambda info, options: box.max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
-
-
-def _box_adapter() -> Adapter:
-    from jaxpile.protocols import box
-
-    def setup(law, seed, dt, options):
-        return box.protocol(law=law, seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
-
-    def simulator(law, dt, options, setup_options):
-        return box.make_simulator(law, dt=dt, **options)
-
-    def measure(sim, params, state, protocol):
-        ps = state.protocol_state
-        angles = box.repose(state, protocol.info["width"])
-        return {k: angles[k] for k in ("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola")} | {
-            "at_rest": int(ps.settled_at) >= 0, "wall_removed_step": int(ps.removed_at),
-            "settled_step": int(ps.settled_at), "n_left": int(ps.left), "fill_height": float(ps.fill_height)}
-
-    return Adapter(setup, simulator, _settled, _max_time_steps(box.PAPER_SETTING["max_time"]), measure,
-                   box.law_and_params,
-                   lambda law: float(box.law_setting(law)["dt"]),
-                   ("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
-                   _option_names(box.protocol, "max_time"), _marginal_stability,
-                   extent=lambda protocol: ("ground", 0.0, float(protocol.info["width"])),
-                   fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")})
-
-
-# ----------------------------------------------------------------------- pour
-def _pour_adapter() -> Adapter:
-    from jaxpile.protocols import pour
-
-    def setup(law, seed, dt, options):
-        options = {k: v for k, v in options.items() if k not in ("speed_tolerance", "max_settle_steps")}
-        return pour.pour(seed=seed, dt=dt, **options)
-
-    def simulator(law, dt, options, setup_options):
-        return pour.make_simulator(law, dt=dt, **options)
-
-    def finished(info, options):
-        # as pour.execute: every disk poured, then at rest
-        pour_steps = int(info["pour_steps"])
-        tolerance = float(options.get("speed_tolerance", pour.PAPER_SETTING["speed_tolerance"]))
-        return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
-
-    def max_steps(info, options):
-        return int(info["pour_steps"]) + int(options.get("max_settle_steps", pour.PAPER_SETTING["max_settle_steps"]))
-
-    def measure(sim, params, state, protocol):
-        m = pour.summary(pour.measure(sim, params, state))
-        out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
-        for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
-            out[key] = m.get(key, float("nan"))
-        for flank in ("left", "right"):
-            a = (m.get("angle_of_repose") or {}).get(flank) or {}
-            out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
-        out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
-        ms = m.get("m_shape") or {}
-        out["m_ratio"] = ms.get("ratio", float("nan"))
-        out["m_shaped"] = bool(ms.get("m_shaped", False))
-        return out
-
-    return Adapter(setup, simulator, finished, max_steps, measure, pour.law_and_params,
-                   lambda law: float(pour.PAPER_SETTING["dt"]), ("repose_mean", "angle_height_base"),
-                   _option_names(pour.pour, "speed_tolerance", "max_settle_steps"), _marginal_stability,
-                   default_law="baxter", extent=_heap_extent("substrate", "centre_x", "n_poured"),
-                   fit_statistics={"columns": ("repose_mean",), "bins": 9})
-
-
-# ------------------------------------------------------------ lattice, sloped
-def _loaded_pile_adapter(name: str) -> Adapter:
-    """The 1992 static piles: a gravity ramp, then a run to rest (as
-    `lattice.relax`; the batch's predicate: past the ramp and every member's
-    fastest disk below `speed_tolerance`). Deterministic piles: seeds repeat
-    the same pile, so a sweep varies the law (K_s, mu_roll, ...)."""
+    Args:
+      setting: the protocol's defaults (`ramp_steps`, `speed_tolerance`, `max_steps`, `dt`).
+      build: `(set-up options with dtype) -> (particles, boundaries, info)`.
+      compare: `(base forces, info, state) -> dict` against the paper's theory.
+      law_and_params, headline, names: the protocol's law lookup, headline
+        columns and set-up options.
+    """
     from jaxpile import analysis
-    from jaxpile.protocols import lattice, sloped
-    from jaxpile.protocols.base import Protocol, law_and_params as base_law_and_params
+    from jaxpile.protocols.base import Protocol
     from jaxpile.simulate import Simulator, gravity_ramp
 
-    setting = lattice.PAPER_SETTING if name == "lattice" else sloped.SETTING
     run_options = ("ramp_steps", "speed_tolerance", "max_steps")
 
     def value(options, key):
         return options.get(key, setting[key])
 
     def setup(law, seed, dt, options):
-        dtype = options.get("dtype")
-        if name == "lattice":
-            layers = int(options.get("layers", options.get("n", setting["layers"])))
-            particles, boundaries = lattice.equilateral_pile(layers, dtype=dtype)
-            info = {"layers": layers}
-        else:
-            kwargs = {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
-            p = sloped.protocol(kwargs.pop("alpha_degrees", setting["alpha_degrees"]), dtype=dtype, **kwargs)
-            particles, boundaries, info = p.particles, p.boundaries, dict(p.info)
+        particles, boundaries, info = build({k: v for k, v in options.items() if k not in run_options})
         return Protocol(particles=particles, boundaries=boundaries,
                         info={**info, "dt": dt, "speed_tolerance": float(value(options, "speed_tolerance"))})
 
@@ -259,191 +181,35 @@ def _loaded_pile_adapter(name: str) -> Adapter:
         ramp, tolerance = int(value(options, "ramp_steps")), float(value(options, "speed_tolerance"))
         return lambda s: (s.step >= ramp) & (max_speed(s) < tolerance)
 
-    def max_steps(info, options):
-        return int(value(options, "max_steps"))
-
-    def measure(sim, params, state, protocol):
-        base = analysis.base_forces(sim, params, state)
-        if name == "lattice":
-            m = lattice.compare_with_theory(base, protocol.info["layers"])
-        else:
-            n_in = int(np.asarray(state.particles.active).sum())
-            m = sloped.compare_with_theory(base, protocol.info["alpha_degrees"], protocol.info["base"], n_particles=n_in)
-        row = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
+    def row(sim, params, state, protocol):
+        m = compare(analysis.base_forces(sim, params, state), protocol.info, state)
+        out = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
         p = state.particles
         active = np.asarray(p.active)
         # the pile's top above the ground: it sinks by the contacts' compression, ~ weight / K_s
         height = float(np.max((np.asarray(p.position[:, 1]) + np.asarray(p.radius))[active]))
-        return row | {"height": height, "at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
+        return out | {"height": height, "at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
                       "max_speed": float(max_speed(state))}
 
-    def law_and_params(law, params=None, rotation=None, dtype=None):
-        if name == "sloped":
-            return sloped.law_and_params(law, params, rotation, dtype=dtype)
-        return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype)
-
-    headline = (("max_rel_dev_normal", "max_rel_dev_horizontal") if name == "lattice"
-                else ("central_normal_rel_dev", "central_slope_horizontal"))
-    names = {"layers"} if name == "lattice" else _option_names(sloped.protocol) - {"seed"}
-    return Adapter(setup, simulator, finished, max_steps, measure, law_and_params, lambda law: float(setting["dt"]),
-                   headline, frozenset(names | set(run_options) | {"n"}), None, unit="", default_law="hooke",
-                   extent=_bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True)
-
-
-# ----------------------------------------------------------------------- drop
-def _drop_adapter() -> Adapter:
-    """Liffman et al. 1992 Fig. 20: disks dropped one at a time, then relaxed.
-    The batch's predicate: every disk in, the last one in for `quiet_time`, and
-    every member's fastest disk below `speed_tolerance` (a single run fills,
-    then relaxes; the batch checks both at each chunk's end)."""
-    from jaxpile.protocols import drop
-    from jaxpile.simulate import Simulator
-
-    setting = drop.SETTING
-    run_options = ("speed_tolerance", "relax_steps", "bins", "dip_threshold")
-
-    def setup_kwargs(options):
-        return {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
-
-    def setup(law, seed, dt, options):
-        p = drop.protocol(seed=seed, dt=dt, dtype=options.get("dtype"), **setup_kwargs(options))
-        info = {**p.info, "bins": int(options.get("bins", 15)), "dip_threshold": float(options.get("dip_threshold", 0.05))}
-        return p._replace(driver=None, info=info)  # the simulator's driver (the same constants for every member)
-
-    def simulator(law, dt, options, setup_options):
-        _, contact_law, _ = drop.law_and_params(law, None, options.get("rotation"))
-        p = drop.protocol(seed=0, dt=dt, **setup_kwargs(setup_options))
-        # each chunk on the block of disks dropped by its end, as `drop.run`
-        return Simulator(contact_law, dt, driver=p.driver, capacity_multiplier=4.0,
-                         in_play=drop.make_in_play(p.info["quiet_steps"]))
-
-    def finished(info, options):
-        quiet, tolerance = int(info["quiet_steps"]), float(options.get("speed_tolerance", setting["speed_tolerance"]))
-        return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
-                          & (max_speed(s) < tolerance))
-
-    def max_steps(info, options):
-        n = int(info["n_particles"])
-        return n * int(info["max_interval_steps"]) + 1000 + int(options.get("relax_steps", setting["relax_steps"]))
-
-    def measure(sim, params, state, protocol):
-        m = drop.measure(sim, params, state, bins=protocol.info["bins"], dip_threshold=protocol.info["dip_threshold"])
-        row = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
-        return row | {"all_inserted": bool(np.asarray(state.particles.active).all()),
-                      "max_speed": float(max_speed(state))}
-
-    return Adapter(setup, simulator, finished, max_steps, measure, drop.law_and_params,
-                   lambda law: float(setting["dt"]), ("central_dip",),
-                   _option_names(drop.protocol, *run_options), None, unit="", default_law="liffman",
-                   extent=_heap_extent("ground", "axis_x", "n_particles"),
-                   fit_statistics={"columns": ("central_dip",), "bins": 9})
-
-
-# ----------------------------------------------------------------------- flux
-def _flux_adapter() -> Adapter:
-    """Lee & Herrmann 1993 Fig. 5: disks fed one at a time onto a fixed layer;
-    per member the angle (method 3) before each insertion and its steady mean
-    over the second half of the insertions (as `flux.run`)."""
-    from jaxpile.protocols import box, flux
-
-    def setup(law, seed, dt, options):
-        kwargs = {k: v for k, v in options.items() if k not in ("max_time", "n")}
-        return flux.protocol(int(options.get("n", flux.SETTING["insertions"])), law=law, seed=seed, dt=dt, **kwargs)
-
-    def simulator(law, dt, options, setup_options):
-        return flux.make_simulator(law, dt=dt, **options)
-
-    def measure(sim, params, state, protocol):
-        ps = state.protocol_state
-        done = int(ps.inserted)
-        record = flux.angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
-        main = np.asarray(record["cumulative_parabola"], dtype=float)
-        late = main[done // 2:]
-        late = late[np.isfinite(late)]
-        nan = float("nan")
-        final = box.repose(state, protocol.info["width"])
-        return {"inserted": done, "steady_mean": float(np.mean(late)) if late.size else nan,
-                "steady_std": float(np.std(late)) if late.size else nan,
-                "repose_cumulative_parabola": final["repose_cumulative_parabola"],
-                "at_rest": int(ps.settled_at) >= 0, "settled_step": int(ps.settled_at), "n_left": int(ps.left)}
-
-    return Adapter(setup, simulator, _settled, _max_time_steps(flux.SETTING["max_time"]), measure, flux.law_and_params,
-                   lambda law: float(box.law_setting(law)["dt"]), ("steady_mean", "repose_cumulative_parabola"),
-                   _option_names(flux.protocol, "max_time", "n") - {"insertions"}, _marginal_stability,
-                   fit_statistics={"columns": ("steady_mean",)})
-
-
-# ----------------------------------------------------------------------- tilt
-def _tilt_adapter() -> Adapter:
-    """Lee & Herrmann 1993 Fig. 4: a box pile (stage 1, as `box`), then tilted
-    at the paper's rate until it moves (stage 2, as `tilt.run` without
-    `settle`): theta_T, the pile's theta_R and the theory of sec. 6."""
-    from jaxpile.protocols import box, tilt
-
-    base = _box_adapter()
-    tilt_names = _option_names(tilt.protocol) - {"pile", "edge"}
-    box_names = base.options
-
-    def box_options(options):
-        return {k: v for k, v in options.items() if k in box_names}
-
-    def setup(law, seed, dt, options):
-        return base.setup(law, seed, dt, box_options(options) | {"dtype": options.get("dtype")})
-
-    def simulator(law, dt, options, setup_options):
-        return tilt.make_simulator(law, dt=dt, **options)
-
-    def start(law, dt, options, state, protocol):
-        p = tilt.protocol(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in tilt_names})
-        return state.set(protocol_state=p.protocol_state), p
-
-    def describe(state):
-        pile = box.repose(state, float(state.protocol_state.edge))
-        return {"pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
-                "box_settled": int(state.protocol_state.settled_at) >= 0}
-
-    def finished(info, options):
-        give_up = int(info["max_tilt_steps"])  # as tilt.execute: moved, or the largest tilt passed without motion
-        return lambda s: (s.protocol_state.phase >= 1) | (
-            (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
-
-    def max_steps(info, options):
-        return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000
-
-    def measure(sim, params, state, protocol):
-        ps = state.protocol_state
-        moved = int(ps.phase) >= 1
-        theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
-        theta_r = protocol.info["pile_repose"]["repose_cumulative_parabola"]
-        mu = box.friction_coefficient(params)
-        theory = tilt.compare_with_theory(theta_r, theta_t, mu)
-        return {"theta_t": theta_t, "theta_r": theta_r, "moved": moved,
-                "theta_r_plus_theta_t": theory["theta_r_plus_theta_t"], "theta_ms_theory": theory["theta_ms_theory"],
-                "theta_t_theory": theory["theta_t_theory"], "box_settled": protocol.info["box_settled"],
-                "tilt_held": math.degrees(float(ps.tilt)), "n_left": int(ps.left)}
-
-    return Adapter(setup, base.simulator, base.finished, base.max_steps, measure, box.law_and_params, base.default_dt,
-                   ("theta_t", "theta_r", "theta_r_plus_theta_t"), frozenset(box_names | tilt_names),
-                   _marginal_stability, fit_statistics={"columns": ("theta_t", "theta_r")},
-                   stages=(Stage(simulator, start, finished, max_steps, describe),))
-
-
-ADAPTERS: dict[str, Callable[[], Adapter]] = {"flux": _flux_adapter, "tilt": _tilt_adapter,
-    "box": _box_adapter, "pour": _pour_adapter, "lattice": lambda: _loaded_pile_adapter("lattice"),
-    "sloped": lambda: _loaded_pile_adapter("sloped"), "drop": _drop_adapter}
+    return Adapter(setup, simulator, finished, lambda info, options: int(value(options, "max_steps")), row,
+                   law_and_params, lambda law: float(setting["dt"]), headline,
+                   frozenset(set(names) | set(run_options) | {"n"}), None, unit="", default_law="hooke",
+                   extent=bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True)
 
 
 def adapters() -> dict[str, Callable[[], Adapter]]:
-    """Every protocol a sweep (and an ensemble fit) runs: the papers' seven
-    (`ADAPTERS`), and any registered protocol whose module has a
-    `sweep_adapter() -> Adapter` (a new protocol brings its own)."""
+    """Every protocol a sweep (and an ensemble fit) runs: each registered
+    protocol whose module has a `sweep_adapter() -> Adapter`."""
     from jaxpile.protocols import PROTOCOLS
 
-    found = dict(ADAPTERS)
-    for name, module in PROTOCOLS.items():
-        if name not in found and callable(getattr(module, "sweep_adapter", None)):
-            found[name] = module.sweep_adapter
-    return found
+    return {name: module.sweep_adapter for name, module in PROTOCOLS.items()
+            if callable(getattr(module, "sweep_adapter", None))}
+
+
+def __getattr__(name):  # ADAPTERS, read from the registry when asked for (as before: name -> adapter factory)
+    if name == "ADAPTERS":
+        return adapters()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def adapter(protocol: str) -> Adapter:
@@ -508,7 +274,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: a name in `ADAPTERS` (box, pour, lattice, sloped, drop, flux, tilt).
+      protocol: a registered protocol with a `sweep_adapter` (`adapters()`).
       law: the contact law (default: the protocol paper's).
       vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
       seeds: a count (seeds 0..n-1) or a list of seeds.

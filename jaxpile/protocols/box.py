@@ -399,6 +399,41 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
     return state, out
 
 
+# --------------------------------------------------------------- the sweep
+def settled(info, options):
+    """The 1993 family's end in a batch (box, flux): the driver's rest detector has fired."""
+    return lambda s: s.protocol_state.settled_at >= 0
+
+
+def max_time_steps(default_max_time: float):
+    """The 1993 family's budget in a batch: `max_time` (paper seconds) in steps of the member's dt."""
+    return lambda info, options: max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
+
+
+def sweep_adapter():
+    """What a sweep and an ensemble fit need: the three angles of repose and the
+    steps of the wall removal and the rest, per member."""
+    from jaxpile.sweep import Adapter, marginal_stability, option_names
+
+    def setup(law, seed, dt, options):
+        return protocol(law=law, seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
+
+    def row(sim, params, state, p):
+        ps = state.protocol_state
+        angles = repose(state, p.info["width"])
+        return {k: angles[k] for k in ("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola")} | {
+            "at_rest": int(ps.settled_at) >= 0, "wall_removed_step": int(ps.removed_at),
+            "settled_step": int(ps.settled_at), "n_left": int(ps.left), "fill_height": float(ps.fill_height)}
+
+    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), settled,
+                   max_time_steps(PAPER_SETTING["max_time"]), row, law_and_params,
+                   lambda law: float(law_setting(law)["dt"]),
+                   ("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
+                   option_names(protocol, "max_time"), marginal_stability,
+                   extent=lambda p: ("ground", 0.0, float(p.info["width"])),
+                   fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")})
+
+
 __all__ = [
     "PAPER_SETTING",
     "BoxState",
@@ -414,6 +449,7 @@ __all__ = [
     "law_setting",
     "make_simulator",
     "max_steps_for",
+    "max_time_steps",
     "mean_square_radius",
     "neighbor_box",
     "parking_grid",
@@ -426,7 +462,9 @@ __all__ = [
     "motion",
     "run",
     "run_sampled",
+    "settled",
     "start",
+    "sweep_adapter",
     "take_out",
     "units",
 ]

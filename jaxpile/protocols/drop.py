@@ -482,5 +482,51 @@ def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: floa
     return out
 
 
+def sweep_adapter():
+    """Liffman et al. 1992 Fig. 20 in a batch: disks dropped one at a time, then
+    relaxed. The batch's predicate: every disk in, the last one in for
+    `quiet_time`, and every member's fastest disk below `speed_tolerance` (a
+    single run fills, then relaxes; the batch checks both at each chunk's end)."""
+    from jaxpile.simulate import Simulator, max_speed
+    from jaxpile.sweep import Adapter, heap_extent, option_names
+
+    run_options = ("speed_tolerance", "relax_steps", "bins", "dip_threshold")
+
+    def setup_kwargs(options):
+        return {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
+
+    def setup(law, seed, dt, options):
+        p = protocol(seed=seed, dt=dt, dtype=options.get("dtype"), **setup_kwargs(options))
+        info = {**p.info, "bins": int(options.get("bins", 15)), "dip_threshold": float(options.get("dip_threshold", 0.05))}
+        return p._replace(driver=None, info=info)  # the simulator's driver (the same constants for every member)
+
+    def simulator(law, dt, options, setup_options):
+        _, contact_law, _ = law_and_params(law, None, options.get("rotation"))
+        p = protocol(seed=0, dt=dt, **setup_kwargs(setup_options))
+        # each chunk on the block of disks dropped by its end, as `run`
+        return Simulator(contact_law, dt, driver=p.driver, capacity_multiplier=4.0,
+                         in_play=make_in_play(p.info["quiet_steps"]))
+
+    def finished(info, options):
+        quiet, tolerance = int(info["quiet_steps"]), float(options.get("speed_tolerance", SETTING["speed_tolerance"]))
+        return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
+                          & (max_speed(s) < tolerance))
+
+    def max_steps(info, options):
+        n = int(info["n_particles"])
+        return n * int(info["max_interval_steps"]) + 1000 + int(options.get("relax_steps", SETTING["relax_steps"]))
+
+    def row(sim, params, state, p):
+        m = measure(sim, params, state, bins=p.info["bins"], dip_threshold=p.info["dip_threshold"])
+        return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)} | {
+            "all_inserted": bool(np.asarray(state.particles.active).all()), "max_speed": float(max_speed(state))}
+
+    return Adapter(setup, simulator, finished, max_steps, row, law_and_params,
+                   lambda law: float(SETTING["dt"]), ("central_dip",),
+                   option_names(protocol, *run_options), None, unit="", default_law="liffman",
+                   extent=heap_extent("ground", "axis_x", "n_particles"),
+                   fit_statistics={"columns": ("central_dip",), "bins": 9})
+
+
 __all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "law_and_params", "layout",
            "make_driver", "measure", "normal_profile", "protocol", "run"]

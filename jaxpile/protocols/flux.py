@@ -490,6 +490,36 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
     return state, out
 
 
+def sweep_adapter():
+    """Lee & Herrmann 1993 Fig. 5 in a batch: disks fed one at a time onto a
+    fixed layer; per member the angle (method 3) before each insertion and its
+    steady mean over the second half of the insertions (as `run`)."""
+    from jaxpile.sweep import Adapter, marginal_stability, option_names
+
+    def setup(law, seed, dt, options):
+        kwargs = {k: v for k, v in options.items() if k not in ("max_time", "n")}
+        return protocol(int(options.get("n", SETTING["insertions"])), law=law, seed=seed, dt=dt, **kwargs)
+
+    def row(sim, params, state, p):
+        ps = state.protocol_state
+        done = int(ps.inserted)
+        record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
+        late = np.asarray(record["cumulative_parabola"], dtype=float)[done // 2:]
+        late = late[np.isfinite(late)]
+        nan = float("nan")
+        final = boxes.repose(state, p.info["width"])
+        return {"inserted": done, "steady_mean": float(np.mean(late)) if late.size else nan,
+                "steady_std": float(np.std(late)) if late.size else nan,
+                "repose_cumulative_parabola": final["repose_cumulative_parabola"],
+                "at_rest": int(ps.settled_at) >= 0, "settled_step": int(ps.settled_at), "n_left": int(ps.left)}
+
+    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options),
+                   boxes.settled, boxes.max_time_steps(SETTING["max_time"]), row, law_and_params,
+                   lambda law: float(boxes.law_setting(law)["dt"]), ("steady_mean", "repose_cumulative_parabola"),
+                   option_names(protocol, "max_time", "n") - {"insertions"}, marginal_stability,
+                   fit_statistics={"columns": ("steady_mean",)})
+
+
 __all__ = [
     "law_and_params",
     "SETTING",

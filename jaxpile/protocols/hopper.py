@@ -254,7 +254,10 @@ def measure(state: SimState, info: dict, beverloo_k: float = SETTING["beverloo_k
     gap = info["orifice"] - beverloo_k
     in_play = np.asarray(p.active & ~p.fixed)
     x, y = np.asarray(p.position[:, 0]), np.asarray(p.position[:, 1])
-    over = in_play & (np.abs(x - info["width"] / 2) < info["orifice"] / 2) & (y < info["floor_top"] + 1.5)
+    # an arch: a disk over the orifice's centre line, less than D above the floor (a drained silo
+    # keeps only the dead zones beside the orifice, and nothing over its centre)
+    r = np.asarray(p.radius)
+    over = in_play & (np.abs(x - info["width"] / 2) < r) & (y < info["floor_top"] + info["orifice"])
     return {
         "opened_step": opened, "stopped_step": int(hs.stopped_at), "at_rest": int(hs.stopped_at) >= 0,
         "discharged": int(hs.out_count), "remaining": int(in_play.sum()), "clogged": bool(over.any()),

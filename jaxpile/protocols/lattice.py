@@ -150,3 +150,21 @@ def compare_with_theory(base, layers: int) -> dict:
         "max_rel_dev_normal": dev_n,
         "max_rel_dev_horizontal": dev_h,
     }
+
+
+def sweep_adapter():
+    """The lattice in a batch (`sweep.loaded_pile_adapter`): its ground forces
+    against eqs. 42 and 44 for each member's law parameters."""
+    from jaxpile.protocols.base import law_and_params
+    from jaxpile.sweep import loaded_pile_adapter
+
+    def build(options):
+        layers = int(options.get("layers", options.get("n", PAPER_SETTING["layers"])))
+        particles, boundaries = equilateral_pile(layers, dtype=options.get("dtype"))
+        return particles, boundaries, {"layers": layers}
+
+    return loaded_pile_adapter(
+        PAPER_SETTING, build, lambda base, info, state: compare_with_theory(base, info["layers"]),
+        lambda law, params=None, rotation=None, dtype=None: law_and_params(law, params, rotation,
+                                                                          setting=PAPER_SETTING, dtype=dtype),
+        ("max_rel_dev_normal", "max_rel_dev_horizontal"), {"layers"})

@@ -720,6 +720,47 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
 protocol = pour  # the set-up function under the name every protocol module uses
 
 
+def sweep_adapter():
+    """What a sweep and an ensemble fit need: the flank angles, the height and
+    base, the M ratio and the force balance per member; every disk poured,
+    then at rest, as `execute`."""
+    from jaxpile.simulate import max_speed
+    from jaxpile.sweep import Adapter, heap_extent, marginal_stability, option_names
+
+    def setup(law, seed, dt, options):
+        return pour(seed=seed, dt=dt, **{k: v for k, v in options.items()
+                                         if k not in ("speed_tolerance", "max_settle_steps")})
+
+    def finished(info, options):
+        pour_steps = int(info["pour_steps"])
+        tolerance = float(options.get("speed_tolerance", PAPER_SETTING["speed_tolerance"]))
+        return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
+
+    def max_steps(info, options):
+        return int(info["pour_steps"]) + int(options.get("max_settle_steps", PAPER_SETTING["max_settle_steps"]))
+
+    def row(sim, params, state, p):
+        m = summary(measure(sim, params, state))
+        out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
+        for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
+            out[key] = m.get(key, float("nan"))
+        for flank in ("left", "right"):
+            a = (m.get("angle_of_repose") or {}).get(flank) or {}
+            out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
+        out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
+        ms = m.get("m_shape") or {}
+        out["m_ratio"] = ms.get("ratio", float("nan"))
+        out["m_shaped"] = bool(ms.get("m_shaped", False))
+        return out
+
+    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), finished,
+                   max_steps, row, law_and_params, lambda law: float(PAPER_SETTING["dt"]),
+                   ("repose_mean", "angle_height_base"),
+                   option_names(pour, "speed_tolerance", "max_settle_steps"), marginal_stability,
+                   default_law="baxter", extent=heap_extent("substrate", "centre_x", "n_poured"),
+                   fit_statistics={"columns": ("repose_mean",), "bins": 9})
+
+
 __all__ = [
     "MIN_RELEASE_GAP",
     "PAPER_SETTING",

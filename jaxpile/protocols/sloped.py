@@ -376,5 +376,23 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
     return state, measurements
 
 
+def sweep_adapter():
+    """The sloped pile in a batch (`sweep.loaded_pile_adapter`): its ground
+    forces against eqs. 54-59 for each member's law parameters."""
+    from jaxpile.sweep import loaded_pile_adapter, option_names
+
+    def build(options):
+        kwargs = {k: v for k, v in options.items() if k != "dtype"}
+        p = protocol(kwargs.pop("alpha_degrees", SETTING["alpha_degrees"]), dtype=options.get("dtype"), **kwargs)
+        return p.particles, p.boundaries, dict(p.info)
+
+    def compare(base, info, state):
+        n_in = int(np.asarray(state.particles.active).sum())
+        return compare_with_theory(base, info["alpha_degrees"], info["base"], n_particles=n_in)
+
+    return loaded_pile_adapter(SETTING, build, compare, law_and_params,
+                               ("central_normal_rel_dev", "central_slope_horizontal"), option_names(protocol) - {"seed"})
+
+
 __all__ = ["PAPER_PILES", "SETTING", "base_for_count", "compare_with_theory", "law_and_params", "pile_count",
            "protocol", "row_lengths", "run", "sloped_pile", "sloped_positions"]

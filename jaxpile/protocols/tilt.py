@@ -468,6 +468,55 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
     return state, out
 
 
+def sweep_adapter():
+    """Lee & Herrmann 1993 Fig. 4 in a batch: a box pile (stage 1, as `box`),
+    then tilted at the paper's rate until it moves (stage 2, as `run` without
+    `settle`): theta_T, the pile's theta_R and the theory of sec. 6."""
+    from jaxpile.sweep import Adapter, Stage, marginal_stability, option_names
+
+    base = boxes.sweep_adapter()
+    tilt_names = option_names(protocol) - {"pile", "edge"}
+    box_names = base.options
+
+    def setup(law, seed, dt, options):
+        return base.setup(law, seed, dt, {k: v for k, v in options.items() if k in box_names}
+                          | {"dtype": options.get("dtype")})
+
+    def start(law, dt, options, state, p):
+        p = protocol(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in tilt_names})
+        return state.set(protocol_state=p.protocol_state), p
+
+    def describe(state):
+        pile = boxes.repose(state, float(state.protocol_state.edge))
+        return {"pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
+                "box_settled": int(state.protocol_state.settled_at) >= 0}
+
+    def finished(info, options):
+        give_up = int(info["max_tilt_steps"])  # as execute: moved, or the largest tilt passed without motion
+        return lambda s: (s.protocol_state.phase >= 1) | (
+            (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
+
+    def max_steps(info, options):
+        return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000
+
+    def row(sim, params, state, p):
+        ps = state.protocol_state
+        moved = int(ps.phase) >= 1
+        theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
+        theta_r = p.info["pile_repose"]["repose_cumulative_parabola"]
+        theory = compare_with_theory(theta_r, theta_t, boxes.friction_coefficient(params))
+        return {"theta_t": theta_t, "theta_r": theta_r, "moved": moved,
+                "theta_r_plus_theta_t": theory["theta_r_plus_theta_t"], "theta_ms_theory": theory["theta_ms_theory"],
+                "theta_t_theory": theory["theta_t_theory"], "box_settled": p.info["box_settled"],
+                "tilt_held": math.degrees(float(ps.tilt)), "n_left": int(ps.left)}
+
+    tilting = Stage(lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), start, finished,
+                    max_steps, describe)
+    return Adapter(setup, base.simulator, base.finished, base.max_steps, row, boxes.law_and_params, base.default_dt,
+                   ("theta_t", "theta_r", "theta_r_plus_theta_t"), frozenset(box_names | tilt_names),
+                   marginal_stability, fit_statistics={"columns": ("theta_t", "theta_r")}, stages=(tilting,))
+
+
 __all__ = [
     "law_and_params",
     "SETTING",
