@@ -591,10 +591,7 @@ def main(argv=None) -> int:
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
         if args.command == "pile":
-            if args.protocol == "lattice":
-                run_pile(args)
-            else:
-                run_protocol(args)
+            run_protocol(args)
         elif args.command == "show":
             from jaxpile.show import show
 
@@ -616,124 +613,12 @@ def main(argv=None) -> int:
     return 0
 
 
-def run_pile(args) -> dict:
-    import jax.numpy as jnp
-
-    from jaxpile.errors import InputError
-
-    import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import analysis, export, io, plot, theory
-    from jaxpile.laws import get_law_module
-    from jaxpile.protocols import lattice
-    from jaxpile.simulate import Simulator, gravity_ramp
-
-    setting = lattice.PAPER_SETTING
-    for flag in ("n", "slope", "option"):
-        if getattr(args, flag) is not None:
-            raise InputError(f"--{flag} is not used by the lattice protocol (its size is --layers).")
-    lawmod = get_law_module(args.law or "hooke")
-    layers = setting["layers"] if args.layers is None else args.layers
-    rotation = setting["rotation"] if args.rotation is None else args.rotation
-    dt = setting["dt"] if args.dt is None else args.dt
-    ramp = setting["ramp_steps"] if args.ramp_steps is None else args.ramp_steps
-    tol = setting["speed_tolerance"] if args.speed_tol is None else args.speed_tol
-    max_steps = setting["max_steps"] if args.max_steps is None else args.max_steps
-    dtype = jnp.float64 if args.precision == "float64" else jnp.float32
-
-    overrides = _parse_set(args.set, lawmod.PARAM_NAMES)
-    values = {**setting["params"].get(lawmod.NAME, {}), **overrides}
-    params = lawmod.make_params(dtype=dtype, **values)
-    law = lawmod.law(rotation=rotation)
-    particles, boundaries = lattice.equilateral_pile(layers, dtype=dtype)
-    progress = None if not args.no_progress else False
-
-    if layers < 1:
-        raise InputError(f"--layers must be >= 1; got {layers}.")
-    if max_steps < 1:
-        raise InputError(f"--max-steps must be >= 1; got {max_steps}.")
-    print(f"jaxpile: {args.protocol} pile, {layers} layers = {particles.count} disks, law {law.name} "
-          f"(rotation {'on' if rotation else 'off'}), dt = {dt:g}, {args.precision}", flush=True)
-    if args.dry_run:
-        Simulator(law, dt, integrator=args.integrator).check_params(params, particles)  # as the run would
-        return _dry_run_report(f"a {layers}-layer lattice pile", particles, {}, args.precision,
-                               {"ramp_steps": ramp, "max_steps": max_steps})
-    hard = _parse_hard_collisions(args.hard_collisions)
-    if hard is not None:
-        print(f"jaxpile: hard collisions on (restitution {hard.restitution:g}, mu {hard.mu:g}); "
-              "contacts switch to the soft law by eq. 22", flush=True)
-    sim = Simulator(law, dt, schedule=gravity_ramp(ramp), integrator=args.integrator, hard_collisions=hard)
-    state = sim.init(params, particles, boundaries)
-    resume, resumed_from = _resume_point(args)
-    if resume is not None:
-        from jaxpile import checkpoint
-
-        state = checkpoint.restore(resume, state, law, params)
-    t0 = time.perf_counter()
-    spec = _checkpoint_spec(args)
-    with _trajectory(args, resumed_from), _replacing_earlier(args):
-        state, info = lattice.relax(sim, params, state, ramp_steps=ramp, speed_tolerance=tol,
-                                    max_steps=max_steps, progress=progress, checkpoint=spec)
-    total = time.perf_counter() - t0
-
-    base = analysis.base_forces(sim, params, state)
-    network = analysis.contact_network(sim, params, state)
-    check = lattice.compare_with_theory(base, layers)
-    summary = {
-        "protocol": args.protocol,
-        "law": law.name,
-        "rotation": rotation,
-        "layers": layers,
-        "n_particles": int(particles.count),
-        "params": {k: float(v) for k, v in vars(params).items() if v is not None},
-        "dt": dt,
-        "integrator": args.integrator,
-        "hard_collisions": None if hard is None else hard._asdict(),
-        "precision": args.precision,
-        "seed": args.seed,
-        "steps": int(state.step),
-        "resumed_from_step": resumed_from,
-        "wall_seconds": info.wall_seconds,
-        "compile_seconds": info.compile_seconds,
-        "total_seconds": total,
-        "particle_steps_per_second": info.particle_steps_per_second,
-        "neighbor_reallocations": info.reallocations,
-        "final_max_speed": info.max_speed,
-        "at_rest": info.at_rest,
-        "speed_tolerance": tol,
-        "base_contacts": check["base_contacts"],
-        "pile_intact": check["pile_intact"],
-        "theory_normal_mg": check["theory_normal"],
-        "max_rel_dev_normal": check["max_rel_dev_normal"],
-        "max_rel_dev_horizontal": check["max_rel_dev_horizontal"],
-        "ground_friction_needed": theory.lattice_ground_friction_needed(layers),
-    }
-    out = args.out
-    os.makedirs(out, exist_ok=True)
-    io.write_json(os.path.join(out, "summary.json"), summary)
-    io.write_csv(os.path.join(out, "base_forces.csv"), {"x": base.x, "normal": base.normal, "horizontal": base.horizontal})
-    io.save_state(os.path.join(out, "state.npz"), state, law=law.name, params=summary["params"], dt=dt,
-                  rotation=rotation, precision=args.precision)
-    export.write_contacts(os.path.join(out, "contacts.csv"), sim, params, state)
-    export.write_xyz(os.path.join(out, "final.xyz"), state, time=int(state.step) * dt)
-    mu = summary["params"].get("mu")
-    title = f"{layers}-layer lattice pile, {law.name} law" + ("" if mu is None else f", mu = {mu:g}")
-    plot.pile_figure(state.particles.position, state.particles.radius, network, title=title,
-                     path=os.path.join(out, "pile.png"))
-    h_theory = check["theory_horizontal"] if check["pile_intact"] else None
-    n_theory = np.full(len(base.x), check["theory_normal"]) if check["pile_intact"] else None
-    plot.base_profile_figure(base.x, base.normal, base.horizontal, theory_normal=n_theory, theory_horizontal=h_theory,
-                             title=title + " vs Liffman et al. 1992 eqs. 42, 44",
-                             path=os.path.join(out, "profile.png"))
-    print(_summary_lines(summary), flush=True)
-    print(f"jaxpile: wrote {out}/summary.json, base_forces.csv, contacts.csv, state.npz, final.xyz, pile.png, "
-          "profile.png" + (f", {_trajectory_name(args)}" if args.trajectory_every else ""))
-    return summary
-
-
 def run_protocol(args) -> dict:
-    """`jaxpile pile --protocol P` for every protocol but the lattice: runs the
-    protocol's `run`, then writes the same files as the lattice run plus the
-    protocol's own figure."""
+    """`jaxpile pile --protocol P`: runs the protocol's `run`, then writes the
+    files every protocol gets (summary, base forces, contacts, state, XYZ, pile
+    and profile figures) and the protocol's own figures."""
+    import inspect
+
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (turns on float64)
@@ -746,9 +631,14 @@ def run_protocol(args) -> dict:
 
     name = args.protocol
     module = PROTOCOLS[name]
-    if args.layers is not None:
-        raise InputError(f"--layers is for the lattice protocol; the {name} protocol's size is --n.")
-    if args.slope is not None and name != "sloped":
+    size_flag = "--layers" if _entry(name).size == "layers" else "--n"
+    for flag in ("--n", "--layers"):  # one of them sets the protocol's size, the other is refused
+        if flag != size_flag and getattr(args, flag[2:]) is not None:
+            owners = [p for p in _protocol_names() if _entry(p).size == flag[2:]]
+            raise InputError(f"{flag} is for the {owners[0]} protocol; the {name} protocol's size is {size_flag}."
+                             if len(owners) == 1 else f"{flag} is not used by the {name} protocol (its size is "
+                             f"{size_flag}).")
+    if args.slope is not None and "alpha_degrees" not in inspect.signature(module.run).parameters:
         raise InputError(f"--slope is for the sloped protocol, not {name}.")
     lawmod = get_law_module(args.law or _entry(name).default_law)
     dtype = jnp.float64 if args.precision == "float64" else jnp.float32
@@ -759,8 +649,9 @@ def run_protocol(args) -> dict:
                   progress=False if args.no_progress else None)
     if args.dt is not None:
         kwargs["dt"] = args.dt
-    if args.n is not None:
-        kwargs[_entry(name).size] = args.n
+    size = args.layers if size_flag == "--layers" else args.n
+    if size is not None:
+        kwargs[_entry(name).size] = size
     if args.slope is not None:
         kwargs["alpha_degrees"] = args.slope
     flags = {"ramp_steps": args.ramp_steps, "max_steps": args.max_steps, "speed_tol": args.speed_tol,
@@ -1278,17 +1169,6 @@ def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
     return written
 
 
-def _summary_lines(s: dict) -> str:
-    return (
-        f"  steps {s['steps']}, run {s['wall_seconds']:.1f} s, compile {s['compile_seconds']:.1f} s, "
-        f"{s['particle_steps_per_second']:.3g} particle-steps/s, at rest: {s['at_rest']} "
-        f"(max speed {s['final_max_speed']:.2e})\n"
-        f"  ground contacts {s['base_contacts']} (pile intact: {s['pile_intact']}); "
-        f"max |N - N_eq42| / N_eq42 = {s['max_rel_dev_normal']:.3%}, "
-        f"max |H - H_eq44| / max|H| = {s['max_rel_dev_horizontal']:.3%}"
-    )
-
-
 def compare_table(dirs) -> str:
     from jaxpile.errors import InputError
 
@@ -1304,14 +1184,12 @@ def compare_table(dirs) -> str:
             "result")
     lines = [head, "-" * len(head)]
     for d, s in rows:
-        protocol = s.get("protocol", "lattice")
+        protocol = s.get("protocol", "lattice")  # summaries from before the protocol was recorded
         steps = s.get("steps", (s.get("run") or {}).get("steps", 0))
         rate = s.get("particle_steps_per_second") or 0.0
         mu = s.get("params", {}).get("mu")
-        if protocol == "lattice":
-            result = f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}"
-        else:
-            result = _headline(protocol, s).strip().splitlines()[0]
+        entry = _entry(protocol)
+        result = entry.compare(s) if entry.compare is not None else _headline(protocol, s).strip().splitlines()[0]
         lines.append(f"{d:32s} {protocol:>8s} {s['law']:>12s} {s['n_particles']:6d} "
                      f"{('%5.2f' % mu) if mu is not None else '    -'} {steps:8d} {rate:10.3g}  {result}")
     lines.append(

@@ -35,7 +35,7 @@ def _network_from_csv(path):
 
 
 def _finished(folder: str, out: str) -> list[str]:
-    from jaxpile import io, plot, theory
+    from jaxpile import io, plot
 
     summary = json.loads(open(os.path.join(folder, "summary.json")).read())
     state = io.load_arrays(os.path.join(folder, "state.npz"))
@@ -48,13 +48,9 @@ def _finished(folder: str, out: str) -> list[str]:
                      title=title, path=os.path.join(out, "pile.png"))
     written = ["pile.png"]
     n_theory = h_theory = None
-    layers = summary.get("layers")
-    if summary.get("protocol") == "lattice" and summary.get("pile_intact") and layers == len(base["x"]):
-        n_theory = np.full(len(base["x"]), theory.lattice_ground_normal_force(layers))
-        h_theory = theory.lattice_ground_horizontal_force(layers)
     from jaxpile.protocols import entry as registered
 
-    entry = registered(summary.get("protocol"))
+    entry = registered(summary.get("protocol", "lattice"))  # summaries from before the protocol was recorded
     if entry is not None and entry.profile_theory is not None and len(base["x"]):
         n_theory, h_theory, label = entry.profile_theory(summary, SimpleNamespace(**base)) or (None, None, "")
     plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,

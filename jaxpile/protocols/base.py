@@ -66,6 +66,8 @@ class CommandLine(NamedTuple):
       dry_run_setup: `run keywords -> (set-up function, its extra keywords)`
         for `--dry-run`, when the run starts from another protocol's set-up
         (the tilt from a box); None: the module's `protocol`.
+      compare: `summary -> str`, the result column of `jaxpile compare`;
+        None: the headline's first line.
     """
 
     order: int
@@ -80,6 +82,7 @@ class CommandLine(NamedTuple):
     profile_theory: Callable | None = None
     figures: tuple = ()
     dry_run_setup: Callable | None = None
+    compare: Callable | None = None
 
 
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):

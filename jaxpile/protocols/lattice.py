@@ -11,23 +11,43 @@ import math
 
 import numpy as np
 
+import time
+
 from jaxpile import budget, ranges
 from jaxpile.boundaries import make_boundaries
 from jaxpile.errors import InputError
-from jaxpile.ranges import SIZE, Range
+from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.state import Boundaries, Particles, make_particles
-from jaxpile.protocols.base import CommandLine
+from jaxpile.protocols.base import CommandLine, Protocol
 
 
 OPTION_RANGES = {
     "layers": Range(low=1, whole=True, unit="layers"), "diameter": SIZE, "mass": SIZE,
     "gap": Range(low=0, high=0.1, high_open=True, why="diameters"),
+    "dt": TIME_STEP, "ramp_steps": STEPS, "speed_tolerance": SPEED, "max_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
 
 
+def _theory_lines(measured: dict, base):
+    """N = (k + 1)/2 and H of eq. 44 on profile.png, when every bottom disk is on the ground."""
+    from jaxpile import theory
+
+    layers = measured.get("layers")
+    if not (measured.get("pile_intact") and layers == len(base.x)):
+        return None
+    return (np.full(len(base.x), theory.lattice_ground_normal_force(layers)),
+            theory.lattice_ground_horizontal_force(layers), "Liffman et al. 1992 eqs. 42, 44")
+
+
 # How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(order=0, help="the 1992 equilateral pile (--layers)", default_law="hooke", size=None)
+CLI = CommandLine(
+    order=0, help="the 1992 equilateral pile (--layers)", default_law="hooke", size="layers",
+    flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
+           "hard_collisions": "hard_collisions"},
+    headline=("layers", "n_particles", "at_rest", "final_max_speed", "max_rel_dev_normal", "max_rel_dev_horizontal"),
+    profile_theory=_theory_lines,
+    compare=lambda s: f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}")
 
 
 def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:
@@ -104,6 +124,13 @@ PAPER_SETTING = {
 }
 
 
+def law_and_params(law, params=None, rotation=None, dtype=None):
+    """`(law module, ContactLaw, params)` with `PAPER_SETTING` (see `base.law_and_params`)."""
+    from jaxpile.protocols.base import law_and_params as base_law_and_params
+
+    return base_law_and_params(law, params, rotation, setting=PAPER_SETTING, dtype=dtype)
+
+
 def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
           checkpoint=None):
     """Loads the pile (gravity ramped in by `sim.schedule`) and runs it to rest.
@@ -119,6 +146,63 @@ def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_st
     ramp = min(ramp_steps, max_steps)
     return load_then_settle(sim, params, state, load_steps=ramp, max_settle_steps=max_steps - ramp,
                             speed_tolerance=speed_tolerance, progress=progress, checkpoint=checkpoint)
+
+
+def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0, dtype=None) -> Protocol:
+    """The k-layer pile as a `Protocol` (`equilateral_pile`); the gravity ramp is the run's."""
+    particles, boundaries = equilateral_pile(layers, diameter=diameter, mass=mass, gap=gap, dtype=dtype)
+    return Protocol(particles=particles, boundaries=boundaries,
+                    info={"protocol": "lattice", "layers": int(layers), "n": int(particles.count)})
+
+
+def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = None,
+        dt: float = PAPER_SETTING["dt"], ramp_steps: int = PAPER_SETTING["ramp_steps"],
+        speed_tolerance: float = PAPER_SETTING["speed_tolerance"], max_steps: int = PAPER_SETTING["max_steps"],
+        integrator: str = "velocity_verlet", hard_collisions=None, dtype=None, progress: bool | None = False,
+        checkpoint=None, resume=None):
+    """Builds the k-layer pile, loads it by a gravity ramp, runs it to rest and
+    compares its ground forces with eqs. 42 and 44 (the 1992 Figs. 7-9).
+
+    Args:
+      law: a law name or module; params: None (`PAPER_SETTING["params"][law]`),
+        a dict of overrides on top of it, or a ready params pytree.
+      layers: k (k(k+1)/2 disks).
+      rotation: integrate spins (default off, the paper's static analysis).
+      dt, ramp_steps, speed_tolerance, max_steps: as `relax`.
+      integrator, hard_collisions: passed to `Simulator`.
+      checkpoint, resume: save the run as it goes; continue a saved run (bit-identical).
+
+    Returns:
+      `(state, measurements)`: `compare_with_theory`'s numbers, the run's steps,
+      times, whether it ended at rest, and the ground friction the pile needs.
+    """
+    ranges.check_all(OPTION_RANGES, locals(), run)
+    from jaxpile import analysis, theory
+    from jaxpile.simulate import Simulator, gravity_ramp
+
+    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
+    p = protocol(layers, dtype=dtype)
+    sim = Simulator(contact_law, dt, schedule=gravity_ramp(ramp_steps), integrator=integrator,
+                    hard_collisions=hard_collisions)
+    state = sim.init(params, p.particles, p.boundaries)
+    if resume is not None:
+        from jaxpile import checkpoint as ckpt
+
+        state = ckpt.restore(resume, state, sim.law, params)
+    t0 = time.perf_counter()
+    state, info = relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
+                        max_steps=max_steps, progress=progress, checkpoint=checkpoint)
+    check = compare_with_theory(analysis.base_forces(sim, params, state), int(layers))
+    return state, {
+        "protocol": "lattice", "layers": int(layers), "n_particles": int(p.particles.count),
+        "hard_collisions": None if hard_collisions is None else hard_collisions._asdict(),
+        "steps": int(state.step), "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
+        "total_seconds": time.perf_counter() - t0, "neighbor_reallocations": info.reallocations,
+        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": speed_tolerance,
+        "base_contacts": check["base_contacts"], "pile_intact": check["pile_intact"],
+        "theory_normal_mg": check["theory_normal"], "max_rel_dev_normal": check["max_rel_dev_normal"],
+        "max_rel_dev_horizontal": check["max_rel_dev_horizontal"],
+        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info)}
 
 
 def compare_with_theory(base, layers: int) -> dict:
@@ -155,7 +239,6 @@ def compare_with_theory(base, layers: int) -> dict:
 def sweep_adapter():
     """The lattice in a batch (`sweep.loaded_pile_adapter`): its ground forces
     against eqs. 42 and 44 for each member's law parameters."""
-    from jaxpile.protocols.base import law_and_params
     from jaxpile.sweep import loaded_pile_adapter
 
     def build(options):
@@ -164,7 +247,5 @@ def sweep_adapter():
         return particles, boundaries, {"layers": layers}
 
     return loaded_pile_adapter(
-        PAPER_SETTING, build, lambda base, info, state: compare_with_theory(base, info["layers"]),
-        lambda law, params=None, rotation=None, dtype=None: law_and_params(law, params, rotation,
-                                                                          setting=PAPER_SETTING, dtype=dtype),
+        PAPER_SETTING, build, lambda base, info, state: compare_with_theory(base, info["layers"]), law_and_params,
         ("max_rel_dev_normal", "max_rel_dev_horizontal"), {"layers"})

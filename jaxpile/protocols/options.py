@@ -17,7 +17,8 @@ from typing import Any, Callable, NamedTuple
 
 from jaxpile.ranges import Range
 
-RESERVED = frozenset({"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "insertions", "pile",
+RESERVED = frozenset({"law", "params", "rotation", "dt", "integrator", "dtype", "progress", "n", "layers", "insertions",
+                      "pile",
                       "alpha_degrees", "hard_collisions", "pile_params", "box_options", "checkpoint", "resume",
                       "law_options"})
 """Arguments that are not options: the law, the run's machinery, and what the
