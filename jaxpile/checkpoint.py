@@ -145,16 +145,25 @@ def sibling(path, stage: str) -> str:
     return f"{stem}.{stage}{suffix or '.npz'}"
 
 
+def stage_files(path) -> list[str]:
+    """The files of the other stages of the run saved at `path`
+    (`checkpoint.<stage>.npz`, `sibling`), the last good one's included."""
+    import glob
+
+    stem, suffix = os.path.splitext(str(path))
+    return sorted(glob.glob(glob.escape(stem) + ".*" + (suffix or ".npz")))
+
+
 def in_folder(folder) -> str | None:
     """The checkpoint to resume or draw the `jaxpile pile` or `sweep` run in
-    `folder` from: `checkpoint.npz`, or else `checkpoint.box.npz` (a tilt run
-    stopped while still building its pile); None when there is neither."""
-    for stage in (None, "box"):
-        path = os.path.join(folder, "checkpoint.npz")
-        path = path if stage is None else sibling(path, stage)
-        if os.path.exists(path):
-            return path
-    return None
+    `folder` from: `checkpoint.npz`, or else the file of an earlier stage (a
+    tilt run stopped while still building its box pile: `checkpoint.box.npz`);
+    None when there is neither."""
+    path = os.path.join(folder, "checkpoint.npz")
+    if os.path.exists(path):
+        return path
+    stages = [f for f in stage_files(path) if f != sibling(path, "last-good")]
+    return stages[0] if stages else None
 
 
 def _unreadable(path, e: Exception) -> InputError:

@@ -526,8 +526,7 @@ def _checkpoint_spec(args):
     if args.resume is None:  # a new run: an older run's checkpoints in OUT must not be taken for its own
         from jaxpile import checkpoint
 
-        args.stale_checkpoints = [stale for stale in (path, checkpoint.sibling(path, "box"),
-                                                      checkpoint.sibling(path, "last-good")) if os.path.exists(stale)]
+        args.stale_checkpoints = [stale for stale in [path, *checkpoint.stage_files(path)] if os.path.exists(stale)]
     return path, args.checkpoint_every, {"argv": args.argv}
 
 
@@ -896,75 +895,36 @@ def _optimizer(name: str, lr: float):
 
 def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int = 60, seed: int = 0,
                 options: dict | None = None, bins: int | None = None, window: int = 2000, progress=None):
-    """The pile a fit differentiates: `(sim, params, state, steps, setting, window, description)`.
+    """The pile a pathwise fit differentiates: `(sim, params, state, steps, setting, window, description)`,
+    from the protocol module's `pathwise_problem` (the lattice: the whole
+    quasi-static loading; the pour: `window` steps of relaxation of a heap
+    poured with the starting parameters). A protocol without one is refused."""
+    module = _pathwise(protocol)
+    return module.pathwise_problem(law, start, size=layers if _entry(protocol).size == "layers" else n, seed=seed,
+                                   options=options, bins=bins, window=window, progress=progress)
 
-    lattice: the 1992 pile loaded by a gravity ramp and settled; the whole
-    quasi-static loading (2 x ramp steps) is differentiated.
-    pour: a heap poured and relaxed with the starting parameters (not
-    differentiated), then `window` steps of relaxation from it with the
-    parameters being fitted, all differentiated: the fit sees how the settled
-    heap's base forces respond to the parameters, with its geometry fixed.
-    """
-    from jaxpile import fit
+
+def _pathwise(protocol: str):
+    """The protocol module, when it offers a pathwise fit (`pathwise_problem`)."""
     from jaxpile.errors import InputError
-    from jaxpile.protocols import lattice, pour
-    from jaxpile.simulate import Simulator, gravity_ramp
+    from jaxpile.protocols import PROTOCOLS
 
-    if protocol == "lattice":
-        _, contact_law, params = _lattice_law_and_params(law, start)
-        ramp = _lattice_fit_ramp(layers)
-        particles, boundaries = lattice.equilateral_pile(layers)
-        sim = Simulator(contact_law, lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
-        state = sim.init(params, particles, boundaries)
-        setting = fit.ProfileSetting("ground", 0.5, layers + 0.5, bins or layers, 0.3)
-        return sim, params, state, 2 * ramp, setting, None, (
-            f"{layers}-layer lattice pile, gravity ramped over {ramp} steps and settled for {ramp}: "
-            "the whole loading differentiated")
-    options = dict(options or {})
-    p = pour.pour(n, seed=seed, **options)
-    _, _, params = pour.law_and_params(law, start)
-    sim = pour.make_simulator(law)
-    state, info = pour.execute(sim, params, p, progress=progress)
-    m = pour.measure(sim, params, state)
-    if "extent" not in m:
-        raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
-    x_left, x_right = m["extent"]
-    setting = fit.ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
-    return sim, params, state, int(window), setting, int(window), (
-        f"{n}-disk heap poured (seed {seed}) and relaxed with the starting parameters ({info.steps} steps, "
-        f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
-
-
-def _lattice_fit_ramp(layers: int) -> int:
-    """The gravity-ramp steps of the lattice pile a fit differentiates (it
-    settles for as many again); refuses a pile too small for a profile."""
-    from jaxpile.errors import InputError
-
-    if layers < 2:
-        raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
-    return max(600, 100 * layers)
+    module = PROTOCOLS.get(protocol)
+    if module is None or not callable(getattr(module, "pathwise_problem", None)):
+        offered = [p for p, m in PROTOCOLS.items() if callable(getattr(m, "pathwise_problem", None))]
+        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
+                         "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
+    return module
 
 
 def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     """`fit --dry-run`: the pile the fit builds (set up, not run), the parameters
     it fits from their starting values, the memory estimate and the steps."""
-    from jaxpile.protocols import lattice, pour
-    from jaxpile.simulate import Simulator
-
-    if args.protocol == "lattice":
-        per_step = 2 * _lattice_fit_ramp(args.layers)
-        _, contact_law, params = _lattice_law_and_params(law, start)
-        particles, _ = lattice.equilateral_pile(args.layers)
-        Simulator(contact_law, lattice.PAPER_SETTING["dt"]).check_params(params, particles)
-        build = {}
-        what = f"a {args.layers}-layer lattice pile"
-    else:
-        p = pour.pour(args.n, seed=args.seed, **_parse_options(args.option))
-        _, contact_law, params = pour.law_and_params(law, start)
-        particles = p.particles
-        Simulator(contact_law, p.info["dt"]).check_params(params, particles)
-        build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": pour.PAPER_SETTING["max_settle_steps"]}
-        per_step, what = args.window, f"a {args.n}-disk poured heap (seed {args.seed})"
+    module = _pathwise(args.protocol)
+    size = args.layers if _entry(args.protocol).size == "layers" else args.n
+    what, particles, params, build, per_step = module.pathwise_dry_run(law, start, size=size, seed=args.seed,
+                                                                       options=_parse_options(args.option),
+                                                                       window=args.window)
     values = ", ".join(f"{n} = {float(getattr(params, n)):g}" for n in names)
     print(f"jaxpile: dry run of a fit of {values} ({law} law) on {what}: {args.steps} optimiser steps, each "
           f"differentiating {per_step:,} steps (a forward and a reverse pass)")
@@ -973,13 +933,6 @@ def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     print(f"jaxpile: the fit: {args.steps} x {per_step:,} steps = {total:.3g} particle-steps forward "
           "(the reverse pass costs ~5x more)")
     return {**report, "fit_particle_steps": total}
-
-
-def _lattice_law_and_params(law: str, start: dict):
-    from jaxpile.protocols import lattice
-    from jaxpile.protocols.base import law_and_params
-
-    return law_and_params(law, start, setting=lattice.PAPER_SETTING)
 
 
 def run_fit(args) -> dict:
@@ -998,9 +951,7 @@ def run_fit(args) -> dict:
     if ensemble_target:
         raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
                          "smoothing.")
-    if args.protocol not in ("lattice", "pour"):
-        raise InputError(f"pathwise fits run on the lattice and pour protocols; fit the {args.protocol} protocol "
-                         "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
+    _pathwise(args.protocol)  # refused here when the protocol offers no pathwise fit
     if args.target is None:
         raise InputError("a pathwise fit needs --target FILE|smid-novosad.")
     args.optimizer = args.optimizer or "adam"
@@ -1012,7 +963,7 @@ def run_fit(args) -> dict:
     from jaxpile.errors import InputError, SimulationError
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or {"lattice": "hooke", "pour": "baxter"}[args.protocol]).NAME
+    law = get_law_module(args.law or _entry(args.protocol).default_law).NAME
     lawmod = get_law_module(law)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     if not names:

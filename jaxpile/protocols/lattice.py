@@ -249,3 +249,42 @@ def sweep_adapter():
     return loaded_pile_adapter(
         PAPER_SETTING, build, lambda base, info, state: compare_with_theory(base, info["layers"]), law_and_params,
         ("max_rel_dev_normal", "max_rel_dev_horizontal"), {"layers"})
+
+
+# ------------------------------------------------------------- pathwise fits
+def fit_ramp(layers: int) -> int:
+    """The gravity-ramp steps of the pile a pathwise fit differentiates (it
+    settles for as many again); refuses a pile too small for a profile."""
+    if layers < 2:
+        raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
+    return max(600, 100 * layers)
+
+
+def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None, **_):
+    """What `jaxpile fit --estimator pathwise` differentiates: the `size`-layer
+    pile loaded by a gravity ramp and settled, the whole quasi-static loading
+    (2 x ramp steps). Returns `(sim, params, state, steps, setting, window, description)`."""
+    from jaxpile import fit
+    from jaxpile.simulate import Simulator, gravity_ramp
+
+    _, contact_law, params = law_and_params(law, start)
+    ramp = fit_ramp(size)
+    particles, boundaries = equilateral_pile(size)
+    sim = Simulator(contact_law, PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
+    state = sim.init(params, particles, boundaries)
+    setting = fit.ProfileSetting("ground", 0.5, size + 0.5, bins or size, 0.3)
+    return sim, params, state, 2 * ramp, setting, None, (
+        f"{size}-layer lattice pile, gravity ramped over {ramp} steps and settled for {ramp}: "
+        "the whole loading differentiated")
+
+
+def pathwise_dry_run(law, start: dict, *, size: int = 6, **_):
+    """`(what, particles, params, steps of the build, steps differentiated)` of
+    `pathwise_problem`, set up and checked, not run."""
+    from jaxpile.simulate import Simulator
+
+    per_step = 2 * fit_ramp(size)
+    _, contact_law, params = law_and_params(law, start)
+    particles, _ = equilateral_pile(size)
+    Simulator(contact_law, PAPER_SETTING["dt"]).check_params(params, particles)
+    return f"a {size}-layer lattice pile", particles, params, {}, per_step

@@ -761,6 +761,44 @@ def sweep_adapter():
                    fit_statistics={"columns": ("repose_mean",), "bins": 9})
 
 
+# ------------------------------------------------------------- pathwise fits
+def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
+                     bins: int | None = None, window: int = 2000, progress=None):
+    """What `jaxpile fit --estimator pathwise` differentiates: a `size`-disk heap
+    poured and relaxed with the starting parameters (not differentiated), then
+    `window` steps of relaxation from it with the parameters being fitted, all
+    differentiated: the fit sees how the settled heap's base forces respond to
+    the parameters, with its geometry fixed. Returns `(sim, params, state,
+    steps, setting, window, description)`."""
+    from jaxpile import fit
+
+    p = pour(size, seed=seed, **dict(options or {}))
+    _, _, params = law_and_params(law, start)
+    sim = make_simulator(law)
+    state, info = execute(sim, params, p, progress=progress)
+    m = measure(sim, params, state)
+    if "extent" not in m:
+        raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
+    x_left, x_right = m["extent"]
+    setting = fit.ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
+    return sim, params, state, int(window), setting, int(window), (
+        f"{size}-disk heap poured (seed {seed}) and relaxed with the starting parameters ({info.steps} steps, "
+        f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
+
+
+def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
+                     window: int = 2000, **_):
+    """`(what, particles, params, steps of the build, steps differentiated)` of
+    `pathwise_problem`, set up and checked, not run."""
+    from jaxpile.simulate import Simulator
+
+    p = pour(size, seed=seed, **dict(options or {}))
+    _, contact_law, params = law_and_params(law, start)
+    Simulator(contact_law, p.info["dt"]).check_params(params, p.particles)
+    build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": PAPER_SETTING["max_settle_steps"]}
+    return f"a {size}-disk poured heap (seed {seed})", p.particles, params, build, window
+
+
 __all__ = [
     "MIN_RELEASE_GAP",
     "PAPER_SETTING",
