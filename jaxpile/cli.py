@@ -277,11 +277,12 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
     sweep.add_argument("--protocol", default="box", choices=_sweep_protocols(),
-                       help="box, pour, flux; lattice, sloped (deterministic piles: vary the law); drop")
+                       help="every registered protocol (lattice and sloped are deterministic: vary the law)")
     sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
     sweep.add_argument("--vary", action="append", metavar="NAME=V1,V2,...",
-                       help="another law parameter to sweep (repeatable; the grid is the product)")
+                       help="another law parameter, or a set-up option of the protocol (--vary orifice=4,6,8 "
+                            "for the hopper), to sweep (repeatable; the grid is the product)")
     sweep.add_argument("--seeds", type=int, default=4, help="random piles per grid point (seeds 0..N-1)")
     sweep.add_argument("--n", type=int, default=None, help="disks per pile (default: the protocol's)")
     sweep.add_argument("--option", action="append", metavar="NAME=VALUE", help="a set-up option (repeatable)")

@@ -276,7 +276,10 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     Args:
       protocol: a registered protocol with a `sweep_adapter` (`adapters()`).
       law: the contact law (default: the protocol paper's).
-      vary: law parameter name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`.
+      vary: name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`: law parameters,
+        or set-up options of the protocol (`{"orifice": [4, 6, 8]}` for the
+        hopper; a name that is both, as the pour's `n`, is the law's). Members
+        with different set-up options run in batches of their own.
       seeds: a count (seeds 0..n-1) or a list of seeds.
       params: fixed overrides of the protocol's law setting.
       options: for the protocol's set-up (e.g. `n`, `width`, `height`).
@@ -317,17 +320,34 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     else:
         members = grid(vary, seeds)
     dt = a.default_dt(law) if dt is None else float(dt)
+    law_names = set(a.law_and_params(law, {}, rotation, dtype=dtype)[0].PARAM_NAMES)
+    set_up = [k for k in vary if k in a.options and k not in law_names]  # varied set-up options
+
+    def split(point):  # (law parameters, set-up options) of a member's point
+        return ({k: v for k, v in point.items() if k not in set_up},
+                {**options, **{k: v for k, v in point.items() if k in set_up}})
+
     member_params = []
     for point, _ in members:
-        _, _, prm = a.law_and_params(law, {**(params or {}), **point}, rotation, dtype=dtype)  # checks the names
+        _, _, prm = a.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype=dtype)  # checks names
         member_params.append(prm)
     sim_options = {} if rotation is None else {"rotation": rotation}
-    ens = _ensemble(protocol, 0, law, dt, sim_options, options, devices,
-                    lambda: a.simulator(law, dt, sim_options, options))
-    sim = ens.sim
     batch_size = len(members) if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise InputError(f"batch_size must be >= 1; got {batch_size}.")
+    batches = []  # (first member, end): at most batch_size members, one set-up each
+    for k, (point, _) in enumerate(members):
+        if batches and batches[-1][1] - batches[-1][0] < batch_size and split(point)[1] == split(members[k - 1][0])[1]:
+            batches[-1][1] += 1
+        else:
+            batches.append([k, k + 1])
+
+    def stage0(member_options):
+        return _ensemble(protocol, 0, law, dt, sim_options, member_options, devices,
+                         lambda: a.simulator(law, dt, sim_options, member_options))
+
+    ens = stage0(split(members[0][0])[1])
+    sim = ens.sim
 
     from jaxpile import checkpoint as ckpt
 
@@ -345,11 +365,16 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
                              "resume it with as many devices.")
         rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
-    for start in range(first, len(members), batch_size):
-        chunk = members[start:start + batch_size]
-        prms = member_params[start:start + batch_size]
-        protocols = [a.setup(law, seed, dt, {**options, "dtype": dtype}) for _, seed in chunk]
-        budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, options)
+    for start, end in batches:
+        if start < first:
+            continue
+        chunk = members[start:end]
+        prms = member_params[start:end]
+        batch_options = split(chunk[0][0])[1]  # this batch's set-up
+        ens = stage0(batch_options)
+        sim = ens.sim
+        protocols = [a.setup(law, seed, dt, {**batch_options, "dtype": dtype}) for _, seed in chunk]
+        budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, batch_options)
         memory.check(protocols[0].particles.count, dtype or "float64", batch=len(chunk),
                      what=f"a batch of the {protocol} sweep")  # before the batch is stacked and compiled
         state = ens.init(prms, protocols)
@@ -363,19 +388,21 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
             spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
                                    batch_start=start, rows=rows, stage=0)
             state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
-                            until=a.finished(protocols[0].info, options), progress=progress, info=info,
+                            until=a.finished(protocols[0].info, batch_options), progress=progress, info=info,
                             checkpoint=spec)
         last_sim = sim
         for k, stage in enumerate(a.stages, 1):  # every member starts the next stage from where it ended the last
-            stage_ens = _ensemble(protocol, k, law, dt, sim_options, options, devices,
-                                  lambda: stage.simulator(law, dt, sim_options, options))
+            stage_ens = _ensemble(protocol, k, law, dt, sim_options, batch_options, devices,
+                                  lambda: stage.simulator(law, dt, sim_options, batch_options))
             last_sim = stage_ens.sim
             if k < at_stage:  # a resume past this stage: its start only shapes the template
-                started = [stage.start(law, dt, options, ensemble.member(state, i), p) for i, p in enumerate(protocols)]
+                started = [stage.start(law, dt, batch_options, ensemble.member(state, i), p)
+                           for i, p in enumerate(protocols)]
                 protocols = [p for _, p in started]
                 state = ensemble.stack_states([s for s, _ in started])
                 continue
-            started = [stage.start(law, dt, options, ensemble.member(state, i), p) for i, p in enumerate(protocols)]
+            started = [stage.start(law, dt, batch_options, ensemble.member(state, i), p)
+                       for i, p in enumerate(protocols)]
             if k == at_stage:  # the saved stage: its start steps and measured infos come from the file
                 infos, starts = saved["stage_infos"], [int(x) for x in saved["stage_start_steps"]]
                 protocols = [p._replace(info=info) for (_, p), info in zip(started, infos)]
@@ -393,8 +420,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
             spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
                                    batch_start=start, rows=rows, stage=k, stage_start_steps=starts,
                                    stage_infos=[p.info for p in protocols])
-            state = stage_ens.run(prms, state, max(stage.max_steps(protocols[0].info, options) - done, 0),
-                                  until=stage.finished(protocols[0].info, options), progress=progress, info=info,
+            state = stage_ens.run(prms, state, max(stage.max_steps(protocols[0].info, batch_options) - done, 0),
+                                  until=stage.finished(protocols[0].info, batch_options), progress=progress, info=info,
                                   checkpoint=spec)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
             s = ensemble.member(state, k)

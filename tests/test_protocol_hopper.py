@@ -102,12 +102,16 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
     assert main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
     assert (tmp_path / "redrawn" / "discharge.png").stat().st_size > 10_000
 
-    assert main(["sweep", "--protocol", "hopper", "--vary", "mu=0.5", "--seeds", "1", "--n", "60", "--width", "10",
-                 "--orifice", "4", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
-    row = sweep.read(tmp_path / "sweep").rows[0]
-    # a batch sums forces in another order, and a discharge is chaotic: the member
-    # is a pile of its own (5.1 vs 3.5 disks / time measured), not the single run
-    assert row["discharged"] + row["remaining"] == 60 and row["flow_rate"] > 0 and row["at_rest"]
+    # a sweep over a set-up option: one batch per orifice (Beverloo's law from the command line)
+    assert main(["sweep", "--protocol", "hopper", "--vary", "orifice=4,7", "--seeds", "1", "--n", "60", "--width",
+                 "10", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
+    narrow, wide = sweep.read(tmp_path / "sweep").rows
+    assert (narrow["orifice"], wide["orifice"]) == (4.0, 7.0)
+    # a batch sums forces in another order, and a discharge is chaotic: a member
+    # is a pile of its own (5.1 vs 3.5 disks / time measured at D = 4), not the single run
+    for row in (narrow, wide):
+        assert row["discharged"] + row["remaining"] == 60 and row["flow_rate"] > 0 and row["at_rest"]
+    assert wide["flow_rate"] > 2.0 * narrow["flow_rate"]
     capsys.readouterr()
     assert main(["fit", "--protocol", "hopper", "--params", "mu", "--truth", "mu=0.45", "--ensemble", "2",
                  "--dry-run", "--out", str(tmp_path / "fit")]) == 0
