@@ -24,7 +24,11 @@ import warnings as _warnings
 if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
     _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "") + " --xla_cpu_prefer_vector_width=512").strip()
 
-import jax
+from jaxpile import _compat  # noqa: E402  (old module paths such as jaxpile.simulate keep working)
+
+_compat.install()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 if _os.environ.get("JAXPILE_HOST_DEVICES"):
@@ -34,17 +38,27 @@ if _os.environ.get("JAXPILE_HOST_DEVICES"):
         _warnings.warn(f"JAXPILE_HOST_DEVICES={_os.environ['JAXPILE_HOST_DEVICES']!r} ignored: {_error}",
                        stacklevel=2)
 
-from jaxpile import _jax_md  # noqa: E402
+from jaxpile.engine import _jax_md  # noqa: E402
 
 _jax_md.register()  # jax-md's neighbour lists without the rest of jax-md's import (10 s -> 1 s)
 
-from jaxpile import analysis, boundaries, ensemble, fit, laws, protocols, sweep, theory  # noqa: E402
-from jaxpile.boundaries import make_boundaries, set_wall  # noqa: E402
+from jaxpile import fit, laws, protocols, sweep  # noqa: E402
+from jaxpile.measure import analysis, theory
+from jaxpile.engine import boundaries, ensemble
+from jaxpile.engine.boundaries import make_boundaries, set_wall  # noqa: E402
 from jaxpile.errors import InputError, SimulationError  # noqa: E402
-from jaxpile.simulate import RunInfo, Simulator, make_step, max_speed  # noqa: E402
-from jaxpile.state import Boundaries, Contacts, Particles, SimState, make_particles  # noqa: E402
+from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed  # noqa: E402
+from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState, make_particles  # noqa: E402
 
-__version__ = "0.1.0"
+from jaxpile._version import __version__  # noqa: E402
+
+def __getattr__(name):  # jaxpile.blocks, jaxpile.checkpoint, ...: the old flat paths as attributes too
+    if f"jaxpile.{name}" in _compat.MOVED:
+        import importlib
+
+        return importlib.import_module(_compat.MOVED[f"jaxpile.{name}"])
+    raise AttributeError(f"module 'jaxpile' has no attribute {name!r}")
+
 
 __all__ = [
     "Boundaries",

@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 PROPERTIES = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:1:force:R:3:active:I:1"
 COLUMNS = ("pos", 3), ("radius", 1), ("velo", 3), ("omega", 1), ("force", 3), ("active", 1)
@@ -213,7 +213,7 @@ def trajectory(path, every: int, *, resume_step: int | None = None):
       >>> with export.trajectory("out/trajectory.xyz", 1000):            # doctest: +SKIP
       ...     state, m = box.run("hooke", width=1.6, height=1.6)
     """
-    from jaxpile.simulate import observing
+    from jaxpile.engine.simulate import observing
 
     return observing(Trajectory(path, every, resume_step))
 
@@ -250,7 +250,7 @@ def _pairs(comment: str):
 def write_contacts(path, sim, params, state: SimState) -> dict:
     """The contact-force table: disk-disk contacts (i < j) and wall contacts
     (j = -1 - wall), with normal and tangential magnitudes in mg. Returns the columns."""
-    from jaxpile import analysis
+    from jaxpile.measure import analysis
     from jaxpile.io import write_csv
 
     net = analysis.contact_network(sim, params, state)

@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 
 def state_arrays(state: SimState) -> dict:

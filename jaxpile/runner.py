@@ -18,8 +18,8 @@ import jax.numpy as jnp
 
 from jaxpile.errors import InputError
 from jaxpile.protocols.base import Protocol
-from jaxpile.simulate import max_speed
-from jaxpile.state import SimState
+from jaxpile.engine.simulate import max_speed
+from jaxpile.engine.state import SimState
 
 
 def run_record(info, t0: float) -> dict:
@@ -61,8 +61,8 @@ def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progr
       `time`, `kinetic_energy` (per movable disk, `analysis.mean_kinetic_energy`;
       Fig. 1(b)) and `max_speed`, starting with the run's first state.
     """
-    from jaxpile import checkpoint as ckpt
-    from jaxpile.simulate import RunInfo
+    from jaxpile.engine import checkpoint as ckpt
+    from jaxpile.engine.simulate import RunInfo
 
     if int(max_steps) != max_steps or max_steps < 0 or (max_steps == 0 and samples is None):
         raise InputError(f"max_steps must be a whole number >= 1; got {max_steps!r}.")
@@ -112,7 +112,7 @@ def start(sim, params, p: Protocol, resume=None) -> tuple[SimState, dict | None]
 def restore_sampled(resume, template: SimState, sim, params) -> tuple[SimState, dict]:
     """The state a sampled run (`run_sampled`) saved in `resume`, rebuilt on
     `template` (`checkpoint.restore`), and the samples saved with it."""
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     state = ckpt.restore(resume, template, sim.law, params)
     samples = ckpt.read_metadata(resume)["extra"].get("samples")

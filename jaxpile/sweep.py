@@ -33,9 +33,9 @@ import numpy as np
 
 
 from jaxpile import budget as memory
-from jaxpile import ensemble
+from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
-from jaxpile.simulate import RunInfo, max_speed
+from jaxpile.engine.simulate import RunInfo, max_speed
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ def bottom_row_extent(protocol):
 
 def marginal_stability(name, values):
     """The sweep figure's overlay against mu: theta_MS = arctan(3 mu) (1993 eq. 3)."""
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     if name != "mu":
         return None
@@ -159,9 +159,9 @@ def loaded_pile_adapter(setting: dict, build: Callable, compare: Callable, law_a
       law_and_params, headline, names: the protocol's law lookup, headline
         columns and set-up options.
     """
-    from jaxpile import analysis
+    from jaxpile.measure import analysis
     from jaxpile.protocols.base import Protocol
-    from jaxpile.simulate import Simulator, gravity_ramp
+    from jaxpile.engine.simulate import Simulator, gravity_ramp
 
     run_options = ("ramp_steps", "speed_tolerance", "max_steps")
 
@@ -349,7 +349,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     ens = stage0(split(members[0][0])[1])
     sim = ens.sim
 
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     rows, info = [], RunInfo()
     plan = [[point, seed] for point, seed in members]

@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any, Callable, NamedTuple
 
 from jaxpile.errors import InputError
-from jaxpile.state import Boundaries, Particles
+from jaxpile.engine.state import Boundaries, Particles
 
 
 class Protocol(NamedTuple):

@@ -73,8 +73,9 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis, budget, ranges
-from jaxpile.boundaries import RIGHT_WALL, make_boundaries
+from jaxpile import budget, ranges
+from jaxpile.measure import analysis
+from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import outputs
@@ -86,7 +87,7 @@ from jaxpile.protocols.paper1993 import (PAPER_G, PAPER_SETTING, Units, _measure
                                          fill_count, friction_coefficient, gaussian_radii, law_and_params, law_name,
                                          law_setting, mean_square_radius, units)
 from jaxpile.runner import check_dt, restore_sampled, run_record, run_sampled, run_to_finish, start  # noqa: F401
-from jaxpile.state import SimState, make_particles
+from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 
@@ -309,7 +310,7 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
     """A `Simulator` running a 1993 protocol's driver (default: the box `driver`)
     with a law by name (no rotation unless asked). One simulator serves every
     set-up of that protocol with this dt."""
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     _, contact_law, _ = law_and_params(law, {}, rotation)
     dt = float(law_setting(law)["dt"]) if dt is None else dt
@@ -370,7 +371,7 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
       >>> m["repose_cumulative_parabola"]                             # doctest: +SKIP
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     _, _, params = law_and_params(law, params, rotation, dtype)
     p = protocol(n, law=law, dt=dt, dtype=dtype, **options)

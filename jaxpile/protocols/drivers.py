@@ -11,8 +11,8 @@ from typing import Any, Callable
 import jax.numpy as jnp
 from jax import lax
 
-from jaxpile.simulate import max_speed
-from jaxpile.state import SimState
+from jaxpile.engine.simulate import max_speed
+from jaxpile.engine.state import SimState
 
 Array = Any
 

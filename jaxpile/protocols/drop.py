@@ -69,14 +69,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.boundaries import GROUND, make_boundaries
+from jaxpile.engine.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
-from jaxpile.state import SimState, make_particles
+from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 SQRT3 = math.sqrt(3.0)
@@ -179,7 +179,7 @@ def make_driver(*, drop_height: float, settle_speed: float, quiet_steps: int, ma
     passed since the last insertion, activates the next parked disk at rest,
     its lowest point `drop_height` above the highest active disk's top (or the
     ground), at its `drop_x`."""
-    from jaxpile.simulate import max_speed
+    from jaxpile.engine.simulate import max_speed
 
     def driver(state: SimState) -> SimState:
         ps: DropState = state.protocol_state
@@ -212,7 +212,7 @@ def make_in_play(quiet_steps: int):
     one every `quiet_steps` (the quiet count restarts at each drop, and the
     forced drops wait longer): the active ones plus 1 + (steps - 1) //
     quiet_steps. Each chunk then runs on the block of leading disks that holds
-    them (`jaxpile.blocks`)."""
+    them (`jaxpile.engine.blocks`)."""
     gap = max(int(quiet_steps), 1)
 
     def in_play(state: SimState, steps: int) -> int:
@@ -348,7 +348,7 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
 
 
 def _with_phase(checkpoint, phase: str, **facts):
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     return ckpt.with_facts(checkpoint, phase=phase, **facts)
 
@@ -387,7 +387,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
       too small to fit), and step counts and times.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile.simulate import RunInfo, Simulator
+    from jaxpile.engine.simulate import RunInfo, Simulator
 
     _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
     if int(relax_steps) != relax_steps or relax_steps < 1:
@@ -400,7 +400,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     fill_steps = None  # known once the fill phase is over
     if resume is not None:
-        from jaxpile import checkpoint as ckpt
+        from jaxpile.engine import checkpoint as ckpt
 
         state = ckpt.restore(resume, state, sim.law, params)
         fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
@@ -443,7 +443,7 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
 
 def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: float = 0.05) -> dict:
     """The drop pile's measurements at `state` (see `run`)."""
-    from jaxpile import analysis
+    from jaxpile.measure import analysis
 
     base = analysis.base_forces(sim, params, state)
     n_in = int(np.asarray(state.particles.movable).sum())
@@ -487,7 +487,7 @@ def sweep_adapter():
     relaxed. The batch's predicate: every disk in, the last one in for
     `quiet_time`, and every member's fastest disk below `speed_tolerance` (a
     single run fills, then relaxes; the batch checks both at each chunk's end)."""
-    from jaxpile.simulate import Simulator, max_speed
+    from jaxpile.engine.simulate import Simulator, max_speed
     from jaxpile.sweep import Adapter, heap_extent, option_names
 
     run_options = ("speed_tolerance", "relax_steps", "bins", "dip_threshold")

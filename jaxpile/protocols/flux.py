@@ -51,15 +51,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import analysis, budget, ranges, runner
-from jaxpile.boundaries import RIGHT_WALL, make_boundaries, set_wall
+from jaxpile import budget, ranges, runner
+from jaxpile.measure import analysis
+from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
-from jaxpile.state import SimState, make_particles
+from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 
@@ -449,7 +450,7 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
       and timings.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     _, _, params = boxes.law_and_params(law, params, rotation, dtype)
     p = protocol(insertions, law=law, dt=dt, dtype=dtype, **options)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.errors import InputError
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 Array = Any
 

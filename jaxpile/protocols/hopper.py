@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.boundaries import GROUND, make_boundaries, set_wall
+from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile import runner
 from jaxpile.protocols import outputs
@@ -51,7 +51,7 @@ from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, parking_grid,
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.state import SimState, make_particles
+from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 
@@ -297,7 +297,7 @@ CLI = CommandLine(
 def make_simulator(law="hooke", *, dt: float | None = None, rotation: bool | None = None,
                    integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
     """A `Simulator` running the hopper's `driver`; one serves every set-up with this dt."""
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     _, contact_law, _ = law_and_params(law, {}, rotation)
     return Simulator(contact_law, SETTING["dt"] if dt is None else dt, integrator=integrator, driver=driver,

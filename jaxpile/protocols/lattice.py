@@ -14,10 +14,10 @@ import numpy as np
 import time
 
 from jaxpile import budget, ranges
-from jaxpile.boundaries import make_boundaries
+from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.state import Boundaries, Particles, make_particles
+from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.protocols.base import CommandLine, Protocol
 
 
@@ -31,7 +31,7 @@ OPTION_RANGES = {
 
 def _theory_lines(measured: dict, base):
     """N = (k + 1)/2 and H of eq. 44 on profile.png, when every bottom disk is on the ground."""
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     layers = measured.get("layers")
     if not (measured.get("pile_intact") and layers == len(base.x)):
@@ -141,7 +141,7 @@ def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_st
     Returns:
       (state, RunInfo) with the steps of both phases.
     """
-    from jaxpile.simulate import load_then_settle
+    from jaxpile.engine.simulate import load_then_settle
 
     ramp = min(ramp_steps, max_steps)
     return load_then_settle(sim, params, state, load_steps=ramp, max_settle_steps=max_steps - ramp,
@@ -177,8 +177,8 @@ def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = N
       times, whether it ended at rest, and the ground friction the pile needs.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)
-    from jaxpile import analysis, theory
-    from jaxpile.simulate import Simulator, gravity_ramp
+    from jaxpile.measure import analysis, theory
+    from jaxpile.engine.simulate import Simulator, gravity_ramp
 
     _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
     p = protocol(layers, dtype=dtype)
@@ -186,7 +186,7 @@ def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = N
                     hard_collisions=hard_collisions)
     state = sim.init(params, p.particles, p.boundaries)
     if resume is not None:
-        from jaxpile import checkpoint as ckpt
+        from jaxpile.engine import checkpoint as ckpt
 
         state = ckpt.restore(resume, state, sim.law, params)
     t0 = time.perf_counter()
@@ -216,7 +216,7 @@ def compare_with_theory(base, layers: int) -> dict:
       (k + 1)/2 relative to it, and of H from eq. 44 relative to max |H|
       (the paper's own measure, Figs. 8-9).
     """
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     n_theory = theory.lattice_ground_normal_force(layers)
     h_theory = theory.lattice_ground_horizontal_force(layers)
@@ -265,7 +265,7 @@ def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None
     pile loaded by a gravity ramp and settled, the whole quasi-static loading
     (2 x ramp steps). Returns `(sim, params, state, steps, setting, window, description)`."""
     from jaxpile import fit
-    from jaxpile.simulate import Simulator, gravity_ramp
+    from jaxpile.engine.simulate import Simulator, gravity_ramp
 
     _, contact_law, params = law_and_params(law, start)
     ramp = fit_ramp(size)
@@ -281,7 +281,7 @@ def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None
 def pathwise_dry_run(law, start: dict, *, size: int = 6, **_):
     """`(what, particles, params, steps of the build, steps differentiated)` of
     `pathwise_problem`, set up and checked, not run."""
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     per_step = 2 * fit_ramp(size)
     _, contact_law, params = law_and_params(law, start)

@@ -63,7 +63,7 @@ def heap_profile_figure(measured: dict, title: str, out: str) -> list[str]:
 def sloped_theory(measured: dict, base) -> tuple | None:
     """The continuum N(x), H(x) of Liffman et al. 1992 eqs. 54-59 at the base's x,
     for the profile figure, with its label."""
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     if not len(base.x):
         return None
@@ -75,7 +75,7 @@ def sloped_theory(measured: dict, base) -> tuple | None:
 
 def substrate_base(sim, params, state, measured):
     """The forces of the fixed layer the pile stands on (its base when it has no ground)."""
-    from jaxpile import analysis
+    from jaxpile.measure import analysis
 
     return analysis.substrate_forces(sim, params, state)
 

@@ -57,14 +57,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxpile import analysis, budget, ranges
-from jaxpile.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
+from jaxpile import budget, ranges
+from jaxpile.measure import analysis
+from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
-from jaxpile.state import SimState, make_particles
+from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 
@@ -208,7 +209,7 @@ def in_play(state: SimState, steps: int) -> int:
     steps: the substrate and every disk released by then (disks are released in
     index order, one at each multiple of the interval; lost disks are parked
     at their own index). The `Simulator(in_play=...)` of a pour runs each chunk
-    on the smallest block that holds them (`jaxpile.blocks`)."""
+    on the smallest block that holds them (`jaxpile.engine.blocks`)."""
     ps: PourState = state.protocol_state
     step, interval = int(state.step), int(ps.interval)
     releases = (step + int(steps) - 1) // interval - (step - 1) // interval
@@ -627,7 +628,7 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
     baxter's `lever_arm`). One simulator serves every `pour` set-up with this dt
     (the driver reads the set-up from the state)."""
     from jaxpile.laws import get_law_module
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     module = get_law_module(law)
     options = dict(law_options or {})
@@ -656,8 +657,8 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
       (state, RunInfo): the run's steps and timings over both phases, `at_rest`
       and the final `max_speed` from the settling phase.
     """
-    from jaxpile import checkpoint as ckpt
-    from jaxpile.simulate import load_then_settle
+    from jaxpile.engine import checkpoint as ckpt
+    from jaxpile.engine.simulate import load_then_settle
 
     if abs(sim.dt - protocol.info["dt"]) > 1e-12 * protocol.info["dt"]:
         raise InputError(f"the protocol was set up for dt = {protocol.info['dt']:g} but the simulator "
@@ -724,7 +725,7 @@ def sweep_adapter():
     """What a sweep and an ensemble fit need: the flank angles, the height and
     base, the M ratio and the force balance per member; every disk poured,
     then at rest, as `execute`."""
-    from jaxpile.simulate import max_speed
+    from jaxpile.engine.simulate import max_speed
     from jaxpile.sweep import Adapter, heap_extent, marginal_stability, option_names
 
     def setup(law, seed, dt, options):
@@ -790,7 +791,7 @@ def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options
                      window: int = 2000, **_):
     """`(what, particles, params, steps of the build, steps differentiated)` of
     `pathwise_problem`, set up and checked, not run."""
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     p = pour(size, seed=seed, **dict(options or {}))
     _, contact_law, params = law_and_params(law, start)

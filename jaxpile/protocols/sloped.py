@@ -32,14 +32,14 @@ import time
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.boundaries import make_boundaries
+from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import lattice
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
-from jaxpile.state import Boundaries, Particles, make_particles
+from jaxpile.engine.state import Boundaries, Particles, make_particles
 
 SQRT3 = math.sqrt(3.0)
 
@@ -191,8 +191,8 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
       slope, B, the row lengths, the disk count and x_c (eq. 49's text).
     """
     ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
-    from jaxpile import theory
-    from jaxpile.simulate import gravity_ramp
+    from jaxpile.measure import theory
+    from jaxpile.engine.simulate import gravity_ramp
 
     alpha = _check_alpha(alpha_degrees)
     if base is None:
@@ -251,7 +251,7 @@ def compare_with_theory(base_forces, alpha_degrees: float, base: float, *, n_par
         mismatch N(x) - N(B - x) and H(x) + H(B - x) over max |N| and max |H|;
         `total_normal` and (with `n_particles`) `weight_balance` = total / n - 1.
     """
-    from jaxpile import theory
+    from jaxpile.measure import theory
 
     alpha_deg = _check_alpha(alpha_degrees)
     alpha = math.radians(alpha_deg)
@@ -341,15 +341,15 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
       >>> m["central_slope_horizontal"], m["theory_central_slope_horizontal"]  # doctest: +SKIP
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile import analysis
-    from jaxpile.simulate import Simulator
+    from jaxpile.measure import analysis
+    from jaxpile.engine.simulate import Simulator
 
     _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
     p = protocol(alpha_degrees, n=n, base=base, ramp_steps=ramp_steps, seed=seed, dtype=dtype)
     sim = Simulator(contact_law, dt, schedule=p.schedule, integrator=integrator, hard_collisions=hard_collisions)
     state = sim.init(params, p.particles, p.boundaries, box=p.box)
     if resume is not None:
-        from jaxpile import checkpoint as ckpt
+        from jaxpile.engine import checkpoint as ckpt
 
         state = ckpt.restore(resume, state, sim.law, params)
     t0 = time.perf_counter()

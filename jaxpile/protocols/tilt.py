@@ -41,13 +41,14 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import ranges, runner, theory
+from jaxpile import ranges, runner
+from jaxpile.measure import theory
 from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 Array = Any
 
@@ -295,7 +296,7 @@ def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: b
     Returns:
       (state, RunInfo, samples) as `runner.run_sampled`.
     """
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     runner.check_dt(sim, p)
     if pile is None:
@@ -353,7 +354,7 @@ def _stages(resume) -> tuple[str | None, str | None]:
     own pile from `resume`: a tilt save (which names its pile's file), a box
     save, or the tilt's fixed path when the run stopped before the tilt began
     (then only its `checkpoint.sibling(resume, "box")` exists)."""
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     if resume is None:
         return None, None
@@ -413,7 +414,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
       `box` holds the box run's measurements when the pile was built here.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     _, _, tilt_params = boxes.law_and_params(law, params, rotation, dtype)
     box_result = None

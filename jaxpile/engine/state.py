@@ -95,7 +95,7 @@ class Boundaries:
     """Run-time boundary settings: changing them never recompiles.
 
     Walls are half-planes `normal . x >= offset`, with `normal` pointing into
-    the granular domain. The default set (see `jaxpile.boundaries.make_boundaries`)
+    the granular domain. The default set (see `jaxpile.engine.boundaries.make_boundaries`)
     is the ground y = 0 (wall 0), a left wall (1) and a right wall (2).
 
     Attributes:

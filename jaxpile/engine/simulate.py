@@ -25,15 +25,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxpile import blocks
-from jaxpile import neighbors as nb
-from jaxpile.checkpoint import step_of
-from jaxpile.collisions import HardCollisions, hard_collision_velocities
+from jaxpile.engine import blocks
+from jaxpile.engine import neighbors as nb
+from jaxpile.engine.checkpoint import step_of
+from jaxpile.engine.collisions import HardCollisions, hard_collision_velocities
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.integrators import Integrator, get_integrator
-from jaxpile.interactions import ContactForces, evaluate, external_force, in_slots
+from jaxpile.engine.integrators import Integrator, get_integrator
+from jaxpile.engine.interactions import ContactForces, evaluate, external_force, in_slots
 from jaxpile.laws.base import ContactLaw
-from jaxpile.state import Boundaries, Contacts, Particles, SimState
+from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState
 
 Array = Any
 
@@ -51,7 +51,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
       schedule: optional `state -> Boundaries`, the boundaries in force during
         the step (e.g. `gravity_ramp`); it reads the stored boundaries and the
         step count and leaves the stored boundaries as they are.
-      integrator: a name in `jaxpile.integrators.INTEGRATORS` (`velocity_verlet`,
+      integrator: a name in `jaxpile.engine.integrators.INTEGRATORS` (`velocity_verlet`,
         `leapfrog`, `gear`, `implicit_midpoint`) or an `Integrator`. The state
         must have been prepared by `Simulator.init` with the same integrator.
       hard_collisions: optional `collisions.HardCollisions`: pairs that meet fast
@@ -64,7 +64,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         gravity), with its own carried data in `state.protocol_state`. It must
         keep every array's shape and dtype.
       axis_name: the name of the `vmap` axis the step will be mapped over (see
-        `jaxpile.ensemble`): the neighbour-list rebuild (with the history carried
+        `jaxpile.engine.ensemble`): the neighbour-list rebuild (with the history carried
         onto the new pairs) is then decided once for the whole batch, so it stays a real branch
         instead of running for every member at every step. None for one pile.
     """
@@ -229,7 +229,7 @@ class Simulator:
         first m can be in play (active, moved by the driver) during the next
         `steps` steps from `state`. A protocol that brings parked disks into
         play in index order (a pour) gives it, and each chunk then runs on the
-        smallest block of leading disks that holds them (`jaxpile.blocks`):
+        smallest block of leading disks that holds them (`jaxpile.engine.blocks`):
         the same result bit for bit, at the cost of the disks in play.
     """
 
@@ -519,7 +519,7 @@ class Simulator:
           until: optional host predicate checked after each chunk; the run stops
             early when it returns True.
           checkpoint: optional `(path, every)` or `(path, every, extra)`: the
-            state is saved with `jaxpile.checkpoint.save` at the first chunk
+            state is saved with `jaxpile.engine.checkpoint.save` at the first chunk
             boundary at or past each multiple of `every` of the step count, and
             at the end of the run. `path` may hold `{step}` (one file per checkpoint); otherwise
             each save replaces the last, atomically. `extra`: a dict of JSON-able
@@ -650,7 +650,7 @@ class _Checkpointer:
         self.last = None  # multiple of `every` last saved
 
     def _save(self, target: str, state: SimState, **extra) -> str:
-        from jaxpile import checkpoint
+        from jaxpile.engine import checkpoint
 
         checkpoint.save(target, state, self.law, self.params, **self.extra, **extra)
         return target

@@ -18,11 +18,11 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile.boundaries import GROUND
+from jaxpile.engine.boundaries import GROUND
 from jaxpile.errors import InputError
-from jaxpile.interactions import ContactForces
-from jaxpile.simulate import Simulator, max_speed
-from jaxpile.state import SimState
+from jaxpile.engine.interactions import ContactForces
+from jaxpile.engine.simulate import Simulator, max_speed
+from jaxpile.engine.state import SimState
 
 
 Array = Any

@@ -65,7 +65,7 @@ def _on_off(text: str) -> bool:
 
 
 def _parse_hard_collisions(text):
-    from jaxpile.collisions import HardCollisions
+    from jaxpile.engine.collisions import HardCollisions
     from jaxpile.errors import InputError
 
     if text is None:
@@ -439,7 +439,7 @@ def _ranges_epilog() -> str:
 def _resume_argv(argv: list[str]) -> list[str]:
     """`pile|sweep --resume DIR [--no-progress]` -> the saved run's own command line
     plus `--resume DIR`: a resumed run takes every setting from its checkpoint."""
-    from jaxpile import checkpoint
+    from jaxpile.engine import checkpoint
     from jaxpile.errors import InputError
 
     rest = [a for a in argv[1:] if a != "--no-progress"]
@@ -479,7 +479,7 @@ def _resume_point(args) -> tuple[str | None, int]:
     """For --resume DIR: the checkpoint file to hand to the run (DIR/checkpoint.npz;
     a tilt finds its box stage beside it) and the step it resumes at, announced.
     `(None, 0)` for a new run."""
-    from jaxpile import checkpoint
+    from jaxpile.engine import checkpoint
     from jaxpile.errors import InputError
 
     if args.resume is None:
@@ -525,7 +525,7 @@ def _checkpoint_spec(args):
         raise InputError(f"--checkpoint-every must be >= 1 step; got {args.checkpoint_every}.")
     path = os.path.join(args.out, "checkpoint.npz")
     if args.resume is None:  # a new run: an older run's checkpoints in OUT must not be taken for its own
-        from jaxpile import checkpoint
+        from jaxpile.engine import checkpoint
 
         args.stale_checkpoints = [stale for stale in [path, *checkpoint.stage_files(path)] if os.path.exists(stale)]
     return path, args.checkpoint_every, {"argv": args.argv}
@@ -537,7 +537,7 @@ def _replacing_earlier(args):
     when this run starts stepping (its first observed state), not before it: a
     command that fails while setting up leaves the earlier run as it was. A
     batched run is not observed; its end removes them."""
-    from jaxpile.simulate import observing
+    from jaxpile.engine.simulate import observing
 
     stale = list(getattr(args, "stale_checkpoints", []))
 
@@ -593,7 +593,7 @@ def main(argv=None) -> int:
         if args.command == "pile":
             run_protocol(args)
         elif args.command == "show":
-            from jaxpile.show import show
+            from jaxpile.cli.show import show
 
             written = show(args.dir, args.out, checkpoint=args.checkpoint)
             print(f"jaxpile: wrote {args.out or args.dir}/" + ", ".join(written))
@@ -622,12 +622,13 @@ def run_protocol(args) -> dict:
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import analysis, export, io
+    from jaxpile import export, io
+    from jaxpile.measure import analysis
     from jaxpile.errors import InputError
     from jaxpile.laws import get_law_module
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols import options as protocol_options
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     name = args.protocol
     module = PROTOCOLS[name]
@@ -752,7 +753,7 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     if "law" in accepted:
         given["law"] = args.law or _entry(name).default_law
     p = setup(**given)
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     setting = getattr(module, "SETTING", None) or getattr(module, "PAPER_SETTING", {})
     dt = kwargs.get("dt") or p.info.get("dt") or setting.get("dt")
@@ -946,7 +947,7 @@ def run_fit(args) -> dict:
     ensemble_target = args.truth or (args.target or "").endswith(".json") or args.resume
     estimator = args.estimator or ("central" if ensemble_target else "pathwise")
     if estimator != "pathwise":
-        from jaxpile.ensemble_fit_command import run_ensemble_fit
+        from jaxpile.fit.command import run_ensemble_fit
 
         return run_ensemble_fit(args, estimator)
     if ensemble_target:
@@ -1020,7 +1021,7 @@ def run_fit(args) -> dict:
         result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
     before, after = profile(params), profile(result.params)
     # the rollouts are pure (no re-allocation inside): make sure no contact was dropped
-    from jaxpile.neighbors import overflowed as lost_contacts
+    from jaxpile.engine.neighbors import overflowed as lost_contacts
 
     overflowed = jax.jit(lambda p: lost_contacts(sim.rollout(p, state, steps)))
     for label, p in (("starting", params), ("fitted", result.params)):

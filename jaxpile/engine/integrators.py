@@ -39,7 +39,7 @@ from jax import lax
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
-from jaxpile.state import Particles
+from jaxpile.engine.state import Particles
 
 Array = Any
 

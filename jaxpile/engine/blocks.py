@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import neighbors as nb
-from jaxpile.state import SimState
+from jaxpile.engine import neighbors as nb
+from jaxpile.engine.state import SimState
 
 Array = Any
 

@@ -19,8 +19,8 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
-from jaxpile.neighbors import half_slots
-from jaxpile.state import Boundaries, Contacts, Particles
+from jaxpile.engine.neighbors import half_slots
+from jaxpile.engine.state import Boundaries, Contacts, Particles
 
 Array = Any
 

@@ -1,9 +1,9 @@
 """A batch of piles as one pytree: member states stacked on a leading axis.
 
-The tree helpers that both the batched runner (`jaxpile.ensemble`) and the
-checkpoints (`jaxpile.checkpoint`, which restores a batch) need, in a module
+The tree helpers that both the batched runner (`jaxpile.engine.ensemble`) and the
+checkpoints (`jaxpile.engine.checkpoint`, which restores a batch) need, in a module
 of their own so that neither imports the other (issue 18: the circle
-checkpoint -> ensemble -> simulate -> checkpoint is gone). `jaxpile.ensemble`
+checkpoint -> ensemble -> simulate -> checkpoint is gone). `jaxpile.engine.ensemble`
 re-exports every name here.
 """
 
@@ -15,9 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import neighbors as nb
+from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 
 def stack(trees: Sequence[Any]) -> Any:

@@ -47,9 +47,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from jaxpile import analysis, theory
+from jaxpile.measure import analysis, theory
 from jaxpile.errors import InputError
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 Array = Any
 

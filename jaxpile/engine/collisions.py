@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile.boundaries import wall_distance
+from jaxpile.engine.boundaries import wall_distance
 from jaxpile.errors import InputError
 from jaxpile.laws.base import safe_norm
 

@@ -46,13 +46,13 @@ import numpy as np
 from jax import lax
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxpile import blocks
-from jaxpile import neighbors as nb
-from jaxpile.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
-from jaxpile.checkpoint import step_of
+from jaxpile.engine import blocks
+from jaxpile.engine import neighbors as nb
+from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
+from jaxpile.engine.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
-from jaxpile.state import SimState
+from jaxpile.engine.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
+from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
     from jaxpile.protocols.base import Protocol
@@ -274,7 +274,7 @@ class Ensemble:
             (default: when stderr is a terminal).
           info: a `RunInfo` to accumulate timings into (`steps` counts batch steps).
           checkpoint: optional `(path, every[, extra])` as in `Simulator.run`:
-            the whole batch is saved (`jaxpile.checkpoint.save`) at chunk
+            the whole batch is saved (`jaxpile.engine.checkpoint.save`) at chunk
             boundaries. To resume, `checkpoint.restore` it on a fresh
             `init` of the same members and run the steps left (the budget less
             `checkpoint.step_of(state)` for members started at step 0):

@@ -1,5 +1,5 @@
 """`jaxpile fit` with an ensemble target (`--truth` or a target.json): the
-command-line side of `jaxpile.ensemble_fit` (issue 17)."""
+command-line side of `jaxpile.fit.ensemble_fit` (issue 17)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from jaxpile.errors import InputError
 
 
 def _statistics(args, adapter):
-    from jaxpile.ensemble_fit import Statistics
+    from jaxpile.fit.ensemble_fit import Statistics
 
     default = adapter.fit_statistics
     if args.statistics is not None:
@@ -38,7 +38,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     the history goes to OUT/fit_checkpoint.json after every iteration, and
     `--resume` continues from it."""
     import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import ensemble_fit, io, sweep
+    from jaxpile import io, sweep
+    from jaxpile.fit import ensemble_fit
     from jaxpile.cli import _parse_options, _plain
     from jaxpile.laws import get_law_module
 

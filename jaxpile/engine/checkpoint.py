@@ -34,17 +34,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import batch
-from jaxpile import neighbors as nb
+from jaxpile.engine import batch
+from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
-from jaxpile.state import SimState
+from jaxpile.engine.state import SimState
 
 FORMAT = 2  # 2: contact history per half pair (Contacts.pairs). Bump when the layout of the file changes
 
 
 def _version() -> str:
-    from jaxpile import __version__
+    from jaxpile._version import __version__
 
     return __version__
 
@@ -56,7 +56,7 @@ def _leaves(state: SimState) -> tuple[list[str], list[Any], Any]:
 
 
 def step_of(state: SimState) -> int:
-    """The state's step count; for a batch (`jaxpile.ensemble`) the furthest
+    """The state's step count; for a batch (`jaxpile.engine.ensemble`) the furthest
     member's, which is the batch's own step count (members still running are all there)."""
     return int(np.max(np.asarray(state.step)))
 

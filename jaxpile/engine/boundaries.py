@@ -12,7 +12,7 @@ import math
 import jax.numpy as jnp
 
 from jaxpile.errors import InputError
-from jaxpile.state import Boundaries
+from jaxpile.engine.state import Boundaries
 
 GROUND, LEFT_WALL, RIGHT_WALL = 0, 1, 2
 

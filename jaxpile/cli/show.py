@@ -25,7 +25,7 @@ from jaxpile.errors import InputError
 
 
 def _network_from_csv(path):
-    from jaxpile.analysis import ContactNetwork
+    from jaxpile.measure.analysis import ContactNetwork
     from jaxpile.io import read_csv
 
     table = read_csv(path)
@@ -66,9 +66,9 @@ def state_from_checkpoint(path):
     contact forces (its neighbour list is the slots alone)."""
     from typing import NamedTuple
 
-    from jaxpile import checkpoint
+    from jaxpile.engine import checkpoint
     from jaxpile.laws import get_law_module
-    from jaxpile.state import Boundaries, Contacts, Particles, SimState
+    from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState
 
     meta = checkpoint.read_metadata(path)
     leaves = {k: jnp.asarray(v) for k, v in checkpoint.read_leaves(path).items()}
@@ -90,10 +90,11 @@ def state_from_checkpoint(path):
 
 
 def _checkpointed(path: str, out: str) -> list[str]:
-    from jaxpile import analysis, plot
-    from jaxpile.simulate import Simulator
+    from jaxpile import plot
+    from jaxpile.measure import analysis
+    from jaxpile.engine.simulate import Simulator
 
-    from jaxpile import checkpoint
+    from jaxpile.engine import checkpoint
 
     meta = checkpoint.read_metadata(path)
     if meta.get("batch"):
@@ -133,8 +134,8 @@ def _fit(folder: str, out: str) -> list[str]:
     from jaxpile import fit
 
     record = json.loads(open(os.path.join(folder, "fit.json")).read())
-    if "interval" in record and "names" in record:  # an ensemble fit (jaxpile.ensemble_fit)
-        from jaxpile import ensemble_fit
+    if "interval" in record and "names" in record:  # an ensemble fit (jaxpile.fit.ensemble_fit)
+        from jaxpile.fit import ensemble_fit
 
         ensemble_fit.figure(ensemble_fit.EnsembleFitResult.from_json(record), path=os.path.join(out, "fit.png"))
         return ["fit.png"]
@@ -168,7 +169,7 @@ def show(folder: str, out: str | None = None, *, checkpoint: bool = False) -> li
     pile run is drawn from its results, unless `checkpoint` asks for its last
     checkpoint; a run with only a checkpoint is drawn from that. Returns the
     file names written."""
-    from jaxpile import checkpoint as ckpt
+    from jaxpile.engine import checkpoint as ckpt
 
     out = folder if out is None else out
     if not os.path.isdir(folder):

@@ -55,7 +55,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import estimators
+from jaxpile.fit import estimators
 from jaxpile.errors import InputError
 from jaxpile.ranges import POSITIVE
 
