@@ -1,0 +1,92 @@
+"""A heap's base-force profile and its M shape (Baxter et al. 1997, Figs. 3b,
+5b and 7): the base normal force binned over x / B, and the flank maxima over
+the centre. Used by the pour, and by any pile standing on a base."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxpile.errors import InputError
+
+
+class BaseProfile(NamedTuple):
+    """The base force binned along the heap's base (the papers' x/B, F/F_max).
+
+    Attributes:
+      x_over_b: `[b]` bin centres, (x - x_left) / B, in (0, 1).
+      force: `[b]` total normal force in each bin (mg).
+      normalised: `[b]` force / its maximum.
+      x_left: left end of the base.
+      width: B, the base length.
+    """
+
+    x_over_b: np.ndarray
+    force: np.ndarray
+    normalised: np.ndarray
+    x_left: float
+    width: float
+
+
+def base_profile(forces, *, extent=None, bins: int | None = None, spacing: float = 1.1) -> BaseProfile:
+    """Bins the base normal force over the heap's base.
+
+    Args:
+      forces: `SubstrateForces` (or any `x`, `normal` arrays).
+      extent: `(x_left, x_right)` of the base; default: the span of the contacts.
+      bins: number of bins, made odd so one bin sits under the middle; default
+        about one bin per 4 substrate disks (at least 5).
+      spacing: substrate spacing, for the default bin count.
+    """
+    x, f = np.asarray(forces.x, float), np.asarray(forces.normal, float)
+    if x.size == 0:
+        raise InputError("no base contacts: nothing rests on the substrate.")
+    x_left, x_right = (float(x.min()), float(x.max())) if extent is None else (float(e) for e in extent)
+    width = x_right - x_left
+    if not width > 0:
+        raise InputError(f"the base extent must have x_left < x_right; got ({x_left}, {x_right}).")
+    if bins is None:
+        bins = max(5, int(round(width / (4.0 * spacing))))
+    if int(bins) != bins or bins < 3:
+        raise InputError(f"bins must be a whole number >= 3; got {bins!r}.")
+    bins = int(bins) | 1
+    u = (x - x_left) / width
+    inside = (u >= 0) & (u <= 1)
+    which = np.minimum((u[inside] * bins).astype(int), bins - 1)
+    total = np.bincount(which, weights=f[inside], minlength=bins)
+    peak = total.max()
+    return BaseProfile(x_over_b=(np.arange(bins) + 0.5) / bins, force=total,
+                       normalised=total / peak if peak > 0 else np.zeros_like(total),
+                       x_left=x_left, width=width)
+
+
+class MShape(NamedTuple):
+    """Flank maxima of the base force against its central value (1997 Fig. 3(b):
+    maxima "some 20-30% greater than that in the centre").
+
+    Attributes:
+      left_ratio, right_ratio: the largest bin left (right) of the central bin
+        over the central bin.
+      ratio: their mean.
+      m_shaped: both flank maxima exceed the centre by more than `threshold`.
+    """
+
+    left_ratio: float
+    right_ratio: float
+    ratio: float
+    m_shaped: bool
+
+
+def m_shape(profile: BaseProfile, threshold: float = 0.1) -> MShape:
+    """Whether the binned base force has the M shape (a dip under the apex)."""
+    f = np.asarray(profile.force, float)
+    if f.size < 3 or f.size % 2 == 0:
+        raise InputError(f"the M shape needs an odd number (>= 3) of bins; got {f.size}.")
+    c = f.size // 2
+    centre = f[c]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        left, right = np.max(f[:c]) / centre, np.max(f[c + 1:]) / centre
+    left, right = float(left), float(right)
+    return MShape(left_ratio=left, right_ratio=right, ratio=0.5 * (left + right),
+                  m_shaped=bool(left > 1.0 + threshold and right > 1.0 + threshold))
