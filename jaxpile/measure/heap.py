@@ -1,6 +1,7 @@
-"""A heap's base-force profile and its M shape (Baxter et al. 1997, Figs. 3b,
-5b and 7): the base normal force binned over x / B, and the flank maxima over
-the centre. Used by the pour, and by any pile standing on a base."""
+"""A heap's base-force profile: the base normal force binned over x / B and
+its M shape, the flank maxima over the centre (Baxter et al. 1997, Figs. 3b,
+5b and 7; the pour), and the profile about the centre of force with its
+central dip (Liffman et al. 1992, Fig. 20; the dropped pile)."""
 
 from __future__ import annotations
 
@@ -90,3 +91,57 @@ def m_shape(profile: BaseProfile, threshold: float = 0.1) -> MShape:
     left, right = float(left), float(right)
     return MShape(left_ratio=left, right_ratio=right, ratio=0.5 * (left + right),
                   m_shaped=bool(left > 1.0 + threshold and right > 1.0 + threshold))
+
+
+class NormalProfile(NamedTuple):
+    """The base normal force binned across the pile (Fig. 20(b)).
+
+    Attributes:
+      x: `[b]` bin centres relative to the pile's centre (x - x_mid), length.
+      x_over_base: `[b]` the same over the base length B (contact span + one diameter).
+      force: `[b]` total normal force in each bin, in mg.
+      normalised: `[b]` force / its maximum.
+      centre: x_mid, the centre of the normal force (the pile's centre of mass).
+      base: B.
+    """
+
+    x: np.ndarray
+    x_over_base: np.ndarray
+    force: np.ndarray
+    normalised: np.ndarray
+    centre: float
+    base: float
+
+
+def normal_profile(base_forces, bins: int = 15, diameter: float = 1.0) -> NormalProfile:
+    """Bins the ground's normal forces into `bins` equal bins (odd, so one is
+    centred) spanning the base symmetrically about its centre of force. Bins
+    are at least 2 diameters wide: fewer bins on a small pile."""
+    if int(bins) != bins or bins < 1:
+        raise InputError(f"bins must be a positive whole number; got {bins!r}.")
+    x = np.asarray(base_forces.x, dtype=float)
+    normal = np.asarray(base_forces.normal, dtype=float)
+    if len(x) == 0 or normal.sum() <= 0:
+        raise InputError("no disk presses on the ground: there is no base force profile.")
+    centre = float(np.sum(x * normal) / np.sum(normal))
+    half = float(np.max(np.abs(x - centre))) + 0.5 * diameter
+    bins = max(1, min(int(bins), int(2 * half / (2.0 * diameter))))
+    bins -= 1 - bins % 2  # odd
+    edges = np.linspace(-half, half, bins + 1)
+    force, _ = np.histogram(x - centre, bins=edges, weights=normal)
+    mids = 0.5 * (edges[1:] + edges[:-1])
+    base = float(x.max() - x.min()) + diameter
+    return NormalProfile(x=mids, x_over_base=mids / base, force=force, normalised=force / force.max(),
+                         centre=centre, base=base)
+
+
+def central_dip(profile: NormalProfile) -> float:
+    """1 - F(centre bin) / min(max F left of it, max F right of it): > 0 when the
+    centre carries less than the highest bins on both sides (a dip), <= 0 when
+    the centre is the peak. NaN with fewer than 3 bins."""
+    f = np.asarray(profile.force)
+    if len(f) < 3:
+        return float("nan")
+    mid = len(f) // 2
+    shoulder = min(f[:mid].max(), f[mid + 1:].max())
+    return float(1.0 - f[mid] / shoulder) if shoulder > 0 else float("nan")

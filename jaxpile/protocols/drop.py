@@ -72,6 +72,7 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
+from jaxpile.measure.heap import NormalProfile, central_dip, normal_profile  # noqa: F401  (drop.X as before)
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
@@ -287,59 +288,6 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
     return Protocol(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=driver,
                     protocol_state=state, box=box, info=info)
 
-
-class NormalProfile(NamedTuple):
-    """The base normal force binned across the pile (Fig. 20(b)).
-
-    Attributes:
-      x: `[b]` bin centres relative to the pile's centre (x - x_mid), length.
-      x_over_base: `[b]` the same over the base length B (contact span + one diameter).
-      force: `[b]` total normal force in each bin, in mg.
-      normalised: `[b]` force / its maximum.
-      centre: x_mid, the centre of the normal force (the pile's centre of mass).
-      base: B.
-    """
-
-    x: np.ndarray
-    x_over_base: np.ndarray
-    force: np.ndarray
-    normalised: np.ndarray
-    centre: float
-    base: float
-
-
-def normal_profile(base_forces, bins: int = 15, diameter: float = 1.0) -> NormalProfile:
-    """Bins the ground's normal forces into `bins` equal bins (odd, so one is
-    centred) spanning the base symmetrically about its centre of force. Bins
-    are at least 2 diameters wide: fewer bins on a small pile."""
-    if int(bins) != bins or bins < 1:
-        raise InputError(f"bins must be a positive whole number; got {bins!r}.")
-    x = np.asarray(base_forces.x, dtype=float)
-    normal = np.asarray(base_forces.normal, dtype=float)
-    if len(x) == 0 or normal.sum() <= 0:
-        raise InputError("no disk presses on the ground: there is no base force profile.")
-    centre = float(np.sum(x * normal) / np.sum(normal))
-    half = float(np.max(np.abs(x - centre))) + 0.5 * diameter
-    bins = max(1, min(int(bins), int(2 * half / (2.0 * diameter))))
-    bins -= 1 - bins % 2  # odd
-    edges = np.linspace(-half, half, bins + 1)
-    force, _ = np.histogram(x - centre, bins=edges, weights=normal)
-    mids = 0.5 * (edges[1:] + edges[:-1])
-    base = float(x.max() - x.min()) + diameter
-    return NormalProfile(x=mids, x_over_base=mids / base, force=force, normalised=force / force.max(),
-                         centre=centre, base=base)
-
-
-def central_dip(profile: NormalProfile) -> float:
-    """1 - F(centre bin) / min(max F left of it, max F right of it): > 0 when the
-    centre carries less than the highest bins on both sides (a dip), <= 0 when
-    the centre is the peak. NaN with fewer than 3 bins."""
-    f = np.asarray(profile.force)
-    if len(f) < 3:
-        return float("nan")
-    mid = len(f) // 2
-    shoulder = min(f[:mid].max(), f[mid + 1:].max())
-    return float(1.0 - f[mid] / shoulder) if shoulder > 0 else float("nan")
 
 
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
