@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from jaxpile import sweep
 from jaxpile.cli import main
@@ -116,3 +118,28 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
     assert main(["fit", "--protocol", "hopper", "--params", "mu", "--truth", "mu=0.45", "--ensemble", "2",
                  "--dry-run", "--out", str(tmp_path / "fit")]) == 0
     assert "statistics ['flow_rate']" in capsys.readouterr().out
+
+
+EDGES = [0, -1, 1e-300, 0.49999, 0.5, 1e300, math.nan, math.inf, -math.inf, 2**63, "abc", None, True, [1.0]]
+
+
+@settings(database=None, deadline=None, suppress_health_check=list(HealthCheck), max_examples=60)
+@given(data=st.data())
+def test_every_set_up_option_at_its_edges_sets_up_or_refuses_in_one_line(data):
+    """Issue 19's promise for the new protocol: a silo with one option drawn at
+    or beyond its range is built, or refused with one InputError line."""
+    import inspect
+
+    names = sorted(set(hopper.OPTION_RANGES) & set(inspect.signature(hopper.protocol).parameters))
+    name = data.draw(st.sampled_from(names))
+    r = hopper.OPTION_RANGES[name]
+    bounds = [b for b in (r.low, r.high) if b is not None]
+    value = data.draw(st.sampled_from(EDGES + bounds) | st.floats(-1e3, 1e3) | st.integers(-5, 50))
+    if name == "n" and isinstance(value, (int, float)) and not isinstance(value, bool) and value > 40:
+        value = 40  # a huge valid count is the memory check's (tests/test_budget.py)
+    try:
+        p = hopper.protocol(**{"n": 20, "width": 8.0, "orifice": 3.0, name: value})
+    except InputError as err:
+        assert "\n" not in str(err).strip(), str(err)
+    else:
+        assert p.particles.count == p.info["n"] + math.ceil(p.info["width"]) + 8  # the floor's slots and the disks

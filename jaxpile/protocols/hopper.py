@@ -72,7 +72,8 @@ OPTION_RANGES = {
     "n": DISKS, "width": SIZE, "orifice": Range(low=0, low_open=True, high=1e9, why="diameters; < width - 2"),
     "dispersity": Range(low=0, high=0.5, high_open=True, why="diameters 1 +- dispersity stay positive"),
     "placement_fraction": Range(low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
-    "rest_speed": SPEED, "hold_time": SPAN, "clog_time": SPAN, "max_time": SIZE, "dt": TIME_STEP, "seed": SEED,
+    "rest_speed": SPEED, "hold_time": SPAN, "max_time": SIZE, "dt": TIME_STEP, "seed": SEED,
+    "clog_time": Range(low=0, low_open=True, high=1e9, why="a stop with no wait would end every discharge at once"),
     "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
