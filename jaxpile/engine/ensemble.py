@@ -51,7 +51,7 @@ from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.engine.simulate import RunInfo, Simulator, compiled_for, make_step, max_speed
+from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed
 from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
@@ -311,13 +311,7 @@ class Ensemble:
                     break
                 n = min(self.sim.chunk_steps, int(n_steps) - done)
                 new = self._chunk(params, state, frozen, n, info)
-                try:
-                    _check_batch_finite(new, last_good=state)
-                except SimulationError as error:
-                    if save is not None:  # the last good batch on disk beside the checkpoints
-                        error.saved_to = save.last_good(state, failed_at=step_of(new))
-                        error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
-                    raise
+                checked(lambda: _check_batch_finite(new, last_good=state), state, new, save)
                 state = new
                 done += n
                 info.steps += n

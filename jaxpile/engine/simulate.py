@@ -556,13 +556,7 @@ class Simulator:
             while done < n_steps:
                 n = min(self.chunk_steps, n_steps - done)
                 new = self._chunk(params, state, n, info)
-                try:
-                    _check_finite(new.particles, step=int(new.step), last_good=state)
-                except SimulationError as error:
-                    if save is not None:  # keep the last good state on disk beside the checkpoints
-                        error.saved_to = save.last_good(state, failed_at=int(new.step))
-                        error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
-                    raise
+                checked(lambda: _check_finite(new.particles, step=int(new.step), last_good=state), state, new, save)
                 state = new
                 done += n
                 info.steps += n
@@ -670,6 +664,19 @@ class _Checkpointer:
         """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
         stem, suffix = os.path.splitext(self._path(state))
         return self._save(f"{stem}.last-good{suffix or '.npz'}", state, failed_at=failed_at)
+
+
+def checked(check, state: SimState, new: SimState, save) -> None:
+    """Runs `check()` on a chunk's end `new`; when it raises `SimulationError`
+    and the run saves checkpoints, the last good `state` is saved beside them
+    first (`<path stem>.last-good.npz`) and the message says where."""
+    try:
+        check()
+    except SimulationError as error:
+        if save is not None:
+            error.saved_to = save.last_good(state, failed_at=step_of(new))
+            error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
+        raise
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
