@@ -90,6 +90,9 @@ class Adapter:
       stages: later `Stage`s (stage-synchronous: every member of a batch
         finishes a stage before the next starts); `measure` then gets the
         last stage's simulator, state and protocol.
+      simulator_options: the set-up options the simulator depends on (None:
+        all of them); members whose set-ups differ only in other options share
+        one compiled batch (the hopper's orifice).
     """
 
     setup: Callable
@@ -108,6 +111,7 @@ class Adapter:
     fit_statistics: dict = dataclasses.field(default_factory=dict)
     stages: tuple = ()
     deterministic: bool = False
+    simulator_options: frozenset | None = None
 
 
 def heap_extent(base: str, centre_key: str, count_key: str):
@@ -343,7 +347,9 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
             batches.append([k, k + 1])
 
     def stage0(member_options):
-        return _ensemble(protocol, 0, law, dt, sim_options, member_options, devices,
+        key = member_options if a.simulator_options is None else {
+            k: v for k, v in member_options.items() if k in a.simulator_options}
+        return _ensemble(protocol, 0, law, dt, sim_options, key, devices,
                          lambda: a.simulator(law, dt, sim_options, member_options))
 
     ens = stage0(split(members[0][0])[1])

@@ -357,4 +357,5 @@ def sweep_adapter():
                    measure_row, law_and_params, lambda law: float(SETTING["dt"]), ("flow_rate", "beverloo_c"),
                    frozenset({"n", "width", "orifice", "dispersity", "placement_fraction", "rest_speed", "hold_time",
                               "clog_time", "max_time"}),
-                   unit="disks / time", default_law="hooke", fit_statistics={"columns": ("flow_rate",)})
+                   unit="disks / time", default_law="hooke", fit_statistics={"columns": ("flow_rate",)},
+                   simulator_options=frozenset())  # one simulator for every set-up: orifices share a compile
