@@ -41,17 +41,16 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget, ranges
+from jaxpile import budget, ranges, runner
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
+from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
-from jaxpile import runner
 from jaxpile.protocols import outputs
-from jaxpile.protocols.drivers import rest_detector, rms_speed
-from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, parking_grid, random_positions
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.drivers import rest_detector, rms_speed
+from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, parking_grid, random_positions
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.engine.state import SimState, make_particles
 
 Array = Any
 
