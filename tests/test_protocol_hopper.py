@@ -143,3 +143,12 @@ def test_every_set_up_option_at_its_edges_sets_up_or_refuses_in_one_line(data):
         assert "\n" not in str(err).strip(), str(err)
     else:
         assert p.particles.count == p.info["n"] + math.ceil(p.info["width"]) + 8  # the floor's slots and the disks
+
+
+def test_a_dry_run_bounds_the_run_by_its_max_time(tmp_path, capsys):
+    """--dry-run turns the time budget into steps (the registry entry's `budget`) and runs nothing."""
+    assert main(["pile", "--protocol", "hopper", "--n", "50", "--max-time", "200", "--dry-run",
+                 "--out", str(tmp_path / "never")]) == 0
+    text = capsys.readouterr().out
+    assert "max_steps 200,000" in text and "at most 200,000 steps" in text
+    assert not (tmp_path / "never").exists()

@@ -762,6 +762,8 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     run_defaults = {k: v.default for k, v in inspect.signature(module.run).parameters.items()
                     if k.endswith("steps") and isinstance(v.default, int)}
     steps = {**run_defaults, **{k: v for k, v in kwargs.items() if k.endswith("steps") and isinstance(v, int)}}
+    if _entry(name).budget is not None:  # a budget given as a time (max_time), in steps
+        steps["max_steps"] = int(_entry(name).budget(kwargs, dict(p.info)))
     return _dry_run_report(f"a {name} pile", p.particles, dict(p.info), args.precision, steps)
 
 

@@ -68,6 +68,8 @@ class CommandLine(NamedTuple):
         (the tilt from a box); None: the module's `protocol`.
       compare: `summary -> str`, the result column of `jaxpile compare`;
         None: the headline's first line.
+      budget: `(run keywords, set-up info) -> steps`, the run's step budget
+        when it is given as a time (`max_time`), for `--dry-run`'s bound.
     """
 
     order: int
@@ -83,6 +85,7 @@ class CommandLine(NamedTuple):
     figures: tuple = ()
     dry_run_setup: Callable | None = None
     compare: Callable | None = None
+    budget: Callable | None = None
 
 
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):

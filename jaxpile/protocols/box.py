@@ -109,7 +109,8 @@ CLI = CommandLine(
     flags={"seed": "seed"},
     headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
               "repose_cumulative_parabola", "theta_ms_theory"),
-    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,))
+    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,),
+    budget=lambda kwargs, info: max_steps_for(info["law"], info["dt"], kwargs.get("max_time", PAPER_SETTING["max_time"])))
 
 
 

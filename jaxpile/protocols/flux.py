@@ -90,7 +90,8 @@ CLI = CommandLine(
     size="insertions", flags={"seed": "seed"},
     headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
     base_forces=outputs.substrate_base, length_unit=outputs.cm_for_lee_herrmann,
-    figures=(outputs.angles_figure,))
+    figures=(outputs.angles_figure,),
+    budget=lambda kwargs, info: boxes.max_steps_for(info["law"], info["dt"], kwargs.get("max_time", SETTING["max_time"])))
 
 
 class FluxState(NamedTuple):

@@ -290,7 +290,8 @@ CLI = CommandLine(
     order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", default_law="hooke",
     flags={"seed": "seed"},
     headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
-    base_forces=outputs.substrate_base, figures=(discharge_figure,))
+    base_forces=outputs.substrate_base, figures=(discharge_figure,),
+    budget=lambda kwargs, info: ranges.steps_of("max_time", kwargs.get("max_time", SETTING["max_time"]), info["dt"]))
 
 
 # ---------------------------------------------------------------- running it
