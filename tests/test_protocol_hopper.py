@@ -108,6 +108,8 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
     assert main(["sweep", "--protocol", "hopper", "--vary", "orifice=4,7", "--seeds", "1", "--n", "60", "--width",
                  "10", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
     narrow, wide = sweep.read(tmp_path / "sweep").rows
+    # the simulator ignores the orifice (Adapter.simulator_options): both batches ran on one compiled ensemble
+    assert len([key for key in sweep._ENSEMBLES if key[0] == "hopper"]) == 1
     assert (narrow["orifice"], wide["orifice"]) == (4.0, 7.0)
     # a batch sums forces in another order, and a discharge is chaotic: a member
     # is a pile of its own (5.1 vs 3.5 disks / time measured at D = 4), not the single run
