@@ -98,12 +98,18 @@ def take_out(state: SimState, edge, park) -> tuple[SimState, Array]:
     """
     p = state.particles
     out = p.active & ~p.fixed & (p.position[:, 0] > edge)
-    p = p.set(
+    return park_where(state, out, park), jnp.sum(out).astype(jnp.int32)
+
+
+def park_where(state: SimState, out, park) -> SimState:
+    """The disks where `out` holds taken out of play: inactive, at rest, at
+    their `park` place (`[n, 2]`); the others unchanged."""
+    p = state.particles
+    return state.set(particles=p.set(
         active=p.active & ~out,
         position=jnp.where(out[:, None], park, p.position),
         velocity=jnp.where(out[:, None], 0.0, p.velocity),
         angular_velocity=jnp.where(out, 0.0, p.angular_velocity),
         force=jnp.where(out[:, None], 0.0, p.force),
         torque=jnp.where(out, 0.0, p.torque),
-    )
-    return state.set(particles=p), jnp.sum(out).astype(jnp.int32)
+    ))

@@ -49,7 +49,7 @@ from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.drivers import rest_detector, rms_speed
-from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, parking_grid, random_positions
+from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, park_where, parking_grid, random_positions
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 
 Array = Any
@@ -76,6 +76,11 @@ OPTION_RANGES = {
     "chunk_steps": STEPS,
 }
 """Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+def budget_steps(max_time: float, dt: float) -> int:
+    """The run's step budget: `max_time` (sqrt(d / g)) in steps of dt."""
+    return ranges.steps_of("max_time", max_time, dt)
 
 
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
@@ -117,10 +122,8 @@ def driver(state: SimState) -> SimState:
     hs: HopperState = state.protocol_state
     p = state.particles
     out = p.active & ~p.fixed & (p.position[:, 1] < hs.exit_level)
-    p = p.set(active=p.active & ~out, position=jnp.where(out[:, None], hs.park, p.position),
-              velocity=jnp.where(out[:, None], 0.0, p.velocity), force=jnp.where(out[:, None], 0.0, p.force),
-              angular_velocity=jnp.where(out, 0.0, p.angular_velocity), torque=jnp.where(out, 0.0, p.torque))
-    state = state.set(particles=p)
+    state = park_where(state, out, hs.park)
+    p = state.particles
     quiet, armed, rested = rest_detector(rms_speed(state), hs.rest_speed, hs.quiet, hs.armed, hs.hold,
                                              4 * hs.hold)
     opening = rested & (hs.phase == 0)
@@ -291,7 +294,7 @@ CLI = CommandLine(
     flags={"seed": "seed"},
     headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
     base_forces=outputs.substrate_base, figures=(discharge_figure,),
-    budget=lambda kwargs, info: ranges.steps_of("max_time", kwargs.get("max_time", SETTING["max_time"]), info["dt"]))
+    budget=lambda kwargs, info: budget_steps(kwargs.get("max_time", SETTING["max_time"]), info["dt"]))
 
 
 # ---------------------------------------------------------------- running it
@@ -331,7 +334,7 @@ def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None,
     sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
     t0 = time.perf_counter()
     state, info, samples = runner.run_to_finish(
-        sim, params, p, max_steps=ranges.steps_of("max_time", max_time, p.info["dt"]), progress=progress,
+        sim, params, p, max_steps=budget_steps(max_time, p.info["dt"]), progress=progress,
         finished=lambda s: int(s.protocol_state.stopped_at) >= 0, checkpoint=checkpoint, resume=resume)
     return state, {"protocol": "hopper", **measure(state, p.info, beverloo_k), "kinetic_energy": samples,
                    **runner.run_record(info, t0), "info": dict(p.info)}
@@ -352,8 +355,7 @@ def sweep_adapter():
 
     return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options),
                    lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
-                   lambda info, options: ranges.steps_of("max_time", options.get("max_time", SETTING["max_time"]),
-                                                         info["dt"]),
+                   lambda info, options: budget_steps(options.get("max_time", SETTING["max_time"]), info["dt"]),
                    measure_row, law_and_params, lambda law: float(SETTING["dt"]), ("flow_rate", "beverloo_c"),
                    frozenset({"n", "width", "orifice", "dispersity", "placement_fraction", "rest_speed", "hold_time",
                               "clog_time", "max_time"}),
