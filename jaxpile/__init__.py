@@ -4,12 +4,22 @@ Importing jaxpile turns on float64 in JAX (`jax_enable_x64`): static force
 analysis with stiff springs (mg / (k sigma) = 1e-4) needs it. Arrays created as
 float32 stay float32, so large dynamic runs can still use single precision.
 
-On a CPU, `JAXPILE_HOST_DEVICES=N` in the environment splits the host into N
-JAX devices before anything runs (`jax_num_cpu_devices`); `Ensemble` and
-`jaxpile sweep` shard a batch over them, so a batch uses N cores. Measured on
-2 cores (64 lattice piles of 120 disks, hooke): 6.9e6 -> 8.9e6 particle-steps/s
-with N = 2; a single pile, which runs on one device, is ~10% slower that way,
-so the default is one device.
+On a CPU, one pile runs on one core: jaxpile sets `PJRT_NPROC=1` (unless the
+environment sets it), which gives XLA's CPU client one thread for the work
+inside a step. The step's kernels are small (a few microseconds each), and
+splitting them over threads costs more than it saves: on 2 cores the 45-layer
+lattice pile (1035 disks) runs a step in 88 us with one thread against 119 us
+with two (benchmarks/vs_lammps.py: 1.27x LAMMPS serial against 0.91x).
+
+A batch uses the cores another way: `JAXPILE_HOST_DEVICES=N` in the
+environment splits the host into N JAX devices before anything runs
+(`jax_num_cpu_devices`), and `Ensemble` and `jaxpile sweep` shard a batch over
+them, one core each (a single pile in such a process is slower: 129 us
+against 88 us above). Without it, `jaxpile sweep` and `jaxpile fit`, which run
+batches, give XLA back its own thread count: a batch's kernels are large enough
+to split (B = 256 piles of 120 disks: 9.8e6 particle-steps/s with two threads,
+6.4e6 with one). Threads never change results (the same rows bit for bit);
+the device count does, at round-off, so it is the user's choice.
 """
 
 import os as _os
@@ -23,6 +33,11 @@ import warnings as _warnings
 # user set wins and a JAX already compiling before `import jaxpile` keeps its own.
 if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
     _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "") + " --xla_cpu_prefer_vector_width=512").strip()
+
+# One thread for XLA's CPU client (see the docstring; read when the CPU client
+# is made, so a value the user set wins and a JAX already running keeps its own).
+_ONE_THREAD_BY_DEFAULT = "PJRT_NPROC" not in _os.environ
+_os.environ.setdefault("PJRT_NPROC", "1")
 
 from jaxpile import _compat  # noqa: E402  (old module paths such as jaxpile.simulate keep working)
 

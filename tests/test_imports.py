@@ -6,6 +6,13 @@ import subprocess
 import sys
 
 
+XLA_THREADS = ("def xla_threads():\n"
+               "    import glob, jax\n"
+               "    jax.numpy.zeros(1).block_until_ready()\n"
+               "    return sum(open(f).read().startswith('tf_XLAEigen') for f in glob.glob('/proc/self/task/*/comm'))\n")
+"""Code that counts the threads of XLA's CPU client (made by the first JAX operation)."""
+
+
 def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_away():
     code = ("import sys, jaxpile\n"
             "loaded = sorted(m for m in sys.modules if m.startswith('jax_md'))\n"
@@ -16,10 +23,25 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             "assert callable(quantity.force)\n"
             # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
             "import os\n"
-            "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n")
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+            "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
+            # and one XLA thread for a pile's small kernels (88 vs 119 us a lattice step on 2 cores)
+            f"{XLA_THREADS}assert xla_threads() == 1, xla_threads()\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PJRT_NPROC")}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_sweep_and_fit_give_a_batch_xla_s_own_threads_and_a_thread_count_the_user_gave_is_kept():
+    batch = ("import os, jaxpile\n"
+             "from jaxpile.cli import threads_for_batches\n"
+             f"assert threads_for_batches()\n{XLA_THREADS}"
+             "assert xla_threads() == len(os.sched_getaffinity(0)), xla_threads()\n")
+    user = f"import os, jaxpile\nfrom jaxpile.cli import threads_for_batches\nassert not threads_for_batches()\n{XLA_THREADS}" \
+           "assert os.environ['PJRT_NPROC'] == '3' and xla_threads() == 3, xla_threads()\n"
+    for code, nproc in ((batch, None), (user, "3")):
+        env = {k: v for k, v in os.environ.items() if k != "PJRT_NPROC"} | ({} if nproc is None else {"PJRT_NPROC": nproc})
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
 
 
 def test_a_vector_width_the_user_gave_xla_is_kept():

@@ -460,6 +460,21 @@ def _resume_argv(argv: list[str]) -> list[str]:
     return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
 
 
+def threads_for_batches() -> bool:
+    """`sweep` and `fit` run batches: XLA's own thread count for them, where
+    `import jaxpile` asked for one thread (see `jaxpile`'s docstring: a batch's
+    kernels are large enough to split, one pile's are not). Read when JAX makes
+    its CPU client, so it only acts before JAX has run anything; threads do not
+    change results. Returns whether it acted."""
+    import jaxpile
+
+    if not jaxpile._ONE_THREAD_BY_DEFAULT or os.environ.get("PJRT_NPROC") != "1":
+        return False
+    del os.environ["PJRT_NPROC"]
+    jaxpile._ONE_THREAD_BY_DEFAULT = False
+    return True
+
+
 def _run_command(argv: list[str]) -> list[str]:
     """What a checkpoint records to resume from: the command without --resume DIR
     and --no-progress."""
@@ -588,6 +603,8 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         _check_flags(args)
+        if args.command in ("sweep", "fit"):
+            threads_for_batches()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
         if args.command == "pile":
