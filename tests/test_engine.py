@@ -103,6 +103,31 @@ def test_cell_list_finds_every_pair_within_reach_inside_and_outside_its_box_and_
     assert bool(squeezed.did_buffer_overflow)
 
 
+def test_cell_table_and_binary_search_find_the_same_sorted_rows_and_a_full_row_keeps_its_lowest(monkeypatch):
+    """`_build` reads where each run of cells starts from a table of cells, or
+    by binary search when the grid is far larger than its disks: both give the
+    same list, each row the neighbours in increasing index order, on a clustered
+    set with disks outside the box. A row with more neighbours than slots keeps
+    its lowest indices (and the occupancy says it overflowed)."""
+    rng = np.random.default_rng(5)
+    settings = nb.NeighborSettings((15.0, 15.0), 1.0, 0.2, 1.5)
+    pos = jnp.asarray(np.concatenate([rng.normal(7.5, 2.0, (150, 2)), rng.uniform(-3.0, 18.0, (50, 2))]))
+    grid, reach = nb._grid(settings), 1.2
+    table = nb._build(pos, grid, reach, 64, 40)
+    monkeypatch.setattr(nb, "CELL_TABLE_PER_DISK", -1)
+    monkeypatch.setattr(nb, "CELL_TABLE_MIN", 0)
+    search = nb._build(pos, grid, reach, 64, 40)
+    for a, b in zip(table, search):
+        np.testing.assert_array_equal(a, b)
+    idx = np.asarray(table[0])
+    assert int(table[1]) <= 40 and not bool(table[2])
+    assert [set(r[r < 200]) for r in idx] == _within_reach(np.asarray(pos), reach)
+    assert all(np.all(np.diff(r) >= 0) for r in idx) and (idx < 200).sum() > 400
+    short, occupancy, _ = nb._build(pos, grid, reach, 64, 2)
+    assert int(occupancy) > 2
+    np.testing.assert_array_equal(short, idx[:, :2])
+
+
 def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
     # full lists of 4 disks (empty = 4): pairs (0,1) (0,3) (0,2)->gone (1,2) new ...
     old_idx = jnp.array([[3, 1, 2], [0, 4, 4], [0, 4, 4], [0, 4, 4]])

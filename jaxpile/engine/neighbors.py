@@ -3,14 +3,18 @@ by a sorted cell list of our own), the half pair list built from them, and
 contact history carried across rebuilds.
 
 The full list gives each particle each neighbour within the reach (cutoff +
-skin) in one of K slots (`idx[n, K]`, empty = n). It is built by sorting the
-disks by cell: the three cells of a row next to a disk are then one contiguous
-run of the sorted keys, found by one binary search, read through a window of W
-entries (`_build`). jax-md's own cell list (a dense grid of cells, shifted nine
-times) cost about 1 us per disk per rebuild on 2 CPU cores (a 260-disk pour:
-270 us with K = 3, 480 us with the pour's K = 8), and a pour rebuilds every ~8
-steps while disks fall; this build takes 167 us for that heap (596 us for 1472
-disks, against 2193) and a third of jax-md's temporary memory. The list keeps
+skin) in one of K slots (`idx[n, K]`, empty = n, each row in increasing index
+order). It is built by sorting the disks by cell: the three cells of a row next
+to a disk are then one contiguous run of the sorted keys, whose start is read
+from a table of each cell's first disk (or found by binary search in a box far
+larger than its disks), read through a window of W entries (`_build`).
+jax-md's own cell list (a dense grid of cells, shifted nine times) cost about
+1 us per disk per rebuild on 2 CPU cores (a 260-disk pour: 270 us with K = 3,
+480 us with the pour's K = 8), and a pour rebuilds every ~8 steps while disks
+fall; this build with its half pair list and history carry takes ~70 us for
+that heap on one core (135 us with three binary searches, a stable argsort and
+cumsums, each a chain of small XLA kernels on a CPU) and a third of jax-md's
+temporary memory. The list keeps
 jax-md's `NeighborList` type and its overflow flags: `max_occupancy` is K,
 `cell_list_capacity` is W.
 
@@ -98,27 +102,66 @@ def _cells(position: Array, grid) -> tuple[Array, Array]:
     return cx, cy
 
 
+CELL_TABLE_PER_DISK = 64
+"""A rebuild finds where each run of cells starts from a table with an entry
+per cell when the grid has at most this many cells per disk (plus
+`CELL_TABLE_MIN`), and by binary search otherwise (a box far larger than
+its disks: the table would cost more than it saves)."""
+
+CELL_TABLE_MIN = 4096
+
+SELECT_SLOTS = 16
+"""Up to this many slots a rebuild fills each row slot by slot; more, by a row sort."""
+
+
+def _sorted_by_cell(key: Array, n: int, cells: int) -> tuple[Array, Array]:
+    """`(order, sorted_key)`: the disks sorted by cell key, ties by index (a
+    stable sort). One sort of the code `key n + index`, not an argsort with an
+    index payload: 25 -> 5 us for 260 disks on one CPU core. The code is int32
+    where `cells n` fits in it (jaxpile runs with 64-bit integers enabled)."""
+    wide = jnp.int32 if cells * n < 2**31 else jnp.int64
+    code = jnp.sort(key.astype(wide) * n + jnp.arange(n, dtype=wide))
+    return (code % n).astype(jnp.int32), (code // n).astype(jnp.int32)
+
+
+def _run_starts(sorted_key: Array, lo: Array, hi: Array, cells: int) -> Array:
+    """For each run of cells `lo .. hi` (at most three cells of one row), the
+    first position in `sorted_key` whose key is >= lo: `searchsorted(sorted_key,
+    lo)` wherever the run holds a disk (elsewhere a position whose key is >
+    hi, or n). With a table of each cell's first position (one scatter) this is
+    three gathers; a binary search is a loop of ~log2(n) rounds of small
+    kernels (3 searches: ~40 of a 100 us rebuild of 260 disks)."""
+    n = sorted_key.shape[0]
+    if cells > CELL_TABLE_PER_DISK * n + CELL_TABLE_MIN:
+        return jnp.searchsorted(sorted_key, lo, side="left").astype(jnp.int32)
+    first = jnp.full((cells + 1,), n, jnp.int32).at[sorted_key].min(jnp.arange(n, dtype=jnp.int32))
+    start = first[jnp.clip(lo, 0, cells)]
+    for extra in (1, 2):  # a run is at most three cells; cells past hi are not part of it
+        at = lo + extra
+        start = jnp.where(at <= hi, jnp.minimum(start, first[jnp.clip(at, 0, cells)]), start)
+    return start
+
+
 def _build(position: Array, grid, reach: float, window: int, slots: int):
     """The full neighbour list of `position` (traceable).
 
     The disks are sorted by cell key `cy nx + cx`. The cells `cx - 1 .. cx + 1`
     of one row are then one contiguous run of the sorted keys, so a disk finds
-    the candidates of each of its three rows with one binary search and reads
-    `window` entries from there. Candidates within `reach` (not itself) are
-    packed into `slots` slots in the order found: row by row, cell by cell,
-    by index within a cell.
+    the candidates of each of its three rows where that run starts
+    (`_run_starts`) and reads `window` entries from there. Candidates within
+    `reach` (not itself) fill the row of `idx` in increasing index order.
 
     Returns:
       `(idx [n, slots], occupancy, window_overflow)`: idx empty = n; the most
-      neighbours any disk has (more than `slots`: the list overflowed); whether
-      some three-cell run held more than `window` disks.
+      neighbours any disk has (more than `slots`: the list overflowed, and
+      the row keeps its `slots` lowest indices); whether some three-cell run
+      held more than `window` disks.
     """
     n = position.shape[0]
     nx, ny = grid[0], grid[1]
     cx, cy = _cells(position, grid)
     key = cy * nx + cx
-    order = jnp.argsort(key, stable=True).astype(jnp.int32)
-    sorted_key = key[order]
+    order, sorted_key = _sorted_by_cell(key, n, nx * ny)
     beyond = jnp.int32(nx * ny)  # past every key: reads past the end stop there
     padded_key = jnp.concatenate([sorted_key, jnp.full((window + 1,), beyond, jnp.int32)])
     padded_order = jnp.concatenate([order, jnp.full((window + 1,), n, jnp.int32)])
@@ -129,7 +172,7 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
         row = cy + dy
         row_ok = (row >= 0) & (row < ny)
         lo, hi = row * nx + left, row * nx + right
-        first = jnp.searchsorted(sorted_key, lo, side="left").astype(jnp.int32)
+        first = _run_starts(sorted_key, lo, hi, nx * ny)
         at = first[:, None] + span[None, :]
         inside = row_ok[:, None] & (padded_key[at] <= hi[:, None])
         candidates.append(jnp.where(inside, padded_order[at], n))
@@ -140,11 +183,23 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     dy_ = position[:, 1, None] - position[partner, 1]
     me = jnp.arange(n, dtype=jnp.int32)[:, None]
     keep = (candidate < n) & (candidate != me) & (dx * dx + dy_ * dy_ < reach * reach)
-    slot = jnp.cumsum(keep, axis=1, dtype=jnp.int32) - 1
-    occupancy = jnp.max(slot[:, -1], initial=-1) + 1
-    slot = jnp.where(keep, slot, slots)  # past the end: dropped
-    idx = jnp.full((n, slots), n, jnp.int32).at[me, slot].set(candidate, mode="drop")
-    return jnp.sort(idx, axis=1), occupancy, overflow
+    occupancy = jnp.max(jnp.sum(keep, axis=1, dtype=jnp.int32), initial=0)
+    # the row's lowest indices first, the neighbours (no disk is a candidate
+    # twice: it lies in one cell), picked one slot at a time: each slot holds
+    # the least candidate above the slot before. For the few slots of a 2D list
+    # that costs less than a row sort (a cumsum, scatter and sort: more again)
+    value = jnp.where(keep, candidate, n)
+    if slots <= SELECT_SLOTS:
+        columns, last = [], jnp.full((n,), -1, jnp.int32)
+        for _ in range(slots):
+            last = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
+            columns.append(last)
+        idx = jnp.stack(columns, axis=1)
+    else:
+        idx = jnp.sort(value, axis=1)[:, :slots]
+        if idx.shape[1] < slots:
+            idx = jnp.concatenate([idx, jnp.full((n, slots - idx.shape[1]), n, jnp.int32)], axis=1)
+    return idx, occupancy, overflow
 
 
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
@@ -310,11 +365,21 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
 
 def half_slots(idx: Array) -> tuple[Array, Array]:
     """`[n, K]` bool: the slots (i, k) with i < idx[i, k] (each pair once), and
-    `[n, K]` int: each such slot's entry in the half pair list (-1 elsewhere)."""
-    n = idx.shape[0]
+    `[n, K]` int: each such slot's entry in the half pair list (-1 elsewhere),
+    in row-major slot order.
+
+    A slot's entry is the kept slots of the rows above plus the kept slots to
+    its left in its row: a cumulative sum over the n rows and a K x K triangle
+    within each, not a cumulative sum over all n K slots (on a CPU XLA writes a
+    cumsum as a reduce-window whose cost grows with its length: the rebuild of
+    a 260-disk pour spent 18 us in it)."""
+    n, k = idx.shape
     keep = (idx < n) & (idx > jnp.arange(n, dtype=idx.dtype)[:, None])
-    order = jnp.cumsum(keep.reshape(-1), dtype=jnp.int32).reshape(keep.shape) - 1
-    return keep, jnp.where(keep, order, -1)
+    count = jnp.sum(keep, axis=1, dtype=jnp.int32)
+    rows_above = jnp.cumsum(count, dtype=jnp.int32) - count
+    left = jnp.arange(k)[:, None] < jnp.arange(k)[None, :]  # [k', k]: slot k' lies left of slot k
+    in_row = jnp.sum(keep[:, :, None] & left[None], axis=1, dtype=jnp.int32)
+    return keep, jnp.where(keep, rows_above[:, None] + in_row, -1)
 
 
 def half_pairs(idx: Array, capacity: int | None = None) -> Array:
