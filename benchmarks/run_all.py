@@ -39,7 +39,10 @@ BENCHMARKS = {
 }
 
 
-ENV = {"vs_lammps_ensemble": {"JAXPILE_HOST_DEVICES": str(os.cpu_count() or 1)}}
+ENV = {"vs_lammps_ensemble": {"JAXPILE_HOST_DEVICES": str(os.cpu_count() or 1)},
+       # piles of 1e3 to 1e5 disks: XLA's threads, as `jaxpile pile` gives a pile of 2000 disks or more
+       "scaling": {"PJRT_NPROC": str(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                     else os.cpu_count() or 1)}}
 """Extra environment of a benchmark's process."""
 
 
@@ -60,7 +63,8 @@ def table(results_root: pathlib.Path) -> str:
     for path in sorted(results_root.glob("*/*.json")):
         data = json.loads(path.read_text())
         machine = data.get("machine", path.parent.name)
-        for row in data.get("table", []):
+        # benchmark rows only: other studies in results/ (the hopper's) keep tables of their own
+        for row in (r for r in data.get("table", []) if isinstance(r, dict) and "case" in r and "jaxpile" in r):
             ratio = row.get("ratio")
             lines.append(f"| {machine} | {row['case']} | {fmt(row.get('jaxpile'))} | {fmt(row.get('lammps'))} | "
                          f"{'—' if ratio is None else f'{ratio:.2f}x'} | {row.get('note', '')} |")

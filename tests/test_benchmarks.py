@@ -63,6 +63,9 @@ def test_readme_table_is_rebuilt_from_the_results_files(tmp_path, monkeypatch):
     rows = [{"case": "lattice", "jaxpile": 2.0e6, "lammps": 1.0e7, "ratio": 0.2, "note": "n1"},
             {"case": "scaling", "jaxpile": 3.0e6, "lammps": None, "ratio": None, "note": "n2"}]
     (results / "a.json").write_text(json.dumps({"machine": "m", "table": rows}))
+    study = tmp_path / "results" / "hopper"  # a study's own table beside the benchmarks: not a benchmark row
+    study.mkdir()
+    (study / "beverloo.json").write_text(json.dumps({"table": [{"orifice": 4, "flow_rate_mean": 4.7}]}))
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{run_all.START}\nold table\n{run_all.END}\nafter\n")
     monkeypatch.setattr(run_all, "README", readme)
