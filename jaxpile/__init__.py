@@ -18,8 +18,12 @@ them, one core each (a single pile in such a process is slower: 129 us
 against 88 us above). Without it, `jaxpile sweep` and `jaxpile fit`, which run
 batches, give XLA back its own thread count: a batch's kernels are large enough
 to split (B = 256 piles of 120 disks: 9.8e6 particle-steps/s with two threads,
-6.4e6 with one). Threads never change results (the same rows bit for bit);
-the device count does, at round-off, so it is the user's choice.
+6.4e6 with one). So are one large pile's: from about 2000 disks two threads
+win (10000 disks: 8.9e6 against 6.1e6), and `jaxpile pile --n N` gives XLA its
+threads for N >= 2000 (`cli.THREADED_PILE_DISKS`); from Python, set
+`PJRT_NPROC` to the core count before `import jaxpile` for such a pile.
+Threads never change results (the same rows bit for bit); the device count
+does, at round-off, so it is the user's choice.
 """
 
 import os as _os

@@ -44,6 +44,22 @@ def test_sweep_and_fit_give_a_batch_xla_s_own_threads_and_a_thread_count_the_use
         assert done.returncode == 0, done.stderr[-2000:]
 
 
+def test_pile_gives_a_large_pile_xla_s_threads_and_keeps_one_for_the_papers_sizes(tmp_path):
+    """`jaxpile pile` reads the size it is asked for before JAX starts: from
+    THREADED_PILE_DISKS disks XLA gets its threads (a dry run is enough to see it)."""
+    code = ("import os, sys, jaxpile\n"
+            "from jaxpile import cli\n"
+            "assert cli.main(['pile', '--protocol', 'box', '--n', sys.argv[1], '--out', sys.argv[2], '--dry-run']) == 0\n"
+            f"{XLA_THREADS}"
+            "print('threads', xla_threads(), os.environ.get('PJRT_NPROC'))\n")
+    env = {k: v for k, v in os.environ.items() if k != "PJRT_NPROC"}
+    for disks, expect in ((100, "threads 1 1"), (3000, f"threads {len(os.sched_getaffinity(0))} None")):
+        done = subprocess.run([sys.executable, "-c", code, str(disks), str(tmp_path / "run")], capture_output=True, text=True, timeout=300,
+                              env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert done.stdout.strip().splitlines()[-1] == expect, done.stdout
+
+
 def test_a_vector_width_the_user_gave_xla_is_kept():
     code = ("import os, jaxpile\n"
             "print(os.environ['XLA_FLAGS'])\n")

@@ -460,12 +460,28 @@ def _resume_argv(argv: list[str]) -> list[str]:
     return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
 
 
+THREADED_PILE_DISKS = 2000
+"""From this many disks one pile's kernels are large enough to split over XLA's
+threads. Measured on 2 cores (benchmarks/scaling.py, settling box, float64,
+one thread against two): 1000 disks 5.6e6 against 5.1e6 particle-steps/s,
+3000 disks 5.8e6 against 6.5e6, 10000 6.1e6 against 8.9e6."""
+
+
+def pile_disks(args) -> int | None:
+    """The disk count a `pile` command asks for, read from its size flag before
+    anything runs (None: the protocol's default size, the paper's)."""
+    if getattr(args, "layers", None) is not None:
+        return int(args.layers) * (int(args.layers) + 1) // 2
+    return None if getattr(args, "n", None) is None else int(args.n)
+
+
 def threads_for_batches() -> bool:
-    """`sweep` and `fit` run batches: XLA's own thread count for them, where
-    `import jaxpile` asked for one thread (see `jaxpile`'s docstring: a batch's
-    kernels are large enough to split, one pile's are not). Read when JAX makes
-    its CPU client, so it only acts before JAX has run anything; threads do not
-    change results. Returns whether it acted."""
+    """`sweep` and `fit` run batches, and `pile` may run a large pile: XLA's own
+    thread count for them, where `import jaxpile` asked for one thread (see
+    `jaxpile`'s docstring: a batch's kernels are large enough to split, one
+    small pile's are not). Read when JAX makes its CPU client, so it only acts
+    before JAX has run anything; threads do not change results. Returns whether
+    it acted."""
     import jaxpile
 
     if not jaxpile._ONE_THREAD_BY_DEFAULT or os.environ.get("PJRT_NPROC") != "1":
@@ -603,7 +619,8 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         _check_flags(args)
-        if args.command in ("sweep", "fit"):
+        if args.command in ("sweep", "fit") or (args.command == "pile" and
+                                                (pile_disks(args) or 0) >= THREADED_PILE_DISKS):
             threads_for_batches()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
