@@ -36,6 +36,7 @@ BENCHMARKS = {
     "ensemble_vmap": ("ensemble_throughput.py", ["--members", "8", "--n", "100", "--steps", "1000"],
                       ["--members", "64", "--n", "409", "--steps", "5000"]),
     "profile": ("profile_step.py", ["--steps", "300"], ["--steps", "2000"]),
+    "rebuild": ("rebuild_cost.py", ["--repeats", "500"], ["--repeats", "2000"]),
 }
 
 
