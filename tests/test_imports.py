@@ -60,6 +60,21 @@ def test_pile_gives_a_large_pile_xla_s_threads_and_keeps_one_for_the_papers_size
         assert done.stdout.strip().splitlines()[-1] == expect, done.stdout
 
 
+def test_a_pathwise_fit_keeps_one_thread_and_an_ensemble_fit_runs_batches():
+    """`fit` gives XLA its threads only for the ensemble estimators (batches);
+    the pathwise gradient through one pile is faster on one thread."""
+    from argparse import Namespace
+
+    from jaxpile.cli import fit_runs_batches
+
+    args = dict(estimator=None, truth=None, target="profile.csv", resume=None)
+    assert not fit_runs_batches(Namespace(**args))
+    assert fit_runs_batches(Namespace(**{**args, "target": "target.json"}))
+    assert fit_runs_batches(Namespace(**{**args, "truth": ["mu=0.3"]}))
+    assert fit_runs_batches(Namespace(**{**args, "estimator": "smoothing"}))
+    assert not fit_runs_batches(Namespace(**{**args, "estimator": "pathwise", "target": "target.json"}))
+
+
 def test_a_vector_width_the_user_gave_xla_is_kept():
     code = ("import os, jaxpile\n"
             "print(os.environ['XLA_FLAGS'])\n")

@@ -475,6 +475,25 @@ def pile_disks(args) -> int | None:
     return None if getattr(args, "n", None) is None else int(args.n)
 
 
+def _ensemble_target(args) -> bool:
+    """Whether a `fit` aims at an ensemble target (--truth, a target.json, --resume)."""
+    return bool(args.truth or (args.target or "").endswith(".json") or args.resume)
+
+
+def fit_estimator(args) -> str:
+    """The gradient a `fit` uses: `--estimator`, else central differences for an
+    ensemble target and the pathwise gradient through one pile otherwise."""
+    return args.estimator or ("central" if _ensemble_target(args) else "pathwise")
+
+
+def fit_runs_batches(args) -> bool:
+    """Whether a `fit` runs batches (an ensemble estimator), not the pathwise
+    gradient through one pile. The pathwise gradient keeps one thread: on 2
+    cores, 1000 steps of the 55-disk pile's checkpointed gradient take 72 ms
+    with one thread against 112 ms with two (benchmarks/gradient_cost.py)."""
+    return fit_estimator(args) != "pathwise"
+
+
 def threads_for_batches() -> bool:
     """`sweep` and `fit` run batches, and `pile` may run a large pile: XLA's own
     thread count for them, where `import jaxpile` asked for one thread (see
@@ -619,8 +638,8 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         _check_flags(args)
-        if args.command in ("sweep", "fit") or (args.command == "pile" and
-                                                (pile_disks(args) or 0) >= THREADED_PILE_DISKS):
+        if (args.command == "sweep" or (args.command == "fit" and fit_runs_batches(args))
+                or (args.command == "pile" and (pile_disks(args) or 0) >= THREADED_PILE_DISKS)):
             threads_for_batches()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
@@ -969,7 +988,7 @@ def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     report = _dry_run_report(what, particles, {}, "float64", build)
     total = args.steps * per_step * int(particles.count)
     print(f"jaxpile: the fit: {args.steps} x {per_step:,} steps = {total:.3g} particle-steps forward "
-          "(the reverse pass costs ~5x more)")
+          "(a gradient costs ~7x its forward pass on a CPU: benchmarks/gradient_cost.py)")
     return {**report, "fit_particle_steps": total}
 
 
@@ -980,8 +999,8 @@ def run_fit(args) -> dict:
 
     from jaxpile.errors import InputError
 
-    ensemble_target = args.truth or (args.target or "").endswith(".json") or args.resume
-    estimator = args.estimator or ("central" if ensemble_target else "pathwise")
+    ensemble_target = _ensemble_target(args)
+    estimator = fit_estimator(args)
     if estimator != "pathwise":
         from jaxpile.fit.command import run_ensemble_fit
 
