@@ -471,8 +471,17 @@ def pile_disks(args) -> int | None:
     """The disk count a `pile` command asks for, read from its size flag before
     anything runs (None: the protocol's default size, the paper's)."""
     if getattr(args, "layers", None) is not None:
-        return int(args.layers) * (int(args.layers) + 1) // 2
+        from jaxpile.protocols.lattice import pile_count
+
+        return pile_count(int(args.layers))
     return None if getattr(args, "n", None) is None else int(args.n)
+
+
+def wants_xla_threads(args) -> bool:
+    """Whether a command runs work whose kernels are large enough to split over
+    XLA's threads: a sweep, an ensemble fit, a pile of `THREADED_PILE_DISKS` or more."""
+    return (args.command == "sweep" or (args.command == "fit" and fit_runs_batches(args))
+            or (args.command == "pile" and (pile_disks(args) or 0) >= THREADED_PILE_DISKS))
 
 
 def _ensemble_target(args) -> bool:
@@ -638,8 +647,7 @@ def main(argv=None) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         _check_flags(args)
-        if (args.command == "sweep" or (args.command == "fit" and fit_runs_batches(args))
-                or (args.command == "pile" and (pile_disks(args) or 0) >= THREADED_PILE_DISKS)):
+        if wants_xla_threads(args):
             threads_for_batches()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
