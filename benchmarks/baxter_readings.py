@@ -10,7 +10,10 @@ Settings (`--settings`, comma-separated; see SETTINGS):
   `disk-damping-mass` (the printed m in the damping against the fixed substrate);
 - the paper's other heaps, in the default reading: `n144-r1.047`, `n144-r1.2`,
   `hooke-k500` (the equivalent Hooke law, Fig. 5), `poly5`, `poly10`
-  (polydisperse, Fig. 8), `mu0.2`, `mu0.6`.
+  (polydisperse, Fig. 8), `mu0.2`, `mu0.6`;
+- the row's length, which the paper does not print: `row35`, `row30`, rows
+  just long enough for a heap of the n disks at 35 / 30 deg, which a flatter
+  heap spills over (the default row holds a 15 deg heap and 5 sigma more).
 The paper: angle of repose 35 +- 5 deg (1334 disks; 31 deg for n = 36 beside
 35 deg for n = 144, 1000 disks), base force M-shaped with flank maxima 20-30%
 above the centre for n = 36, r0 = 1.2; no clear M for n = 144 short tail and
@@ -52,7 +55,7 @@ import pathlib
 import sys
 import time
 
-_DEFAULT = {"law": "baxter", "params": {}, "pour": {}, "dt": None,
+_DEFAULT = {"law": "baxter", "params": {}, "pour": {}, "dt": None, "row_angle": None,
             "law_options": {"lever_arm": "contact-point", "slip": "hold", "damping_mass": "pair"}}
 SETTINGS = {
     "contact-point/hold": {},
@@ -69,6 +72,10 @@ SETTINGS = {
     "poly10": {"pour": {"polydispersity": 0.10}},
     "mu0.2": {"params": {"mu": 0.2}},
     "mu0.6": {"params": {"mu": 0.6}},
+    # the row's length is not printed: rows just long enough for a heap of the n disks at 35 / 30 deg
+    # (no margin), which a flatter heap spills over (disks past an end are lost)
+    "row35": {"row_angle": 35.0},
+    "row30": {"row_angle": 30.0},
 }
 READINGS = tuple(SETTINGS)[:5]
 ANGLE_METHODS = ("mid_flank", "endpoints", "least_squares", "cumulative_parabola")
@@ -91,6 +98,9 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
     resume = state_file if os.path.exists(state_file) else None
     t0 = time.perf_counter()
     dt = {} if spec["dt"] is None else {"dt": spec["dt"]}
+    if spec["row_angle"] is not None:
+        spacing = spec["pour"].get("spacing", pour.PAPER_SETTING["spacing"])
+        spec["pour"] = {**spec["pour"], "substrate_disks": pour.substrate_size(n, spacing, spec["row_angle"], margin=0.0)}
     _, result = pour.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None, **dt,
                          law_options=spec["law_options"], progress=False,
                          checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
@@ -114,7 +124,7 @@ def groups(settings: list[str]) -> list[list[str]]:
     out: dict[str, list[str]] = {}
     for name in settings:
         spec = setting_of(name)
-        key = json.dumps([spec["law"], spec["law_options"], spec["pour"], spec["dt"]], sort_keys=True)
+        key = json.dumps([spec["law"], spec["law_options"], spec["pour"], spec["dt"], spec["row_angle"]], sort_keys=True)
         out.setdefault(key, []).append(name)
     return list(out.values())
 
@@ -137,6 +147,8 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     law, law_options, pour_options, dt = (specs[0][k] for k in ("law", "law_options", "pour", "dt"))
     if law_options not in ({}, _DEFAULT["law_options"]):
         raise ValueError(f"{settings}: a batch runs the law's default reading; run the others with --workers")
+    if specs[0]["row_angle"] is not None:
+        raise ValueError(f"{settings}: a batch pours on the default row; run the row settings with --workers")
     if insert_height is None:
         insert_height = pour.steepest_heap_height(n) + 6.0
     tolerance = pour.PAPER_SETTING["speed_tolerance"]

@@ -106,6 +106,23 @@ def test_baxter_study_measures_the_m_without_selection_bias_and_averages_flanks(
     assert br.angle(row, "mid_flank") == 25.0 and br.angle(row, "least_squares") is None
 
 
+def test_baxter_angle_bands_read_the_saved_heaps_as_the_study_measured_them():
+    """`baxter_angle_bands.py` re-measures the 1997 heaps (Baxter et al. 1997,
+    sec. III, "the angle between the inclined surface and the base") from their
+    saved final states: its 0.2-0.8 band is the study's own `angle_mid_flank`,
+    heap by heap, and the rows of a row spilled over by the heap (`row35`) hold
+    fewer disks than they poured."""
+    import baxter_angle_bands as bands
+
+    folder = pathlib.Path(__file__).resolve().parents[1] / "benchmarks/results/baxter_readings/n300"
+    for name in ("row35_seed0", "contact-point_hold_seed4"):
+        measured = json.loads((folder / f"{name}.json").read_text())["angle_mid_flank"]
+        again = bands.heap_angles(str(folder / f"{name}.npz"))["0.2-0.8"]
+        assert again == pytest.approx([measured["left"], measured["right"]], abs=1e-9)
+    spilled = [json.loads(f.read_text())["counts"]["lost"] for f in sorted(folder.glob("row35_seed*.json"))]
+    assert len(spilled) == 8 and sum(spilled) > 0
+
+
 def test_readme_papers_table_is_the_one_the_results_give():
     """benchmarks/papers.py writes README's papers-side-by-side table from the
     committed results JSON (issue 16): README must hold exactly that table."""

@@ -217,12 +217,13 @@ def in_play(state: SimState, steps: int) -> int:
     return int(ps.first) + min(int(ps.total), int(ps.poured) + max(releases, 0))
 
 
-def substrate_size(n: int, spacing: float, min_angle: float = 15.0) -> int:
+def substrate_size(n: int, spacing: float, min_angle: float = 15.0, margin: float = 5.0) -> int:
     """Disks in a row long enough for the heap of n disks at any angle above
     `min_angle` degrees: base B = 2 sqrt(A / tan(angle)) for a triangular heap of
-    area A = n (pi/4) / 0.8 (packing fraction 0.8), plus 5 sigma at each end."""
+    area A = n (pi/4) / 0.8 (packing fraction 0.8), plus `margin` sigma at each
+    end. (`margin=0` and a steep `min_angle` make a row the heap spills over.)"""
     area = n * (math.pi / 4.0) / 0.8
-    base = 2.0 * math.sqrt(area / math.tan(math.radians(min_angle))) + 10.0
+    base = 2.0 * math.sqrt(area / math.tan(math.radians(min_angle))) + 2.0 * margin
     return int(math.ceil(base / spacing)) + 1
 
 
