@@ -28,6 +28,8 @@ START, END = "<!-- bench-table:start -->", "<!-- bench-table:end -->"
 # name -> (script, small arguments, full arguments)
 BENCHMARKS = {
     "vs_lammps": ("vs_lammps.py", ["--small", "--cases", "lattice,pour"], ["--cases", "lattice,pour"]),
+    # the issue's own pour, 1000 disks, in every run (about a minute): the small one above is launch-bound
+    "vs_lammps_pour": ("vs_lammps.py", ["--cases", "pour", "--pour-laws", ""], ["--cases", "pour"]),
     # the batch on every core: one JAX device per core (JAXPILE_HOST_DEVICES, see ENV)
     "vs_lammps_ensemble": ("vs_lammps.py", ["--small", "--cases", "ensemble"], ["--cases", "ensemble"]),
     "scaling": ("scaling.py", ["--sizes", "1000,10000,100000", "--steps", "200"], ["--steps", "2000"]),
