@@ -263,6 +263,18 @@ def test_eq3_eq8_baxter_damping_mass_against_a_fixed_partner(damping_mass):
     assert damping(True, m) == pytest.approx(0.5 * 2 * math.sqrt(fixed_mass * k) * 0.3, rel=1e-12)
 
 
+def test_baxter_default_reading_is_the_one_the_audit_measured_and_the_pour_runs():
+    """The readings of eqs. 3, 5, 6 and 13 measured in docs/baxter1997_audit.md:
+    the contact-point arm, delta_F held at +-delta_max, the pair's damping mass
+    is the default, and a pour runs it unless told otherwise. Changing the
+    default changes every 1997 number of the README: this test must fail then."""
+    from jaxpile.protocols import pour
+
+    default = (("lever_arm", "contact-point"), ("slip", "hold"), ("damping_mass", "pair"))
+    assert baxter.law().options == default
+    assert pour.make_simulator("baxter").law.options == default
+
+
 def test_baxter_unknown_reading_is_an_input_error():
     with pytest.raises(InputError, match="lever_arm"):
         baxter.law(lever_arm="rim")
