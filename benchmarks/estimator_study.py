@@ -87,7 +87,9 @@ def main(argv=None) -> dict:
     import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (float64)
-    from jaxpile import estimators
+    from jaxpile import cli, estimators
+
+    cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
 
     options = {}
     for item in args.option:

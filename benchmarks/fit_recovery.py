@@ -116,6 +116,9 @@ def main(argv=None) -> dict:
     import numpy as np
 
     import jaxpile  # noqa: F401
+    from jaxpile import cli
+
+    cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
     from jaxpile import ensemble_fit as ef
 
     case = CASES[args.case]
