@@ -23,21 +23,16 @@ import pathlib
 
 import numpy as np
 
+from jaxpile.engine.checkpoint import read_leaves
 from jaxpile.measure import analysis
 
 BANDS = {"0.2-0.8": (0.2, 0.8), "0.1-0.5": (0.1, 0.5), "0.3-0.7": (0.3, 0.7), "0.5-0.9": (0.5, 0.9)}
 """Height bands (fractions of the apex height); 0.2-0.8 is `baxter_readings.py`'s `mid_flank`."""
 
 
-def leaves(path: str) -> dict:
-    """The arrays of a saved state (`checkpoint.save`'s npz), by pytree path."""
-    with np.load(path) as z:
-        return {k.split(":", 1)[1]: z[k] for k in z.files if k.startswith("leaf:")}
-
-
 def heap_angles(path: str) -> dict:
     """Each band's angle of both flanks of one saved heap: {band: [left, right]} (None: too few columns)."""
-    s = leaves(path)
+    s = read_leaves(path)
     pos, rad = s[".particles.position"], s[".particles.radius"]
     poured = s[".particles.active"] & ~s[".particles.fixed"]
     row = int(s[".protocol_state.first"])  # the substrate: disks 0 .. row-1

@@ -93,13 +93,11 @@ def replay(traj, cutoff, s0, tau, s_max, dt):
             if tau is not None:
                 speed = np.sqrt(((traj[t] - traj[t - 1]) ** 2).sum(-1)) / dt
                 skin = np.clip(2.0 * speed * tau * dt, s0, s_max)
-            if rebuilds % 10 == 0:
+            if tau is not None and rebuilds % 10 == 0:  # the fixed skin is its own reference
                 movable = np.abs(x).max(-1) < 500.0  # parked disks wait far away
                 fixed = np.full(n, s0)
                 pairs.append(listed_pairs(x, skin, cutoff, movable) / max(listed_pairs(x, fixed, cutoff, movable), 1))
-                if tau is not None:
-                    candidates.append(block_candidates(x, cutoff + s_max, movable)
-                                      / block_candidates(x, cutoff + s0, movable))
+                candidates.append(block_candidates(x, cutoff + s_max, movable) / block_candidates(x, cutoff + s0, movable))
     return {"tau_steps": tau, "s_max": s_max, "rebuilds": rebuilds,
             "pairs_over_fixed_skin": float(np.mean(pairs)) if pairs else 1.0,
             "block_candidates_over_fixed_cells": float(np.mean(candidates)) if candidates else 1.0}
