@@ -285,3 +285,14 @@ def test_a_pour_run_on_blocks_of_its_poured_disks_is_bit_identical_to_the_full_r
     np.testing.assert_array_equal(a.contacts.pairs, b.contacts.pairs)
     np.testing.assert_array_equal(a.contacts.history, b.contacts.history)
     np.testing.assert_array_equal(a.neighbors.idx, b.neighbors.idx)
+
+
+def test_block_sizes_step_by_two_then_finer_and_each_must_save_enough():
+    """`blocks.block_size`: powers of two below FINE_BLOCK (a block leaving
+    out half the disks), then 1.5x / 4/3x steps (leaving out an eighth): the
+    1000-disk race's 1121 disks run on 768 with 513-768 in play, not on all."""
+    size = jaxpile.blocks.block_size
+    assert [size(k, 1121) for k in (1, 65, 200, 300, 513, 768, 769)] == [64, 128, 256, 512, 768, 768, None]
+    assert [size(k, 10**6) for k in (513, 769, 1025, 1537, 2049, 3073)] == [768, 1024, 1536, 2048, 3072, 4096]
+    assert size(48, 83) is None and size(100, 145) is None  # 64 and 128 would save too little
+    assert size(600, 800) is None and size(600, 878) == 768  # 768 <= 7/8 of the disks

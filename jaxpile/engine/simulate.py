@@ -482,9 +482,9 @@ class Simulator:
         if size is None:
             return self._chunk_on(params, state, n, info)
         room = blocks.pair_room(state, size, self._block_pairs.get(size, 0))
-        new = self._chunk_on(params, blocks.take(state, size, room), n, info)
+        new = self._chunk_on(params, blocks.take_jit(state, size, room), n, info)
         self._block_pairs[size] = max(room, int(new.contacts.pairs.shape[0]))
-        return blocks.put(state, new)
+        return blocks.put_jit(state, new)
 
     def _chunk_on(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
         for _ in range(20):
