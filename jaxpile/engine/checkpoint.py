@@ -215,7 +215,7 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
                                        template.neighbor_settings)
     c = template.contacts
-    pairs = nb.half_pairs(neighbors.idx, pairs)
+    pairs = nb.half_pairs_jit(neighbors.idx, pairs)
     contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
 

@@ -291,7 +291,7 @@ class Ensemble:
             raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
         count = batch_size(state)
         params = self._as_batch(params, count)
-        self.sim.check_params(member(params, 0), member(state, 0).particles)
+        self.sim.check_params(member(params, 0), member(jax.device_get(state.particles), 0))
         _check_batch_finite(state, last_good=None)
         info = RunInfo() if info is None else info
         info._n = count * state.particles.position.shape[1]
@@ -325,7 +325,7 @@ class Ensemble:
             bar.close()
         if finished is not None:
             info.at_rest = bool(jnp.all(finished_now))
-        info.max_speed = float(jnp.max(jax.vmap(max_speed)(state)))
+        info.max_speed = float(_batch_max_speed(state))
         return state
 
 
@@ -340,9 +340,18 @@ def members(state: SimState, count: int | None = None) -> list[SimState]:
     return [member(state, i) for i in range(count)]
 
 
+@jax.jit
+def _non_finite(particles):
+    p = particles
+    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+
+
+_batch_max_speed = jax.jit(lambda state: jnp.max(jax.vmap(max_speed)(state)))
+
+
 def _check_batch_finite(state: SimState, *, last_good) -> None:
     p = state.particles
-    bad = ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+    bad = _non_finite(p)
     if not bool(jnp.any(bad)):
         return
     bad = np.asarray(bad)

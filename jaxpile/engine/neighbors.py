@@ -88,7 +88,7 @@ def _grid(settings: NeighborSettings) -> tuple[int, int, float, float]:
     return nx, ny, settings.box[0] / nx, settings.box[1] / ny
 
 
-def _cells(position: Array, grid) -> tuple[Array, Array]:
+def _cells(position: Array, grid, xp=jnp) -> tuple[Array, Array]:
     """Each disk's cell `(cx, cy)`. Disks outside the box are clamped into the
     border cells: clamping keeps two disks within the reach in the same or
     adjacent cells, so they are still found (a crowded border cell only needs a
@@ -96,9 +96,9 @@ def _cells(position: Array, grid) -> tuple[Array, Array]:
     them after the chunk)."""
     nx, ny, wx, wy = grid
     x, y = position[:, 0], position[:, 1]
-    ok = jnp.isfinite(x) & jnp.isfinite(y)
-    cx = jnp.where(ok, jnp.clip(jnp.floor(x / wx), 0, nx - 1), 0).astype(jnp.int32)
-    cy = jnp.where(ok, jnp.clip(jnp.floor(y / wy), 0, ny - 1), 0).astype(jnp.int32)
+    ok = xp.isfinite(x) & xp.isfinite(y)
+    cx = xp.where(ok, xp.clip(xp.floor(x / wx), 0, nx - 1), 0).astype(xp.int32)
+    cy = xp.where(ok, xp.clip(xp.floor(y / wy), 0, ny - 1), 0).astype(xp.int32)
     return cx, cy
 
 
@@ -221,12 +221,17 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     """A new neighbour list (host-side), sized like jax-md's: the window W is
     the most disks in any run of three cells of a row times the capacity
     multiplier (at most `WINDOW_HEADROOM`), the slots K the most neighbours of
-    any disk times the multiplier, each plus `extra_capacity`."""
+    any disk times the multiplier, each plus `extra_capacity`.
+
+    One build, wide enough for every candidate (3 W slots), gives both the
+    occupancy and the list: its rows are in increasing index order, so their
+    first K columns are what a build with K slots gives (a second build cost
+    a second compile for every new size, ~0.4 s on 2 CPU cores)."""
+    host = np.asarray(position)
     position = jnp.asarray(position)
     n = int(position.shape[0])
     grid = _grid(settings)
-    reach = float(settings.cutoff + settings.skin)
-    cx, cy = (np.asarray(a, np.int64) for a in _cells(position, grid))
+    cx, cy = (a.astype(np.int64) for a in _cells(host, grid, xp=np))
     cells, counts = np.unique(cy * grid[0] + cx, return_counts=True)  # occupied cells only: O(n)
 
     def count(key, ok):
@@ -242,10 +247,10 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
     window = max(1, min(n, int(math.ceil(most * headroom)) + int(extra_capacity)))
     probe = max(1, min(n - 1, 3 * window))
-    _, occupancy, _ = _build_jit(position, grid, reach, window, probe)
+    wide, occupancy, over = _build_jit(position, grid, float(settings.cutoff + settings.skin), window, probe)
     slots = int(int(occupancy) * settings.capacity_multiplier) + int(extra_capacity)
     slots = max(1, min(max(n - 1, 1), slots))
-    idx, occupancy, over = _build_jit(position, grid, reach, window, slots)
+    idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
     error = partition.PartitionError(jnp.zeros((), jnp.uint8))
     error = error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, occupancy > slots)
     return _make_list(settings, idx, position, window, error.update(partition.PEC.CELL_LIST_OVERFLOW, over))
@@ -304,11 +309,12 @@ def update(neighbors, position: Array, settings: NeighborSettings, axis_name: st
 def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_capacity: int | None,
                         settings: NeighborSettings):
     """The list rebuilt from `position` with `max_occupancy` slots per particle
-    and a window of `cell_capacity` (so lists of a batch share their shapes)."""
+    and a window of `cell_capacity` (so lists of a batch share their shapes).
+    Host-side, compiled once per shape (`_rebuild_jit`)."""
     n = position.shape[0]
     window = n if cell_capacity is None else int(cell_capacity)
-    fresh = _make_list(settings, jnp.full((n, int(max_occupancy)), n, jnp.int32), position, window)
-    return rebuild(fresh, position, settings)
+    fresh = _make_list(settings, np.full((n, int(max_occupancy)), n, np.int32), position, window)
+    return _rebuild_jit(fresh, position, settings)
 
 
 PAIRS_PER_DISK = 3.0
@@ -359,7 +365,7 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
     least `at_least`, at most `pair_capacity` (which holds them all), rounded
     up to `PAIR_ALIGN`."""
     n, k = idx.shape
-    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * int(pair_count(idx))))
+    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * int(pair_count_jit(idx))))
     return min(pair_capacity(n, k), aligned(wanted))
 
 
@@ -465,6 +471,16 @@ def overflowed(state) -> Array:
     rebuild (or the laying of the pairs itself) found more half pairs than the
     pair list holds. Traceable; for a batch, per member."""
     return state.neighbors.did_buffer_overflow | (state.contacts.demand > state.contacts.pairs.shape[-2])
+
+
+# The host's entry points (set-up, re-allocation, checkpoints, batches), each
+# compiled once per shape. Run op by op, each of their 20-150 primitives was
+# compiled for every new shape: a tiny box fit from the command line spent
+# ~10 s of its 63 there. Traced code calls the plain functions.
+_rebuild_jit = jax.jit(rebuild, static_argnums=(2,))
+pair_count_jit = jax.jit(pair_count)
+half_pairs_jit = jax.jit(half_pairs, static_argnums=(1,))
+contacts_for_jit = jax.jit(contacts_for, static_argnums=(3,))
 
 
 def pair_entry(pairs, i: int, j: int) -> int | None:

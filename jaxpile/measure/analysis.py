@@ -13,8 +13,10 @@ and the papers' heap measurements (host-side numpy, pure):
 
 from __future__ import annotations
 
+import functools
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -93,7 +95,13 @@ def base_load(sim, params, state: SimState, *, base: str = "ground", wall: int =
     """
     if base not in BASES:
         raise InputError(f"base must be one of {list(BASES)}; got {base!r}.")
-    cf = sim.contact_forces(params, state)
+    return _base_load_from(sim.contact_forces(params, state), state, base, int(wall))
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
+    """`base_load` from the contact forces `cf`: one compiled program (inlined
+    when traced), not ~40 primitives each compiled op by op for each shape."""
     p = state.particles
     unit = traced_force_unit(state)
     if base == "ground":
