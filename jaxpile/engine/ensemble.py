@@ -51,7 +51,7 @@ from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed
+from jaxpile.engine.simulate import RunInfo, Simulator, _non_finite, checked, compiled_for, make_step, max_speed
 from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
@@ -340,19 +340,13 @@ def members(state: SimState, count: int | None = None) -> list[SimState]:
     return [member(state, i) for i in range(count)]
 
 
-@jax.jit
-def _non_finite(particles):
-    p = particles
-    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
-
-
 _batch_max_speed = jax.jit(lambda state: jnp.max(jax.vmap(max_speed)(state)))
 
 
 def _check_batch_finite(state: SimState, *, last_good) -> None:
     p = state.particles
     bad = _non_finite(p)
-    if not bool(jnp.any(bad)):
+    if not np.asarray(bad).any():
         return
     bad = np.asarray(bad)
     m = int(np.argmax(bad.any(axis=1)))

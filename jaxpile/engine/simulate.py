@@ -181,6 +181,7 @@ class RunInfo:
     _n: int = 0
 
 
+@jax.jit  # one program per shape: the runners ask for it on the host after every chunk
 def max_speed(state: SimState) -> Array:
     """Largest translational or rim speed |v| + |omega| r over movable active disks."""
     p = state.particles
@@ -288,7 +289,7 @@ class Simulator:
             if value is not None and np.ndim(value) != 0:
                 raise InputError(f"{self.law.name} parameter {name} has shape {np.shape(value)}: one pile takes one "
                                  "value per parameter (batched parameters go to `jaxpile.Ensemble`).")
-        movable = np.asarray(particles.movable)
+        movable = np.asarray(particles.active) & ~np.asarray(particles.fixed)  # on the host: no compile
         if not movable.any():
             movable = np.ones_like(movable)
         limit = self.law.stable_time_step(params, float(np.asarray(particles.mass)[movable].min()),
@@ -679,12 +680,16 @@ def checked(check, state: SimState, new: SimState, save) -> None:
         raise
 
 
+@jax.jit
+def _non_finite(p: Particles) -> Array:
+    """`[n]` bool: disks with a non-finite position or velocity (one program, not op by op)."""
+    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+
+
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
     p = particles
-    bad = ~(
-        jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity)
-    )
-    if bool(jnp.any(bad)):
+    bad = _non_finite(p)
+    if np.asarray(bad).any():
         first = int(jnp.argmax(bad))
         if last_good is None:
             raise InputError(
