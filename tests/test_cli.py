@@ -41,3 +41,18 @@ def test_pile_command_with_gear_and_hard_collisions(tmp_path):
     assert summary["integrator"] == "gear" and summary["hard_collisions"] == {"restitution": 0.5, "mu": 0.3}
     assert summary["at_rest"] and summary["max_rel_dev_normal"] < 0.01
     assert load_arrays(out / "state.npz")["integrator_state.position"].shape == (3, 6, 2)
+
+
+def test_compile_cache_folder_follows_the_environment_and_can_be_turned_off(tmp_path):
+    """`jaxpile.cli.compile_cache_dir`: JAXPILE_COMPILE_CACHE first (off turns
+    the cache off), then JAX's own folder, then XDG_CACHE_HOME/jaxpile/xla."""
+    import os
+
+    from jaxpile.cli import compile_cache_dir
+
+    assert compile_cache_dir({"JAXPILE_COMPILE_CACHE": "off"}, "/jax/dir") is None
+    assert compile_cache_dir({"JAXPILE_COMPILE_CACHE": "0"}) is None
+    assert compile_cache_dir({"JAXPILE_COMPILE_CACHE": str(tmp_path)}, "/jax/dir") == str(tmp_path)
+    assert compile_cache_dir({"XDG_CACHE_HOME": "/x"}, "/jax/dir") == "/jax/dir"
+    assert compile_cache_dir({"XDG_CACHE_HOME": "/x"}) == os.path.join("/x", "jaxpile", "xla")
+    assert compile_cache_dir({}).endswith(os.path.join(".cache", "jaxpile", "xla"))
