@@ -530,8 +530,10 @@ def figure(result: SweepResult, by: str | None = None, path=None):
     theory = a.theory(by, theory_x) if a.theory else None
     title = (f"{result.info['protocol']} / {result.info['law']}: {result.info['members']} members, "
              f"{len(result.info['seeds'])} seeds each")
+    # the columns are angles (unit "deg") or plain numbers (unit "": the drop's central dip, a lattice's height)
+    ylabel = "angle (degrees)" if a.unit == "deg" else ", ".join(series) + (f" ({a.unit})" if a.unit else "")
     return plot.sweep_figure(series, by, theory=None if theory is None else (theory_x, *theory), title=title,
-                             path=path)
+                             ylabel=ylabel, path=path)
 
 
 __all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "read", "summarise", "sweep",
