@@ -544,7 +544,7 @@ def use_compile_cache() -> str | None:
     """Keeps XLA's compiled programs on disk between commands (JAX's
     persistent compilation cache), so a command that runs what an earlier one
     compiled starts at once: `jaxpile pile --protocol lattice --layers 12` took
-    6.7 s, 2.7 of them compiling; run again, 2.5 s, 0.3 compiling.
+    7.1 s, 2.7 of them compiling; run again, 1.9 s, 0.2 compiling.
 
     The folder is `compile_cache_dir`'s, at most `COMPILE_CACHE_MAX_BYTES`, the
     least recently used programs evicted first; `JAXPILE_COMPILE_CACHE=off`

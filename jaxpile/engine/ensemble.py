@@ -51,7 +51,7 @@ from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.checkpoint import step_of
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.engine.simulate import RunInfo, Simulator, _non_finite, checked, compiled_for, make_step, max_speed
+from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed, non_finite_disks
 from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
@@ -345,7 +345,7 @@ _batch_max_speed = jax.jit(lambda state: jnp.max(jax.vmap(max_speed)(state)))
 
 def _check_batch_finite(state: SimState, *, last_good) -> None:
     p = state.particles
-    bad = _non_finite(p)
+    bad = non_finite_disks(p)
     if not np.asarray(bad).any():
         return
     bad = np.asarray(bad)

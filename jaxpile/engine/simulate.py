@@ -681,14 +681,14 @@ def checked(check, state: SimState, new: SimState, save) -> None:
 
 
 @jax.jit
-def _non_finite(p: Particles) -> Array:
+def non_finite_disks(p: Particles) -> Array:
     """`[n]` bool: disks with a non-finite position or velocity (one program, not op by op)."""
     return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
 
 
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
     p = particles
-    bad = _non_finite(p)
+    bad = non_finite_disks(p)
     if np.asarray(bad).any():
         first = int(jnp.argmax(bad))
         if last_good is None:
