@@ -201,6 +201,9 @@ def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
     for row in result.rows:
         assert row["in_play"] + row["lost"] == 12
         assert abs(row["force_balance"]) < 1e-3  # at rest: the substrate carries the heap's weight
+        # the drop's dip measure (Smid-Novosad) on the heap's profile: <= 1 - 1 / the lower flank ratio,
+        # equal when the two flank ratios agree, so it is consistent with the M ratio's mean
+        assert row["central_dip"] <= 1.0 - 1.0 / row["m_ratio"] + 1e-12
     summary = sweep.summarise(result, "mu", "repose_mean")
     assert summary["x"] == [0.3, 0.6] and summary["count"][0] + summary["missing"][0] == 1
     with pytest.raises(InputError, match="unknown option"):

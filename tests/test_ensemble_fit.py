@@ -180,3 +180,21 @@ def test_a_deterministic_fit_takes_its_interval_from_the_residual():
     target = ef.EnsembleTarget(["a", "b"], np.array([1.1, 1.9]), np.zeros(2), piles, "t")
     cov, dof = ef.confidence(jac, np.ones(2), piles, target)
     assert dof == 1 and cov[0, 0] == pytest.approx((0.1 ** 2 + 0.1 ** 2) / 1 / 5.0)
+
+
+def test_smid_novosad_is_an_ensemble_target_of_the_central_dip(tmp_path, capsys):
+    """Issue 17, item 5: the declared dip (0.20-0.30 below the maximum; 0.25)
+    as the target of an ensemble fit of the columns the drop and the pour
+    measure, chosen by `--target smid-novosad --estimator central`."""
+    from jaxpile import cli, fit
+
+    target = ef.smid_novosad_target()
+    assert target.labels == ["central_dip"] and target.members is None and target.setting is None
+    low, high = fit.SMID_NOVOSAD_DIP_RANGE
+    assert target.mean[0] == pytest.approx(0.5 * (low + high)) and target.spread[0] == pytest.approx(0.5 * (high - low))
+    assert ef.EnsembleTarget.from_json(target.to_json()).mean.tolist() == target.mean.tolist()
+    assert cli.main(["fit", "--protocol", "pour", "--params", "n,mu", "--target", "smid-novosad", "--estimator",
+                     "central", "--ensemble", "2", "--dry-run", "--out", str(tmp_path)]) == 0
+    assert "statistics ['central_dip']" in capsys.readouterr().out
+    assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad", "--estimator",
+                     "central", "--truth", "mu_roll=0.2", "--out", str(tmp_path)]) == 2  # two targets

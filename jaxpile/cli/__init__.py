@@ -304,7 +304,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
                                       "statistics (gradients + optax, or Gauss-Newton on ensemble means)")
     fitp.add_argument("--target", default=None, metavar="FILE|smid-novosad",
                       help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
-                           "pile, pathwise gradients); or a target.json written by an ensemble fit")
+                           "pile, pathwise gradients); or a target.json written by an ensemble fit; with "
+                           "--estimator central|smoothing, smid-novosad is the central dip 0.25 as an ensemble "
+                           "target (the drop's and the pour's central_dip column)")
     fitp.add_argument("--protocol", default="lattice", choices=_sweep_protocols(),
                       help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
     fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing"],

@@ -64,7 +64,13 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         raise InputError(f"unknown option(s) {sorted(unknown)} for the {args.protocol} protocol; known: "
                          f"{sorted(a.options)}.")
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
-    statistics = _statistics(args, a)
+    declared = args.target == "smid-novosad" and not args.resume
+    if declared and args.truth:
+        raise InputError("--target smid-novosad and --truth are two targets: give one.")
+    if declared and args.statistics is None and args.bins is None:
+        statistics = ensemble_fit.Statistics(columns=("central_dip",))  # what the declared target holds
+    else:
+        statistics = _statistics(args, a)
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
@@ -97,6 +103,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
               f"{target_seeds[-1]})", flush=True)
         target = ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
                                           target_seeds, statistics, progress=False)
+    elif declared:
+        target = ensemble_fit.smid_novosad_target()
     elif args.target and args.target.endswith(".json"):
         if not os.path.exists(args.target):
             raise InputError(f"--target {args.target}: no such file.")
@@ -104,7 +112,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
             record = json.load(fh)
         target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record))
     else:
-        raise InputError("an ensemble fit needs --truth NAME=VALUE or --target target.json.")
+        raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
     io.write_json(os.path.join(args.out, "target.json"), _plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "

@@ -258,6 +258,22 @@ def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, prog
                           [int(x) for x in seeds], runner.setting())
 
 
+def smid_novosad_target() -> EnsembleTarget:
+    """Smid & Novosad's central dip as an ensemble target (issue 17, item 5): the
+    per-pile column `central_dip` (1 - the central bin over the lower flank
+    maximum, `jaxpile.measure.heap.central_dip`; the drop and the pour measure it)
+    at 0.25, the middle of the reported 0.20-0.30 (`fit.SMID_NOVOSAD_DIP_RANGE`),
+    with half that range, 0.05, as its spread. A declared value, not piles: no
+    members, no seeds, no setting (any protocol that measures the column may be
+    fitted to it). With one statistic the spread only scales the loss."""
+    from jaxpile.fit import SMID_NOVOSAD_DIP_RANGE
+
+    low, high = SMID_NOVOSAD_DIP_RANGE
+    return EnsembleTarget(["central_dip"], np.asarray([0.5 * (low + high)]), np.asarray([0.5 * (high - low)]), None,
+                          f"Smid & Novosad's central dip, {low:.2f}-{high:.2f} below the maximum (Liffman et al. "
+                          "1992, Introduction)")
+
+
 def _groups(labels) -> list[np.ndarray]:
     """Indices of the statistics that share a unit: each column alone, the
     normal profile's bins, the horizontal profile's bins."""

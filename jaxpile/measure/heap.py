@@ -135,7 +135,7 @@ def normal_profile(base_forces, bins: int = 15, diameter: float = 1.0) -> Normal
                          centre=centre, base=base)
 
 
-def central_dip(profile: NormalProfile) -> float:
+def central_dip(profile: NormalProfile | BaseProfile) -> float:
     """1 - F(centre bin) / min(max F left of it, max F right of it): > 0 when the
     centre carries less than the highest bins on both sides (a dip), <= 0 when
     the centre is the peak. NaN with fewer than 3 bins."""

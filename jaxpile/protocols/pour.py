@@ -62,7 +62,7 @@ from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.heap import BaseProfile, MShape, base_profile, m_shape  # noqa: F401  (pour.X as before)
+from jaxpile.measure.heap import BaseProfile, MShape, base_profile, central_dip, m_shape  # noqa: F401  (pour.X as before)
 from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
@@ -663,7 +663,8 @@ def sweep_adapter():
         return int(info["pour_steps"]) + int(options.get("max_settle_steps", PAPER_SETTING["max_settle_steps"]))
 
     def row(sim, params, state, p):
-        m = summary(measure(sim, params, state))
+        full = measure(sim, params, state)
+        m = summary(full)
         out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
         for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
             out[key] = m.get(key, float("nan"))
@@ -673,6 +674,8 @@ def sweep_adapter():
         out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
         ms = m.get("m_shape") or {}
         out["m_ratio"] = ms.get("ratio", float("nan"))
+        # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
+        out["central_dip"] = central_dip(full["base_profile"]) if "base_profile" in full else float("nan")
         out["m_shaped"] = bool(ms.get("m_shaped", False))
         return out
 
