@@ -63,6 +63,8 @@ from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_bounda
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import BaseProfile, MShape, base_profile, central_dip, m_shape  # noqa: F401  (pour.X as before)
+# the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
+from jaxpile.measure.poured_heap import SubstrateForces, heap_mask, measure, substrate_forces, summary  # noqa: F401
 from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
@@ -282,24 +284,16 @@ def pour(
     Raises:
       InputError: on a bad count, spacing, polydispersity, height, spread, interval or dt.
     """
-    ranges.check_all(OPTION_RANGES, locals(), pour)  # types, finiteness and ranges first: one message format
-    if int(n) != n or n < 1:
-        raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
+    # types, finiteness and each option's own range first (n, polydispersity, spread, dt, interval,
+    # substrate_disks: OPTION_RANGES), in one message format; then how the options bound each other
+    ranges.check_all(OPTION_RANGES, locals(), pour)
     n = int(n)
     budget.check(1.1 * n, dtype or "float64", what="a pour (with its substrate row)")  # and its substrate row
-    if not 0.0 <= polydispersity < 0.5:
-        raise InputError(f"polydispersity must be a fraction in [0, 0.5) (0.05 for 5%); got {polydispersity!r}.")
     smallest = 1.0 - polydispersity
     if not (1.0 <= spacing < 1.0 + smallest) or not math.isfinite(spacing):
         raise InputError(
             f"spacing S must be at least one diameter (1 sigma) and leave a gap narrower than the smallest "
             f"disk ({smallest:g} sigma), i.e. 1 <= S < {1.0 + smallest:g}; got {spacing!r}.")
-    if not (spread >= 0 and math.isfinite(spread)):
-        raise InputError(f"spread must be >= 0 and finite; got {spread!r}.")
-    if not (dt > 0 and math.isfinite(dt)):
-        raise InputError(f"dt must be positive and finite; got {dt!r}.")
-    if not (interval > 0 and math.isfinite(interval)):
-        raise InputError(f"interval must be a positive time; got {interval!r}.")
     interval_steps = ranges.steps_of("interval", interval, dt)
     lowest = steepest_heap_height(n) + 3.0
     if not (math.isfinite(release_height) and release_height >= lowest):
@@ -319,10 +313,7 @@ def pour(
             f"interval {interval!r} is too short: when a disk is released the previous one is only {gap:.2f} sigma "
             f"below it and they could touch in the air; the interval must leave at least {MIN_RELEASE_GAP} sigma "
             "(the paper's 1.612 leaves 1.30 sigma).")
-    rows = substrate_size(n, spacing) if substrate_disks is None else substrate_disks
-    if int(rows) != rows or rows < 3:
-        raise InputError(f"substrate_disks must be a whole number >= 3; got {substrate_disks!r}.")
-    rows = int(rows)
+    rows = int(substrate_size(n, spacing) if substrate_disks is None else substrate_disks)
     if substrate_disks is not None and rows * spacing < 2.0 * spread + 2.0:
         raise InputError(f"a row of {rows} disks ({rows * spacing:g} sigma) is narrower than the pouring "
                          f"interval +-{spread:g} sigma.")
@@ -383,144 +374,6 @@ def pour(
         "seed": int(seed),
     }
     return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state, info=info)
-
-
-# -------------------------------------------------------------------- forces
-# The base forces on fixed disks are a general measurement (`analysis`); the
-# names stay here too, where the 1997 paper's F_B is computed.
-SubstrateForces = analysis.SubstrateForces
-substrate_forces = analysis.substrate_forces
-
-
-
-# -------------------------------------------------------------- measurements
-def heap_mask(state: SimState) -> np.ndarray:
-    """`[n]` bool: the poured disks in play (active and not fixed)."""
-    return np.asarray(state.particles.movable)
-
-
-def _contiguous_columns(profile: analysis.SurfaceProfile) -> tuple[float, float]:
-    """x range (column centres) of the run of non-empty columns holding the apex."""
-    filled = ~np.isnan(profile.height)
-    top = int(np.nanargmax(profile.height))
-    lo = top
-    while lo > 0 and filled[lo - 1]:
-        lo -= 1
-    hi = top
-    while hi < len(filled) - 1 and filled[hi + 1]:
-        hi += 1
-    return float(profile.x[lo]), float(profile.x[hi])
-
-
-def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_cell: float = 3.0,
-            m_threshold: float = 0.1) -> dict:
-    """The 1997 measurements of a poured heap.
-
-    Returns a dict with:
-      `counts`: poured, in play (on the substrate), lost (fell off an end), still
-        parked, and `strays` (in play but outside the heap's contiguous columns);
-      `substrate_forces` (`SubstrateForces`), `base_profile` (`BaseProfile` over
-        the heap's base), `m_shape` (`MShape`);
-      `weight` (mg, of the disks in play), `substrate_normal_total` (mg) and
-        `force_balance` = total / weight - 1 (zero at rest);
-      `surface` (`analysis.SurfaceProfile` of the disks in play, columns one
-        substrate spacing wide centred on the notches of the row), `apex_x`,
-        `height` (apex centre height above the substrate's centre line),
-        `base_width` B, `angles` {"left", "right"}: `analysis.ReposeAngles` of each
-        flank (the contiguous columns only), `angle_mid_flank` {"left", "right"}:
-        `analysis.mid_flank_angle` (the line through the columns between 20% and
-        80% of the apex height; None when fewer than 3), `angle_height_base` = atan(2 h / B),
-        `asymmetry`: apex and centre-of-mass offsets from the pouring centre;
-      `voidage` (`analysis.VoidageMap` over the heap, cells `voidage_cell` sigma)
-        and `core_packing_fraction` (a rectangle B/4 wide and h/2 high under the apex).
-    """
-    ps: PourState = state.protocol_state
-    p = state.particles
-    in_play = heap_mask(state)
-    first = int(ps.first)
-    poured = int(ps.poured)
-    lost = int(np.asarray(ps.lost).sum())
-    parked = int((~np.asarray(p.active) & ~np.asarray(p.fixed)).sum()) - lost
-    pos, rad = np.asarray(p.position), np.asarray(p.radius)
-    base_y = float(pos[0, 1])
-    spacing = float(pos[1, 0] - pos[0, 0])
-    centre_x = 0.5 * float(pos[first - 1, 0] + pos[0, 0])
-
-    out: dict = {"counts": {"poured": poured, "in_play": int(in_play.sum()), "lost": lost, "parked": parked,
-                            "total": int(p.count) - first}}
-    forces = substrate_forces(sim, params, state)
-    unit = analysis.force_unit(state)
-    weight = float(np.asarray(p.mass)[in_play].sum() * np.linalg.norm(np.asarray(state.boundaries.gravity)) / unit)
-    total = float(forces.normal.sum())
-    out.update(substrate_forces=forces, weight=weight, substrate_normal_total=total,
-               force_balance=total / weight - 1.0 if weight > 0 else float("nan"))
-    if not in_play.any():
-        return out
-
-    # columns one substrate spacing wide, each centred on a notch of the row: with
-    # the mean diameter (Lee & Herrmann's choice) every tenth column of a
-    # one-disk-high toe would be empty, as its disks sit in notches S apart
-    rows = first
-    surface = analysis.surface_profile(pos[in_play], rad[in_play], x_min=float(pos[0, 0]),
-                                       width=float(pos[rows - 1, 0] - pos[0, 0]), column_width=spacing)
-    lo, hi = _contiguous_columns(surface)
-    half = 0.5 * surface.column_width
-    heap_cols = (pos[in_play, 0] >= lo - half) & (pos[in_play, 0] <= hi + half)
-    out["counts"]["strays"] = int((~heap_cols).sum())
-    apex = analysis.apex_x(surface)
-    height = float(np.nanmax(surface.height)) - base_y
-    x_left, x_right = lo - half, hi + half
-    width = x_right - x_left
-    angles = {}
-    for flank in ("left", "right"):
-        try:
-            angles[flank] = analysis.repose_angles(surface, flank=flank, x_range=(lo, hi), apex=apex)
-        except InputError:
-            angles[flank] = None  # fewer than 3 columns on that side
-    mid_flank = {flank: analysis.mid_flank_angle(surface, flank=flank, base=base_y, apex=apex)
-                 for flank in ("left", "right")}
-    heap_x = pos[in_play, 0][heap_cols]
-    heap_m = np.asarray(p.mass)[in_play][heap_cols]
-    out.update(surface=surface, apex_x=apex, height=height, base_width=width, extent=(x_left, x_right),
-               angles=angles, angle_mid_flank=mid_flank, angle_height_base=math.degrees(math.atan2(2.0 * height, width)),
-               asymmetry={"apex_offset": apex - centre_x,
-                          "mass_centre_offset": float(np.sum(heap_m * heap_x) / np.sum(heap_m)) - centre_x})
-    if forces.x.size:
-        profile = base_profile(forces, extent=(x_left, x_right), bins=bins, spacing=spacing)
-        out["base_profile"] = profile
-        out["m_shape"] = m_shape(profile, m_threshold)
-    top = float(np.max(pos[in_play, 1] + rad[in_play]))
-    region = (x_left, x_right, base_y, top)
-    out["voidage"] = analysis.voidage_map(pos[in_play], rad[in_play], voidage_cell, region=region)
-    core = (apex - width / 8.0, apex + width / 8.0, base_y + 0.5, base_y + 0.5 + max(height / 2.0, 1.0))
-    out["core_packing_fraction"] = analysis.packing_fraction(pos[in_play], rad[in_play], core)
-    return out
-
-
-def summary(measurements: dict) -> dict:
-    """The scalar measurements as plain JSON-friendly numbers (for `summary.json`)."""
-    m = measurements
-    out = {"counts": dict(m["counts"]), "weight_mg": m["weight"],
-           "substrate_normal_total_mg": m["substrate_normal_total"], "force_balance": m["force_balance"]}
-    for key in ("apex_x", "height", "base_width", "angle_height_base", "core_packing_fraction"):
-        if key in m:
-            out[key] = float(m[key])
-    if "asymmetry" in m:
-        out["asymmetry"] = {k: float(v) for k, v in m["asymmetry"].items()}
-    if "angles" in m:
-        out["angle_of_repose"] = {
-            flank: None if a is None else {"endpoints": a.endpoints, "least_squares": a.least_squares,
-                                           "cumulative_parabola": a.cumulative_parabola}
-            for flank, a in m["angles"].items()}
-        out["angle_mid_flank"] = dict(m["angle_mid_flank"])
-    if "m_shape" in m:
-        out["m_shape"] = {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
-                          for k, v in m["m_shape"]._asdict().items()}
-    if "base_profile" in m:
-        prof = m["base_profile"]
-        out["base_profile"] = {"x_over_b": prof.x_over_b.tolist(), "normalised": prof.normalised.tolist(),
-                               "force_mg": prof.force.tolist(), "width": prof.width}
-    return out
 
 
 # ----------------------------------------------------------------------- runs
