@@ -72,6 +72,11 @@ SETTINGS = {
     "poly10": {"pour": {"polydispersity": 0.10}},
     "mu0.2": {"params": {"mu": 0.2}},
     "mu0.6": {"params": {"mu": 0.6}},
+    # Smid-Novosad's dip against the law (issue 17): n's tail either side of the paper's 36, and mu beyond it
+    "n12": {"params": {"n": 12.0}},
+    "n24": {"params": {"n": 24.0}},
+    "n72": {"params": {"n": 72.0}},
+    "mu0.8": {"params": {"mu": 0.8}},
     # the row's length is not printed: rows just long enough for a heap of the n disks at 35 / 30 deg
     # (no margin), which a flatter heap spills over (disks past an end are lost)
     "row35": {"row_angle": 35.0},
@@ -223,6 +228,21 @@ def flank_over_centre(row: dict) -> float | None:
     return 0.5 * (flanks[0] + flanks[1]) / centre
 
 
+def central_dip(row: dict) -> float | None:
+    """Smid & Novosad's reading, as the dropped pile's (`jaxpile.measure.heap.central_dip`):
+    1 - the central bin over the lower of the two flank maxima (0.2-0.3 reported;
+    <= 0 when the centre carries the most). Like the M ratio, it takes maxima of
+    noisy bins, so noise alone pushes it up: `flank_over_centre` is the unbiased
+    comparison."""
+    profile = row.get("base_profile")
+    if not profile:
+        return None
+    f = profile["force_mg"]
+    mid = len(f) // 2
+    shoulder = min(max(f[:mid]), max(f[mid + 1:])) if mid else 0.0
+    return 1.0 - f[mid] / shoulder if shoulder > 0 else None
+
+
 def mean_stderr(values) -> dict:
     values = [v for v in values if v is not None and math.isfinite(v)]
     k = len(values)
@@ -243,6 +263,7 @@ def summarise(rows: list[dict]) -> dict:
             "angle_height_base": mean_stderr([r.get("angle_height_base") for r in mine]),
             "m_ratio": mean_stderr([(r.get("m_shape") or {}).get("ratio") for r in mine]),
             "flank_over_centre": mean_stderr([flank_over_centre(r) for r in mine]),
+            "central_dip": mean_stderr([central_dip(r) for r in mine]),
             "m_shaped": sum(bool((r.get("m_shape") or {}).get("m_shaped")) for r in mine),
             "lost": mean_stderr([r["counts"]["lost"] for r in mine]),
             "at_rest": sum(bool(r["run"]["at_rest"]) for r in mine),
@@ -358,11 +379,13 @@ def main(argv=None) -> dict:
     rows = [json.loads(pathlib.Path(path).read_text()) for _, _, path in jobs]
     table = summarise(rows)
     print(f"\n{'setting':28s} {'heaps':>5s} {'mid flank':>12s} {'endpoints':>12s} {'least sq.':>12s} {'cum. parab.':>12s} "
-          f"{'atan(2h/B)':>12s} {'M ratio':>12s} {'flank/centre':>12s}")
+          f"{'atan(2h/B)':>12s} {'M ratio':>12s} {'flank/centre':>12s} {'central dip':>12s}")
     fmt = lambda s: "—" if s["mean"] is None else f"{s['mean']:.1f}±{(s['stderr'] or float('nan')):.1f}"
+    fmt2 = lambda s: "—" if s["mean"] is None else f"{s['mean']:.2f}±{(s['stderr'] or float('nan')):.2f}"
     for reading, t in table.items():
         print(f"{reading:28s} {t['heaps']:5d} " + " ".join(f"{fmt(t['angle'][m]):>12s}" for m in ANGLE_METHODS)
-              + f" {fmt(t['angle_height_base']):>12s} {fmt(t['m_ratio']):>12s} {fmt(t['flank_over_centre']):>12s}")
+              + f" {fmt(t['angle_height_base']):>12s} {fmt2(t['m_ratio']):>12s} {fmt2(t['flank_over_centre']):>12s}"
+              + f" {fmt2(t['central_dip']):>12s}")
     command = "python benchmarks/baxter_readings.py " + " ".join(argv if argv is not None else sys.argv[1:])
     for entry in table.values():
         entry["command"] = command
