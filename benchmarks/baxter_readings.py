@@ -203,29 +203,21 @@ def angle(row: dict, method: str) -> float | None:
     return sum(values) / len(values) if len(values) == 2 else None
 
 
-FLANK_WINDOWS = ((0.2, 0.4), (0.6, 0.8))
-CENTRE_WINDOW = (0.4, 0.6)
-
-
 def flank_over_centre(row: dict) -> float | None:
-    """The M depth without selection bias: the mean normalised base force in
-    fixed flank windows (x/B in 0.2-0.4 and 0.6-0.8) over its mean in the
-    centre window (0.4-0.6). The M ratio of `pour.m_shape` divides the largest of
-    ~10 noisy flank bins by one central bin, which noise alone pushes above 1."""
+    """The M depth without selection bias (`jaxpile.measure.heap.flank_over_centre`):
+    the mean normalised base force in fixed flank windows (x/B in 0.2-0.4 and
+    0.6-0.8) over its mean in the centre window (0.4-0.6). The M ratio of
+    `pour.m_shape` divides the largest of ~10 noisy flank bins by one central
+    bin, which noise alone pushes above 1."""
+    from types import SimpleNamespace
+
+    from jaxpile.measure.heap import flank_over_centre as windows
+
     profile = row.get("base_profile")
     if not profile:
         return None
-    x, f = profile["x_over_b"], profile["normalised"]
-
-    def mean_in(lo, hi):
-        values = [v for xi, v in zip(x, f) if lo <= xi <= hi]
-        return sum(values) / len(values) if values else None
-
-    flanks = [mean_in(*w) for w in FLANK_WINDOWS]
-    centre = mean_in(*CENTRE_WINDOW)
-    if centre is None or centre <= 0 or None in flanks:
-        return None
-    return 0.5 * (flanks[0] + flanks[1]) / centre
+    value = windows(SimpleNamespace(x_over_b=profile["x_over_b"], normalised=profile["normalised"]))
+    return value if math.isfinite(value) else None
 
 
 def central_dip(row: dict) -> float | None:

@@ -204,6 +204,7 @@ def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
         # the drop's dip measure (Smid-Novosad) on the heap's profile: <= 1 - 1 / the lower flank ratio,
         # equal when the two flank ratios agree, so it is consistent with the M ratio's mean
         assert row["central_dip"] <= 1.0 - 1.0 / row["m_ratio"] + 1e-12
+        assert row["flank_over_centre"] > 0  # window means of the same profile (heap.flank_over_centre)
     summary = sweep.summarise(result, "mu", "repose_mean")
     assert summary["x"] == [0.3, 0.6] and summary["count"][0] + summary["missing"][0] == 1
     with pytest.raises(InputError, match="unknown option"):

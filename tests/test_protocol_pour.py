@@ -240,6 +240,14 @@ def test_m_shape_and_base_profile_on_synthetic_forces():
     assert not pour.m_shape(flat).m_shaped
     tent = pour.base_profile(forces._replace(normal=5 - np.abs(x - 5)), extent=(0.0, 10.0), bins=11)
     assert pour.m_shape(tent).ratio < 1.0
+    # the window ratio (flanks x/B 0.2-0.4, 0.6-0.8 over the centre 0.4-0.6): an M above 1, flat 1, a tent below
+    assert pour.flank_over_centre(prof) > 1.1 and pour.flank_over_centre(tent) < 0.9
+    # by hand on 5 bins at x/B 0.1 ... 0.9: flank windows hold 0.3 and 0.7, the centre 0.5
+    def five(values):
+        return pour.BaseProfile(np.arange(5) / 5 + 0.1, None, np.asarray(values, float), 0.0, 1.0)
+
+    assert pour.flank_over_centre(five([0.2, 1.0, 0.5, 0.8, 0.1])) == pytest.approx(0.5 * (1.0 + 0.8) / 0.5)
+    assert pour.flank_over_centre(five(np.ones(5))) == 1.0
 
 
 @pytest.mark.parametrize("law", ["lee-herrmann", "liffman"])

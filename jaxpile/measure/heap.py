@@ -93,6 +93,30 @@ def m_shape(profile: BaseProfile, threshold: float = 0.1) -> MShape:
                   m_shaped=bool(left > 1.0 + threshold and right > 1.0 + threshold))
 
 
+FLANK_WINDOWS = ((0.2, 0.4), (0.6, 0.8))
+CENTRE_WINDOW = (0.4, 0.6)
+
+
+def flank_over_centre(profile: BaseProfile, flanks=FLANK_WINDOWS, centre=CENTRE_WINDOW) -> float:
+    """The M depth that noise cannot fake: the mean binned force over the bins
+    centred in the flank windows (x/B in 0.2-0.4 and 0.6-0.8), averaged over the
+    two flanks, over its mean in the centre window (0.4-0.6). Above 1 for an M
+    (1997 Fig. 3b: maxima 20-30 % above the centre), below 1 when the centre
+    carries the most. `m_shape`'s ratio and `central_dip` take maxima over noisy
+    bins, which noise alone pushes towards an M. NaN when a window holds no bin
+    or the centre carries nothing."""
+    x = np.asarray(profile.x_over_b, float)
+    f = np.asarray(profile.normalised, float)
+
+    def mean_in(lo, hi):
+        inside = (x >= lo) & (x <= hi)
+        return float(f[inside].mean()) if inside.any() else float("nan")
+
+    left, right = (mean_in(*w) for w in flanks)
+    middle = mean_in(*centre)
+    return 0.5 * (left + right) / middle if middle > 0 else float("nan")
+
+
 class NormalProfile(NamedTuple):
     """The base normal force binned across the pile (Fig. 20(b)).
 

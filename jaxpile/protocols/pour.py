@@ -62,7 +62,8 @@ from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.heap import BaseProfile, MShape, base_profile, central_dip, m_shape  # noqa: F401  (pour.X as before)
+from jaxpile.measure.heap import (  # noqa: F401  (pour.X as before)
+    BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape)
 # the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
 from jaxpile.measure.poured_heap import SubstrateForces, heap_mask, measure, substrate_forces, summary  # noqa: F401
 from jaxpile.protocols import drivers
@@ -528,7 +529,9 @@ def sweep_adapter():
         ms = m.get("m_shape") or {}
         out["m_ratio"] = ms.get("ratio", float("nan"))
         # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
-        out["central_dip"] = central_dip(full["base_profile"]) if "base_profile" in full else float("nan")
+        profile = full.get("base_profile")
+        out["central_dip"] = float("nan") if profile is None else central_dip(profile)
+        out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
         out["m_shaped"] = bool(ms.get("m_shaped", False))
         return out
 
