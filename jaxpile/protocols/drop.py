@@ -73,6 +73,7 @@ from jaxpile.engine.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import NormalProfile, central_dip, normal_profile  # noqa: F401  (drop.X as before)
+from jaxpile.measure.dropped_pile import measure  # noqa: F401  (the pile's measurements; drop.measure as before)
 from jaxpile.protocols import lattice
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
@@ -387,47 +388,6 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
     }
     measurements.update(measure(sim, params, state, bins=bins, dip_threshold=dip_threshold))
     return state, measurements
-
-
-def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: float = 0.05) -> dict:
-    """The drop pile's measurements at `state` (see `run`)."""
-    from jaxpile.measure import analysis
-
-    base = analysis.base_forces(sim, params, state)
-    n_in = int(np.asarray(state.particles.movable).sum())
-    out = {
-        "base_contacts": int(len(base.x)),
-        "total_normal": float(base.normal.sum()),
-        "weight_balance": float(base.normal.sum()) / max(n_in, 1) - 1.0,
-        "total_horizontal": float(base.horizontal.sum()),
-    }
-    p = state.particles
-    active = np.asarray(p.active)
-    pos, radius = np.asarray(p.position), np.asarray(p.radius)
-    out["height"] = float(np.max((pos[:, 1] + radius)[active])) if active.any() else 0.0
-    try:
-        profile = normal_profile(base, bins)
-    except InputError:
-        profile = None
-    if profile is not None:
-        dip = central_dip(profile)
-        out.update(
-            base_width=profile.base,
-            centre_x=profile.centre,
-            profile_x_over_base=profile.x_over_base.tolist(),
-            profile_normal=profile.force.tolist(),
-            profile_normalised=profile.normalised.tolist(),
-            central_dip=dip,
-            has_central_dip=bool(dip > dip_threshold),
-        )
-    for flank in ("left", "right"):
-        try:
-            surface = analysis.surface_profile(pos, radius, active)
-            angle = analysis.repose_angles(surface, flank=flank).cumulative_parabola
-        except InputError:
-            angle = float("nan")
-        out[f"repose_angle_{flank}"] = angle
-    return out
 
 
 def sweep_adapter():
