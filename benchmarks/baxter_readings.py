@@ -203,21 +203,32 @@ def angle(row: dict, method: str) -> float | None:
     return sum(values) / len(values) if len(values) == 2 else None
 
 
+def _profile(row: dict):
+    """The row's base profile (summary.json form) with the `BaseProfile` fields
+    `jaxpile.measure.heap` reads, or None."""
+    from types import SimpleNamespace
+
+    profile = row.get("base_profile")
+    if not profile:
+        return None
+    return SimpleNamespace(x_over_b=profile["x_over_b"], normalised=profile["normalised"],
+                           force=profile.get("force_mg"))
+
+
+def _finite_or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
 def flank_over_centre(row: dict) -> float | None:
     """The M depth without selection bias (`jaxpile.measure.heap.flank_over_centre`):
     the mean normalised base force in fixed flank windows (x/B in 0.2-0.4 and
     0.6-0.8) over its mean in the centre window (0.4-0.6). The M ratio of
     `pour.m_shape` divides the largest of ~10 noisy flank bins by one central
     bin, which noise alone pushes above 1."""
-    from types import SimpleNamespace
+    from jaxpile.measure import heap
 
-    from jaxpile.measure.heap import flank_over_centre as windows
-
-    profile = row.get("base_profile")
-    if not profile:
-        return None
-    value = windows(SimpleNamespace(x_over_b=profile["x_over_b"], normalised=profile["normalised"]))
-    return value if math.isfinite(value) else None
+    profile = _profile(row)
+    return None if profile is None else _finite_or_none(heap.flank_over_centre(profile))
 
 
 def central_dip(row: dict) -> float | None:
@@ -226,13 +237,10 @@ def central_dip(row: dict) -> float | None:
     <= 0 when the centre carries the most). Like the M ratio, it takes maxima of
     noisy bins, so noise alone pushes it up: `flank_over_centre` is the unbiased
     comparison."""
-    profile = row.get("base_profile")
-    if not profile:
-        return None
-    f = profile["force_mg"]
-    mid = len(f) // 2
-    shoulder = min(max(f[:mid]), max(f[mid + 1:])) if mid else 0.0
-    return 1.0 - f[mid] / shoulder if shoulder > 0 else None
+    from jaxpile.measure import heap
+
+    profile = _profile(row)
+    return None if profile is None or profile.force is None else _finite_or_none(heap.central_dip(profile))
 
 
 def mean_stderr(values) -> dict:
