@@ -84,7 +84,8 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
         with open(path) as fh:
             r = json.load(fh)
         what = CASES[case]
-        setting = f"{case}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in what["options"].items())
+        options = r.get("options", what["options"])
+        setting = f"{case}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
         for name in r["names"]:
             lo, hi = r["interval"][name]
             err = 100 * r["relative_error"][name]
@@ -107,6 +108,31 @@ def rewrite_readme(check: bool = False) -> bool:
     return readme_block.rewrite(START, END, table(), check=check)
 
 
+def _options(pairs) -> dict:
+    """`--option KEY=VALUE` overrides: a VALUE that reads as a number is one."""
+    options = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--option takes KEY=VALUE, got {pair!r}")
+        try:
+            options[key] = int(value)
+        except ValueError:
+            try:
+                options[key] = float(value)
+            except ValueError:
+                options[key] = value
+    return options
+
+
+def _machine() -> str:
+    """The processor and JAX device the fit ran on (for the table)."""
+    sys.path.insert(0, HERE)
+    from machine import describe
+
+    return describe()
+
+
 def main(argv=None) -> dict:
     if argv is None:
         argv = sys.argv[1:]
@@ -120,6 +146,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--steps", type=int, default=6, help="Gauss-Newton iterations at most")
     parser.add_argument("--out", default=os.path.join(HERE, "results", "fit_recovery"))
     parser.add_argument("--figure", default=None, help="default docs/fit_recovery_CASE.png")
+    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one of the case's protocol options (e.g. width=4 for the paper's box; "
+                             "numbers are read as numbers), repeatable")
     args = parser.parse_args(argv)
 
     import numpy as np
@@ -132,8 +161,9 @@ def main(argv=None) -> dict:
 
     case = CASES[args.case]
     b = args.ensemble or case.get("seeds", 32)
+    options = {**case["options"], **_options(args.option)}
     os.makedirs(args.out, exist_ok=True)
-    runner = ef.Runner(case["protocol"], case["law"], options=case["options"])
+    runner = ef.Runner(case["protocol"], case["law"], options=options)
     statistics = ef.Statistics(**case["statistics"])
     target_path = os.path.join(args.out, f"{args.case}_target.json")
     t0 = time.perf_counter()
@@ -155,6 +185,8 @@ def main(argv=None) -> dict:
     record["relative_error"] = {n: result.values[n] / case["truth"][n] - 1 for n in result.names}
     record["truth_inside_interval"] = {n: bool(lo <= case["truth"][n] <= hi) for n, (lo, hi) in result.interval.items()}
     record["ensemble"] = b
+    record["options"] = options
+    record["machine"] = _machine()
     record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv)
     record["wall_seconds"] = time.perf_counter() - t0
     try:  # the code that made it
