@@ -56,6 +56,23 @@ def test_the_flow_rate_and_beverloo_fit_give_back_what_made_them():
         hopper.beverloo_fit([4.0, 4.0], [1.0, 1.0], 0.9)
 
 
+def test_dead_zone_angles_read_each_side_of_the_orifice_from_the_wall_to_its_edge():
+    """A staircase beside each edge of a 4-wide orifice in a 10-wide silo: on
+    the left, heights 3, 2, 1 above the floor over unit columns (45 deg); on the
+    right 2, 1.5, 1 the other way (26.6 deg); a disk over the orifice is not read."""
+    from types import SimpleNamespace
+
+    floor = [(x, hopper.FLOOR_Y) for x in np.arange(0.5, 10.0, 1.0)]
+    left = [(0.5, hopper.FLOOR_Y + 3), (1.5, hopper.FLOOR_Y + 2), (2.5, hopper.FLOOR_Y + 1)]
+    right = [(7.5, hopper.FLOOR_Y + 1), (8.5, hopper.FLOOR_Y + 1.5), (9.5, hopper.FLOOR_Y + 2)]
+    xy = np.array(floor + left + right + [(5.0, hopper.FLOOR_Y + 9)])
+    particles = SimpleNamespace(position=xy, radius=np.full(len(xy), 0.5), active=np.ones(len(xy), bool))
+    angles = hopper.dead_zone_angles(SimpleNamespace(particles=particles), {"width": 10.0, "orifice": 4.0})
+    assert angles["dead_zone_left"] == pytest.approx(45.0)
+    assert angles["dead_zone_right"] == pytest.approx(math.degrees(math.atan(0.5)))
+    assert angles["dead_zone_angle"] == pytest.approx(0.5 * (45.0 + math.degrees(math.atan(0.5))))
+
+
 @pytest.fixture(scope="module")
 def narrow_and_wide():
     """Three silos of one width (one compiled simulator): D = 3.5 (which clogs

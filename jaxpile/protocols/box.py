@@ -67,13 +67,12 @@ it uses); the same box then settles by step 64 000 with theta_R = 24.8 deg
 from __future__ import annotations
 
 import math
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget, ranges
+from jaxpile import budget, ranges, runner
 from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
@@ -88,6 +87,7 @@ from jaxpile.protocols.paper1993 import (PAPER_G, PAPER_SETTING, Units, _measure
                                          law_setting, mean_square_radius, units)
 from jaxpile.runner import check_dt, restore_sampled, run_record, run_sampled, run_to_finish, start  # noqa: F401
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.sweep import marginal_stability
 
 Array = Any
 
@@ -326,23 +326,62 @@ def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -
     return ranges.steps_of("max_time", _check_positive("max_time", max_time) * units(law).time, dt)
 
 
-def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
-    """Starts a box protocol and runs it until its driver records the final rest
-    (`BoxState.settled_at`) or `max_steps` (`runner.run_to_finish`: checkpoint,
-    resume bit-identical, samples).
-
-    Returns:
-      (state, RunInfo, samples) as `runner.run_sampled`.
-    """
-    return run_to_finish(sim, params, p, max_steps=max_steps, finished=lambda s: int(s.protocol_state.settled_at) >= 0,
-                         progress=progress, checkpoint=checkpoint, resume=resume)
-
 def count_check(state: SimState) -> dict:
     """Where every disk is: in play (active, movable), fixed, or out of play."""
     p = state.particles
     active, fixed = np.asarray(p.active), np.asarray(p.fixed)
     return {"n_total": int(active.size), "n_in_play": int(np.sum(active & ~fixed)),
             "n_fixed": int(np.sum(fixed)), "n_out_of_play": int(np.sum(~active & ~fixed))}
+
+
+def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+    """The pile's angle of repose by the three methods (degrees), the steps of
+    the wall removal and of the final rest, the fill height and disk counts."""
+    from jaxpile.measure import theory
+
+    ps = state.protocol_state
+    mu = friction_coefficient(params)
+    return {
+        "law": p.info["law"],
+        "mu": mu,
+        **repose(state, p.info["width"]),
+        "theta_ms_theory": None if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
+        "wall_removed_step": int(ps.removed_at),
+        "settled_step": int(ps.settled_at),
+        "at_rest": int(ps.settled_at) >= 0,
+        "fill_height": float(ps.fill_height),
+        "n_left": int(ps.left),
+        **count_check(state),
+    }
+
+
+def settled(info, options):
+    """The 1993 family's end (box, flux): the driver's rest detector has fired."""
+    return lambda s: s.protocol_state.settled_at >= 0
+
+
+def max_time_steps(default_max_time: float):
+    """The 1993 family's budget: `max_time` (paper seconds) in steps of the set-up's dt."""
+    return lambda info, options: max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
+
+
+DEFINITION = runner.Definition(
+    "box", protocol, make_simulator, law_and_params, lambda law: float(law_setting(law)["dt"]),
+    settled, max_time_steps(PAPER_SETTING["max_time"]), measure,
+    row=("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola", "at_rest", "wall_removed_step",
+         "settled_step", "n_left", "fill_height"),
+    run_options={"max_time": PAPER_SETTING["max_time"]},
+    sweep=dict(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
+               theory=marginal_stability, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
+               fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")}))
+
+
+def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
+    """Starts a box protocol and runs it until its driver records the final rest
+    (`BoxState.settled_at`) or `max_steps` (`runner.execute`: checkpoint,
+    resume bit-identical, samples). Returns `(state, RunInfo, samples)`."""
+    return runner.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
+                          resume=resume)
 
 
 def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool | None = None,
@@ -362,78 +401,23 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
         placement_fraction, rest_speed, hold_time, seed).
 
     Returns:
-      `(state, measurements)`: the final state and a dict of plain numbers: the
-      angle of repose by the three methods (degrees), the steps of the wall
-      removal and of the final rest, disk counts, the kinetic energy per disk
-      per chunk (Fig. 1(b)), timings, and `info` (the set-up).
+      `(state, measurements)`: the final state and `measure`'s dict, the
+      kinetic energy per disk per chunk (Fig. 1(b)), timings, and `info` (the set-up).
 
     Example:
       >>> state, m = run("lee-herrmann", width=1.6, height=1.6)      # doctest: +SKIP
       >>> m["repose_cumulative_parabola"]                             # doctest: +SKIP
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile.measure import theory
-
-    _, _, params = law_and_params(law, params, rotation, dtype)
-    p = protocol(n, law=law, dt=dt, dtype=dtype, **options)
-    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    t0 = time.perf_counter()
-    state, info, samples = execute(sim, params, p, max_steps=max_steps_for(law, p.info["dt"], max_time),
-                                   progress=progress, checkpoint=checkpoint, resume=resume)
-    ps = state.protocol_state
-    mu = friction_coefficient(params)
-    out = {
-        "protocol": "box",
-        "law": p.info["law"],
-        "mu": mu,
-        **repose(state, p.info["width"]),
-        "theta_ms_theory": None if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
-        "wall_removed_step": int(ps.removed_at),
-        "settled_step": int(ps.settled_at),
-        "at_rest": int(ps.settled_at) >= 0,
-        "fill_height": float(ps.fill_height),
-        "n_left": int(ps.left),
-        **count_check(state),
-        "kinetic_energy": samples,
-        **run_record(info, t0),
-        "info": dict(p.info),
-    }
-    return state, out
-
-
-# --------------------------------------------------------------- the sweep
-def settled(info, options):
-    """The 1993 family's end in a batch (box, flux): the driver's rest detector has fired."""
-    return lambda s: s.protocol_state.settled_at >= 0
-
-
-def max_time_steps(default_max_time: float):
-    """The 1993 family's budget in a batch: `max_time` (paper seconds) in steps of the member's dt."""
-    return lambda info, options: max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
+    return runner.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                      run_options={"max_time": max_time}, **options)
 
 
 def sweep_adapter():
     """What a sweep and an ensemble fit need: the three angles of repose and the
-    steps of the wall removal and the rest, per member."""
-    from jaxpile.sweep import Adapter, marginal_stability, option_names
-
-    def setup(law, seed, dt, options):
-        return protocol(law=law, seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
-
-    def row(sim, params, state, p):
-        ps = state.protocol_state
-        angles = repose(state, p.info["width"])
-        return {k: angles[k] for k in ("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola")} | {
-            "at_rest": int(ps.settled_at) >= 0, "wall_removed_step": int(ps.removed_at),
-            "settled_step": int(ps.settled_at), "n_left": int(ps.left), "fill_height": float(ps.fill_height)}
-
-    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), settled,
-                   max_time_steps(PAPER_SETTING["max_time"]), row, law_and_params,
-                   lambda law: float(law_setting(law)["dt"]),
-                   ("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
-                   option_names(protocol, "max_time"), marginal_stability,
-                   extent=lambda p: ("ground", 0.0, float(p.info["width"])),
-                   fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")})
+    steps of the wall removal and the rest, per member (`runner.adapter`)."""
+    return runner.adapter(DEFINITION)
 
 
 __all__ = [

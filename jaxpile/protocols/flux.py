@@ -44,7 +44,6 @@ and the insertions stop.
 from __future__ import annotations
 
 import math
-import time
 from typing import Any, NamedTuple
 
 import jax
@@ -61,6 +60,7 @@ from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.sweep import marginal_stability
 
 Array = Any
 
@@ -416,15 +416,59 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
                                 driver=driver, **kwargs)
 
 
+law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+
+
+def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+    """Per insertion its `insert_step`, `in_play` and the angle by each method
+    (`angle_*`); `steady_*`: the mean and standard deviation of the method-3
+    angle over the second half of the insertions (the paper's level and the
+    dotted lines of Fig. 5) and its largest value; the final pile's angles
+    (`repose_*`) and counts."""
+    from jaxpile.measure import theory
+
+    ps = state.protocol_state
+    done = int(ps.inserted)
+    record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
+    late = np.asarray(record["cumulative_parabola"], dtype=float)[done // 2:]
+    late = late[np.isfinite(late)]
+    mu = boxes.friction_coefficient(params)
+    nan = float("nan")
+    return {
+        "law": p.info["law"],
+        "mu": mu,
+        "inserted": done,
+        "insert_step": np.asarray(ps.insert_step)[:done].tolist(),
+        "in_play": np.asarray(ps.in_play)[:done].tolist(),
+        **{f"angle_{k}": v for k, v in record.items()},
+        "steady_mean": float(np.mean(late)) if late.size else nan,
+        "steady_std": float(np.std(late)) if late.size else nan,
+        "steady_max": float(np.max(late)) if late.size else nan,
+        "theta_ms_theory": nan if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
+        **boxes.repose(state, p.info["width"]),
+        "settled_step": int(ps.settled_at),
+        "at_rest": int(ps.settled_at) >= 0,
+        "n_left": int(ps.left),
+        "starved_steps": int(ps.starved),
+        **boxes.count_check(state),
+    }
+
+
+DEFINITION = runner.Definition(
+    "flux", protocol, make_simulator, law_and_params, lambda law: float(boxes.law_setting(law)["dt"]),
+    boxes.settled, boxes.max_time_steps(SETTING["max_time"]), measure,
+    row=("inserted", "steady_mean", "steady_std", "repose_cumulative_parabola", "at_rest", "settled_step", "n_left"),
+    run_options={"max_time": SETTING["max_time"]}, size="insertions",
+    sweep=dict(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability,
+               fit_statistics={"columns": ("steady_mean",)}))
+
+
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps` (`runner.run_to_finish`).
+    rest (`FluxState.settled_at`), or `max_steps` (`runner.execute`).
     Returns as `runner.run_sampled`."""
-    return runner.run_to_finish(sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
-                                resume=resume, finished=lambda s: int(s.protocol_state.settled_at) >= 0)
-
-
-law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+    return runner.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
+                          resume=resume)
 
 
 def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
@@ -443,83 +487,20 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
         rest_measure, hold_time, gap, seed).
 
     Returns:
-      `(state, measurements)`: per insertion its `insert_step`, `in_play` and
-      the angle by each method (`angle_*`); `steady_*`: the mean and standard
-      deviation of the method-3 angle over the second half of the insertions
-      (the paper's level and the dotted lines of Fig. 5) and its largest value;
-      the final pile's angles (`repose_*`), counts, the kinetic energy per chunk
-      and timings.
+      `(state, measurements)`: `measure`'s dict, the kinetic energy per chunk,
+      timings and `info` (the set-up).
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile.measure import theory
-
-    _, _, params = boxes.law_and_params(law, params, rotation, dtype)
-    p = protocol(insertions, law=law, dt=dt, dtype=dtype, **options)
-    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    t0 = time.perf_counter()
-    state, info, samples = execute(sim, params, p, max_steps=boxes.max_steps_for(law, p.info["dt"], max_time),
-                                   progress=progress, checkpoint=checkpoint, resume=resume)
-    ps = state.protocol_state
-    done = int(ps.inserted)
-    record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
-    main = np.asarray(record["cumulative_parabola"])
-    late = main[done // 2:]
-    late = late[np.isfinite(late)]
-    mu = boxes.friction_coefficient(params)
-    nan = float("nan")
-    out = {
-        "protocol": "flux",
-        "law": p.info["law"],
-        "mu": mu,
-        "inserted": done,
-        "insert_step": np.asarray(ps.insert_step)[:done].tolist(),
-        "in_play": np.asarray(ps.in_play)[:done].tolist(),
-        **{f"angle_{k}": v for k, v in record.items()},
-        "steady_mean": float(np.mean(late)) if late.size else nan,
-        "steady_std": float(np.std(late)) if late.size else nan,
-        "steady_max": float(np.max(late)) if late.size else nan,
-        "theta_ms_theory": nan if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
-        **boxes.repose(state, p.info["width"]),
-        "settled_step": int(ps.settled_at),
-        "at_rest": int(ps.settled_at) >= 0,
-        "n_left": int(ps.left),
-        "starved_steps": int(ps.starved),
-        **boxes.count_check(state),
-        "kinetic_energy": samples,
-        **runner.run_record(info, t0),
-        "info": dict(p.info),
-    }
-    return state, out
+    return runner.run(DEFINITION, law, insertions, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                      run_options={"max_time": max_time}, **options)
 
 
 def sweep_adapter():
     """Lee & Herrmann 1993 Fig. 5 in a batch: disks fed one at a time onto a
     fixed layer; per member the angle (method 3) before each insertion and its
-    steady mean over the second half of the insertions (as `run`)."""
-    from jaxpile.sweep import Adapter, marginal_stability, option_names
-
-    def setup(law, seed, dt, options):
-        kwargs = {k: v for k, v in options.items() if k not in ("max_time", "n")}
-        return protocol(int(options.get("n", SETTING["insertions"])), law=law, seed=seed, dt=dt, **kwargs)
-
-    def row(sim, params, state, p):
-        ps = state.protocol_state
-        done = int(ps.inserted)
-        record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
-        late = np.asarray(record["cumulative_parabola"], dtype=float)[done // 2:]
-        late = late[np.isfinite(late)]
-        nan = float("nan")
-        final = boxes.repose(state, p.info["width"])
-        return {"inserted": done, "steady_mean": float(np.mean(late)) if late.size else nan,
-                "steady_std": float(np.std(late)) if late.size else nan,
-                "repose_cumulative_parabola": final["repose_cumulative_parabola"],
-                "at_rest": int(ps.settled_at) >= 0, "settled_step": int(ps.settled_at), "n_left": int(ps.left)}
-
-    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options),
-                   boxes.settled, boxes.max_time_steps(SETTING["max_time"]), row, law_and_params,
-                   lambda law: float(boxes.law_setting(law)["dt"]), ("steady_mean", "repose_cumulative_parabola"),
-                   option_names(protocol, "max_time", "n") - {"insertions"}, marginal_stability,
-                   fit_statistics={"columns": ("steady_mean",)})
+    steady mean over the second half of the insertions (`runner.adapter`)."""
+    return runner.adapter(DEFINITION)
 
 
 __all__ = [

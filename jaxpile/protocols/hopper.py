@@ -29,13 +29,14 @@ least-squares slope of N(t) between 10 % and 60 % of the disks that came out,
 where the rate is steady), and Beverloo's law in 2D (Beverloo, Leniger & van de
 Velde 1961, written for a slot): Q = C n_A sqrt(g) (D - k d)^(3/2), with n_A the
 number of disks per unit area of the filled silo. `beverloo_c` is C at the
-given k; `beverloo_fit` finds C and k from runs at several orifices.
+given k; `beverloo_fit` finds C and k from runs at several orifices. The dead
+zones left beside the orifice stand at an angle of repose (`dead_zone_angles`):
+the statistic that sees the disk friction, which Beverloo's law does not.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -244,6 +245,28 @@ def beverloo_fit(orifice, rate, number_density: float, g: float = 1.0) -> dict:
     return {"c": float(slope**1.5 / (number_density * math.sqrt(g))), "k": float(-intercept / slope)}
 
 
+def dead_zone_angles(state: SimState, info: dict) -> dict:
+    """The slopes (degrees) of the dead zones a flat-bottomed silo keeps beside
+    its orifice: on each side, the least-squares line through the surface h(x)
+    (`analysis.surface_profile`, unit columns, the floor disks included so a
+    bare column reads the floor) from the wall to the orifice's edge. A dead
+    zone stands at an angle of repose, so unlike the flow rate it moves with the
+    disk friction. NaN for a side that cannot be read (an arch over the orifice
+    leaves the silo full)."""
+    from jaxpile.measure import analysis
+
+    half = (info["width"] - info["orifice"]) / 2
+    out = {}
+    for side, x_min in (("left", 0.0), ("right", info["width"] - half)):
+        try:
+            profile = analysis.surface_profile_of(state, x_min=x_min, width=half, column_width=1.0)
+            out[f"dead_zone_{side}"] = analysis.repose_angles(profile).least_squares
+        except InputError:
+            out[f"dead_zone_{side}"] = float("nan")
+    out["dead_zone_angle"] = 0.5 * (out["dead_zone_left"] + out["dead_zone_right"])
+    return out
+
+
 def measure(state: SimState, info: dict, beverloo_k: float = SETTING["beverloo_k"]) -> dict:
     """Plain numbers of a run (the sweep's row) and the discharge N(t)."""
     hs: HopperState = state.protocol_state
@@ -267,6 +290,7 @@ def measure(state: SimState, info: dict, beverloo_k: float = SETTING["beverloo_k
         "flow_rate": rate, "mass_flow_rate": rate * float(np.mean(np.asarray(p.mass)[~np.asarray(p.fixed)])),
         "number_density": density, "fill_height": height,
         "beverloo_c": rate / (density * gap**1.5) if gap > 0 else float("nan"), "beverloo_k": beverloo_k,
+        **dead_zone_angles(state, info),
         "discharge": {"time": times.tolist(), "count": list(range(1, times.size + 1))},
     }
 
@@ -308,6 +332,19 @@ def make_simulator(law="hooke", *, dt: float | None = None, rotation: bool | Non
                      chunk_steps=chunk_steps or SETTING["chunk_steps"], **kwargs)
 
 
+DEFINITION = runner.Definition(
+    "hopper", protocol, make_simulator, law_and_params, lambda law: float(SETTING["dt"]),
+    finished=lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
+    max_steps=lambda info, options: budget_steps(options["max_time"], info["dt"]),
+    measure=lambda sim, params, state, p, options: measure(state, p.info, options["beverloo_k"]),
+    row=("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density",
+         "dead_zone_angle", "dead_zone_left", "dead_zone_right"),
+    run_options={"max_time": SETTING["max_time"], "beverloo_k": SETTING["beverloo_k"]},
+    sweep=dict(angles=("flow_rate", "beverloo_c"), unit="disks / time", default_law="hooke",
+               fit_statistics={"columns": ("flow_rate",)},
+               simulator_options=frozenset()))  # one simulator for every set-up: orifices share a compile
+
+
 def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"], chunk_steps: int | None = None,
         beverloo_k: float = SETTING["beverloo_k"], progress=False, dtype=None, checkpoint=None, resume=None,
@@ -329,35 +366,11 @@ def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None,
       chunk, timings and the set-up (`info`).
     """
     ranges.check_all(OPTION_RANGES, locals(), run)
-    _, _, params = law_and_params(law, params, rotation, dtype)
-    p = protocol(n, dt=dt, dtype=dtype, **options)
-    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    t0 = time.perf_counter()
-    state, info, samples = runner.run_to_finish(
-        sim, params, p, max_steps=budget_steps(max_time, p.info["dt"]), progress=progress,
-        finished=lambda s: int(s.protocol_state.stopped_at) >= 0, checkpoint=checkpoint, resume=resume)
-    return state, {"protocol": "hopper", **measure(state, p.info, beverloo_k), "kinetic_energy": samples,
-                   **runner.run_record(info, t0), "info": dict(p.info)}
+    return runner.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                      run_options={"max_time": max_time, "beverloo_k": beverloo_k}, **options)
 
 
 def sweep_adapter():
     """What a sweep and an ensemble fit need: the flow rate (and Beverloo's C) per member."""
-    from jaxpile.sweep import Adapter
-
-    keys = ("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density")
-
-    def setup(law, seed, dt, options):
-        return protocol(seed=seed, dt=dt, **{k: v for k, v in options.items() if k != "max_time"})
-
-    def measure_row(sim, params, state, p):
-        m = measure(state, p.info)
-        return {k: m[k] for k in keys}
-
-    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options),
-                   lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
-                   lambda info, options: budget_steps(options.get("max_time", SETTING["max_time"]), info["dt"]),
-                   measure_row, law_and_params, lambda law: float(SETTING["dt"]), ("flow_rate", "beverloo_c"),
-                   frozenset({"n", "width", "orifice", "dispersity", "placement_fraction", "rest_speed", "hold_time",
-                              "clog_time", "max_time"}),
-                   unit="disks / time", default_law="hooke", fit_statistics={"columns": ("flow_rate",)},
-                   simulator_options=frozenset())  # one simulator for every set-up: orifices share a compile
+    return runner.adapter(DEFINITION)
