@@ -10,8 +10,11 @@ when the profile changes shape: the M or the hump).
 1. Cost and memory: for each horizon T, the wall time of the forward rollout
    and of `jax.grad` with respect to (kn, kt, mu), with `checkpoint=False`
    (every step's intermediates stored) and `checkpoint=True` (blocks of
-   sqrt(T) steps recomputed), and the compiled temporary memory of each
-   (`compiled.memory_analysis()`: XLA's own figure for the peak of live buffers).
+   sqrt(T) steps recomputed), and of the same gradient in forward mode (one
+   jvp per parameter, batched: `fit.value_and_gradient(..., "forward")`), and
+   the compiled temporary memory of each (`compiled.memory_analysis()`: XLA's
+   own figure for the peak of live buffers). Derivative programs compile as
+   jaxpile compiles them (`engine.compile.jit_derivative`).
 2. Horizon: |dL/dmu| and |dL/dkn| (relative, d log L / d log theta) against T,
    full-horizon and differentiating only the final window of 200 steps (the state
    before it held fixed with `stop_gradient`), plus the spread of the
@@ -31,7 +34,9 @@ import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
+from jaxpile import fit
 from jaxpile.boundaries import GROUND
+from jaxpile.engine.compile import jit_derivative
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
@@ -110,24 +115,33 @@ def main(argv=None) -> dict:
     rows = []
     print(f"{state.particles.count} disks, hooke with friction; times in s, memory = XLA temp buffers")
     print(f"{'T':>6} {'forward':>8} {'grad':>8} {'grad/fwd':>8} {'grad ckpt':>9} {'ckpt/fwd':>8} "
+          f"{'jvp x3':>8} {'jvp/fwd':>8} "
           f"{'mem fwd':>9} {'mem grad':>9} {'mem ckpt':>9}")
     for steps in horizons:
+        # every derivative program compiled as jaxpile compiles them (engine.compile.jit_derivative)
         forward = jax.jit(loss_fn(sim, state, steps, False))
-        grad_ckpt = jax.jit(jax.grad(loss_fn(sim, state, steps, True)))
+        grad_ckpt = jit_derivative(jax.grad(loss_fn(sim, state, steps, True)))
+        # forward mode over the three parameters, as `fit.fit(mode="auto")` takes it for <= 4 values
+        values = {k: getattr(params, k) for k in NAMES}
+        jvp = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), values, "forward")
         compiles = []
         row = {"steps": steps, "forward_s": clock(forward, params, compile_times=compiles),
                "grad_checkpoint_s": clock(grad_ckpt, params, compile_times=compiles),
-               "mem_forward": temp_bytes(forward, params), "mem_grad_checkpoint": temp_bytes(grad_ckpt, params)}
-        row.update(compile_forward_s=compiles[0], compile_grad_checkpoint_s=compiles[1])
+               "grad_forward_mode_s": clock(jvp, values, compile_times=compiles),
+               "mem_forward": temp_bytes(forward, params), "mem_grad_checkpoint": temp_bytes(grad_ckpt, params),
+               "mem_grad_forward_mode": temp_bytes(jvp, values)}
+        row.update(compile_forward_s=compiles[0], compile_grad_checkpoint_s=compiles[1],
+                   compile_grad_forward_mode_s=compiles[2])
         if steps <= args.no_store_limit:
-            grad = jax.jit(jax.grad(loss_fn(sim, state, steps, False)))
+            grad = jit_derivative(jax.grad(loss_fn(sim, state, steps, False)))
             row.update(grad_s=clock(grad, params, compile_times=compiles), mem_grad=temp_bytes(grad, params))
-            row.update(compile_grad_s=compiles[2])
+            row.update(compile_grad_s=compiles[3])
         rows.append(row)
         mb = 1 / 2**20
         g = row.get("grad_s", float("nan"))
         print(f"{steps:6d} {row['forward_s']:8.3f} {g:8.3f} {g / row['forward_s']:8.2f} "
               f"{row['grad_checkpoint_s']:9.3f} {row['grad_checkpoint_s'] / row['forward_s']:8.2f} "
+              f"{row['grad_forward_mode_s']:8.3f} {row['grad_forward_mode_s'] / row['forward_s']:8.2f} "
               f"{row['mem_forward'] * mb:8.2f}M {row.get('mem_grad', -1) * mb:8.2f}M "
               f"{row['mem_grad_checkpoint'] * mb:8.2f}M")
 
@@ -138,6 +152,11 @@ def main(argv=None) -> dict:
                       f"{r['mem_grad_checkpoint'] / 2**20:.1f} MB"
                       + (f" (stored: {r['mem_grad'] / 2**20:.1f} MB)" if "mem_grad" in r else "")
                       + f"; compile {r['compile_grad_checkpoint_s']:.1f} s"} for r in rows]
+    table += [{"case": f"gradient: {n}-disk pile, {r['steps']} steps, d/d(kn, kt, mu) (forward mode)",
+               "jaxpile": n * r["steps"] / r["grad_forward_mode_s"], "lammps": None, "ratio": None,
+               "note": f"{r['grad_forward_mode_s'] / r['forward_s']:.1f}x the forward time (fit's default for "
+                       f"<= 4 values); XLA temp {r['mem_grad_forward_mode'] / 2**20:.1f} MB, flat in T; "
+                       f"compile {r['compile_grad_forward_mode_s']:.1f} s"} for r in rows]
     if args.no_horizon:
         out = {"machine": describe(),
                "disks": n, "cost": rows, "table": table}

@@ -363,6 +363,28 @@ def test_fit_recovers_a_toy_optimum_from_a_perturbed_start():
     assert seen[0]["mu"] == pytest.approx(0.45) and seen[0]["grad_norm"] > 0
 
 
+def test_forward_and_reverse_mode_give_one_gradient_and_one_fit():
+    """`mode="forward"` (a jvp per fitted value) and `"reverse"` are the same
+    derivative; `"auto"` takes forward mode for a few values, reverse for many."""
+    u = {"a": jnp.asarray(0.3), "b": jnp.asarray([1.0, -2.0])}
+
+    def objective(u, scale):
+        return scale * (jnp.sin(u["a"]) * jnp.sum(u["b"] ** 3) + jnp.exp(u["b"][0] * u["a"]))
+
+    forward = fit.value_and_gradient(objective, u, "forward")(u, 2.0)
+    reverse = fit.value_and_gradient(objective, u, "reverse")(u, 2.0)
+    assert float(forward[0]) == pytest.approx(float(reverse[0]), rel=1e-14)
+    for key in u:
+        np.testing.assert_allclose(forward[1][key], reverse[1][key], rtol=1e-12)
+    np.testing.assert_allclose(reverse[1]["b"], 2.0 * (3 * np.sin(0.3) * np.array([1.0, 4.0])
+                                                       + np.array([0.3 * np.exp(0.3), 0.0])), rtol=1e-12)
+    start = hooke.make_params(kn=1e4, kt=3500.0, mu=0.45, gamma_n=50.0)
+    runs = [fit.fit(_toy_loss, start, ["mu", "kt"], steps=30, mode=mode) for mode in ("forward", "reverse")]
+    assert [r["loss"] for r in runs[0].history] == pytest.approx([r["loss"] for r in runs[1].history], rel=1e-9)
+    with pytest.raises(InputError, match="mode"):
+        fit.fit(_toy_loss, start, "mu", mode="sideways")
+
+
 def test_fit_stops_when_the_loss_stalls_and_with_an_explicit_optimizer():
     params = {"a": 1.0, "b": 2.0}
     result = fit.fit(lambda p: 1.0 + 0.0 * p["a"], params, "a", patience=5, steps=50)

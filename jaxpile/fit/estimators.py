@@ -289,7 +289,9 @@ def truncated_pathwise(advance: Callable, statistics: Callable, objective: Calla
     t = jnp.asarray(theta)
     directions = jnp.eye(theta.size, dtype=t.dtype)
 
-    @functools.partial(jax.jit, static_argnums=2)  # one compile per window length (at most two)
+    from jaxpile.engine.compile import jit_derivative
+
+    @functools.partial(jit_derivative, static_argnums=2)  # one compile per window length (at most two)
     def window_run(x0, s, n):
         def along(e):
             return jax.jvp(lambda x: advance(x, s, n), (x0,), (e,))
