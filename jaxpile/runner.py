@@ -11,10 +11,7 @@ gives the steps and timings every protocol reports.
 
 from __future__ import annotations
 
-import inspect
 import time
-from dataclasses import dataclass, field
-from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -147,110 +144,4 @@ def run_to_finish(sim, params, p: Protocol, *, max_steps: int, finished, progres
                        finished=finished, checkpoint=checkpoint, samples=samples)
 
 
-# ------------------------------------------------------------ one definition
-@dataclass(frozen=True)
-class Definition:
-    """A protocol as data plus functions (issue 18): what one pile's `run`,
-    a sweep's batch (`adapter`) and an ensemble fit all need, declared once.
-    A protocol whose run ends when a traceable predicate holds (the box, the
-    flux, the hopper) declares one and gets both from `run` and `adapter`.
-
-    Attributes:
-      name: the protocol's registered name.
-      setup: the module's set-up, `setup(size, *, law?, seed, dt, dtype, **options) -> Protocol`.
-      size: the set-up's size keyword (`n`, `insertions`): a sweep's `--n`.
-      simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`.
-      law_and_params: the module's `(law, params, rotation, dtype) -> (module, law, params)`.
-      default_dt: `law -> dt` when none is given.
-      run_options: run keywords that are not set-up options, with their
-        defaults (`max_time`): `finished`, `max_steps` and `measure` read them.
-      finished: `(setup info, run options) -> (state -> bool)`, traceable.
-      max_steps: `(setup info, run options) -> int`, the step budget.
-      measure: `(sim, params, state, protocol, run options) -> dict`: what a run
-        reports (plain numbers, lists for the figures).
-      row: the keys of `measure` a sweep row carries.
-      sweep: the rest of the sweep's `Adapter` (angles, theory, unit,
-        default_law, extent, fit_statistics, simulator_options, ...).
-    """
-
-    name: str
-    setup: Callable
-    simulator: Callable
-    law_and_params: Callable
-    default_dt: Callable
-    finished: Callable
-    max_steps: Callable
-    measure: Callable
-    row: tuple
-    run_options: dict = field(default_factory=dict)
-    size: str = "n"
-    sweep: dict = field(default_factory=dict)
-
-    def _setup(self, size, law, **kwargs) -> Protocol:
-        if "law" in inspect.signature(self.setup).parameters:
-            kwargs["law"] = law
-        return self.setup(size, **kwargs) if size is not None else self.setup(**kwargs)
-
-
-def run(definition: Definition, law, size=None, *, params=None, rotation: bool | None = None,
-        dt: float | None = None, integrator: str = "velocity_verlet", chunk_steps: int | None = None,
-        progress=False, dtype=None, checkpoint=None, resume=None, run_options: dict | None = None, **options):
-    """One pile of `definition` from set-up to its end (`run_to_finish`:
-    samples, checkpoint, resume bit-identical) and its measurements.
-
-    Returns:
-      `(state, measurements)`: `{"protocol": name, **measure(...),
-      "kinetic_energy": samples, **run_record, "info": set-up info}`.
-    """
-    run_options = {**definition.run_options, **(run_options or {})}
-    _, _, params = definition.law_and_params(law, params, rotation, dtype)
-    p = definition._setup(size, law, dt=dt, dtype=dtype, **options)
-    sim = definition.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    t0 = time.perf_counter()
-    state, info, samples = execute(definition, sim, params, p, progress=progress, checkpoint=checkpoint,
-                                   resume=resume, run_options=run_options)
-    return state, {"protocol": definition.name, **definition.measure(sim, params, state, p, run_options),
-                   "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
-
-
-def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int | None = None, progress=None,
-            checkpoint=None, resume=None, run_options: dict | None = None):
-    """Runs the set-up `p` until `definition.finished` (checked after each
-    chunk) or its step budget (`max_steps`, default `definition.max_steps`).
-    Returns `(state, RunInfo, samples)` as `run_sampled`."""
-    run_options = {**definition.run_options, **(run_options or {})}
-    done = definition.finished(p.info, run_options)
-    budget = definition.max_steps(p.info, run_options) if max_steps is None else max_steps
-    return run_to_finish(sim, params, p, max_steps=budget, finished=lambda s: bool(done(s)), progress=progress,
-                         checkpoint=checkpoint, resume=resume)
-
-
-def adapter(definition: Definition):
-    """The sweep's `Adapter` of `definition`: the same set-up, simulator,
-    predicate, budget and measurements as `run`, per member of a batch."""
-    from jaxpile.sweep import Adapter, option_names
-
-    d = definition
-
-    def setup(law, seed, dt, options):
-        kwargs = {k: v for k, v in options.items() if k not in d.run_options}
-        size = kwargs.pop("n", None)  # a sweep's --n is the set-up's size, whatever its name
-        return d._setup(size, law, seed=seed, dt=dt, **kwargs)
-
-    def row(sim, params, state, p):
-        m = d.measure(sim, params, state, p, dict(d.run_options))
-        return {k: m[k] for k in d.row}
-
-    def finished(info, options):
-        return d.finished(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
-
-    def max_steps(info, options):
-        return d.max_steps(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
-
-    options = (option_names(d.setup, *d.run_options) - {d.size}) | {"n"}
-    return Adapter(setup, lambda law, dt, sim_options, setup_options: d.simulator(law, dt=dt, **sim_options),
-                   finished, max_steps, row, d.law_and_params, d.default_dt, options=options, **d.sweep)
-
-
-__all__ = ["Definition", "adapter", "check_dt", "execute", "restore_sampled", "run", "run_record", "run_sampled",
-           "run_to_finish", "start"]
+__all__ = ["check_dt", "restore_sampled", "run_record", "run_sampled", "run_to_finish", "start"]

@@ -72,7 +72,9 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget, ranges, runner
+from jaxpile import budget, ranges
+from jaxpile.protocols import definition
+from jaxpile.protocols import definition
 from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
@@ -365,7 +367,7 @@ def max_time_steps(default_max_time: float):
     return lambda info, options: max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
 
 
-DEFINITION = runner.Definition(
+DEFINITION = definition.Definition(
     "box", protocol, make_simulator, law_and_params, lambda law: float(law_setting(law)["dt"]),
     settled, max_time_steps(PAPER_SETTING["max_time"]), measure,
     row=("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola", "at_rest", "wall_removed_step",
@@ -378,10 +380,10 @@ DEFINITION = runner.Definition(
 
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Starts a box protocol and runs it until its driver records the final rest
-    (`BoxState.settled_at`) or `max_steps` (`runner.execute`: checkpoint,
+    (`BoxState.settled_at`) or `max_steps` (`definition.execute`: checkpoint,
     resume bit-identical, samples). Returns `(state, RunInfo, samples)`."""
-    return runner.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
-                          resume=resume)
+    return definition.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress,
+                              checkpoint=checkpoint, resume=resume)
 
 
 def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool | None = None,
@@ -409,15 +411,15 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
       >>> m["repose_cumulative_parabola"]                             # doctest: +SKIP
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    return runner.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                      run_options={"max_time": max_time}, **options)
+    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                          run_options={"max_time": max_time}, **options)
 
 
 def sweep_adapter():
     """What a sweep and an ensemble fit need: the three angles of repose and the
-    steps of the wall removal and the rest, per member (`runner.adapter`)."""
-    return runner.adapter(DEFINITION)
+    steps of the wall removal and the rest, per member (`definition.adapter`)."""
+    return definition.adapter(DEFINITION)
 
 
 __all__ = [

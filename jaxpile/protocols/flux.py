@@ -50,7 +50,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget, ranges, runner
+from jaxpile import budget, ranges
+from jaxpile.protocols import definition
+from jaxpile.protocols import definition
 from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
@@ -454,7 +456,7 @@ def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
     }
 
 
-DEFINITION = runner.Definition(
+DEFINITION = definition.Definition(
     "flux", protocol, make_simulator, law_and_params, lambda law: float(boxes.law_setting(law)["dt"]),
     boxes.settled, boxes.max_time_steps(SETTING["max_time"]), measure,
     row=("inserted", "steady_mean", "steady_std", "repose_cumulative_parabola", "at_rest", "settled_step", "n_left"),
@@ -465,10 +467,10 @@ DEFINITION = runner.Definition(
 
 def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps` (`runner.execute`).
-    Returns as `runner.run_sampled`."""
-    return runner.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress, checkpoint=checkpoint,
-                          resume=resume)
+    rest (`FluxState.settled_at`), or `max_steps` (`definition.execute`).
+    Returns `(state, RunInfo, samples)`."""
+    return definition.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress,
+                              checkpoint=checkpoint, resume=resume)
 
 
 def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
@@ -491,16 +493,17 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
       timings and `info` (the set-up).
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    return runner.run(DEFINITION, law, insertions, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                      run_options={"max_time": max_time}, **options)
+    return definition.run(DEFINITION, law, insertions, params=params, rotation=rotation, dt=dt,
+                          integrator=integrator, chunk_steps=chunk_steps, progress=progress, dtype=dtype,
+                          checkpoint=checkpoint, resume=resume,
+                          run_options={"max_time": max_time}, **options)
 
 
 def sweep_adapter():
     """Lee & Herrmann 1993 Fig. 5 in a batch: disks fed one at a time onto a
     fixed layer; per member the angle (method 3) before each insertion and its
-    steady mean over the second half of the insertions (`runner.adapter`)."""
-    return runner.adapter(DEFINITION)
+    steady mean over the second half of the insertions (`definition.adapter`)."""
+    return definition.adapter(DEFINITION)
 
 
 __all__ = [

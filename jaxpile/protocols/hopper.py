@@ -42,7 +42,9 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import budget, ranges, runner
+from jaxpile import budget, ranges
+from jaxpile.protocols import definition
+from jaxpile.protocols import definition
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
@@ -332,7 +334,7 @@ def make_simulator(law="hooke", *, dt: float | None = None, rotation: bool | Non
                      chunk_steps=chunk_steps or SETTING["chunk_steps"], **kwargs)
 
 
-DEFINITION = runner.Definition(
+DEFINITION = definition.Definition(
     "hopper", protocol, make_simulator, law_and_params, lambda law: float(SETTING["dt"]),
     finished=lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
     max_steps=lambda info, options: budget_steps(options["max_time"], info["dt"]),
@@ -366,11 +368,11 @@ def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None,
       chunk, timings and the set-up (`info`).
     """
     ranges.check_all(OPTION_RANGES, locals(), run)
-    return runner.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                      chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                      run_options={"max_time": max_time, "beverloo_k": beverloo_k}, **options)
+    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                          run_options={"max_time": max_time, "beverloo_k": beverloo_k}, **options)
 
 
 def sweep_adapter():
     """What a sweep and an ensemble fit need: the flow rate (and Beverloo's C) per member."""
-    return runner.adapter(DEFINITION)
+    return definition.adapter(DEFINITION)
