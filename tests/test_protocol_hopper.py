@@ -123,7 +123,7 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
 
     # a sweep over a set-up option: one batch per orifice (Beverloo's law from the command line)
     assert main(["sweep", "--protocol", "hopper", "--vary", "orifice=4,7", "--seeds", "1", "--n", "60", "--width",
-                 "10", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
+                 "10", "--beverloo-k", "2", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
     narrow, wide = sweep.read(tmp_path / "sweep").rows
     # the simulator ignores the orifice (Adapter.simulator_options): both batches ran on one compiled ensemble
     assert len([key for key in sweep._ENSEMBLES if key[0] == "hopper"]) == 1
@@ -132,6 +132,9 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
     # is a pile of its own (5.1 vs 3.5 disks / time measured at D = 4), not the single run
     for row in (narrow, wide):
         assert row["discharged"] + row["remaining"] == 60 and row["flow_rate"] > 0 and row["at_rest"]
+        # a run option reaches each member's measurement: C at the given k = 2, not the default 1.5
+        gap = row["orifice"] - 2.0
+        assert row["beverloo_c"] == pytest.approx(row["flow_rate"] / (row["number_density"] * gap**1.5), rel=1e-12)
     assert wide["flow_rate"] > 2.0 * narrow["flow_rate"]
     capsys.readouterr()
     assert main(["fit", "--protocol", "hopper", "--params", "mu", "--truth", "mu=0.45", "--ensemble", "2",

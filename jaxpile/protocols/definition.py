@@ -104,10 +104,13 @@ def adapter(definition: Definition):
     def setup(law, seed, dt, options):
         kwargs = {k: v for k, v in options.items() if k not in d.run_options}
         size = kwargs.pop("n", None)  # a sweep's --n is the set-up's size, whatever its name
-        return d._setup(size, law, seed=seed, dt=dt, **kwargs)
+        p = d._setup(size, law, seed=seed, dt=dt, **kwargs)
+        # the member's run options travel with its set-up, for its measurement (e.g. the hopper's beverloo_k)
+        own = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
+        return p._replace(info={**p.info, "run_options": own})
 
     def row(sim, params, state, p):
-        m = d.measure(sim, params, state, p, dict(d.run_options))
+        m = d.measure(sim, params, state, p, p.info.get("run_options", dict(d.run_options)))
         return {k: m[k] for k in d.row}
 
     def finished(info, options):
