@@ -37,9 +37,17 @@ class Definition:
       max_steps: `(setup info, run options) -> int`, the step budget.
       measure: `(sim, params, state, protocol, run options) -> dict`: what a run
         reports (plain numbers, lists for the figures).
-      row: the keys of `measure` a sweep row carries.
+      row: the keys of `measure` a sweep row carries, or `measured -> row`.
       sweep: the rest of the sweep's `Adapter` (angles, theory, unit,
         default_law, extent, fit_statistics, simulator_options, ...).
+      execute: optional `(sim, params, p, run options, *, progress,
+        checkpoint, resume) -> (state, RunInfo, samples or None)`: how one
+        pile runs when its own stop rule is not `finished` checked at each
+        chunk's end (the pour: a loading phase of fixed length, then a run to
+        rest checked from there; a batch still uses `finished`).
+      report: optional `(measured, protocol, run options, RunInfo, samples,
+        seconds) -> dict`: one pile's whole output, when it is not the
+        default `{"protocol", **measured, "kinetic_energy", **run_record, "info"}`.
     """
 
     name: str
@@ -50,10 +58,12 @@ class Definition:
     finished: Callable
     max_steps: Callable
     measure: Callable
-    row: tuple
+    row: tuple | Callable
     run_options: dict = field(default_factory=dict)
     size: str = "n"
     sweep: dict = field(default_factory=dict)
+    execute: Callable | None = None
+    report: Callable | None = None
 
     def _setup(self, size, law, **kwargs) -> Protocol:
         if "law" in inspect.signature(self.setup).parameters:
@@ -63,23 +73,38 @@ class Definition:
 
 def run(definition: Definition, law, size=None, *, params=None, rotation: bool | None = None,
         dt: float | None = None, integrator: str = "velocity_verlet", chunk_steps: int | None = None,
-        progress=False, dtype=None, checkpoint=None, resume=None, run_options: dict | None = None, **options):
+        progress=False, dtype=None, checkpoint=None, resume=None, run_options: dict | None = None,
+        simulator_options: dict | None = None, **options):
     """One pile of `definition` from set-up to its end (`run_to_finish`:
-    samples, checkpoint, resume bit-identical) and its measurements.
+    samples, checkpoint, resume bit-identical; or the definition's own
+    `execute`) and its measurements.
 
     Returns:
       `(state, measurements)`: `{"protocol": name, **measure(...),
-      "kinetic_energy": samples, **run_record, "info": set-up info}`.
+      "kinetic_energy": samples, **run_record, "info": set-up info}`, or the
+      definition's `report`.
     """
-    run_options = {**definition.run_options, **(run_options or {})}
-    _, _, params = definition.law_and_params(law, params, rotation, dtype)
-    p = definition._setup(size, law, dt=dt, dtype=dtype, **options)
-    sim = definition.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
+    d = definition
+    run_options = {**d.run_options, **(run_options or {})}
+    _, _, params = d.law_and_params(law, params, rotation, dtype)
+    p = d._setup(size, law, dt=dt, dtype=dtype, **options)
+    sim_options = dict(simulator_options or {})
+    if chunk_steps is not None:
+        sim_options["chunk_steps"] = chunk_steps
+    sim = d.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, **sim_options)
     t0 = time.perf_counter()
-    state, info, samples = execute(definition, sim, params, p, progress=progress, checkpoint=checkpoint,
-                                   resume=resume, run_options=run_options)
-    return state, {"protocol": definition.name, **definition.measure(sim, params, state, p, run_options),
-                   "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
+    if d.execute is None:
+        state, info, samples = execute(d, sim, params, p, progress=progress, checkpoint=checkpoint, resume=resume,
+                                       run_options=run_options)
+    else:
+        state, info, samples = d.execute(sim, params, p, run_options, progress=progress, checkpoint=checkpoint,
+                                         resume=resume)
+    seconds = time.perf_counter() - t0
+    measured = d.measure(sim, params, state, p, run_options)
+    if d.report is not None:
+        return state, d.report(measured, p, run_options, info, samples, seconds)
+    return state, {"protocol": d.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
+                   "info": dict(p.info)}
 
 
 def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int | None = None, progress=None,
@@ -111,7 +136,7 @@ def adapter(definition: Definition):
 
     def row(sim, params, state, p):
         m = d.measure(sim, params, state, p, p.info.get("run_options", dict(d.run_options)))
-        return {k: m[k] for k in d.row}
+        return d.row(m) if callable(d.row) else {k: m[k] for k in d.row}
 
     def finished(info, options):
         return d.finished(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
@@ -119,9 +144,11 @@ def adapter(definition: Definition):
     def max_steps(info, options):
         return d.max_steps(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
 
-    options = (option_names(d.setup, *d.run_options) - {d.size}) | {"n"}
+    extra = dict(d.sweep)
+    # the options a sweep takes: the set-up's and the run options (a definition may name fewer)
+    options = extra.pop("options", (option_names(d.setup, *d.run_options) - {d.size}) | {"n"})
     return Adapter(setup, lambda law, dt, sim_options, setup_options: d.simulator(law, dt=dt, **sim_options),
-                   finished, max_steps, row, d.law_and_params, d.default_dt, options=options, **d.sweep)
+                   finished, max_steps, row, d.law_and_params, d.default_dt, options=options, **extra)
 
 
 __all__ = ["Definition", "adapter", "execute", "run"]

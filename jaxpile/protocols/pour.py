@@ -50,7 +50,6 @@ angle of repose of each flank by the three methods of Lee & Herrmann 1993
 from __future__ import annotations
 
 import math
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -66,10 +65,11 @@ from jaxpile.measure.heap import (  # noqa: F401  (pour.X as before)
     BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape)
 # the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
 from jaxpile.measure.poured_heap import SubstrateForces, heap_mask, measure, substrate_forces, summary  # noqa: F401
-from jaxpile.protocols import drivers
+from jaxpile.protocols import definition, drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.sweep import heap_extent, marginal_stability, option_names
 
 Array = Any
 
@@ -450,6 +450,68 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
                             progress=progress, checkpoint=checkpoint)
 
 
+def _execute(sim, params, protocol: Protocol, options: dict, *, progress=None, checkpoint=None, resume=None):
+    """One heap: `execute` (every disk poured, then a run to rest checked from there)."""
+    state, info = execute(sim, params, protocol, speed_tolerance=options["speed_tolerance"],
+                          max_settle_steps=options["max_settle_steps"], progress=progress, checkpoint=checkpoint,
+                          resume=resume)
+    return state, info, None
+
+
+def _report(measured: dict, protocol: Protocol, options: dict, info, samples, seconds: float) -> dict:
+    """One heap's output: `measure`'s dict plus `run`, `info` and `summary`."""
+    result = dict(measured)
+    result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
+                     "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
+                     "total_seconds": seconds, "neighbor_reallocations": info.reallocations}
+    result["info"] = dict(protocol.info)
+    result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
+    return result
+
+
+def _row(full: dict) -> dict:
+    """A sweep row: the flank angles, the height and base, the M ratio, the
+    central dip and the force balance."""
+    m = summary(full)
+    out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
+    for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
+        out[key] = m.get(key, float("nan"))
+    for flank in ("left", "right"):
+        a = (m.get("angle_of_repose") or {}).get(flank) or {}
+        out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
+    out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
+    ms = m.get("m_shape") or {}
+    out["m_ratio"] = ms.get("ratio", float("nan"))
+    # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
+    profile = full.get("base_profile")
+    out["central_dip"] = float("nan") if profile is None else central_dip(profile)
+    out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
+    out["m_shaped"] = bool(ms.get("m_shaped", False))
+    return out
+
+
+def _finished(info, options):
+    """A batch's end for one heap: every disk poured, then its fastest disk below the tolerance."""
+    from jaxpile.engine.simulate import max_speed
+
+    pour_steps, tolerance = int(info["pour_steps"]), float(options["speed_tolerance"])
+    return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
+
+
+DEFINITION = definition.Definition(
+    "pour", pour, make_simulator, law_and_params, lambda law: float(PAPER_SETTING["dt"]), _finished,
+    lambda info, options: int(info["pour_steps"]) + int(options["max_settle_steps"]),
+    lambda sim, params, state, p, options: measure(sim, params, state, bins=options["bins"],
+                                                   voidage_cell=options["voidage_cell"]),
+    row=_row, execute=_execute, report=_report,
+    run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
+                 "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
+    sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability, default_law="baxter",
+               extent=heap_extent("substrate", "centre_x", "n_poured"),
+               fit_statistics={"columns": ("repose_mean",), "bins": 9},
+               options=option_names(pour, "speed_tolerance", "max_settle_steps")))
+
+
 def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: float = PAPER_SETTING["dt"],
         rotation: bool | None = None, integrator: str = PAPER_SETTING["integrator"],
         speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
@@ -477,20 +539,12 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
       at_rest, final max speed), `info` (the set-up) and `summary` (plain numbers).
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    protocol = pour(n, dt=dt, dtype=dtype, **options)
-    _, _, params = law_and_params(law, params, rotation, dtype=protocol.particles.position.dtype)
-    sim = make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, law_options=law_options)
-    t0 = time.perf_counter()
-    state, info = execute(sim, params, protocol, speed_tolerance=speed_tolerance,
-                          max_settle_steps=max_settle_steps, progress=progress, checkpoint=checkpoint,
-                          resume=resume)
-    total = time.perf_counter() - t0
-    result = measure(sim, params, state, bins=bins, voidage_cell=voidage_cell)
-    result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
-                     "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
-                     "total_seconds": total, "neighbor_reallocations": info.reallocations}
-    result["info"] = {**protocol.info, "law_options": dict(law_options or {})}
-    result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
+    state, result = definition.run(
+        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, progress=progress,
+        dtype=dtype, checkpoint=checkpoint, resume=resume, simulator_options={"law_options": law_options},
+        run_options={"speed_tolerance": speed_tolerance, "max_settle_steps": max_settle_steps, "bins": bins,
+                     "voidage_cell": voidage_cell}, **options)
+    result["info"]["law_options"] = dict(law_options or {})
     return state, result
 
 
@@ -500,47 +554,8 @@ protocol = pour  # the set-up function under the name every protocol module uses
 def sweep_adapter():
     """What a sweep and an ensemble fit need: the flank angles, the height and
     base, the M ratio and the force balance per member; every disk poured,
-    then at rest, as `execute`."""
-    from jaxpile.engine.simulate import max_speed
-    from jaxpile.sweep import Adapter, heap_extent, marginal_stability, option_names
-
-    def setup(law, seed, dt, options):
-        return pour(seed=seed, dt=dt, **{k: v for k, v in options.items()
-                                         if k not in ("speed_tolerance", "max_settle_steps")})
-
-    def finished(info, options):
-        pour_steps = int(info["pour_steps"])
-        tolerance = float(options.get("speed_tolerance", PAPER_SETTING["speed_tolerance"]))
-        return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
-
-    def max_steps(info, options):
-        return int(info["pour_steps"]) + int(options.get("max_settle_steps", PAPER_SETTING["max_settle_steps"]))
-
-    def row(sim, params, state, p):
-        full = measure(sim, params, state)
-        m = summary(full)
-        out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
-        for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
-            out[key] = m.get(key, float("nan"))
-        for flank in ("left", "right"):
-            a = (m.get("angle_of_repose") or {}).get(flank) or {}
-            out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
-        out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
-        ms = m.get("m_shape") or {}
-        out["m_ratio"] = ms.get("ratio", float("nan"))
-        # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
-        profile = full.get("base_profile")
-        out["central_dip"] = float("nan") if profile is None else central_dip(profile)
-        out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
-        out["m_shaped"] = bool(ms.get("m_shaped", False))
-        return out
-
-    return Adapter(setup, lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), finished,
-                   max_steps, row, law_and_params, lambda law: float(PAPER_SETTING["dt"]),
-                   ("repose_mean", "angle_height_base"),
-                   option_names(pour, "speed_tolerance", "max_settle_steps"), marginal_stability,
-                   default_law="baxter", extent=heap_extent("substrate", "centre_x", "n_poured"),
-                   fit_statistics={"columns": ("repose_mean",), "bins": 9})
+    then at rest (`definition.adapter`)."""
+    return definition.adapter(DEFINITION)
 
 
 # ------------------------------------------------------------- pathwise fits
