@@ -63,6 +63,22 @@ def test_gauss_newton_recovers_the_truth_inside_its_interval():
     assert exact.interval["mu"][1] - exact.interval["mu"][0] < 1e-3 * (hi - lo)
 
 
+def test_gauss_newton_stops_once_its_step_is_inside_the_noise():
+    """A step smaller than its own standard error cannot be told from the
+    ensembles' noise: the fit stops there (`noise_stop`), before a tolerance
+    that only a noiseless fit could reach, and says why."""
+    target = _target(ToyRunner())
+    kw = dict(seeds=range(32), statistics=STATS, steps=8, progress=False, interval=False, tolerance=1e-14)
+    noisy = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw)
+    strict = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, noise_stop=False, **kw)
+    last = noisy.history[-1]
+    assert last["converged"] and last["stopped_by"] == "noise"
+    assert abs(np.asarray(last["next_theta"]) - np.asarray(last["theta"]))[0] < last["step_stderr"][0]
+    assert all(not h["converged"] for h in noisy.history[:-1])
+    assert len(noisy.history) < len(strict.history) and strict.history[-1]["stopped_by"] in ("tolerance", "")
+    assert abs(noisy.values["mu"] / 0.3137 - 1) < 0.05
+
+
 def test_smoothing_with_adam_moves_toward_the_truth_and_resume_replays_the_optax_state(tmp_path):
     target = _target(ToyRunner())
     kw = dict(seeds=range(8), statistics=STATS, estimator="smoothing", optimizer="adam", lr=0.1, pairs=2,

@@ -408,7 +408,8 @@ def _optimiser(name: str, lr: float):
 def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarget, *, seeds,
         statistics: Statistics, estimator: str = "central", optimizer: str = "gauss-newton", steps: int = 6,
         lr: float = 0.1, step: float = 0.05, sigma: float = 0.05, pairs: int = 4, key: int = 0,
-        max_step: float = 0.3, tolerance: float = 1e-3, progress: Callable | bool | None = True,
+        max_step: float = 0.3, tolerance: float = 1e-3, noise_stop: bool = True,
+        progress: Callable | bool | None = True,
         checkpoint: str | None = None, resume: str | None = None, interval: bool = True) -> EnsembleFitResult:
     """Fits the law parameters `names` (positive; fitted as logs) so that the
     ensemble of `seeds` matches `target`.
@@ -427,6 +428,11 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
       step: central differences' h (log units); sigma, pairs, key: smoothing's.
       max_step: the largest change of a log-parameter per Gauss-Newton step.
       tolerance: stop when a Gauss-Newton step is below this (log units).
+      noise_stop: also stop when every component of a Gauss-Newton step is
+        below its own standard error (the sandwich at that iterate: the spread
+        of the fitted and the target piles): a smaller step cannot be told from
+        the ensembles' noise, and further iterations only wander (a pour's
+        iterates do, measured). The entry records `step_stderr` and why it stopped.
       progress: print a line per iteration (True), or a callable given each
         history entry.
       checkpoint: a JSON path to write the history to after every iteration.
@@ -477,12 +483,13 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     record = {"protocol": runner.protocol, "law": runner.law_name(), "names": names, "start": dict(start),
               "estimator": estimator, "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(),
               "steps": steps, "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key,
-              "max_step": max_step, "tolerance": tolerance, "options": dict(runner.options or {}),
+              "max_step": max_step, "tolerance": tolerance, "noise_stop": noise_stop,
+              "options": dict(runner.options or {}),
               "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
     if resume is not None:
         with open(resume) as fh:
             saved = json.load(fh)
-        same = [k for k in record if k != "steps"]
+        same = [k for k in record if k not in ("steps", "noise_stop")]  # when to stop may change on resume
         differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
         if differ:
             raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
@@ -544,13 +551,21 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
             updates, opt_state = opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
             delta = np.asarray(updates, float)
         converged = bool(opt is None and not message and np.max(np.abs(delta)) < tolerance)
+        step_stderr, why = [float("nan")] * d, "tolerance" if converged else ""
+        if opt is None and not message:
+            cov, _ = confidence(jac, w, s[0], target)
+            if np.all(np.isfinite(cov)):
+                step_stderr = np.sqrt(np.clip(np.diag(cov), 0, None)).tolist()
+                if noise_stop and not converged and np.all(np.abs(delta) < np.asarray(step_stderr)):
+                    converged, why = True, "noise"
         loss_se = estimators.loss_stderr(base, objective) if base is not None else float("nan")
         entry = {"iteration": it, "theta": theta.tolist(), "values": params_of(theta),
                  "loss": float(est.value), "loss_stderr": loss_se, "gradient": gradient.tolist(),
                  "gradient_stderr": np.asarray(est.stderr, float).tolist(), "ensembles": int(est.evaluations),
                  "particle_steps": int(info["particle_steps"]), "missing": missing,
                  "mean": None if mean is None else mean.tolist(), "next_theta": (theta + delta).tolist(),
-                 "converged": converged, "seconds": info["total_seconds"]}
+                 "converged": converged, "stopped_by": why, "step_stderr": step_stderr,
+                 "seconds": info["total_seconds"]}
         history.append(entry)
         theta = theta + delta
         if progress is True:
