@@ -3,8 +3,9 @@ simulator, law and parameters, finish, step budget and measurements; `run`
 takes one pile from set-up to its end (`runner.run_to_finish`: samples,
 checkpoints, bit-identical resume) and `adapter` gives a sweep and an ensemble
 fit the same set-up, finish, budget and measurements per member of a batch.
-A protocol whose run ends when a traceable predicate holds (the box, the flux,
-the hopper) is written this way; see README, "adding a protocol in one file"."""
+The box, the flux, the hopper and the pour are written this way (the pour
+with its own `execute` and `report`); see README, "adding a protocol in one
+file"."""
 
 from __future__ import annotations
 
@@ -21,8 +22,7 @@ from jaxpile.runner import run_record, run_to_finish
 class Definition:
     """A protocol as data plus functions (issue 18): what one pile's `run`,
     a sweep's batch (`adapter`) and an ensemble fit all need, declared once.
-    A protocol whose run ends when a traceable predicate holds (the box, the
-    flux, the hopper) declares one and gets both from `run` and `adapter`.
+    A protocol declares one and gets both from `run` and `adapter`.
 
     Attributes:
       name: the protocol's registered name.
