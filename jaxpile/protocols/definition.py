@@ -28,7 +28,8 @@ class Definition:
       name: the protocol's registered name.
       setup: the module's set-up, `setup(size, *, law?, seed, dt, dtype, **options) -> Protocol`.
       size: the set-up's size keyword (`n`, `insertions`): a sweep's `--n`.
-      simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`.
+      simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`;
+        one that takes `setup_options` gets the set-up's options (no seed).
       law_and_params: the module's `(law, params, rotation, dtype) -> (module, law, params)`.
       default_dt: `law -> dt` when none is given.
       run_options: run keywords that are not set-up options, with their
@@ -91,7 +92,10 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
     sim_options = dict(simulator_options or {})
     if chunk_steps is not None:
         sim_options["chunk_steps"] = chunk_steps
-    sim = d.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, **sim_options)
+    if _takes_setup_options(d):  # a simulator whose driver is built from the set-up's constants (the drop's)
+        sim_options["setup_options"] = {k: v for k, v in options.items() if k != "seed"}
+    dt = p.info.get("dt", d.default_dt(law) if dt is None else dt)  # the set-up's, where it records one
+    sim = d.simulator(law, dt=dt, rotation=rotation, integrator=integrator, **sim_options)
     t0 = time.perf_counter()
     if d.execute is None:
         state, info, samples = execute(d, sim, params, p, progress=progress, checkpoint=checkpoint, resume=resume,
@@ -130,6 +134,8 @@ def adapter(definition: Definition):
         kwargs = {k: v for k, v in options.items() if k not in d.run_options}
         size = kwargs.pop("n", None)  # a sweep's --n is the set-up's size, whatever its name
         p = d._setup(size, law, seed=seed, dt=dt, **kwargs)
+        if _takes_setup_options(d):  # the batch's simulator carries the driver, built from the same constants
+            p = p._replace(driver=None)
         # the member's run options travel with its set-up, for its measurement (e.g. the hopper's beverloo_k)
         own = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
         return p._replace(info={**p.info, "run_options": own})
@@ -147,8 +153,18 @@ def adapter(definition: Definition):
     extra = dict(d.sweep)
     # the options a sweep takes: the set-up's and the run options (a definition may name fewer)
     options = extra.pop("options", (option_names(d.setup, *d.run_options) - {d.size}) | {"n"})
-    return Adapter(setup, lambda law, dt, sim_options, setup_options: d.simulator(law, dt=dt, **sim_options),
-                   finished, max_steps, row, d.law_and_params, d.default_dt, options=options, **extra)
+    def simulator(law, dt, sim_options, setup_options):
+        if _takes_setup_options(d):
+            sim_options = {**sim_options, "setup_options": {k: v for k, v in setup_options.items()
+                                                            if k not in d.run_options and k != "dtype"}}
+        return d.simulator(law, dt=dt, **sim_options)
+
+    return Adapter(setup, simulator, finished, max_steps, row, d.law_and_params, d.default_dt, options=options,
+                   **extra)
+
+
+def _takes_setup_options(d: Definition) -> bool:
+    return "setup_options" in inspect.signature(d.simulator).parameters
 
 
 __all__ = ["Definition", "adapter", "execute", "run"]

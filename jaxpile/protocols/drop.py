@@ -62,7 +62,6 @@ job; tests use 20.
 from __future__ import annotations
 
 import math
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -74,11 +73,12 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import NormalProfile, central_dip, normal_profile  # noqa: F401  (drop.X as before)
 from jaxpile.measure.dropped_pile import measure  # noqa: F401  (the pile's measurements; drop.measure as before)
-from jaxpile.protocols import lattice
+from jaxpile.protocols import definition, lattice
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.sweep import heap_extent
 
 Array = Any
 SQRT3 = math.sqrt(3.0)
@@ -302,6 +302,117 @@ def _with_phase(checkpoint, phase: str, **facts):
     return ckpt.with_facts(checkpoint, phase=phase, **facts)
 
 
+RUN_OPTIONS = {"speed_tolerance": SETTING["speed_tolerance"], "relax_steps": SETTING["relax_steps"], "bins": 15,
+               "dip_threshold": 0.05}
+"""Run keywords that are not set-up options, with their defaults."""
+
+
+def make_simulator(law="liffman", *, dt: float = SETTING["dt"], rotation: bool | None = None,
+                   integrator: str = "velocity_verlet", hard_collisions=None, chunk_steps: int | None = None,
+                   setup_options: dict | None = None):
+    """A `Simulator` running the drop driver of the set-up `setup_options`
+    describes (its constants are the same for every seed), each chunk on the
+    block of disks dropped by its end."""
+    from jaxpile.engine.simulate import Simulator
+
+    _, contact_law, _ = law_and_params(law, None, rotation)
+    p = protocol(seed=0, dt=dt, **dict(setup_options or {}))
+    extra = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
+    # capacity: the list is allocated with the disks parked apart (see `pour.make_simulator`)
+    return Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
+                     capacity_multiplier=4.0, in_play=make_in_play(p.info["quiet_steps"]), **extra)
+
+
+def _execute(sim, params, p: Protocol, options: dict, *, progress=None, checkpoint=None, resume=None):
+    """One pile: the fill (every disk dropped), then the relaxation to rest,
+    each phase recorded with its checkpoints (a resume continues either)."""
+    from types import SimpleNamespace
+
+    from jaxpile.engine.simulate import RunInfo
+
+    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    fill_steps = None  # known once the fill phase is over
+    if resume is not None:
+        from jaxpile.engine import checkpoint as ckpt
+
+        state = ckpt.restore(resume, state, sim.law, params)
+        fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
+    fill = RunInfo()
+    fill._n = state.particles.count
+    if fill_steps is None:
+        budget = p.info["n_particles"] * p.info["max_interval_steps"] + sim.chunk_steps
+        state = sim.run(params, state, max(budget - int(state.step), 0), progress=progress, info=fill,
+                        until=lambda s: bool(np.asarray(s.particles.active).all()),
+                        checkpoint=_with_phase(checkpoint, "fill"), resumed=int(state.step) > 0)
+        fill_steps = int(state.step)
+    relax_left = options["relax_steps"] - (int(state.step) - fill_steps)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=options["speed_tolerance"],
+                                     max_steps=max(relax_left, 0), progress=progress,
+                                     resumed=int(state.step) > fill_steps,
+                                     checkpoint=_with_phase(checkpoint, "relax", fill_steps=fill_steps))
+    return state, SimpleNamespace(fill=fill, rest=rest, fill_steps=fill_steps, law=sim.law.name,
+                                  forced=int(state.protocol_state.forced), steps=int(state.step)), None
+
+
+def _report(measured: dict, p: Protocol, options: dict, info, samples, seconds: float) -> dict:
+    """One pile's output: the run's phases and timings, then the measurements."""
+    n = p.info["n_particles"]
+    out = {
+        "protocol": "drop",
+        "law": info.law,
+        "n_particles": measured["n_in"],
+        "n_requested": n,
+        "all_inserted": measured["all_inserted"],
+        "seed": p.info["seed"],
+        "fill_steps": info.fill_steps,
+        "mean_steps_per_drop": info.fill_steps / n,
+        "forced_drops": info.forced,
+        "steps": info.steps,
+        "wall_seconds": info.fill.wall_seconds + info.rest.wall_seconds,
+        "compile_seconds": info.fill.compile_seconds + info.rest.compile_seconds,
+        "total_seconds": seconds,
+        "at_rest": bool(info.rest.at_rest),
+        "final_max_speed": info.rest.max_speed,
+        "speed_tolerance": options["speed_tolerance"],
+    }
+    out.update({k: v for k, v in measured.items() if k not in ("n_in", "all_inserted", "max_speed")})
+    return out
+
+
+def _measure(sim, params, state, p, options) -> dict:
+    """`measure` with the run's bins and threshold, and the pile's counts and speed (a sweep row's too)."""
+    from jaxpile.engine.simulate import max_speed
+
+    active = np.asarray(state.particles.active)
+    return {"n_in": int(active.sum()), "all_inserted": bool(active.all()), "max_speed": float(max_speed(state)),
+            **measure(sim, params, state, bins=options["bins"], dip_threshold=options["dip_threshold"])}
+
+
+def _finished(info, options):
+    """A batch's end for one pile: every disk in, the last one in for `quiet_time`,
+    and its fastest disk below `speed_tolerance` (a single run fills, then
+    relaxes; the batch checks both at each chunk's end)."""
+    from jaxpile.engine.simulate import max_speed
+
+    quiet, tolerance = int(info["quiet_steps"]), float(options["speed_tolerance"])
+    return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
+                      & (max_speed(s) < tolerance))
+
+
+def _row(m: dict) -> dict:
+    return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k != "n_in"}
+
+
+DEFINITION = definition.Definition(
+    "drop", protocol, make_simulator, law_and_params, lambda law: float(SETTING["dt"]), _finished,
+    lambda info, options: (int(info["n_particles"]) * int(info["max_interval_steps"]) + 1000
+                           + int(options["relax_steps"])),
+    _measure, row=_row, run_options=RUN_OPTIONS, execute=_execute, report=_report,
+    sweep=dict(angles=("central_dip",), unit="", default_law="liffman",
+               extent=heap_extent("ground", "axis_x", "n_particles"),
+               fit_statistics={"columns": ("central_dip",), "bins": 9}))
+
+
 def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rotation: bool | None = None,
         dt: float = SETTING["dt"], drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
         settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
@@ -336,104 +447,22 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
       too small to fit), and step counts and times.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile.engine.simulate import RunInfo, Simulator
-
-    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
     if int(relax_steps) != relax_steps or relax_steps < 1:
         raise InputError(f"relax_steps must be a positive whole number; got {relax_steps!r}.")
-    p = protocol(n, seed=seed, dt=dt, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed,
-                 quiet_time=quiet_time, max_interval=max_interval, dtype=dtype)
-    # capacity: the list is allocated with the disks parked apart (see `pour.make_simulator`)
-    sim = Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
-                    capacity_multiplier=4.0, chunk_steps=chunk_steps, in_play=make_in_play(p.info["quiet_steps"]))
-    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    fill_steps = None  # known once the fill phase is over
-    if resume is not None:
-        from jaxpile.engine import checkpoint as ckpt
-
-        state = ckpt.restore(resume, state, sim.law, params)
-        fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
-    t0 = time.perf_counter()
-    fill = RunInfo()
-    fill._n = state.particles.count
-    if fill_steps is None:
-        budget = n * p.info["max_interval_steps"] + chunk_steps
-        state = sim.run(params, state, max(budget - int(state.step), 0), progress=progress, info=fill,
-                        until=lambda s: bool(np.asarray(s.particles.active).all()),
-                        checkpoint=_with_phase(checkpoint, "fill"), resumed=int(state.step) > 0)
-        fill_steps = int(state.step)
-    relax_left = relax_steps - (int(state.step) - fill_steps)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=max(relax_left, 0),
-                                     progress=progress, resumed=int(state.step) > fill_steps,
-                                     checkpoint=_with_phase(checkpoint, "relax", fill_steps=fill_steps))
-    total = time.perf_counter() - t0
-    active = np.asarray(state.particles.active)
-    measurements = {
-        "protocol": "drop",
-        "law": contact_law.name,
-        "n_particles": int(active.sum()),
-        "n_requested": int(n),
-        "all_inserted": bool(active.all()),
-        "seed": int(seed),
-        "fill_steps": fill_steps,
-        "mean_steps_per_drop": fill_steps / n,
-        "forced_drops": int(state.protocol_state.forced),
-        "steps": int(state.step),
-        "wall_seconds": fill.wall_seconds + rest.wall_seconds,
-        "compile_seconds": fill.compile_seconds + rest.compile_seconds,
-        "total_seconds": total,
-        "at_rest": bool(rest.at_rest),
-        "final_max_speed": rest.max_speed,
-        "speed_tolerance": speed_tolerance,
-    }
-    measurements.update(measure(sim, params, state, bins=bins, dip_threshold=dip_threshold))
-    return state, measurements
+    return definition.run(
+        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, chunk_steps=chunk_steps,
+        progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+        simulator_options={"hard_collisions": hard_collisions},
+        run_options={"speed_tolerance": speed_tolerance, "relax_steps": relax_steps, "bins": bins,
+                     "dip_threshold": dip_threshold},
+        seed=seed, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed, quiet_time=quiet_time,
+        max_interval=max_interval)
 
 
 def sweep_adapter():
     """Liffman et al. 1992 Fig. 20 in a batch: disks dropped one at a time, then
-    relaxed. The batch's predicate: every disk in, the last one in for
-    `quiet_time`, and every member's fastest disk below `speed_tolerance` (a
-    single run fills, then relaxes; the batch checks both at each chunk's end)."""
-    from jaxpile.engine.simulate import Simulator, max_speed
-    from jaxpile.sweep import Adapter, heap_extent, option_names
-
-    run_options = ("speed_tolerance", "relax_steps", "bins", "dip_threshold")
-
-    def setup_kwargs(options):
-        return {k: v for k, v in options.items() if k not in run_options + ("dtype",)}
-
-    def setup(law, seed, dt, options):
-        p = protocol(seed=seed, dt=dt, dtype=options.get("dtype"), **setup_kwargs(options))
-        info = {**p.info, "bins": int(options.get("bins", 15)), "dip_threshold": float(options.get("dip_threshold", 0.05))}
-        return p._replace(driver=None, info=info)  # the simulator's driver (the same constants for every member)
-
-    def simulator(law, dt, options, setup_options):
-        _, contact_law, _ = law_and_params(law, None, options.get("rotation"))
-        p = protocol(seed=0, dt=dt, **setup_kwargs(setup_options))
-        # each chunk on the block of disks dropped by its end, as `run`
-        return Simulator(contact_law, dt, driver=p.driver, capacity_multiplier=4.0,
-                         in_play=make_in_play(p.info["quiet_steps"]))
-
-    def finished(info, options):
-        quiet, tolerance = int(info["quiet_steps"]), float(options.get("speed_tolerance", SETTING["speed_tolerance"]))
-        return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
-                          & (max_speed(s) < tolerance))
-
-    def max_steps(info, options):
-        n = int(info["n_particles"])
-        return n * int(info["max_interval_steps"]) + 1000 + int(options.get("relax_steps", SETTING["relax_steps"]))
-
-    def row(sim, params, state, p):
-        m = measure(sim, params, state, bins=p.info["bins"], dip_threshold=p.info["dip_threshold"])
-        return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)} | {
-            "all_inserted": bool(np.asarray(state.particles.active).all()), "max_speed": float(max_speed(state))}
-
-    return Adapter(setup, simulator, finished, max_steps, row, law_and_params,
-                   lambda law: float(SETTING["dt"]), ("central_dip",),
-                   option_names(protocol, *run_options), None, unit="", default_law="liffman",
-                   extent=heap_extent("ground", "axis_x", "n_particles"),
-                   fit_statistics={"columns": ("central_dip",), "bins": 9})
+    relaxed (`definition.adapter`)."""
+    return definition.adapter(DEFINITION)
 
 
 __all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "law_and_params", "layout",
