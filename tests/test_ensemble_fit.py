@@ -69,8 +69,8 @@ def test_gauss_newton_stops_once_its_step_is_inside_the_noise():
     that only a noiseless fit could reach, and says why."""
     target = _target(ToyRunner())
     kw = dict(seeds=range(32), statistics=STATS, steps=8, progress=False, interval=False, tolerance=1e-14)
-    noisy = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw)
-    strict = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, noise_stop=False, **kw)
+    noisy = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, noise_stop=True, **kw)
+    strict = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw)  # the default: the tolerance alone
     last = noisy.history[-1]
     assert last["converged"] and last["stopped_by"] == "noise"
     assert abs(np.asarray(last["next_theta"]) - np.asarray(last["theta"]))[0] < last["step_stderr"][0]
