@@ -3,9 +3,9 @@ simulator, law and parameters, finish, step budget and measurements; `run`
 takes one pile from set-up to its end (`runner.run_to_finish`: samples,
 checkpoints, bit-identical resume) and `adapter` gives a sweep and an ensemble
 fit the same set-up, finish, budget and measurements per member of a batch.
-The box, the flux, the hopper and the pour are written this way (the pour
-with its own `execute` and `report`); see README, "adding a protocol in one
-file"."""
+The box, the flux, the hopper, the pour and the drop are written this way
+(the pour and the drop with their own `execute` and `report`); see README,
+"adding a protocol in one file"."""
 
 from __future__ import annotations
 
