@@ -7,6 +7,10 @@
 #   bash benchmarks/gpu_recovery.sh OUT [BOX_SECONDS] [POUR_SECONDS]
 #
 # leaves OUT/recovery.tgz (every case's JSON, checkpoint and figure) and OUT/log.txt.
+# A second device call does not find .gpu_runs/ (an ignored folder is not kept between
+# calls): to resume, unpack the returned recovery.tgz in the repository's root here and
+# name .gpu_runs in the call's `carry` (measured: a warm rerun without it redid both
+# targets and lost four minutes of device time).
 set -u
 out=${1:?usage: gpu_recovery.sh OUT [BOX_SECONDS] [POUR_SECONDS]}
 box_s=${2:-300}
