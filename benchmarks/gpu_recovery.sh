@@ -7,8 +7,8 @@
 #   bash benchmarks/gpu_recovery.sh OUT [BOX_SECONDS] [POUR_SECONDS]
 #
 # leaves OUT/recovery.tgz (every case's JSON, checkpoint and figure) and OUT/log.txt.
-# A second device call does not find .gpu_runs/ (an ignored folder is not kept between
-# calls): to resume, unpack the returned recovery.tgz in the repository's root here and
+# A second device call did not find .gpu_runs/ (measured; the folder was ignored through
+# .git/info/exclude and empty here): to resume, unpack the returned recovery.tgz in the repository's root here and
 # name .gpu_runs in the call's `carry` (measured: a warm rerun without it redid both
 # targets and lost four minutes of device time).
 set -u
