@@ -86,7 +86,7 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
       definition's `report`.
     """
     d = definition
-    run_options = {**d.run_options, **(run_options or {})}
+    run_options = _run_options(d, run_options)
     _, _, params = d.law_and_params(law, params, rotation, dtype)
     p = d._setup(size, law, dt=dt, dtype=dtype, **options)
     sim_options = dict(simulator_options or {})
@@ -116,7 +116,7 @@ def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int 
     """Runs the set-up `p` until `definition.finished` (checked after each
     chunk) or its step budget (`max_steps`, default `definition.max_steps`).
     Returns `(state, RunInfo, samples)` as `run_sampled`."""
-    run_options = {**definition.run_options, **(run_options or {})}
+    run_options = _run_options(definition, run_options)
     done = definition.finished(p.info, run_options)
     budget = definition.max_steps(p.info, run_options) if max_steps is None else max_steps
     return run_to_finish(sim, params, p, max_steps=budget, finished=lambda s: bool(done(s)), progress=progress,
@@ -137,22 +137,22 @@ def adapter(definition: Definition):
         if _takes_setup_options(d):  # the batch's simulator carries the driver, built from the same constants
             p = p._replace(driver=None)
         # the member's run options travel with its set-up, for its measurement (e.g. the hopper's beverloo_k)
-        own = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
-        return p._replace(info={**p.info, "run_options": own})
+        return p._replace(info={**p.info, "run_options": _run_options(d, options)})
 
     def row(sim, params, state, p):
-        m = d.measure(sim, params, state, p, p.info.get("run_options", dict(d.run_options)))
+        m = d.measure(sim, params, state, p, p.info["run_options"])
         return d.row(m) if callable(d.row) else {k: m[k] for k in d.row}
 
     def finished(info, options):
-        return d.finished(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
+        return d.finished(info, _run_options(d, options))
 
     def max_steps(info, options):
-        return d.max_steps(info, {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}})
+        return d.max_steps(info, _run_options(d, options))
 
     extra = dict(d.sweep)
     # the options a sweep takes: the set-up's and the run options (a definition may name fewer)
     options = extra.pop("options", (option_names(d.setup, *d.run_options) - {d.size}) | {"n"})
+
     def simulator(law, dt, sim_options, setup_options):
         if _takes_setup_options(d):
             sim_options = {**sim_options, "setup_options": {k: v for k, v in setup_options.items()
@@ -161,6 +161,12 @@ def adapter(definition: Definition):
 
     return Adapter(setup, simulator, finished, max_steps, row, d.law_and_params, d.default_dt, options=options,
                    **extra)
+
+
+def _run_options(d: Definition, options: dict | None) -> dict:
+    """The definition's run options, overridden by those of `options` (a
+    sweep's options also hold set-up ones: those are left out)."""
+    return {**d.run_options, **{k: v for k, v in (options or {}).items() if k in d.run_options}}
 
 
 def _takes_setup_options(d: Definition) -> bool:

@@ -250,7 +250,8 @@ def beverloo_fit(orifice, rate, number_density: float, g: float = 1.0) -> dict:
 def dead_zone_angles(state: SimState, info: dict) -> dict:
     """The slopes (degrees) of the dead zones a flat-bottomed silo keeps beside
     its orifice: on each side, the least-squares line through the surface h(x)
-    (`analysis.surface_profile`, unit columns, the floor disks included so a
+    (Lee & Herrmann 1993, sec. 3, method 2: `analysis.repose_angles`;
+    `analysis.surface_profile`, unit columns, the floor disks included so a
     bare column reads the floor) from the wall to the orifice's edge. A dead
     zone stands at an angle of repose, so unlike the flow rate it moves with the
     disk friction. NaN for a side that cannot be read (an arch over the orifice
