@@ -315,6 +315,7 @@ def pour(
             f"below it and they could touch in the air; the interval must leave at least {MIN_RELEASE_GAP} sigma "
             "(the paper's 1.612 leaves 1.30 sigma).")
     rows = int(substrate_size(n, spacing) if substrate_disks is None else substrate_disks)
+    budget.check(n + rows, dtype or "float64", what="a pour with its substrate row")  # a row given too long
     if substrate_disks is not None and rows * spacing < 2.0 * spread + 2.0:
         raise InputError(f"a row of {rows} disks ({rows * spacing:g} sigma) is narrower than the pouring "
                          f"interval +-{spread:g} sigma.")
