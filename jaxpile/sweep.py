@@ -8,7 +8,7 @@ all 32 members in batches of `batch_size` in one compiled loop each, and
 measures each member as the protocol's own `run` does. The rows go to a CSV
 (`write_csv`), and `summarise` gives mean and standard error per grid point.
 
-Protocols (`adapters()`: every registered protocol module's `sweep_adapter`):
+Protocols (`adapters()`: every registered protocol module's `DEFINITION` or `sweep_adapter`):
 `box` (Lee & Herrmann 1993: angle of repose by the
 three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
 ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
@@ -50,8 +50,9 @@ class Stage:
         its protocol. Structure only (it also builds a resume's template).
       finished: `(protocol info, options) -> (state -> bool)`, traceable.
       max_steps: `(protocol info, options) -> int`, this stage's budget.
-      describe: optional `(state) -> dict` of plain numbers measured on the
-        previous stage's end state, merged into the protocol's `info` (and
+      describe: optional `(state, protocol) -> dict` of plain numbers measured
+        on the previous stage's end state (`protocol`: this stage's set-up on
+        it), merged into the protocol's `info` (and
         saved with each checkpoint of this stage, for the measurement after a
         resume).
     """
@@ -203,11 +204,20 @@ def loaded_pile_adapter(setting: dict, build: Callable, compare: Callable, law_a
 
 def adapters() -> dict[str, Callable[[], Adapter]]:
     """Every protocol a sweep (and an ensemble fit) runs: each registered
-    protocol whose module has a `sweep_adapter() -> Adapter`."""
-    from jaxpile.protocols import PROTOCOLS
+    protocol whose module declares a `DEFINITION` (`definition.adapter` of it)
+    or has its own `sweep_adapter() -> Adapter`."""
+    import functools
 
-    return {name: module.sweep_adapter for name, module in PROTOCOLS.items()
-            if callable(getattr(module, "sweep_adapter", None))}
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.definition import Definition, adapter as definition_adapter
+
+    found = {}
+    for name, module in PROTOCOLS.items():
+        if callable(getattr(module, "sweep_adapter", None)):
+            found[name] = module.sweep_adapter
+        elif isinstance(getattr(module, "DEFINITION", None), Definition):
+            found[name] = functools.partial(definition_adapter, module.DEFINITION)
+    return found
 
 
 def __getattr__(name):  # ADAPTERS, read from the registry when asked for (as before: name -> adapter factory)
@@ -417,8 +427,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
                 steps = ensemble.members(state, len(chunk))
                 done = max(int(m.step) - s0 for m, s0 in zip(steps, starts))
             else:
-                described = [stage.describe(ensemble.member(state, i)) if stage.describe else {}
-                             for i in range(len(chunk))]
+                described = [stage.describe(ensemble.member(state, i), p) if stage.describe else {}
+                             for i, (_, p) in enumerate(started)]
                 protocols = [p._replace(info={**p.info, **d}) for (_, p), d in zip(started, described)]
                 starts = [int(s.step) for s, _ in started]
                 state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))

@@ -74,7 +74,6 @@ import numpy as np
 
 from jaxpile import budget, ranges
 from jaxpile.protocols import definition
-from jaxpile.protocols import definition
 from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
@@ -115,9 +114,7 @@ CLI = CommandLine(
     budget=lambda kwargs, info: max_steps_for(info["law"], info["dt"], kwargs.get("max_time", PAPER_SETTING["max_time"])))
 
 
-
 # -------------------------------------------------------------- the disks
-
 
 
 # --------------------------------------------------------- the compiled run
@@ -151,8 +148,6 @@ class BoxState(NamedTuple):
     settled_at: Array
     left: Array
     fill_height: Array
-
-
 
 
 def driver(state: SimState) -> SimState:
@@ -416,12 +411,6 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
                           run_options={"max_time": max_time}, **options)
 
 
-def sweep_adapter():
-    """What a sweep and an ensemble fit need: the three angles of repose and the
-    steps of the wall removal and the rest, per member (`definition.adapter`)."""
-    return definition.adapter(DEFINITION)
-
-
 __all__ = [
     "PAPER_SETTING",
     "BoxState",
@@ -452,7 +441,6 @@ __all__ = [
     "run_sampled",
     "settled",
     "start",
-    "sweep_adapter",
     "take_out",
     "units",
 ]

@@ -4,12 +4,15 @@ takes one pile from set-up to its end (`runner.run_to_finish`: samples,
 checkpoints, bit-identical resume) and `adapter` gives a sweep and an ensemble
 fit the same set-up, finish, budget and measurements per member of a batch.
 The box, the flux, the hopper, the pour and the drop are written this way
-(the pour and the drop with their own `execute` and `report`); see README,
-"adding a protocol in one file"."""
+(the pour and the drop with their own `execute` and `report`), and the tilt,
+which continues another protocol's pile (`starts_from`): one run builds the
+pile, then continues it, each stage checkpointed and resumable; a batch runs
+the two as stages. See README, "adding a protocol in one file"."""
 
 from __future__ import annotations
 
 import inspect
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -49,6 +52,13 @@ class Definition:
       report: optional `(measured, protocol, run options, RunInfo, samples,
         seconds) -> dict`: one pile's whole output, when it is not the
         default `{"protocol", **measured, "kinetic_energy", **run_record, "info"}`.
+      starts_from: the definition whose end state this protocol continues,
+        contact history kept (the tilt: a box pile); `setup` then takes that
+        state first, `setup(pile, *, law, dt, **options)`, and `run` builds
+        the pile first unless it is given one.
+      pile_facts: with `starts_from`, optional `(pile state, set-up) -> dict`
+        of what the pile was when this protocol took it over (the tilt: its
+        angle of repose), merged into the set-up's `info`.
     """
 
     name: str
@@ -65,6 +75,8 @@ class Definition:
     sweep: dict = field(default_factory=dict)
     execute: Callable | None = None
     report: Callable | None = None
+    starts_from: "Definition | None" = None
+    pile_facts: Callable | None = None
 
     def _setup(self, size, law, **kwargs) -> Protocol:
         if "law" in inspect.signature(self.setup).parameters:
@@ -75,17 +87,30 @@ class Definition:
 def run(definition: Definition, law, size=None, *, params=None, rotation: bool | None = None,
         dt: float | None = None, integrator: str = "velocity_verlet", chunk_steps: int | None = None,
         progress=False, dtype=None, checkpoint=None, resume=None, run_options: dict | None = None,
-        simulator_options: dict | None = None, **options):
+        simulator_options: dict | None = None, pile=None, pile_params=None, pile_options: dict | None = None,
+        **options):
     """One pile of `definition` from set-up to its end (`run_to_finish`:
     samples, checkpoint, resume bit-identical; or the definition's own
     `execute`) and its measurements.
 
+    A definition that `starts_from` another continues `pile` (a state), or
+    first builds one with that definition (`size`, `pile_params` (default
+    `params`), `pile_options`: its set-up and run options), saved beside
+    `checkpoint` (`checkpoint.sibling(path, its name)`); `resume` then takes a
+    save of either stage (`continued_stages`).
+
     Returns:
       `(state, measurements)`: `{"protocol": name, **measure(...),
       "kinetic_energy": samples, **run_record, "info": set-up info}`, or the
-      definition's `report`.
+      definition's `report`; a continued protocol that built its pile adds
+      the pile's measurements under the pile protocol's name.
     """
     d = definition
+    if d.starts_from is not None:
+        return _run_continued(d, law, size, params=params, pile=pile, pile_params=pile_params,
+                              pile_options=pile_options, rotation=rotation, dt=dt, integrator=integrator,
+                              chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint,
+                              resume=resume, run_options=run_options, options=options)
     run_options = _run_options(d, run_options)
     _, _, params = d.law_and_params(law, params, rotation, dtype)
     p = d._setup(size, law, dt=dt, dtype=dtype, **options)
@@ -123,12 +148,114 @@ def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int 
                          checkpoint=checkpoint, resume=resume)
 
 
+def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_options, rotation, dt, integrator,
+                   chunk_steps, progress, dtype, checkpoint, resume, run_options, options):
+    """`run` of a definition that continues another's pile (see `run`)."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    base = d.starts_from
+    run_options = _run_options(d, run_options)
+    _, _, stage_params = d.law_and_params(law, params, rotation, dtype)
+    built = None
+    if pile is None:
+        pile_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], base.name)
+        pile_resume, resume = continued_stages(d, resume)
+        given = dict(pile_options or {})
+        pile, built = run(base, law, size, params=params if pile_params is None else pile_params, rotation=rotation,
+                          dt=dt, integrator=integrator, chunk_steps=chunk_steps, progress=progress, dtype=dtype,
+                          checkpoint=ckpt.with_facts(checkpoint, path=pile_file, stage=base.name),
+                          resume=pile_resume, run_options={k: v for k, v in given.items() if k in base.run_options},
+                          **{k: v for k, v in given.items() if k not in base.run_options})
+        if checkpoint is not None:  # each save of this stage names the pile it started from (the last pile save)
+            checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=os.path.basename(
+                pile_file.replace("{step}", str(int(pile.step)))))
+    p = on_pile(d, pile, law, dt, options)
+    sim_options = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
+    sim = d.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, **sim_options)
+    t0 = time.perf_counter()
+    state, info, samples = continue_pile(d, sim, stage_params, p, pile, run_options=run_options, progress=progress,
+                                         checkpoint=checkpoint, resume=resume)
+    measured = d.measure(sim, stage_params, state, p, run_options)
+    out = {"protocol": d.name, **measured, "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
+    if built is not None:
+        out[base.name] = {k: v for k, v in built.items() if k != "kinetic_energy"}
+    return state, out
+
+
+def on_pile(d: Definition, pile, law, dt, options: dict) -> Protocol:
+    """The set-up of `d` on the state `pile`, with the pile's facts (`pile_facts`) in its info."""
+    p = d.setup(pile, law=law, dt=dt, **options)
+    return p if d.pile_facts is None else p._replace(info={**p.info, **d.pile_facts(pile, p)})
+
+
+def continue_pile(d: Definition, sim, params, p: Protocol, pile=None, *, run_options: dict | None = None,
+                  progress=None, checkpoint=None, resume=None):
+    """Runs the set-up `p` of a continued protocol from `pile`, the state it
+    was built on (contact history kept; None: `p.particles` with a fresh
+    history), until `d.finished` or its budget, counted from the pile's last
+    step. Each save records `stage=d.name`; `resume` continues such a save.
+
+    Returns:
+      `(state, RunInfo, samples)` as `run_sampled`.
+    """
+    from jaxpile import runner
+    from jaxpile.engine import checkpoint as ckpt
+    from jaxpile.errors import InputError
+
+    run_options = _run_options(d, run_options)
+    runner.check_dt(sim, p)
+    start = int(p.info["start_step"])
+    if pile is None:
+        state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    else:
+        if int(pile.step) != start or pile.particles.count != p.info["n"]:
+            raise InputError(f"pile is not the state this {d.name} protocol was built from.")
+        state = pile.set(protocol_state=p.protocol_state)
+    samples = None
+    if resume is not None:
+        state, samples = runner.restore_sampled(resume, state, sim, params)
+    done = d.finished(p.info, run_options)
+    budget = d.max_steps(p.info, run_options) - (int(state.step) - start)
+    return runner.run_sampled(sim, params, state, max_steps=budget, finished=lambda s: bool(done(s)),
+                              progress=progress, checkpoint=ckpt.with_facts(checkpoint, stage=d.name), samples=samples)
+
+
+def continued_stages(d: Definition, resume) -> tuple[str | None, str | None]:
+    """`(pile run's checkpoint, this stage's checkpoint)` to resume a continued
+    protocol that builds its own pile from `resume`: a save of this stage
+    (which names its pile's file), a save of the pile's run, or this stage's
+    fixed path when the run stopped before the stage began (then only its
+    `checkpoint.sibling(resume, pile name)` exists)."""
+    from jaxpile.engine import checkpoint as ckpt
+    from jaxpile.errors import InputError
+
+    base = d.starts_from.name
+    if resume is None:
+        return None, None
+    if not os.path.exists(resume):
+        sibling = ckpt.sibling(resume, base)
+        if not os.path.exists(sibling):
+            raise InputError(f"resuming a {d.name} that builds its own pile needs the {base} run's checkpoint "
+                             f"{sibling} (or the {d.name}'s {resume}); neither is there.")
+        return sibling, None
+    extra = ckpt.read_metadata(resume)["extra"]
+    if extra.get("stage") == base:
+        return resume, None
+    pile = os.path.join(os.path.dirname(resume), extra.get("pile_checkpoint") or "")
+    if not extra.get("pile_checkpoint") or not os.path.exists(pile):
+        raise InputError(f"{resume} is a {d.name} checkpoint; resuming it needs the pile it started from, the "
+                         f"{base} run's last save {pile or '(not recorded)'}, beside it.")
+    return pile, resume
+
+
 def adapter(definition: Definition):
     """The sweep's `Adapter` of `definition`: the same set-up, simulator,
     predicate, budget and measurements as `run`, per member of a batch."""
     from jaxpile.sweep import Adapter, option_names
 
     d = definition
+    if d.starts_from is not None:
+        return _continued_adapter(d)
 
     def setup(law, seed, dt, options):
         kwargs = {k: v for k, v in options.items() if k not in d.run_options}
@@ -163,6 +290,45 @@ def adapter(definition: Definition):
                    **extra)
 
 
+def _continued_adapter(d: Definition):
+    """A batch of a continued protocol: the pile's protocol (stage 0, as its
+    own adapter), then this one from each member's end state (a `Stage`)."""
+    from jaxpile.sweep import Adapter, Stage, option_names
+
+    base = adapter(d.starts_from)
+    names = option_names(d.setup, *d.run_options) - {"pile", "edge"}  # the stage's; its pile is the member's state
+
+    def setup(law, seed, dt, options):
+        return base.setup(law, seed, dt, {k: v for k, v in options.items() if k in base.options}
+                          | {"dtype": options.get("dtype")})
+
+    def start(law, dt, options, state, p):
+        p = d.setup(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in names and k not in d.run_options})
+        p = p._replace(info={**p.info, "run_options": _run_options(d, options)})  # for the member's measurement
+        return state.set(protocol_state=p.protocol_state), p
+
+    def describe(state, p):
+        return {} if d.pile_facts is None else d.pile_facts(state, p)
+
+    def row(sim, params, state, p):
+        m = d.measure(sim, params, state, p, _run_options(d, p.info.get("run_options")))
+        return d.row(m) if callable(d.row) else {k: m[k] for k in d.row}
+
+    def simulator(law, dt, sim_options, setup_options):
+        return d.simulator(law, dt=dt, **sim_options)
+
+    def finished(info, options):
+        return d.finished(info, _run_options(d, options))
+
+    def max_steps(info, options):
+        return d.max_steps(info, _run_options(d, options))
+
+    stage = Stage(simulator, start, finished, max_steps, describe)
+    extra = dict(d.sweep)
+    return Adapter(setup, base.simulator, base.finished, base.max_steps, row, d.law_and_params, base.default_dt,
+                   options=frozenset(base.options | names), stages=(stage,), **extra)
+
+
 def _run_options(d: Definition, options: dict | None) -> dict:
     """The definition's run options, overridden by those of `options` (a
     sweep's options also hold set-up ones: those are left out)."""
@@ -173,4 +339,4 @@ def _takes_setup_options(d: Definition) -> bool:
     return "setup_options" in inspect.signature(d.simulator).parameters
 
 
-__all__ = ["Definition", "adapter", "execute", "run"]
+__all__ = ["Definition", "adapter", "continue_pile", "continued_stages", "execute", "on_pile", "run"]

@@ -290,7 +290,6 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
                     protocol_state=state, box=box, info=info)
 
 
-
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
     return sloped_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
@@ -457,12 +456,6 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
                      "dip_threshold": dip_threshold},
         seed=seed, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed, quiet_time=quiet_time,
         max_interval=max_interval)
-
-
-def sweep_adapter():
-    """Liffman et al. 1992 Fig. 20 in a batch: disks dropped one at a time, then
-    relaxed (`definition.adapter`)."""
-    return definition.adapter(DEFINITION)
 
 
 __all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "law_and_params", "layout",

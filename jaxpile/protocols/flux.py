@@ -499,13 +499,6 @@ def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=N
                           run_options={"max_time": max_time}, **options)
 
 
-def sweep_adapter():
-    """Lee & Herrmann 1993 Fig. 5 in a batch: disks fed one at a time onto a
-    fixed layer; per member the angle (method 3) before each insertion and its
-    steady mean over the second half of the insertions (`definition.adapter`)."""
-    return definition.adapter(DEFINITION)
-
-
 __all__ = [
     "law_and_params",
     "SETTING",

@@ -3,7 +3,7 @@
 None of the three papers has it; it is what DEM users ask for next, and it is
 the proof of issue 18 that a new protocol is one module: this file and its
 test, with nothing to edit elsewhere (the registry finds `CLI`, the sweep and
-the ensemble fit find `sweep_adapter`).
+the ensemble fit its `DEFINITION`).
 
 The set-up, in units of the mean diameter d = 1, g = 1, a disk of diameter 1
 of mass 1 (the 1993 protocols' reduced units):
@@ -372,8 +372,3 @@ def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None,
     return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
                           chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
                           run_options={"max_time": max_time, "beverloo_k": beverloo_k}, **options)
-
-
-def sweep_adapter():
-    """What a sweep and an ensemble fit need: the flow rate (and Beverloo's C) per member."""
-    return definition.adapter(DEFINITION)

@@ -552,13 +552,6 @@ def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: fl
 protocol = pour  # the set-up function under the name every protocol module uses
 
 
-def sweep_adapter():
-    """What a sweep and an ensemble fit need: the flank angles, the height and
-    base, the M ratio and the force balance per member; every disk poured,
-    then at rest (`definition.adapter`)."""
-    return definition.adapter(DEFINITION)
-
-
 # ------------------------------------------------------------- pathwise fits
 def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
                      bins: int | None = None, window: int = 2000, progress=None):

@@ -34,21 +34,20 @@ with the pile's own theta_R (method 3) and mu (`theory.tilting_angle`, Fig. 7(b)
 from __future__ import annotations
 
 import math
-import os
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import ranges, runner
+from jaxpile import ranges
 from jaxpile.measure import theory
 from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
-from jaxpile.protocols import outputs
+from jaxpile.protocols import definition, outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.engine.state import SimState
+from jaxpile.sweep import marginal_stability
 
 Array = Any
 
@@ -281,49 +280,6 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
                                 driver=driver, **kwargs)
 
 
-def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: bool = False,
-            settle_time: float = SETTING["settle_time"], progress=None, checkpoint=None, resume=None):
-    """Tilts until the pile moves (or the largest tilt), then, with `settle`,
-    until it is at rest again.
-
-    Args:
-      pile: the state `p` was built from: continued as it is (contact history
-        kept). None: start from `p.particles` with `sim.init` (fresh history).
-      settle_time: at most this many paper seconds after the pile moved.
-      checkpoint, resume: as in `box.execute` (a tilt checkpoint resumes on the
-        same `pile`).
-
-    Returns:
-      (state, RunInfo, samples) as `runner.run_sampled`.
-    """
-    from jaxpile.engine import checkpoint as ckpt
-
-    runner.check_dt(sim, p)
-    if pile is None:
-        state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    else:
-        if int(pile.step) != p.info["start_step"] or pile.particles.count != p.info["n"]:
-            raise InputError("pile is not the state this tilt protocol was built from.")
-        state = pile.set(protocol_state=p.protocol_state)
-    samples = None
-    if resume is not None:
-        state, samples = runner.restore_sampled(resume, state, sim, params)
-    u = boxes.units(sim.law.name)
-    settle_steps = int(round(boxes._check_positive("settle_time", settle_time) * u.time / sim.dt)) if settle else 0
-    max_steps = p.info["max_tilt_steps"] + sim.chunk_steps + settle_steps
-
-    def finished(s: SimState) -> bool:
-        ps = s.protocol_state
-        if int(ps.phase) >= (2 if settle else 1):
-            return True
-        # gave up: the largest tilt reached without motion
-        return int(ps.phase) == 0 and int(s.step) - p.info["start_step"] > p.info["max_tilt_steps"] + int(ps.hold)
-
-    done = int(state.step) - p.info["start_step"]
-    return runner.run_sampled(sim, params, state, max_steps=max_steps - done, finished=finished, progress=progress,
-                             checkpoint=ckpt.with_facts(checkpoint, stage="tilt"), samples=samples)
-
-
 def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: float | None) -> dict:
     """The measured angles against the paper's sec. 6: theta_MS = arctan(3 mu)
     (eq. 3) beside theta_R + theta_T (Fig. 7(a)), and theta_T from eq. 4 for the
@@ -349,29 +305,95 @@ def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: floa
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 
-def _stages(resume) -> tuple[str | None, str | None]:
-    """`(box run checkpoint, tilt checkpoint)` to resume a tilt that builds its
-    own pile from `resume`: a tilt save (which names its pile's file), a box
-    save, or the tilt's fixed path when the run stopped before the tilt began
-    (then only its `checkpoint.sibling(resume, "box")` exists)."""
-    from jaxpile.engine import checkpoint as ckpt
+def pile_facts(pile: SimState, p: Protocol) -> dict:
+    """The pile the tilt takes over: its angles of repose (three methods, at
+    the floor's end `edge`) and whether its box run came to rest."""
+    before = boxes.repose(pile, p.info["edge"])
+    ps = pile.protocol_state
+    return {"pile_repose": {k: v for k, v in before.items() if not k.startswith("surface")},
+            "box_settled": bool(int(ps.settled_at) >= 0) if hasattr(ps, "settled_at") else None}
 
-    if resume is None:
-        return None, None
-    if not os.path.exists(resume):
-        box = ckpt.sibling(resume, "box")
-        if not os.path.exists(box):
-            raise InputError(f"resuming a tilt that builds its own pile needs the box run's checkpoint "
-                             f"{box} (or the tilt's {resume}); neither is there.")
-        return box, None
-    extra = ckpt.read_metadata(resume)["extra"]
-    if extra.get("stage") == "box":
-        return resume, None
-    pile = os.path.join(os.path.dirname(resume), extra.get("pile_checkpoint") or "")
-    if not extra.get("pile_checkpoint") or not os.path.exists(pile):
-        raise InputError(f"{resume} is a tilt checkpoint; resuming it needs the pile it started from, the box "
-                         f"run's last save {pile or '(not recorded)'}, beside it.")
-    return pile, resume
+
+def finished(info, options):
+    """Moved (or, with `settle`, at rest again), or the largest tilt passed
+    without motion and its hold time after it: the run gives up. Traceable."""
+    give_up = int(info["max_tilt_steps"])
+    end_phase = 2 if options["settle"] else 1
+    return lambda s: (s.protocol_state.phase >= end_phase) | (
+        (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
+
+
+def max_steps(info, options) -> int:
+    """The tilt's budget from its start: the largest tilt, the hold after it,
+    and with `settle` at most `settle_time` paper seconds to rest."""
+    settle = 0
+    if options["settle"]:
+        u = boxes.units(info["law"])
+        settle = int(round(boxes._check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
+    return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000 + settle
+
+
+def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+    """theta_T (degrees, NaN if the pile never moved up to the largest tilt),
+    the pile's theta_R (method 3) and all three methods, the theory of sec. 6
+    (`compare_with_theory`), the steps of the onset and of the motion (from
+    the tilt's start), the tilt held at the end, and the disk counts."""
+    ps = state.protocol_state
+    moved = int(ps.phase) >= 1
+    theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
+    theta_r = p.info["pile_repose"]["repose_cumulative_parabola"]
+    mu = boxes.friction_coefficient(params)
+    start = p.info["start_step"]
+    out = {
+        "law": p.info["law"],
+        "mu": mu,
+        "theta_t": theta_t,
+        "theta_r": theta_r,
+        "pile_repose": p.info["pile_repose"],
+        **compare_with_theory(theta_r, theta_t, mu),
+        "moved": moved,
+        "onset_step": int(ps.onset) - start if moved else -1,
+        "moved_step": int(ps.moved_at) - start if moved else -1,
+        "tilt_held": math.degrees(float(ps.tilt)),
+        "settled_step": int(ps.settled_at) - start if int(ps.settled_at) >= 0 else -1,
+        "at_rest": int(ps.settled_at) >= 0,
+        "box_settled": p.info["box_settled"],
+        "n_left": int(ps.left),
+        **boxes.count_check(state),
+    }
+    if options["settle"] and out["at_rest"]:
+        after = boxes.repose(state, p.info["edge"])
+        out["after_repose_box_frame"] = {k: v for k, v in after.items() if not k.startswith("surface")}
+    return out
+
+
+DEFINITION = definition.Definition(
+    "tilt", protocol, make_simulator, law_and_params, boxes.DEFINITION.default_dt, finished, max_steps, measure,
+    row=("theta_t", "theta_r", "moved", "theta_r_plus_theta_t", "theta_ms_theory", "theta_t_theory", "box_settled",
+         "tilt_held", "n_left"),
+    run_options={"settle": False, "settle_time": SETTING["settle_time"]},
+    sweep=dict(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability,
+               fit_statistics={"columns": ("theta_t", "theta_r")}),
+    starts_from=boxes.DEFINITION, pile_facts=pile_facts)
+
+
+def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: bool = False,
+            settle_time: float = SETTING["settle_time"], progress=None, checkpoint=None, resume=None):
+    """Tilts until the pile moves (or the largest tilt), then, with `settle`,
+    until it is at rest again (`definition.continue_pile`).
+
+    Args:
+      pile: the state `p` was built from: continued as it is (contact history
+        kept). None: start from `p.particles` with `sim.init` (fresh history).
+      settle_time: at most this many paper seconds after the pile moved.
+      checkpoint, resume: as in `box.execute` (a tilt checkpoint resumes on the
+        same `pile`).
+
+    Returns:
+      (state, RunInfo, samples) as `runner.run_sampled`.
+    """
+    return definition.continue_pile(DEFINITION, sim, params, p, pile, progress=progress, checkpoint=checkpoint,
+                                    resume=resume, run_options={"settle": settle, "settle_time": settle_time})
 
 
 def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = None, params=None,
@@ -380,7 +402,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         chunk_steps: int | None = None, progress=False, dtype=None, box_options: dict | None = None,
         checkpoint=None, resume=None, **options):
     """Builds a pile with the box protocol (or takes `pile`), tilts it at the
-    paper's rate until it moves, and measures theta_T.
+    paper's rate until it moves, and measures theta_T (`definition.run`).
 
     Args:
       law: `lee-herrmann` (the paper's, in cgs), `hooke`, `baxter` or `liffman`.
@@ -407,125 +429,32 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
         rest_measure, hold_time, max_tilt_degrees, edge).
 
     Returns:
-      `(state, measurements)`: `theta_t` (degrees, NaN if the pile never moved
-      up to `max_tilt_degrees`), the pile's `theta_r` (method 3) and all three
-      methods, the theory comparison (`compare_with_theory`), the steps of the
-      onset and of the motion, counts, the kinetic energy per chunk, timings;
-      `box` holds the box run's measurements when the pile was built here.
+      `(state, measurements)`: `measure`'s dict, the kinetic energy per chunk,
+      timings, `info`; `box` holds the box run's measurements when the pile
+      was built here.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    from jaxpile.engine import checkpoint as ckpt
-
-    _, _, tilt_params = boxes.law_and_params(law, params, rotation, dtype)
-    box_result = None
-    if pile is None:
-        box_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], "box")
-        box_resume, resume = _stages(resume)
-        pile, box_result = boxes.run(law, n, params=params if pile_params is None else pile_params,
-                                     rotation=rotation, dt=dt, integrator=integrator, chunk_steps=chunk_steps,
-                                     progress=progress, dtype=dtype,
-                                     checkpoint=ckpt.with_facts(checkpoint, path=box_file, stage="box"),
-                                     resume=box_resume, **(box_options or {}))
-        if checkpoint is not None:  # each tilt save names the pile it started from (its box run's last save)
-            pile_file = os.path.basename(box_file.replace("{step}", str(int(pile.step))))
-            checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=pile_file)
-    p = protocol(pile, law=law, dt=dt, **options)
-    before = boxes.repose(pile, p.info["edge"])
-    sim = make_simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, chunk_steps=chunk_steps)
-    t0 = time.perf_counter()
-    state, info, samples = execute(sim, tilt_params, p, pile=pile, settle=settle, settle_time=settle_time,
-                                   progress=progress, checkpoint=checkpoint, resume=resume)
-    ps = state.protocol_state
-    moved = int(ps.phase) >= 1
-    theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
-    theta_r = before["repose_cumulative_parabola"]
-    mu = boxes.friction_coefficient(tilt_params)
-    start = p.info["start_step"]
-    out = {
-        "protocol": "tilt",
-        "law": p.info["law"],
-        "mu": mu,
-        "theta_t": theta_t,
-        "theta_r": theta_r,
-        "pile_repose": {k: v for k, v in before.items() if not k.startswith("surface")},
-        **compare_with_theory(theta_r, theta_t, mu),
-        "moved": moved,
-        "onset_step": int(ps.onset) - start if moved else -1,
-        "moved_step": int(ps.moved_at) - start if moved else -1,
-        "tilt_held": math.degrees(float(ps.tilt)),
-        "settled_step": int(ps.settled_at) - start if int(ps.settled_at) >= 0 else -1,
-        "at_rest": int(ps.settled_at) >= 0,
-        "n_left": int(ps.left),
-        **boxes.count_check(state),
-        "kinetic_energy": samples,
-        **runner.run_record(info, t0),
-        "info": dict(p.info),
-    }
-    if settle and out["at_rest"]:
-        after = boxes.repose(state, p.info["edge"])
-        out["after_repose_box_frame"] = {k: v for k, v in after.items() if not k.startswith("surface")}
-    if box_result is not None:
-        out["box"] = {k: v for k, v in box_result.items() if k != "kinetic_energy"}
-    return state, out
-
-
-def sweep_adapter():
-    """Lee & Herrmann 1993 Fig. 4 in a batch: a box pile (stage 1, as `box`),
-    then tilted at the paper's rate until it moves (stage 2, as `run` without
-    `settle`): theta_T, the pile's theta_R and the theory of sec. 6."""
-    from jaxpile.sweep import Adapter, Stage, marginal_stability, option_names
-
-    base = boxes.sweep_adapter()
-    tilt_names = option_names(protocol) - {"pile", "edge"}
-    box_names = base.options
-
-    def setup(law, seed, dt, options):
-        return base.setup(law, seed, dt, {k: v for k, v in options.items() if k in box_names}
-                          | {"dtype": options.get("dtype")})
-
-    def start(law, dt, options, state, p):
-        p = protocol(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in tilt_names})
-        return state.set(protocol_state=p.protocol_state), p
-
-    def describe(state):
-        pile = boxes.repose(state, float(state.protocol_state.edge))
-        return {"pile_repose": {k: v for k, v in pile.items() if not k.startswith("surface")},
-                "box_settled": int(state.protocol_state.settled_at) >= 0}
-
-    def finished(info, options):
-        give_up = int(info["max_tilt_steps"])  # as execute: moved, or the largest tilt passed without motion
-        return lambda s: (s.protocol_state.phase >= 1) | (
-            (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
-
-    def max_steps(info, options):
-        return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000
-
-    def row(sim, params, state, p):
-        ps = state.protocol_state
-        moved = int(ps.phase) >= 1
-        theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
-        theta_r = p.info["pile_repose"]["repose_cumulative_parabola"]
-        theory = compare_with_theory(theta_r, theta_t, boxes.friction_coefficient(params))
-        return {"theta_t": theta_t, "theta_r": theta_r, "moved": moved,
-                "theta_r_plus_theta_t": theory["theta_r_plus_theta_t"], "theta_ms_theory": theory["theta_ms_theory"],
-                "theta_t_theory": theory["theta_t_theory"], "box_settled": p.info["box_settled"],
-                "tilt_held": math.degrees(float(ps.tilt)), "n_left": int(ps.left)}
-
-    tilting = Stage(lambda law, dt, options, setup_options: make_simulator(law, dt=dt, **options), start, finished,
-                    max_steps, describe)
-    return Adapter(setup, base.simulator, base.finished, base.max_steps, row, boxes.law_and_params, base.default_dt,
-                   ("theta_t", "theta_r", "theta_r_plus_theta_t"), frozenset(box_names | tilt_names),
-                   marginal_stability, fit_statistics={"columns": ("theta_t", "theta_r")}, stages=(tilting,))
+    if box_options:
+        ranges.check_all(boxes.OPTION_RANGES, box_options, boxes.run)
+    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
+                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
+                          run_options={"settle": settle, "settle_time": settle_time}, pile=pile,
+                          pile_params=pile_params, pile_options=box_options, **options)
 
 
 __all__ = [
+    "DEFINITION",
     "law_and_params",
     "SETTING",
     "TiltState",
     "compare_with_theory",
     "driver",
     "execute",
+    "finished",
     "make_simulator",
+    "max_steps",
+    "measure",
+    "pile_facts",
     "protocol",
     "run",
     "tilt_at",
