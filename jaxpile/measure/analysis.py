@@ -439,6 +439,48 @@ def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=
                         cumulative_parabola=float(angles[2]), slopes=slopes, x=x)
 
 
+
+def _fill_gaps(height: np.ndarray) -> np.ndarray:
+    """Empty columns between filled ones get the linear interpolation of their
+    neighbours (a bottom-layer column can hold no disk centre); empty columns
+    at the ends stay empty."""
+    h = np.array(height, dtype=np.float64)
+    h[~np.isfinite(h)] = np.nan
+    filled = np.flatnonzero(~np.isnan(h))
+    if filled.size >= 2:
+        inside = np.arange(filled[0], filled[-1] + 1)
+        h[inside] = np.interp(inside, filled, h[filled])
+    return h
+
+
+def recorded_repose_angles(x_min: float, column_width: float, heights) -> dict:
+    """The three angles of Lee & Herrmann 1993 sec. 3 (degrees) of each recorded
+    surface h(x) (the flux protocol records one before each insertion, Fig. 5).
+
+    Args:
+      x_min, column_width: the columns.
+      heights: `[k, c]` recorded h(x) (-inf or NaN for an empty column).
+
+    Returns:
+      dict of `[k]` lists `endpoints`, `least_squares`, `cumulative_parabola`
+      (NaN where a surface has fewer than 3 columns).
+    """
+    heights = np.atleast_2d(np.asarray(heights, dtype=np.float64))
+    x = x_min + column_width * (np.arange(heights.shape[1]) + 0.5)
+    out = {"endpoints": [], "least_squares": [], "cumulative_parabola": []}
+    for row in heights:
+        h = _fill_gaps(row)
+        profile = SurfaceProfile(x=x, height=h, count=(~np.isnan(h)).astype(np.int64),
+                                          particle=np.full(h.size, -1), column_width=float(column_width))
+        try:
+            a = repose_angles(profile)
+            values = (a.endpoints, a.least_squares, a.cumulative_parabola)
+        except InputError:
+            values = (float("nan"),) * 3
+        for key, value in zip(out, values):
+            out[key].append(float(value))
+    return out
+
 def mid_flank_angle(profile: SurfaceProfile, *, flank: str, base: float, band=(0.2, 0.8),
                     apex: float | None = None) -> float | None:
     """The angle between a heap's flank and its base (Baxter et al. 1997, sec.
@@ -771,6 +813,7 @@ __all__ = [
     "mean_kinetic_energy",
     "packing_fraction",
     "mid_flank_angle",
+    "recorded_repose_angles",
     "repose_angles",
     "rest_index",
     "surface_profile",

@@ -13,7 +13,7 @@ import numpy as np
 from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
 from jaxpile.measure import analysis
-from jaxpile.measure.heap import base_profile, m_shape
+from jaxpile.measure.heap import base_profile, central_dip, flank_over_centre, m_shape
 
 # -------------------------------------------------------------------- forces
 # The base forces on fixed disks are a general measurement (`analysis`); the
@@ -150,4 +150,25 @@ def summary(measurements: dict) -> dict:
         prof = m["base_profile"]
         out["base_profile"] = {"x_over_b": prof.x_over_b.tolist(), "normalised": prof.normalised.tolist(),
                                "force_mg": prof.force.tolist(), "width": prof.width}
+    return out
+
+
+def sweep_row(full: dict) -> dict:
+    """A poured heap's sweep row (from `measure`'s dict): the flank angles,
+    the height and base, the M ratio, the central dip and the force balance."""
+    m = summary(full)
+    out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
+    for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
+        out[key] = m.get(key, float("nan"))
+    for flank in ("left", "right"):
+        a = (m.get("angle_of_repose") or {}).get(flank) or {}
+        out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
+    out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
+    ms = m.get("m_shape") or {}
+    out["m_ratio"] = ms.get("ratio", float("nan"))
+    # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
+    profile = full.get("base_profile")
+    out["central_dip"] = float("nan") if profile is None else central_dip(profile)
+    out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
+    out["m_shaped"] = bool(ms.get("m_shaped", False))
     return out

@@ -52,7 +52,6 @@ import numpy as np
 
 from jaxpile import budget, ranges
 from jaxpile.protocols import definition
-from jaxpile.protocols import definition
 from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
@@ -368,45 +367,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
                     box=boxes.neighbor_box(park, radius_all), info=info)
 
 
-def _fill_gaps(height: np.ndarray) -> np.ndarray:
-    """Empty columns between filled ones get the linear interpolation of their
-    neighbours (a bottom-layer column can hold no disk centre); empty columns
-    at the ends stay empty."""
-    h = np.array(height, dtype=np.float64)
-    h[~np.isfinite(h)] = np.nan
-    filled = np.flatnonzero(~np.isnan(h))
-    if filled.size >= 2:
-        inside = np.arange(filled[0], filled[-1] + 1)
-        h[inside] = np.interp(inside, filled, h[filled])
-    return h
-
-
-def angles(x_min: float, column_width: float, heights) -> dict:
-    """The three angles of sec. 3 (degrees) of each recorded surface.
-
-    Args:
-      x_min, column_width: the columns.
-      heights: `[k, c]` recorded h(x) (-inf or NaN for an empty column).
-
-    Returns:
-      dict of `[k]` lists `endpoints`, `least_squares`, `cumulative_parabola`
-      (NaN where a surface has fewer than 3 columns).
-    """
-    heights = np.atleast_2d(np.asarray(heights, dtype=np.float64))
-    x = x_min + column_width * (np.arange(heights.shape[1]) + 0.5)
-    out = {"endpoints": [], "least_squares": [], "cumulative_parabola": []}
-    for row in heights:
-        h = _fill_gaps(row)
-        profile = analysis.SurfaceProfile(x=x, height=h, count=(~np.isnan(h)).astype(np.int64),
-                                          particle=np.full(h.size, -1), column_width=float(column_width))
-        try:
-            a = analysis.repose_angles(profile)
-            values = (a.endpoints, a.least_squares, a.cumulative_parabola)
-        except InputError:
-            values = (float("nan"),) * 3
-        for key, value in zip(out, values):
-            out[key].append(float(value))
-    return out
+angles = analysis.recorded_repose_angles  # the angles of each recorded surface (sec. 3's three methods)
 
 
 def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,

@@ -57,14 +57,14 @@ import numpy as np
 from jax import lax
 
 from jaxpile import budget, ranges
-from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import (  # noqa: F401  (pour.X as before)
     BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape)
 # the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
-from jaxpile.measure.poured_heap import SubstrateForces, heap_mask, measure, substrate_forces, summary  # noqa: F401
+from jaxpile.measure.poured_heap import (  # noqa: F401  (pour.X as before)
+    SubstrateForces, heap_mask, measure, substrate_forces, summary, sweep_row)
 from jaxpile.protocols import definition, drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
@@ -470,27 +470,6 @@ def _report(measured: dict, protocol: Protocol, options: dict, info, samples, se
     return result
 
 
-def _row(full: dict) -> dict:
-    """A sweep row: the flank angles, the height and base, the M ratio, the
-    central dip and the force balance."""
-    m = summary(full)
-    out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
-    for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
-        out[key] = m.get(key, float("nan"))
-    for flank in ("left", "right"):
-        a = (m.get("angle_of_repose") or {}).get(flank) or {}
-        out[f"repose_{flank}"] = a.get("cumulative_parabola", float("nan"))
-    out["repose_mean"] = 0.5 * (out["repose_left"] + out["repose_right"])
-    ms = m.get("m_shape") or {}
-    out["m_ratio"] = ms.get("ratio", float("nan"))
-    # the drop's dip (1992 Fig. 20, Smid-Novosad's 0.2-0.3): 1 - centre over the lower flank maximum
-    profile = full.get("base_profile")
-    out["central_dip"] = float("nan") if profile is None else central_dip(profile)
-    out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
-    out["m_shaped"] = bool(ms.get("m_shaped", False))
-    return out
-
-
 def _finished(info, options):
     """A batch's end for one heap: every disk poured, then its fastest disk below the tolerance."""
     from jaxpile.engine.simulate import max_speed
@@ -504,7 +483,7 @@ DEFINITION = definition.Definition(
     lambda info, options: int(info["pour_steps"]) + int(options["max_settle_steps"]),
     lambda sim, params, state, p, options: measure(sim, params, state, bins=options["bins"],
                                                    voidage_cell=options["voidage_cell"]),
-    row=_row, execute=_execute, report=_report,
+    row=sweep_row, execute=_execute, report=_report,
     run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
                  "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
     sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability, default_law="baxter",
