@@ -35,7 +35,7 @@ import numpy as np
 from jaxpile import budget as memory
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
-from jaxpile.engine.simulate import RunInfo, max_speed
+from jaxpile.engine.simulate import RunInfo
 
 
 @dataclass(frozen=True)
@@ -148,58 +148,6 @@ def option_names(setup, *extra) -> frozenset:
 
     names = set(inspect.signature(setup).parameters) - {"law", "seed", "dt", "dtype"}
     return frozenset(names | set(extra))
-
-
-def loaded_pile_adapter(setting: dict, build: Callable, compare: Callable, law_and_params: Callable,
-                        headline: tuple, names) -> Adapter:
-    """A 1992 static pile in a batch (lattice, sloped): a gravity ramp, then a
-    run to rest (as `lattice.relax`; the batch's predicate: past the ramp and
-    every member's fastest disk below `speed_tolerance`). Deterministic piles:
-    seeds repeat the same pile, so a sweep varies the law (K_s, mu_roll, ...).
-
-    Args:
-      setting: the protocol's defaults (`ramp_steps`, `speed_tolerance`, `max_steps`, `dt`).
-      build: `(set-up options with dtype) -> (particles, boundaries, info)`.
-      compare: `(base forces, info, state) -> dict` against the paper's theory.
-      law_and_params, headline, names: the protocol's law lookup, headline
-        columns and set-up options.
-    """
-    from jaxpile.measure import analysis
-    from jaxpile.protocols.base import Protocol
-    from jaxpile.engine.simulate import Simulator, gravity_ramp
-
-    run_options = ("ramp_steps", "speed_tolerance", "max_steps")
-
-    def value(options, key):
-        return options.get(key, setting[key])
-
-    def setup(law, seed, dt, options):
-        particles, boundaries, info = build({k: v for k, v in options.items() if k not in run_options})
-        return Protocol(particles=particles, boundaries=boundaries,
-                        info={**info, "dt": dt, "speed_tolerance": float(value(options, "speed_tolerance"))})
-
-    def simulator(law, dt, options, setup_options):
-        _, contact_law, _ = law_and_params(law, None, options.get("rotation"))
-        return Simulator(contact_law, dt, schedule=gravity_ramp(int(value(setup_options, "ramp_steps"))))
-
-    def finished(info, options):
-        ramp, tolerance = int(value(options, "ramp_steps")), float(value(options, "speed_tolerance"))
-        return lambda s: (s.step >= ramp) & (max_speed(s) < tolerance)
-
-    def row(sim, params, state, protocol):
-        m = compare(analysis.base_forces(sim, params, state), protocol.info, state)
-        out = {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str)}
-        p = state.particles
-        active = np.asarray(p.active)
-        # the pile's top above the ground: it sinks by the contacts' compression, ~ weight / K_s
-        height = float(np.max((np.asarray(p.position[:, 1]) + np.asarray(p.radius))[active]))
-        return out | {"height": height, "at_rest": bool(max_speed(state) < protocol.info["speed_tolerance"]),
-                      "max_speed": float(max_speed(state))}
-
-    return Adapter(setup, simulator, finished, lambda info, options: int(value(options, "max_steps")), row,
-                   law_and_params, lambda law: float(setting["dt"]), headline,
-                   frozenset(set(names) | set(run_options) | {"n"}), None, unit="", default_law="hooke",
-                   extent=bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True)
 
 
 def adapters() -> dict[str, Callable[[], Adapter]]:

@@ -32,7 +32,8 @@ class Definition:
       setup: the module's set-up, `setup(size, *, law?, seed, dt, dtype, **options) -> Protocol`.
       size: the set-up's size keyword (`n`, `insertions`): a sweep's `--n`.
       simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`;
-        one that takes `setup_options` gets the set-up's options (no seed).
+        one that takes `setup_options` gets the set-up's options (no seed),
+        one that takes `run_options` the run options (the 1992 piles' ramp).
       law_and_params: the module's `(law, params, rotation, dtype) -> (module, law, params)`.
       default_dt: `law -> dt` when none is given.
       run_options: run keywords that are not set-up options, with their
@@ -79,9 +80,15 @@ class Definition:
     pile_facts: Callable | None = None
 
     def _setup(self, size, law, **kwargs) -> Protocol:
-        if "law" in inspect.signature(self.setup).parameters:
+        taken = inspect.signature(self.setup).parameters
+        if "law" in taken:
             kwargs["law"] = law
-        return self.setup(size, **kwargs) if size is not None else self.setup(**kwargs)
+        for name in ("seed", "dt", "dtype"):  # what the runner hands every set-up; a deterministic pile takes no seed
+            if name not in taken:
+                kwargs.pop(name, None)
+        if size is None and self.size != "n":  # a sweep names the size by the set-up's own keyword (`layers`)
+            size = kwargs.pop(self.size, None)
+        return self.setup(**{self.size: size}, **kwargs) if size is not None else self.setup(**kwargs)
 
 
 def run(definition: Definition, law, size=None, *, params=None, rotation: bool | None = None,
@@ -119,6 +126,8 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
         sim_options["chunk_steps"] = chunk_steps
     if _takes_setup_options(d):  # a simulator whose driver is built from the set-up's constants (the drop's)
         sim_options["setup_options"] = {k: v for k, v in options.items() if k != "seed"}
+    if _takes(d.simulator, "run_options"):  # a schedule built from run options (the 1992 piles' gravity ramp)
+        sim_options["run_options"] = run_options
     dt = p.info.get("dt", d.default_dt(law) if dt is None else dt)  # the set-up's, where it records one
     sim = d.simulator(law, dt=dt, rotation=rotation, integrator=integrator, **sim_options)
     t0 = time.perf_counter()
@@ -284,6 +293,8 @@ def adapter(definition: Definition):
         if _takes_setup_options(d):
             sim_options = {**sim_options, "setup_options": {k: v for k, v in setup_options.items()
                                                             if k not in d.run_options and k != "dtype"}}
+        if _takes(d.simulator, "run_options"):
+            sim_options = {**sim_options, "run_options": _run_options(d, setup_options)}
         return d.simulator(law, dt=dt, **sim_options)
 
     return Adapter(setup, simulator, finished, max_steps, row, d.law_and_params, d.default_dt, options=options,
@@ -336,7 +347,11 @@ def _run_options(d: Definition, options: dict | None) -> dict:
 
 
 def _takes_setup_options(d: Definition) -> bool:
-    return "setup_options" in inspect.signature(d.simulator).parameters
+    return _takes(d.simulator, "setup_options")
+
+
+def _takes(function, name: str) -> bool:
+    return name in inspect.signature(function).parameters
 
 
 __all__ = ["Definition", "adapter", "continue_pile", "continued_stages", "execute", "on_pile", "run"]

@@ -11,13 +11,13 @@ import math
 
 import numpy as np
 
-import time
 
 from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.engine.state import Boundaries, Particles, make_particles
+from jaxpile.protocols import definition, loaded_pile
 from jaxpile.protocols.base import CommandLine, Protocol
 
 
@@ -131,21 +131,7 @@ def law_and_params(law, params=None, rotation=None, dtype=None):
     return base_law_and_params(law, params, rotation, setting=PAPER_SETTING, dtype=dtype)
 
 
-def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
-          checkpoint=None):
-    """Loads the pile (gravity ramped in by `sim.schedule`) and runs it to rest.
-
-    Resumable from a checkpoint of the same run (`checkpoint` as in
-    `Simulator.run`; see `simulate.load_then_settle`).
-
-    Returns:
-      (state, RunInfo) with the steps of both phases.
-    """
-    from jaxpile.engine.simulate import load_then_settle
-
-    ramp = min(ramp_steps, max_steps)
-    return load_then_settle(sim, params, state, load_steps=ramp, max_settle_steps=max_steps - ramp,
-                            speed_tolerance=speed_tolerance, progress=progress, checkpoint=checkpoint)
+relax = loaded_pile.relax  # gravity ramped in, then a run to rest (shared with the sloped pile)
 
 
 def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0, dtype=None) -> Protocol:
@@ -153,6 +139,30 @@ def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap:
     particles, boundaries = equilateral_pile(layers, diameter=diameter, mass=mass, gap=gap, dtype=dtype)
     return Protocol(particles=particles, boundaries=boundaries,
                     info={"protocol": "lattice", "layers": int(layers), "n": int(particles.count)})
+
+
+def _compare(sim, params, state, p) -> dict:
+    from jaxpile.measure import analysis
+
+    return {**compare_with_theory(analysis.base_forces(sim, params, state), p.info["layers"]),
+            "steps": int(state.step)}
+
+
+def _report(measured: dict, p: Protocol, options: dict, info, seconds: float) -> dict:
+    """One pile's output: the comparison with eqs. 42 and 44, the run's steps,
+    times, whether it ended at rest, and the ground friction the pile needs."""
+    from jaxpile.measure import theory
+
+    layers = p.info["layers"]
+    return {
+        "protocol": "lattice", "layers": layers, "n_particles": int(p.particles.count),
+        "steps": measured["steps"], "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
+        "total_seconds": seconds, "neighbor_reallocations": info.reallocations,
+        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": options["speed_tolerance"],
+        "base_contacts": measured["base_contacts"], "pile_intact": measured["pile_intact"],
+        "theory_normal_mg": measured["theory_normal"], "max_rel_dev_normal": measured["max_rel_dev_normal"],
+        "max_rel_dev_horizontal": measured["max_rel_dev_horizontal"],
+        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info)}
 
 
 def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = None,
@@ -177,32 +187,13 @@ def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = N
       times, whether it ended at rest, and the ground friction the pile needs.
     """
     ranges.check_all(OPTION_RANGES, locals(), run)
-    from jaxpile.measure import analysis, theory
-    from jaxpile.engine.simulate import Simulator, gravity_ramp
-
-    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
-    p = protocol(layers, dtype=dtype)
-    sim = Simulator(contact_law, dt, schedule=gravity_ramp(ramp_steps), integrator=integrator,
-                    hard_collisions=hard_collisions)
-    state = sim.init(params, p.particles, p.boundaries)
-    if resume is not None:
-        from jaxpile.engine import checkpoint as ckpt
-
-        state = ckpt.restore(resume, state, sim.law, params)
-    t0 = time.perf_counter()
-    state, info = relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
-                        max_steps=max_steps, progress=progress, checkpoint=checkpoint)
-    check = compare_with_theory(analysis.base_forces(sim, params, state), int(layers))
-    return state, {
-        "protocol": "lattice", "layers": int(layers), "n_particles": int(p.particles.count),
-        "hard_collisions": None if hard_collisions is None else hard_collisions._asdict(),
-        "steps": int(state.step), "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
-        "total_seconds": time.perf_counter() - t0, "neighbor_reallocations": info.reallocations,
-        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": speed_tolerance,
-        "base_contacts": check["base_contacts"], "pile_intact": check["pile_intact"],
-        "theory_normal_mg": check["theory_normal"], "max_rel_dev_normal": check["max_rel_dev_normal"],
-        "max_rel_dev_horizontal": check["max_rel_dev_horizontal"],
-        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info)}
+    state, out = definition.run(
+        DEFINITION, law, layers, params=params, rotation=rotation, dt=dt, integrator=integrator, dtype=dtype,
+        progress=progress, checkpoint=checkpoint, resume=resume,
+        simulator_options={"hard_collisions": hard_collisions},
+        run_options={"ramp_steps": ramp_steps, "speed_tolerance": speed_tolerance, "max_steps": max_steps})
+    out["hard_collisions"] = None if hard_collisions is None else hard_collisions._asdict()
+    return state, out
 
 
 def compare_with_theory(base, layers: int) -> dict:
@@ -236,19 +227,10 @@ def compare_with_theory(base, layers: int) -> dict:
     }
 
 
-def sweep_adapter():
-    """The lattice in a batch (`sweep.loaded_pile_adapter`): its ground forces
-    against eqs. 42 and 44 for each member's law parameters."""
-    from jaxpile.sweep import loaded_pile_adapter
-
-    def build(options):
-        layers = int(options.get("layers", options.get("n", PAPER_SETTING["layers"])))
-        particles, boundaries = equilateral_pile(layers, dtype=options.get("dtype"))
-        return particles, boundaries, {"layers": layers}
-
-    return loaded_pile_adapter(
-        PAPER_SETTING, build, lambda base, info, state: compare_with_theory(base, info["layers"]), law_and_params,
-        ("max_rel_dev_normal", "max_rel_dev_horizontal"), {"layers"})
+DEFINITION = loaded_pile.definition_of(
+    "lattice", protocol, law_and_params, PAPER_SETTING, _compare, _report,
+    ("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
+    options={"layers", "n", *loaded_pile.RUN_OPTIONS})
 
 
 # ------------------------------------------------------------- pathwise fits

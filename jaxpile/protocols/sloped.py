@@ -27,7 +27,6 @@ Paper sizes (`PAPER_PILES`): alpha = 30, 45, 50, 55 deg with about 360 disks
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
@@ -35,8 +34,7 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.protocols import lattice
-from jaxpile.protocols import outputs
+from jaxpile.protocols import definition, lattice, loaded_pile, outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import Boundaries, Particles, make_particles
@@ -206,7 +204,7 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
     return Protocol(particles=particles, boundaries=boundaries, schedule=gravity_ramp(ramp_steps), info=info)
 
 
-def law_and_params(law, params=None, rotation=None, *, setting: dict = SETTING, dtype=None):
+def law_and_params(law, params=None, rotation=None, dtype=None, *, setting: dict = SETTING):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
     return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype)
 
@@ -242,57 +240,35 @@ def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int 
       >>> m["central_slope_horizontal"], m["theory_central_slope_horizontal"]  # doctest: +SKIP
     """
     ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
+    return definition.run(
+        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, dtype=dtype,
+        progress=progress, checkpoint=checkpoint, resume=resume, simulator_options={"hard_collisions": hard_collisions},
+        run_options={"ramp_steps": ramp_steps, "speed_tolerance": speed_tolerance, "max_steps": max_steps},
+        alpha_degrees=alpha_degrees, base=base, ramp_steps=ramp_steps, seed=seed)
+
+
+def _compare(sim, params, state, p) -> dict:
     from jaxpile.measure import analysis
-    from jaxpile.engine.simulate import Simulator
 
-    _, contact_law, params = law_and_params(law, params, rotation, dtype=dtype)
-    p = protocol(alpha_degrees, n=n, base=base, ramp_steps=ramp_steps, seed=seed, dtype=dtype)
-    sim = Simulator(contact_law, dt, schedule=p.schedule, integrator=integrator, hard_collisions=hard_collisions)
-    state = sim.init(params, p.particles, p.boundaries, box=p.box)
-    if resume is not None:
-        from jaxpile.engine import checkpoint as ckpt
-
-        state = ckpt.restore(resume, state, sim.law, params)
-    t0 = time.perf_counter()
-    state, info = lattice.relax(sim, params, state, ramp_steps=ramp_steps, speed_tolerance=speed_tolerance,
-                                max_steps=max_steps, progress=progress, checkpoint=checkpoint)
-    total = time.perf_counter() - t0
-    base_f = analysis.base_forces(sim, params, state)
-    n_particles = int(np.asarray(state.particles.active).sum())
-    measurements = compare_with_theory(base_f, p.info["alpha_degrees"], p.info["base"], n_particles=n_particles)
-    measurements.update(
-        protocol="sloped",
-        law=contact_law.name,
-        n_particles=n_particles,
-        rows=len(p.info["rows"]),
-        bottom_row=int(p.info["rows"][0]),
-        steps=int(info.steps),
-        wall_seconds=info.wall_seconds,
-        compile_seconds=info.compile_seconds,
-        total_seconds=total,
-        at_rest=bool(info.at_rest),
-        final_max_speed=info.max_speed,
-        speed_tolerance=speed_tolerance,
-    )
-    return state, measurements
+    n_in = int(np.asarray(state.particles.active).sum())
+    return {**compare_with_theory(analysis.base_forces(sim, params, state), p.info["alpha_degrees"],
+                                  p.info["base"], n_particles=n_in), "law": sim.law.name}
 
 
-def sweep_adapter():
-    """The sloped pile in a batch (`sweep.loaded_pile_adapter`): its ground
-    forces against eqs. 54-59 for each member's law parameters."""
-    from jaxpile.sweep import loaded_pile_adapter, option_names
+def _report(measured: dict, p: Protocol, options: dict, info, seconds: float) -> dict:
+    """One pile's output: the comparison with eqs. 54-59, the run's steps and
+    times, whether it ended at rest, the disk count and the pile's geometry."""
+    out = {k: v for k, v in measured.items() if k not in ("height", "max_speed")}
+    out.update(protocol="sloped", n_particles=int(np.asarray(p.particles.active).sum()),
+               rows=len(p.info["rows"]), bottom_row=int(p.info["rows"][0]), steps=int(info.steps),
+               wall_seconds=info.wall_seconds, compile_seconds=info.compile_seconds, total_seconds=seconds,
+               at_rest=bool(info.at_rest), final_max_speed=info.max_speed, speed_tolerance=options["speed_tolerance"])
+    return out
 
-    def build(options):
-        kwargs = {k: v for k, v in options.items() if k != "dtype"}
-        p = protocol(kwargs.pop("alpha_degrees", SETTING["alpha_degrees"]), dtype=options.get("dtype"), **kwargs)
-        return p.particles, p.boundaries, dict(p.info)
 
-    def compare(base, info, state):
-        n_in = int(np.asarray(state.particles.active).sum())
-        return compare_with_theory(base, info["alpha_degrees"], info["base"], n_particles=n_in)
-
-    return loaded_pile_adapter(SETTING, build, compare, law_and_params,
-                               ("central_normal_rel_dev", "central_slope_horizontal"), option_names(protocol) - {"seed"})
+DEFINITION = loaded_pile.definition_of(
+    "sloped", protocol, law_and_params, SETTING, _compare, _report,
+    ("central_normal_rel_dev", "central_slope_horizontal"))
 
 
 __all__ = ["PAPER_PILES", "SETTING", "base_for_count", "compare_with_theory", "law_and_params", "pile_count",
