@@ -67,6 +67,12 @@ def available() -> tuple[int, str]:
                 return int(stats["bytes_limit"]) - int(stats.get("bytes_in_use", 0)), f"{device.device_kind} memory"
     except Exception:  # no backend yet or no statistics: fall back to the host
         pass
+    return host_available()
+
+
+def host_available() -> tuple[int, str]:
+    """`(bytes, where)`: the host's available memory (what numpy may allocate):
+    `MemAvailable` in /proc/meminfo, or the free physical pages."""
     try:
         with open("/proc/meminfo") as f:
             for line in f:
@@ -113,6 +119,17 @@ def check(disks, precision="float64", batch: int = 1, what: str = "the run") -> 
             f"this machine has {_size(memory)} of {where}. At most {fit:,} disks"
             f"{' per member' if batch > 1 else ''} would fit.")
     return need
+
+
+def check_host(need: float, what: str, advice: str = "") -> None:
+    """Raises `InputError`, before anything is allocated, when a host array of
+    about `need` bytes (`what`) would not fit in the host's memory; `advice`
+    says how to make it smaller."""
+    memory, where = host_available()
+    if not need <= USABLE_FRACTION * memory:  # NaN or inf too
+        size = f"about {_size(need)}" if math.isfinite(need) else "more memory than can be counted"
+        raise InputError(f"{what} needs {size}; this machine has {_size(memory)} of {where}."
+                         f"{' ' + advice if advice else ''}")
 
 
 def describe(disks: int, precision="float64", batch: int = 1) -> str:

@@ -296,6 +296,9 @@ def test_voidage_rejects_bad_inputs():
         analysis.voidage_map(pos, 0.5, 1.0, region=(2.0, 1.0, 0.0, 1.0))
     with pytest.raises(InputError, match="no active disk and no region"):
         analysis.voidage_map(pos, 0.5, 1.0, np.zeros(9, bool))
+    for size in (1e-7, 5e-324):  # cells too fine for any memory: refused before the grid is allocated
+        with pytest.raises(InputError, match="Use larger cells"):
+            analysis.voidage_map(pos, 0.5, size)
 
 
 # ---------------------------------------------------------------- force chains

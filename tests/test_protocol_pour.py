@@ -102,6 +102,9 @@ def test_bad_arguments_raise_input_errors():
         pour.pour(10, release_height=20, substrate_disks=4, spread=3.0)
     with pytest.raises(InputError, match="substrate row.*would fit"):  # refused before the row is allocated
         pour.pour(1, release_height=100, substrate_disks=1e300)
+    # a voidage map too fine for the memory: refused before the pour (it used to fail after it, with a traceback)
+    with pytest.raises(InputError, match="voidage_cell = 1e-06"):
+        pour.run("hooke", 6, release_height=10, voidage_cell=1e-6)
     with pytest.raises(InputError, match="dt"):
         pour.execute(pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
                      pour.pour(10, release_height=20))

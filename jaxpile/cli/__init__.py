@@ -869,6 +869,10 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     if "law" in accepted:
         given["law"] = args.law or _entry(name).default_law
     p = setup(**given)
+    definition = getattr(module, "DEFINITION", None)
+    if getattr(definition, "check", None) is not None and setup is module.protocol:  # what a run refuses at its start
+        given_run = {k: v for k, v in kwargs.items() if k in definition.run_options}
+        definition.check(p, {**definition.run_options, **given_run})
     from jaxpile.engine.simulate import Simulator
 
     setting = getattr(module, "SETTING", None) or getattr(module, "PAPER_SETTING", {})

@@ -20,6 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import budget
 from jaxpile.engine.boundaries import GROUND
 from jaxpile.errors import InputError
 from jaxpile.engine.interactions import ContactForces
@@ -696,6 +697,11 @@ def voidage_map(position, radius, cell_size: float, active=None, *, region=None)
     position, radius, active = _disks(position, radius, active)
     cell = _positive("cell_size", cell_size)
     x_min, x_max, y_min, y_max = _region(position, radius, active, region)
+    rad = radius[active]
+    budget.check_host(voidage_map_bytes(x_max - x_min, y_max - y_min, cell, len(rad),
+                                        float(rad.max()) if len(rad) else 0.0),
+                      f"a voidage map of {x_max - x_min:g} x {y_max - y_min:g} in cells of {cell:g}",
+                      "Use larger cells.")
 
     def edges(lo, hi):
         count = max(1, int(np.ceil((hi - lo) / cell * (1.0 - 1e-12))))
@@ -724,6 +730,17 @@ def voidage_map(position, radius, cell_size: float, active=None, *, region=None)
     fraction = area / cell_area
     return VoidageMap(packing_fraction=fraction, voidage=1.0 - fraction,
                       x_edges=x_edges, y_edges=y_edges, cell_area=cell_area)
+
+
+def voidage_map_bytes(width: float, height: float, cell_size: float, disks: int, max_radius: float) -> float:
+    """About the peak bytes `voidage_map` allocates over a `width` x `height`
+    region: the grid, and for every disk the block of cells it may touch (a
+    dozen float64 and int64 arrays of it). A float: a cell far too small
+    gives a number, not an overflow."""
+    with np.errstate(over="ignore"):
+        cells = (np.ceil(width / cell_size) + 1.0) * (np.ceil(height / cell_size) + 1.0)
+        window = np.ceil(2.0 * max_radius / cell_size) + 1.0
+        return float(8.0 * 4 * cells + 8.0 * 12 * disks * window * window)
 
 
 def voidage_map_of(state: SimState, cell_size: float, **kwargs) -> VoidageMap:
@@ -819,6 +836,7 @@ __all__ = [
     "surface_profile",
     "surface_profile_of",
     "voidage_map",
+    "voidage_map_bytes",
     "voidage_map_of",
     "wall_partner",
 ]

@@ -57,6 +57,9 @@ class Definition:
         contact history kept (the tilt: a box pile); `setup` then takes that
         state first, `setup(pile, *, law, dt, **options)`, and `run` builds
         the pile first unless it is given one.
+      check: optional `(set-up, run options) -> None`: raises `InputError`
+        when the run options cannot work with this set-up, checked before a
+        run or a batch starts (the pour: a voidage map too fine to fit in memory).
       pile_facts: with `starts_from`, optional `(pile state, set-up) -> dict`
         of what the pile was when this protocol took it over (the tilt: its
         angle of repose), merged into the set-up's `info`.
@@ -76,6 +79,7 @@ class Definition:
     sweep: dict = field(default_factory=dict)
     execute: Callable | None = None
     report: Callable | None = None
+    check: Callable | None = None
     starts_from: "Definition | None" = None
     pile_facts: Callable | None = None
 
@@ -121,6 +125,8 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
     run_options = _run_options(d, run_options)
     _, _, params = d.law_and_params(law, params, rotation, dtype)
     p = d._setup(size, law, dt=dt, dtype=dtype, **options)
+    if d.check is not None:
+        d.check(p, run_options)
     sim_options = dict(simulator_options or {})
     if chunk_steps is not None:
         sim_options["chunk_steps"] = chunk_steps
@@ -270,6 +276,8 @@ def adapter(definition: Definition):
         kwargs = {k: v for k, v in options.items() if k not in d.run_options}
         size = kwargs.pop("n", None)  # a sweep's --n is the set-up's size, whatever its name
         p = d._setup(size, law, seed=seed, dt=dt, **kwargs)
+        if d.check is not None:
+            d.check(p, _run_options(d, options))
         if _takes_setup_options(d):  # the batch's simulator carries the driver, built from the same constants
             p = p._replace(driver=None)
         # the member's run options travel with its set-up, for its measurement (e.g. the hopper's beverloo_k)

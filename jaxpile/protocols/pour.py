@@ -57,6 +57,7 @@ import numpy as np
 from jax import lax
 
 from jaxpile import budget, ranges
+from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
@@ -478,12 +479,23 @@ def _finished(info, options):
     return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
 
 
+def _check(protocol: Protocol, options: dict) -> None:
+    """Refuses, before the pour, a voidage map whose cells are too fine for
+    this machine's memory (the map covers at most the substrate row and the
+    steepest heap of the disks poured)."""
+    info = protocol.info
+    width, height = info["substrate_length"], steepest_heap_height(info["n_poured"]) + 2.0
+    need = analysis.voidage_map_bytes(width, height, options["voidage_cell"], info["n_poured"], 0.5)
+    budget.check_host(need, f"the voidage map (voidage_cell = {options['voidage_cell']:g} sigma over up to "
+                            f"{width:.0f} x {height:.0f} sigma)", "Give a larger voidage_cell (the default is 3).")
+
+
 DEFINITION = definition.Definition(
     "pour", pour, make_simulator, law_and_params, lambda law: float(PAPER_SETTING["dt"]), _finished,
     lambda info, options: int(info["pour_steps"]) + int(options["max_settle_steps"]),
     lambda sim, params, state, p, options: measure(sim, params, state, bins=options["bins"],
                                                    voidage_cell=options["voidage_cell"]),
-    row=sweep_row, execute=_execute, report=_report,
+    row=sweep_row, execute=_execute, report=_report, check=_check,
     run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
                  "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
     sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability, default_law="baxter",
