@@ -105,6 +105,8 @@ def test_bad_arguments_raise_input_errors():
     # a voidage map too fine for the memory: refused before the pour (it used to fail after it, with a traceback)
     with pytest.raises(InputError, match="voidage_cell = 1e-06"):
         pour.run("hooke", 6, release_height=10, voidage_cell=1e-6)
+    with pytest.raises(InputError, match="bins .* at most the substrate"):  # 1e12 bins: the same, after the pour
+        pour.run("hooke", 6, release_height=10, bins=1e12)
     with pytest.raises(InputError, match="dt"):
         pour.execute(pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
                      pour.pour(10, release_height=20))

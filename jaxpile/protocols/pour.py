@@ -480,10 +480,15 @@ def _finished(info, options):
 
 
 def _check(protocol: Protocol, options: dict) -> None:
-    """Refuses, before the pour, a voidage map whose cells are too fine for
-    this machine's memory (the map covers at most the substrate row and the
-    steepest heap of the disks poured)."""
+    """Refuses, before the pour, more profile bins than substrate disks (a bin
+    narrower than a substrate spacing holds no contact) and a voidage map
+    whose cells are too fine for this machine's memory (the map covers at
+    most the substrate row and the steepest heap of the disks poured)."""
     info = protocol.info
+    bins = options["bins"]
+    if bins is not None and bins > info["n_substrate"]:
+        raise InputError(f"bins ({bins:g}) must be at most the substrate's {info['n_substrate']} disks: a bin "
+                         "narrower than a substrate spacing holds no contact.")
     width, height = info["substrate_length"], steepest_heap_height(info["n_poured"]) + 2.0
     need = analysis.voidage_map_bytes(width, height, options["voidage_cell"], info["n_poured"], 0.5)
     budget.check_host(need, f"the voidage map (voidage_cell = {options['voidage_cell']:g} sigma over up to "
