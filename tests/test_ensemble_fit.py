@@ -107,6 +107,8 @@ def test_bad_fits_are_refused_in_one_line():
         ef.fit(runner, ["mu"], {"mu": 0.2, "kn": 1.0}, target, seeds=[0, 1], statistics=STATS, progress=False)
     with pytest.raises(InputError):
         ef.Runner("box").check(ef.Statistics())
+    with pytest.raises(InputError, match="fewer --bins"):  # a profile too big for the memory, before any pile runs
+        ef.Runner("box").run([{"mu": 0.3}], [0], ef.Statistics(bins=10**12))
 
 
 def test_a_tiny_box_fit_from_the_command_line_moves_mu_toward_the_truth(tmp_path):

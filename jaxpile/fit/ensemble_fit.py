@@ -55,6 +55,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import budget
 from jaxpile.fit import estimators
 from jaxpile.errors import InputError
 from jaxpile.ranges import POSITIVE
@@ -176,6 +177,12 @@ class Runner(NamedTuple):
         a = self.adapter()
         statistics = _check_statistics(statistics, a)
         seeds = [int(s) for s in seeds]
+        if statistics.bins:  # each pile's profile is a [contacts, bins] array: refuse one too big before any run
+            law = self.law_name()
+            p = a.setup(law, seeds[0], self.dt or a.default_dt(law), {**(self.options or {}), "dtype": self.dtype})
+            budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
+                              f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
+                              "pile", "Give fewer --bins.")
         result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
