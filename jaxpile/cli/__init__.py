@@ -990,7 +990,10 @@ def run_sweep(args) -> dict:
     print(f"jaxpile: {main_angle} against {by} (mean +- standard error over seeds):")
     for x, m, e, c, miss in zip(s["x"], s["mean"], s["stderr"], s["count"], s["missing"]):
         unit = result.info.get("unit", "deg")
-        print(f"  {by} = {x:g}: {m:.4g} +- {e:.2g} {unit}  ({c} piles" + (f", {miss} not measurable)" if miss else ")"))
+        # one pile has no standard error (a deterministic pile needs no more): no "+- nan"
+        value = f"{m:.4g}" + (f" +- {e:.2g}" if c > 1 else "") + (f" {unit}" if unit else "")
+        print(f"  {by} = {x:g}: {value}  ({c} pile{'s' if c != 1 else ''}"
+              + (f", {miss} not measurable)" if miss else ")"))
     print(f"jaxpile: {result.info['members']} members x {result.info['n_particles']} disks, "
           f"{result.info['batch_steps']} batch steps in {result.info['run_seconds']:.1f} s "
           f"(+ {result.info['compile_seconds']:.1f} s compile): "
