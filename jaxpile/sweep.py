@@ -236,7 +236,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: a registered protocol with a `sweep_adapter` (`adapters()`).
+      protocol: a registered protocol with a `DEFINITION` or a `sweep_adapter` (`adapters()`).
       law: the contact law (default: the protocol paper's).
       vary: name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`: law parameters,
         or set-up options of the protocol (`{"orifice": [4, 6, 8]}` for the

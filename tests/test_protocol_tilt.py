@@ -117,3 +117,16 @@ def test_bad_arguments_raise_input_error(pile):
     with pytest.raises(InputError, match="not the state"):
         tilt.execute(tilt.make_simulator("lee-herrmann"), box.law_and_params("lee-herrmann")[2], p,
                      pile=state.set(step=state.step + 1))
+
+
+def test_with_settle_the_run_ends_settle_time_after_the_pile_moved(pile):
+    """`settle_time` is "at most this many paper seconds after the pile moved":
+    a frictionless pile, tilt held, slides off and does not rest, so the run
+    ends that long after its motion (within a chunk), not at the tilt budget."""
+    state, m = tilt.run("lee-herrmann", pile=pile[0], params={"mu": 0.0}, rate_degrees=RATE, settle=True,
+                        settle_time=0.02)
+    assert m["moved"]
+    settle_steps = round(0.02 / m["info"]["dt"])  # the paper's seconds (lee-herrmann: cgs)
+    after_motion = int(state.step) - m["info"]["start_step"] - m["moved_step"]
+    chunk = tilt.make_simulator("lee-herrmann").chunk_steps  # `finished` is seen at a chunk's end
+    assert m["at_rest"] or settle_steps < after_motion <= settle_steps + chunk + 1

@@ -872,6 +872,9 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     definition = getattr(module, "DEFINITION", None)
     if getattr(definition, "check", None) is not None and setup is module.protocol:  # what a run refuses at its start
         given_run = {k: v for k, v in kwargs.items() if k in definition.run_options}
+        from jaxpile import ranges
+
+        given_run = ranges.check_all(getattr(module, "OPTION_RANGES", {}), given_run, module.run)  # as the run does
         definition.check(p, {**definition.run_options, **given_run})
     from jaxpile.engine.simulate import Simulator
 

@@ -177,7 +177,7 @@ class Runner(NamedTuple):
         a = self.adapter()
         statistics = _check_statistics(statistics, a)
         seeds = [int(s) for s in seeds]
-        if statistics.bins:  # each pile's profile is a [contacts, bins] array: refuse one too big before any run
+        if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
             law = self.law_name()
             p = a.setup(law, seeds[0], self.dt or a.default_dt(law), {**(self.options or {}), "dtype": self.dtype})
             budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),

@@ -3,11 +3,13 @@ simulator, law and parameters, finish, step budget and measurements; `run`
 takes one pile from set-up to its end (`runner.run_to_finish`: samples,
 checkpoints, bit-identical resume) and `adapter` gives a sweep and an ensemble
 fit the same set-up, finish, budget and measurements per member of a batch.
-The box, the flux, the hopper, the pour and the drop are written this way
-(the pour and the drop with their own `execute` and `report`), and the tilt,
-which continues another protocol's pile (`starts_from`): one run builds the
-pile, then continues it, each stage checkpointed and resumable; a batch runs
-the two as stages. See README, "adding a protocol in one file"."""
+Every registered protocol is written this way: the box, the flux, the
+hopper, the pour and the drop (the pour and the drop with their own `execute`
+and `report`), the 1992 lattice and sloped piles (`loaded_pile.definition_of`),
+and the tilt, which continues another protocol's pile (`starts_from`): one
+run builds the pile, then continues it, each stage checkpointed and
+resumable; a batch runs the two as stages. See README, "adding a protocol in
+one file"."""
 
 from __future__ import annotations
 
@@ -29,8 +31,9 @@ class Definition:
 
     Attributes:
       name: the protocol's registered name.
-      setup: the module's set-up, `setup(size, *, law?, seed, dt, dtype, **options) -> Protocol`.
-      size: the set-up's size keyword (`n`, `insertions`): a sweep's `--n`.
+      setup: the module's set-up, `setup(size, *, law?, seed?, dt?, dtype?, **options) -> Protocol`
+        (it gets `law`, `seed`, `dt` and `dtype` where it takes them; the size by its keyword).
+      size: the set-up's size keyword (`n`, `insertions`, `layers`): a sweep's `--n`.
       simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`;
         one that takes `setup_options` gets the set-up's options (no seed),
         one that takes `run_options` the run options (the 1992 piles' ramp).
@@ -56,7 +59,8 @@ class Definition:
       starts_from: the definition whose end state this protocol continues,
         contact history kept (the tilt: a box pile); `setup` then takes that
         state first, `setup(pile, *, law, dt, **options)`, and `run` builds
-        the pile first unless it is given one.
+        the pile first unless it is given one. Such a protocol runs by
+        `continue_pile` with the default output: no `execute` or `report`.
       check: optional `(set-up, run options) -> None`: raises `InputError`
         when the run options cannot work with this set-up, checked before a
         run or a batch starts (the pour: a voidage map too fine to fit in memory).
@@ -83,6 +87,11 @@ class Definition:
     starts_from: "Definition | None" = None
     pile_facts: Callable | None = None
 
+    def __post_init__(self):
+        if self.starts_from is not None and (self.execute is not None or self.report is not None):
+            raise TypeError(f"{self.name}: a protocol that continues another's pile runs by continue_pile; "
+                            "it takes no execute or report hook.")
+
     def _setup(self, size, law, **kwargs) -> Protocol:
         taken = inspect.signature(self.setup).parameters
         if "law" in taken:
@@ -90,8 +99,12 @@ class Definition:
         for name in ("seed", "dt", "dtype"):  # what the runner hands every set-up; a deterministic pile takes no seed
             if name not in taken:
                 kwargs.pop(name, None)
-        if size is None and self.size != "n":  # a sweep names the size by the set-up's own keyword (`layers`)
-            size = kwargs.pop(self.size, None)
+        if self.size != "n" and self.size in kwargs:  # a sweep may name the size by the set-up's keyword (`layers`)
+            if size is not None:
+                from jaxpile.errors import InputError
+
+                raise InputError(f"give the {self.name} pile's size once: n or {self.size}, not both.")
+            size = kwargs.pop(self.size)
         return self.setup(**{self.size: size}, **kwargs) if size is not None else self.setup(**kwargs)
 
 
@@ -121,7 +134,13 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
         return _run_continued(d, law, size, params=params, pile=pile, pile_params=pile_params,
                               pile_options=pile_options, rotation=rotation, dt=dt, integrator=integrator,
                               chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint,
-                              resume=resume, run_options=run_options, options=options)
+                              resume=resume, run_options=run_options, simulator_options=simulator_options,
+                              options=options)
+    if pile is not None or pile_params is not None or pile_options:
+        from jaxpile.errors import InputError
+
+        raise InputError(f"the {d.name} protocol builds its own pile: pile, pile_params and pile_options are for a "
+                         "protocol that continues another's.")
     run_options = _run_options(d, run_options)
     _, _, params = d.law_and_params(law, params, rotation, dtype)
     p = d._setup(size, law, dt=dt, dtype=dtype, **options)
@@ -164,7 +183,7 @@ def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int 
 
 
 def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_options, rotation, dt, integrator,
-                   chunk_steps, progress, dtype, checkpoint, resume, run_options, options):
+                   chunk_steps, progress, dtype, checkpoint, resume, run_options, simulator_options, options):
     """`run` of a definition that continues another's pile (see `run`)."""
     from jaxpile.engine import checkpoint as ckpt
 
@@ -185,7 +204,13 @@ def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_
             checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=os.path.basename(
                 pile_file.replace("{step}", str(int(pile.step)))))
     p = on_pile(d, pile, law, dt, options)
-    sim_options = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
+    if d.check is not None:
+        d.check(p, run_options)
+    sim_options = dict(simulator_options or {})
+    if chunk_steps is not None:
+        sim_options["chunk_steps"] = chunk_steps
+    if _takes(d.simulator, "run_options"):
+        sim_options["run_options"] = run_options
     sim = d.simulator(law, dt=p.info["dt"], rotation=rotation, integrator=integrator, **sim_options)
     t0 = time.perf_counter()
     state, info, samples = continue_pile(d, sim, stage_params, p, pile, run_options=run_options, progress=progress,
@@ -323,6 +348,8 @@ def _continued_adapter(d: Definition):
 
     def start(law, dt, options, state, p):
         p = d.setup(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in names and k not in d.run_options})
+        if d.check is not None:
+            d.check(p, _run_options(d, options))
         p = p._replace(info={**p.info, "run_options": _run_options(d, options)})  # for the member's measurement
         return state.set(protocol_state=p.protocol_state), p
 
@@ -334,6 +361,8 @@ def _continued_adapter(d: Definition):
         return d.row(m) if callable(d.row) else {k: m[k] for k in d.row}
 
     def simulator(law, dt, sim_options, setup_options):
+        if _takes(d.simulator, "run_options"):
+            sim_options = {**sim_options, "run_options": _run_options(d, setup_options)}
         return d.simulator(law, dt=dt, **sim_options)
 
     def finished(info, options):
@@ -344,8 +373,9 @@ def _continued_adapter(d: Definition):
 
     stage = Stage(simulator, start, finished, max_steps, describe)
     extra = dict(d.sweep)
+    options = extra.pop("options", base.options | names)
     return Adapter(setup, base.simulator, base.finished, base.max_steps, row, d.law_and_params, base.default_dt,
-                   options=frozenset(base.options | names), stages=(stage,), **extra)
+                   options=frozenset(options), stages=(stage,), **extra)
 
 
 def _run_options(d: Definition, options: dict | None) -> dict:

@@ -44,7 +44,6 @@ import numpy as np
 
 from jaxpile import budget, ranges
 from jaxpile.protocols import definition
-from jaxpile.protocols import definition
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError

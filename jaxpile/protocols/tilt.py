@@ -314,23 +314,36 @@ def pile_facts(pile: SimState, p: Protocol) -> dict:
             "box_settled": bool(int(ps.settled_at) >= 0) if hasattr(ps, "settled_at") else None}
 
 
+def _settle_steps(info, options) -> int:
+    """With `settle`: `settle_time` paper seconds in steps (0 without)."""
+    if not options["settle"]:
+        return 0
+    u = boxes.units(info["law"])
+    return int(round(boxes._check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
+
+
 def finished(info, options):
-    """Moved (or, with `settle`, at rest again), or the largest tilt passed
-    without motion and its hold time after it: the run gives up. Traceable."""
+    """Moved; with `settle`, at rest again or `settle_time` after it moved;
+    or the largest tilt passed without motion and its hold time after it: the
+    run gives up. Traceable."""
     give_up = int(info["max_tilt_steps"])
-    end_phase = 2 if options["settle"] else 1
-    return lambda s: (s.protocol_state.phase >= end_phase) | (
-        (s.protocol_state.phase == 0) & (s.step - s.protocol_state.start > give_up + s.protocol_state.hold))
+    settle = _settle_steps(info, options)
+
+    def done(s):
+        ps = s.protocol_state
+        gave_up = (ps.phase == 0) & (s.step - ps.start > give_up + ps.hold)
+        if not options["settle"]:
+            return (ps.phase >= 1) | gave_up
+        return (ps.phase >= 2) | ((ps.phase == 1) & (s.step - ps.moved_at > settle)) | gave_up
+
+    return done
 
 
 def max_steps(info, options) -> int:
     """The tilt's budget from its start: the largest tilt, the hold after it,
-    and with `settle` at most `settle_time` paper seconds to rest."""
-    settle = 0
-    if options["settle"]:
-        u = boxes.units(info["law"])
-        settle = int(round(boxes._check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
-    return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000 + settle
+    `settle_time` with `settle`, and room for `finished` to be seen at a
+    chunk's end (it ends the run first)."""
+    return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000 + _settle_steps(info, options)
 
 
 def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
