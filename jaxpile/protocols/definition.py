@@ -203,9 +203,7 @@ def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_
         if checkpoint is not None:  # each save of this stage names the pile it started from (the last pile save)
             checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=os.path.basename(
                 pile_file.replace("{step}", str(int(pile.step)))))
-    p = on_pile(d, pile, law, dt, options)
-    if d.check is not None:
-        d.check(p, run_options)
+    p = on_pile(d, pile, law, dt, options, run_options)
     sim_options = dict(simulator_options or {})
     if chunk_steps is not None:
         sim_options["chunk_steps"] = chunk_steps
@@ -222,10 +220,14 @@ def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_
     return state, out
 
 
-def on_pile(d: Definition, pile, law, dt, options: dict) -> Protocol:
-    """The set-up of `d` on the state `pile`, with the pile's facts (`pile_facts`) in its info."""
+def on_pile(d: Definition, pile, law, dt, options: dict, run_options: dict, *, facts: bool = True) -> Protocol:
+    """The set-up of `d` on the state `pile`, its run options checked (`check`),
+    with the pile's facts (`pile_facts`) in its info unless `facts` is False
+    (a batch adds them as its stage's `describe`)."""
     p = d.setup(pile, law=law, dt=dt, **options)
-    return p if d.pile_facts is None else p._replace(info={**p.info, **d.pile_facts(pile, p)})
+    if d.check is not None:
+        d.check(p, run_options)
+    return p if d.pile_facts is None or not facts else p._replace(info={**p.info, **d.pile_facts(pile, p)})
 
 
 def continue_pile(d: Definition, sim, params, p: Protocol, pile=None, *, run_options: dict | None = None,
@@ -347,10 +349,10 @@ def _continued_adapter(d: Definition):
                           | {"dtype": options.get("dtype")})
 
     def start(law, dt, options, state, p):
-        p = d.setup(state, law=law, dt=dt, **{k: v for k, v in options.items() if k in names and k not in d.run_options})
-        if d.check is not None:
-            d.check(p, _run_options(d, options))
-        p = p._replace(info={**p.info, "run_options": _run_options(d, options)})  # for the member's measurement
+        run_options = _run_options(d, options)
+        p = on_pile(d, state, law, dt, {k: v for k, v in options.items() if k in names and k not in d.run_options},
+                    run_options, facts=False)
+        p = p._replace(info={**p.info, "run_options": run_options})  # for the member's measurement
         return state.set(protocol_state=p.protocol_state), p
 
     def describe(state, p):
