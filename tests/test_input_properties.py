@@ -189,3 +189,23 @@ def test_every_ranged_flag_states_its_range_in_its_help(command, capsys):
     text = " ".join(capsys.readouterr().out.split())
     for dest, range_ in FLAG_RANGES[command].items():
         assert f"[{range_.describe()}]" in text, (command, dest)
+
+
+def _ranged_options():
+    """(protocol, option) for every `--option` a protocol declares a range for."""
+    from jaxpile.protocols import options as protocol_options
+
+    return [(name, option) for name, module in sorted(PROTOCOLS.items())
+            for option in sorted(set(getattr(module, "OPTION_RANGES", {})) & protocol_options.accepted(module))]
+
+
+@pytest.mark.parametrize("protocol, option", _ranged_options())
+def test_a_dry_run_refuses_an_option_out_of_its_range_as_the_run_does(protocol, option, tmp_path, capsys):
+    """NaN is outside every declared range: `--dry-run` must say so in one line,
+    as the run would before it starts (a tilt's dry run used to set up only
+    its box pile, so `--option rate_degrees=nan` passed it)."""
+    status = main(["pile", "--protocol", protocol, "--option", f"{option}=nan", "--dry-run", "--no-progress",
+                   "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err.strip()
+    assert status == 2 and err.startswith("jaxpile: error:") and len(err.splitlines()) == 1, (protocol, option, err)
+    assert option in err, (protocol, option, err)

@@ -860,7 +860,11 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     called with the arguments it takes from the run's."""
     import inspect
 
+    from jaxpile import ranges
+
     name = args.protocol
+    # what `run` checks before anything else, every keyword of it (a tilt's rate too, not only its box's options)
+    kwargs = ranges.check_all(getattr(module, "OPTION_RANGES", {}), kwargs, module.run)
     setup, extra = module.protocol, {}
     if _entry(name).dry_run_setup is not None:  # e.g. a tilt starts from a box pile: set that up
         setup, extra = _entry(name).dry_run_setup(kwargs)
@@ -872,9 +876,6 @@ def _dry_run_protocol(args, module, kwargs, contact_law) -> dict:
     definition = getattr(module, "DEFINITION", None)
     if getattr(definition, "check", None) is not None and setup is module.protocol:  # what a run refuses at its start
         given_run = {k: v for k, v in kwargs.items() if k in definition.run_options}
-        from jaxpile import ranges
-
-        given_run = ranges.check_all(getattr(module, "OPTION_RANGES", {}), given_run, module.run)  # as the run does
         definition.check(p, {**definition.run_options, **given_run})
     from jaxpile.engine.simulate import Simulator
 
