@@ -56,6 +56,20 @@ def read_csv(path) -> dict:
     return {n: data[:, k] for k, n in enumerate(names)}
 
 
+def read_json(path, what: str = "a file jaxpile wrote"):
+    """The JSON held in `path`, or `InputError` in one line when the file is
+    missing, unreadable or not JSON (cut short by a crash, or another file)."""
+    from jaxpile.errors import InputError
+
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file (expected {what}).") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(f"{path} is not readable as {what} ({type(err).__name__}: {err}).") from None
+
+
 def write_json(path, obj) -> None:
     atomic_write(path, lambda f: f.write(json.dumps(obj, indent=2, default=float) + "\n"), text=True)
 

@@ -228,6 +228,64 @@ def _ensemble(protocol, stage, law, dt, sim_options, options, devices, build) ->
     return _ENSEMBLES[key]
 
 
+def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, seeds=4, params: dict | None = None,
+         options: dict | None = None, dt: float | None = None, rotation: bool | None = None,
+         batch_size: int | None = None, dtype=None, points: Sequence[dict] | None = None):
+    """A sweep's members checked before anything runs (`sweep`, and `jaxpile
+    sweep --dry-run`): every member's law parameters, and the set-up of one
+    member of every batch (its options; a later stage's own options too), so
+    a bad value anywhere in the grid fails at once, not after the batches
+    before it have run. Arguments as `sweep`.
+
+    Returns:
+      `(members, member_params, batches, split, dt)`: `(point, seed)` per
+      member, its params, `[first, end)` member ranges of the batches (each
+      one set-up), `point -> (law overrides, set-up options)`, and the dt.
+    """
+    a = adapter(protocol)
+    law = law or a.default_law
+    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
+    options = dict(options or {})
+    unknown = set(options) - a.options
+    if unknown:
+        raise InputError(f"unknown option(s) {sorted(unknown)} for a {protocol} sweep; known: {sorted(a.options)}.")
+    if points is not None:
+        if vary:
+            raise InputError("give a sweep either `vary` (a grid) or `points`, not both.")
+        points = [{k: float(v) for k, v in dict(point).items()} for point in points]
+        if not points:
+            raise InputError("a sweep over `points` needs at least one point.")
+        members = [(point, seed) for point in points for _, seed in grid({}, seeds)]
+    else:
+        members = grid(vary, seeds)
+    dt = a.default_dt(law) if dt is None else float(dt)
+    law_names = set(a.law_and_params(law, {}, rotation, dtype=dtype)[0].PARAM_NAMES)
+    set_up = [k for k in vary if k in a.options and k not in law_names]  # varied set-up options
+
+    def split(point):  # (law parameters, set-up options) of a member's point
+        return ({k: v for k, v in point.items() if k not in set_up},
+                {**options, **{k: v for k, v in point.items() if k in set_up}})
+
+    member_params = []
+    for point, _ in members:
+        _, contact_law, prm = a.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype=dtype)
+        contact_law.validate(prm)  # names and values: a NaN mu in the last batch fails here, not after the first
+        member_params.append(prm)
+    batch_size = len(members) if batch_size is None else int(batch_size)
+    if batch_size < 1:
+        raise InputError(f"batch_size must be >= 1; got {batch_size}.")
+    batches = []  # (first member, end): at most batch_size members, one set-up each
+    for k, (point, _) in enumerate(members):
+        if batches and batches[-1][1] - batches[-1][0] < batch_size and split(point)[1] == split(members[k - 1][0])[1]:
+            batches[-1][1] += 1
+        else:
+            batches.append([k, k + 1])
+
+    for start, _ in batches:  # every batch's set-up is checked before any batch runs (a bad value fails at once)
+        a.setup(law, members[start][1], dt, {**split(members[start][0])[1], "dtype": dtype})
+    return members, member_params, batches, split, dt
+
+
 def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
           seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
           rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
@@ -267,42 +325,15 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """
     a = adapter(protocol)
     law = law or a.default_law
-    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
+    members, member_params, batches, split, dt = plan(
+        protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
+        batch_size=batch_size, dtype=dtype, points=points)
     options = dict(options or {})
-    unknown = set(options) - a.options
-    if unknown:
-        raise InputError(f"unknown option(s) {sorted(unknown)} for a {protocol} sweep; known: {sorted(a.options)}.")
+    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
     if points is not None:
-        if vary:
-            raise InputError("give a sweep either `vary` (a grid) or `points`, not both.")
         points = [{k: float(v) for k, v in dict(point).items()} for point in points]
-        if not points:
-            raise InputError("a sweep over `points` needs at least one point.")
-        members = [(point, seed) for point in points for _, seed in grid({}, seeds)]
-    else:
-        members = grid(vary, seeds)
-    dt = a.default_dt(law) if dt is None else float(dt)
-    law_names = set(a.law_and_params(law, {}, rotation, dtype=dtype)[0].PARAM_NAMES)
-    set_up = [k for k in vary if k in a.options and k not in law_names]  # varied set-up options
-
-    def split(point):  # (law parameters, set-up options) of a member's point
-        return ({k: v for k, v in point.items() if k not in set_up},
-                {**options, **{k: v for k, v in point.items() if k in set_up}})
-
-    member_params = []
-    for point, _ in members:
-        _, _, prm = a.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype=dtype)  # checks names
-        member_params.append(prm)
-    sim_options = {} if rotation is None else {"rotation": rotation}
     batch_size = len(members) if batch_size is None else int(batch_size)
-    if batch_size < 1:
-        raise InputError(f"batch_size must be >= 1; got {batch_size}.")
-    batches = []  # (first member, end): at most batch_size members, one set-up each
-    for k, (point, _) in enumerate(members):
-        if batches and batches[-1][1] - batches[-1][0] < batch_size and split(point)[1] == split(members[k - 1][0])[1]:
-            batches[-1][1] += 1
-        else:
-            batches.append([k, k + 1])
+    sim_options = {} if rotation is None else {"rotation": rotation}
 
     def stage0(member_options):
         key = member_options if a.simulator_options is None else {
@@ -316,11 +347,11 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     from jaxpile.engine import checkpoint as ckpt
 
     rows, info = [], RunInfo()
-    plan = [[point, seed] for point, seed in members]
+    planned = [[point, seed] for point, seed in members]
     first, saved = 0, {}
     if resume is not None:
         saved = ckpt.read_metadata(resume)["extra"]
-        if saved.get("grid") != plan or saved.get("batch_size") != batch_size:
+        if saved.get("grid") != planned or saved.get("batch_size") != batch_size:
             raise InputError(f"{resume} was written by another sweep (other members or batch size); "
                              "resume it with the command that made it.")
         if saved.get("devices") != len(ens.devices):
@@ -349,7 +380,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
             if resuming:
                 state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
             # the rows list is written as it stands at each save: the batches measured so far
-            spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
+            spec = ckpt.with_facts(checkpoint, grid=planned, batch_size=batch_size, devices=len(ens.devices),
                                    batch_start=start, rows=rows, stage=0)
             state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
                             until=a.finished(protocols[0].info, batch_options), progress=progress, info=info,
@@ -381,7 +412,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
                 starts = [int(s.step) for s, _ in started]
                 state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
                 done = 0
-            spec = ckpt.with_facts(checkpoint, grid=plan, batch_size=batch_size, devices=len(ens.devices),
+            spec = ckpt.with_facts(checkpoint, grid=planned, batch_size=batch_size, devices=len(ens.devices),
                                    batch_start=start, rows=rows, stage=k, stage_start_steps=starts,
                                    stage_infos=[p.info for p in protocols])
             state = stage_ens.run(prms, state, max(stage.max_steps(protocols[0].info, batch_options) - done, 0),
@@ -458,7 +489,6 @@ def read(folder) -> SweepResult:
     """The `SweepResult` of a `jaxpile sweep` folder, from its `sweep.csv` and
     `sweep.json` (what `jaxpile show` redraws from)."""
     import csv
-    import json
     import os
 
     paths = [os.path.join(folder, name) for name in ("sweep.csv", "sweep.json")]
@@ -467,8 +497,13 @@ def read(folder) -> SweepResult:
         raise InputError(f"{folder} is not a finished `jaxpile sweep` folder ({', '.join(missing)} missing).")
     with open(paths[0], newline="") as fh:
         rows = [{k: _cell(v) for k, v in row.items()} for row in csv.DictReader(fh)]
-    with open(paths[1]) as fh:
-        info = json.load(fh)
+    from jaxpile import io
+
+    info = io.read_json(paths[1], "a sweep's sweep.json")
+    need = ("protocol", "law", "vary", "angles", "members", "seeds")  # what `figure` and `show` read
+    if not isinstance(info, dict) or any(k not in info for k in need):
+        raise InputError(f"{paths[1]} is not a sweep's record: `jaxpile sweep` writes one holding "
+                         f"{', '.join(need)}.")
     return SweepResult(rows, info)
 
 
@@ -494,5 +529,5 @@ def figure(result: SweepResult, by: str | None = None, path=None):
                              ylabel=ylabel, path=path)
 
 
-__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "read", "summarise", "sweep",
+__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "plan", "read", "summarise", "sweep",
            "write_csv"]

@@ -209,3 +209,78 @@ def test_a_dry_run_refuses_an_option_out_of_its_range_as_the_run_does(protocol, 
     err = capsys.readouterr().err.strip()
     assert status == 2 and err.startswith("jaxpile: error:") and len(err.splitlines()) == 1, (protocol, option, err)
     assert option in err, (protocol, option, err)
+
+
+@pytest.mark.parametrize("protocol, vary, options", [
+    ("box", {"n": [20, 0]}, {}),                      # a set-up value of the second batch
+    ("box", {"mu": [0.1, math.nan]}, {"n": 20}),       # a law value of the last member
+    ("tilt", {"rate_degrees": [1.0, 0.0]}, {"n": 20}),  # the later stage's own option, in its second batch
+    ("tilt", {"mu": [0.1, 0.2]}, {"n": 20, "rest_speed": 5.0, "move_speed": 1.0}),  # rest above move
+])
+def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, options, monkeypatch):
+    """Every member's law values and every batch's set-up (a tilt's own options
+    too) are checked before the first batch is built: a bad value at the end
+    of a grid used to fail only after the batches before it (or, for a tilt,
+    the box stage) had run."""
+    from jaxpile import sweep
+
+    monkeypatch.setattr(sweep, "_ensemble", lambda *a, **k: pytest.fail("a batch was built before the grid was checked"))
+    with pytest.raises(InputError):
+        sweep.sweep(protocol, vary=vary, seeds=1, options=options, progress=False)
+
+
+def test_a_tilt_refuses_its_own_options_before_it_builds_its_box_pile(monkeypatch):
+    from jaxpile.protocols import definition, tilt
+
+    built = definition.run
+
+    def no_box(d, *args, **kwargs):
+        if d.name == "box":
+            pytest.fail("the box pile was built before the tilt's options were checked")
+        return built(d, *args, **kwargs)
+
+    monkeypatch.setattr(definition, "run", no_box)
+    with pytest.raises(InputError, match="rest_speed"):
+        tilt.run("lee-herrmann", 20, rest_speed=5.0, move_speed=1.0)
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["sweep", "--protocol", "box", "--vary", "n=20,0"], "n must be"),
+    (["sweep", "--protocol", "hopper", "--vary", "mu=0.1,nan"], "mu must be"),
+    (["sweep", "--protocol", "tilt", "--vary", "rate_degrees=1,0"], "rate_degrees must be"),
+    (["fit", "--protocol", "hopper", "--params", "mu", "--truth", "mu=nan", "--ensemble", "2"], "mu must be"),
+    (["fit", "--protocol", "box", "--params", "mu", "--truth", "mu=0.3", "--set", "mu=0", "--ensemble", "2"],
+     "starting mu"),
+    (["fit", "--protocol", "tilt", "--params", "mu", "--truth", "mu=0.3", "--option", "rate_degrees=0",
+      "--ensemble", "2"], "rate_degrees must be"),
+])
+def test_sweep_and_fit_dry_runs_refuse_what_their_runs_would(argv, says, tmp_path, capsys):
+    """A dry run checks every member of the grid, the fit's start and truth and
+    a later stage's options, as the run does before it starts."""
+    assert main(argv + ["--dry-run", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("jaxpile: error:") and len(err.splitlines()) == 1 and says in err, err
+
+
+@pytest.mark.parametrize("content", ["{cut sho", "[1, 2]", "{}", '{"protocol": "pour", "law": "x"}', "\udcff"])
+def test_a_damaged_or_foreign_json_file_gets_one_line_not_a_traceback(content, tmp_path, capsys):
+    """What a crash or a wrong path leaves where a command reads JSON (compare's
+    summary.json, fit's --target and --resume, show's sweep.json): one line
+    naming the file, exit status 2."""
+    data = content.encode("utf-8", "surrogateescape")
+    run, fit_dir, sweep_dir = tmp_path / "run", tmp_path / "fit", tmp_path / "sweep"
+    for folder, name in ((run, "summary.json"), (fit_dir, "fit_checkpoint.json"), (sweep_dir, "sweep.json")):
+        folder.mkdir()
+        (folder / name).write_bytes(data)
+    (sweep_dir / "sweep.csv").write_text("mu,seed\n0.1,0\n")
+    fit = ["fit", "--protocol", "box", "--params", "mu", "--ensemble", "2"]
+    commands = [
+        ["compare", str(run), str(run)],
+        fit + ["--target", str(run / "summary.json"), "--out", str(tmp_path / "out1")],
+        fit + ["--truth", "mu=0.3", "--resume", "--out", str(fit_dir)],
+        ["show", str(sweep_dir), "--out", str(tmp_path / "out2")],
+    ]
+    for argv in commands:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("jaxpile: error:") and len(err.splitlines()) == 1, (argv, err)

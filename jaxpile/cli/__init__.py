@@ -31,7 +31,6 @@ import argparse
 import contextlib
 import dataclasses
 import importlib.util
-import json
 import os
 import sys
 import time
@@ -966,7 +965,9 @@ def run_sweep(args) -> dict:
         from jaxpile import budget
 
         a = sw.adapter(args.protocol)
-        dt = a.default_dt(law) if args.dt is None else float(args.dt)
+        # every member's parameters and every batch's set-up, as the sweep checks them before it runs
+        _, _, _, _, dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options,
+                                 dt=args.dt, batch_size=args.batch_size, dtype=dtype)
         setup = a.setup(law, 0, dt, {**options, "dtype": dtype})
         batch = members if args.batch_size is None else min(int(args.batch_size), members)
         steps = a.max_steps(setup.info, options) if args.max_steps is None else int(args.max_steps)
@@ -1252,6 +1253,7 @@ def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
 
 
 def compare_table(dirs) -> str:
+    from jaxpile import io
     from jaxpile.errors import InputError
 
     rows = []
@@ -1259,8 +1261,9 @@ def compare_table(dirs) -> str:
         path = os.path.join(d, "summary.json")
         if not os.path.isfile(path):
             raise InputError(f"{path} not found: give folders written by 'jaxpile pile --out DIR'.")
-        with open(path) as f:
-            s = json.load(f)
+        s = io.read_json(path, "a run's summary.json")
+        if not isinstance(s, dict):
+            raise InputError(f"{path} is not a run's summary (a JSON object).")
         rows.append((d, s))
     head = (f"{'run':32s} {'protocol':>8s} {'law':>12s} {'disks':>6s} {'mu':>5s} {'steps':>8s} {'p-steps/s':>10s}  "
             "result")
@@ -1270,10 +1273,17 @@ def compare_table(dirs) -> str:
         steps = s.get("steps", (s.get("run") or {}).get("steps", 0))
         rate = s.get("particle_steps_per_second") or 0.0
         mu = s.get("params", {}).get("mu")
-        entry = _entry(protocol)
-        result = entry.compare(s) if entry.compare is not None else _headline(protocol, s).strip().splitlines()[0]
-        lines.append(f"{d:32s} {protocol:>8s} {s['law']:>12s} {s['n_particles']:6d} "
-                     f"{('%5.2f' % mu) if mu is not None else '    -'} {steps:8d} {rate:10.3g}  {result}")
+        try:  # a summary.json from elsewhere, or cut down, lacks what its protocol's row reads
+            entry = _entry(protocol) if isinstance(protocol, str) else None
+            if entry is None:
+                raise KeyError(f"protocol {protocol!r}")
+            result = entry.compare(s) if entry.compare is not None else _headline(protocol, s).strip().splitlines()[0]
+            lines.append(f"{d:32s} {protocol:>8s} {s['law']:>12s} {s['n_particles']:6d} "
+                         f"{('%5.2f' % mu) if mu is not None else '    -'} {steps:8d} {rate:10.3g}  {result}")
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(f"{os.path.join(d, 'summary.json')} is not a finished {protocol} run's summary "
+                             f"({type(err).__name__}: {err}); give folders written by 'jaxpile pile --out DIR'."
+                             ) from None
     lines.append(
         "dev N, dev H (lattice): largest deviation of the ground forces from Liffman et al. 1992 eqs. 42 and 44.\n"
         "The analytic forces assume frictionless disks at rest; with disk-disk friction the base forces\n"

@@ -3,12 +3,12 @@ command-line side of `jaxpile.fit.ensemble_fit` (issue 17)."""
 
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.ranges import POSITIVE
 
 
 def _statistics(args, adapter):
@@ -83,6 +83,11 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         raise InputError(f"--target-seeds {args.target_seeds} overlaps the fit's seeds 0..{b - 1}: a fit must not "
                          "see the piles its target was made from.")
     runner.check(statistics)
+    # the start, the truth and the set-up, checked before any pile (the target's) is run, and by --dry-run
+    for n in names:
+        POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
+    for values in (start, truth or {}):
+        sweep.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options)
     per_iteration = 2 * len(names) + 1 if estimator == "central" else 8  # 8: the smoothing's 4 antithetic pairs
     if args.dry_run:
         setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
@@ -96,8 +101,9 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if args.resume:
         if not os.path.exists(checkpoint):
             raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
-        with open(checkpoint) as fh:
-            target = ensemble_fit.EnsembleTarget.from_json(json.load(fh)["target"])
+        saved = io.read_json(checkpoint, "an ensemble fit's checkpoint")
+        target = ensemble_fit.EnsembleTarget.from_json(saved.get("target") if isinstance(saved, dict) else None,
+                                                       f"the target in {checkpoint}")
     elif truth is not None:
         print(f"jaxpile: making the target: {b} {args.protocol} piles at {truth} (seeds {target_seeds[0]}.."
               f"{target_seeds[-1]})", flush=True)
@@ -108,9 +114,9 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     elif args.target and args.target.endswith(".json"):
         if not os.path.exists(args.target):
             raise InputError(f"--target {args.target}: no such file.")
-        with open(args.target) as fh:
-            record = json.load(fh)
-        target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record))
+        record = io.read_json(args.target, "a target (target.json or fit.json of an ensemble fit)")
+        target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record) if isinstance(record, dict)
+                                                       else record, args.target)
     else:
         raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
     io.write_json(os.path.join(args.out, "target.json"), _plain(target.to_json()))

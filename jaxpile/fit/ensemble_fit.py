@@ -246,7 +246,11 @@ class EnsembleTarget(NamedTuple):
                 "truth": self.truth, "seeds": self.seeds, "setting": self.setting}
 
     @classmethod
-    def from_json(cls, record: dict) -> "EnsembleTarget":
+    def from_json(cls, record: dict, where: str = "the record") -> "EnsembleTarget":
+        need = ("labels", "mean", "spread")
+        if not isinstance(record, dict) or any(k not in record for k in need):
+            raise InputError(f"{where} is not an ensemble target: a target holds {', '.join(need)} (the "
+                             "target.json a fit writes, or its fit.json).")
         members = record.get("members")
         return cls(list(record["labels"]), np.asarray(record["mean"], float), np.asarray(record["spread"], float),
                    None if members is None else np.asarray(members, float), record.get("source", ""),
@@ -497,8 +501,11 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               "options": dict(runner.options or {}),
               "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
     if resume is not None:
-        with open(resume) as fh:
-            saved = json.load(fh)
+        from jaxpile import io
+
+        saved = io.read_json(resume, "an ensemble fit's checkpoint")
+        if not isinstance(saved, dict) or not isinstance(saved.get("history"), list):
+            raise InputError(f"{resume} is not an ensemble fit's checkpoint (no history in it).")
         same = [k for k in record if k not in ("steps", "noise_stop")]  # when to stop may change on resume
         differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
         if differ:

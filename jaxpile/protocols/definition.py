@@ -67,6 +67,10 @@ class Definition:
       pile_facts: with `starts_from`, optional `(pile state, set-up) -> dict`
         of what the pile was when this protocol took it over (the tilt: its
         angle of repose), merged into the set-up's `info`.
+      check_options: with `starts_from`, optional `(**set-up options) -> None`:
+        raises `InputError` on this protocol's own options, checked before
+        the pile it continues is built (a run, each batch of a sweep), so a
+        bad tilt rate is not found only after the box piles have run.
     """
 
     name: str
@@ -86,6 +90,7 @@ class Definition:
     check: Callable | None = None
     starts_from: "Definition | None" = None
     pile_facts: Callable | None = None
+    check_options: Callable | None = None
 
     def __post_init__(self):
         if self.starts_from is not None and (self.execute is not None or self.report is not None):
@@ -190,6 +195,8 @@ def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_
     base = d.starts_from
     run_options = _run_options(d, run_options)
     _, _, stage_params = d.law_and_params(law, params, rotation, dtype)
+    if d.check_options is not None:  # before the pile is built
+        d.check_options(**options, **({} if dt is None else {"dt": dt}))
     built = None
     if pile is None:
         pile_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], base.name)
@@ -345,6 +352,8 @@ def _continued_adapter(d: Definition):
     names = option_names(d.setup, *d.run_options) - {"pile", "edge"}  # the stage's; its pile is the member's state
 
     def setup(law, seed, dt, options):
+        if d.check_options is not None:  # the stage's own options, before any member's pile is built
+            d.check_options(**{k: v for k, v in options.items() if k in names and k not in d.run_options})
         return base.setup(law, seed, dt, {k: v for k, v in options.items() if k in base.options}
                           | {"dtype": options.get("dtype")})
 

@@ -83,6 +83,7 @@ def _box_setup(kwargs: dict):
     extra = dict(kwargs.get("box_options") or {})
     if "n" in kwargs:
         extra["n"] = kwargs["n"]
+    check_options(**{k: v for k, v in kwargs.items() if k != "n"})  # the tilt's own, before its pile
     return boxes.protocol, extra
 
 
@@ -168,6 +169,25 @@ def driver(state: SimState) -> SimState:
     return state.set(boundaries=b, protocol_state=ps)
 
 
+def check_options(*, rate_degrees: float = SETTING["rate_degrees"], move_speed: float = SETTING["move_speed"],
+                  rest_speed: float = SETTING["rest_speed"], rest_measure: str = SETTING["rest_measure"],
+                  hold_time: float = SETTING["hold_time"], max_tilt_degrees: float = SETTING["max_tilt_degrees"],
+                  edge: float | None = None, dt: float | None = None, **_) -> None:
+    """Refuses the tilt's own options (`protocol`'s, less the pile) before a
+    box pile is built for them: a run, a sweep or a dry run checks these first."""
+    ranges.check_all(OPTION_RANGES, locals(), check_options)  # types, finiteness and ranges first: one message format
+    for name, value in (("rate_degrees", rate_degrees), ("move_speed", move_speed), ("rest_speed", rest_speed),
+                        ("hold_time", hold_time)) + ((("dt", dt),) if dt is not None else ()):
+        boxes._check_positive(name, value)
+    if not rest_speed < move_speed:
+        raise InputError(f"rest_speed ({rest_speed:g}) must be below move_speed ({move_speed:g}).")
+    if not 0 < max_tilt_degrees < 90:
+        raise InputError(f"max_tilt_degrees must be in (0, 90); got {max_tilt_degrees!r}.")
+    boxes._measure_flag(rest_measure)
+    if edge is not None:
+        boxes._check_positive("edge", edge)
+
+
 def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTING["rate_degrees"],
              move_speed: float = SETTING["move_speed"], rest_speed: float = SETTING["rest_speed"],
              rest_measure: str = SETTING["rest_measure"], hold_time: float = SETTING["hold_time"],
@@ -197,19 +217,13 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
       InputError: on a bad rate, speed or angle, a pile whose gravity is
         already tilted, or a pile that is not a box pile when `edge` is missing.
     """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
+    check_options(rate_degrees=rate_degrees, move_speed=move_speed, rest_speed=rest_speed, rest_measure=rest_measure,
+                  hold_time=hold_time, max_tilt_degrees=max_tilt_degrees, edge=edge, dt=dt)
     if not isinstance(pile, SimState):
         raise InputError("pile must be a SimState (a settled pile, e.g. from box.run).")
     u = boxes.units(law)
-    dt = float(boxes.law_setting(law)["dt"]) if dt is None else boxes._check_positive("dt", dt)
-    rate = boxes._check_positive("rate_degrees", rate_degrees)
-    move_speed = boxes._check_positive("move_speed", move_speed)
-    rest_speed = boxes._check_positive("rest_speed", rest_speed)
-    hold_time = boxes._check_positive("hold_time", hold_time)
-    if not rest_speed < move_speed:
-        raise InputError(f"rest_speed ({rest_speed:g}) must be below move_speed ({move_speed:g}).")
-    if not 0 < max_tilt_degrees < 90:
-        raise InputError(f"max_tilt_degrees must be in (0, 90); got {max_tilt_degrees!r}.")
+    dt = float(boxes.law_setting(law)["dt"]) if dt is None else float(dt)
+    rate, move_speed, rest_speed, hold_time = (float(x) for x in (rate_degrees, move_speed, rest_speed, hold_time))
     gravity = np.asarray(pile.boundaries.gravity, dtype=np.float64)
     g = float(np.linalg.norm(gravity))
     if not (g > 0 and abs(gravity[0]) <= 1e-12 * g and gravity[1] < 0):
@@ -387,7 +401,7 @@ DEFINITION = definition.Definition(
     run_options={"settle": False, "settle_time": SETTING["settle_time"]},
     sweep=dict(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability,
                fit_statistics={"columns": ("theta_t", "theta_r")}),
-    starts_from=boxes.DEFINITION, pile_facts=pile_facts)
+    starts_from=boxes.DEFINITION, pile_facts=pile_facts, check_options=check_options)
 
 
 def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: bool = False,
@@ -457,6 +471,7 @@ def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = Non
 
 __all__ = [
     "DEFINITION",
+    "check_options",
     "law_and_params",
     "SETTING",
     "TiltState",
