@@ -917,8 +917,13 @@ def _dry_run_report(what: str, particles, info: dict, precision: str, steps: dic
 def _parse_values(name: str, text: str) -> list[float]:
     from jaxpile.errors import InputError
 
+    parts = text.split(",")
+    if parts and not parts[-1].strip():
+        parts = parts[:-1]  # a trailing comma is harmless
+    if parts and any(not v.strip() for v in parts):  # "0.1,,0.3": a value left out, not skipped in silence
+        raise InputError(f"{name} has an empty value between its commas; got {text!r}.")
     try:
-        values = [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in parts]
     except ValueError:
         raise InputError(f"{name} takes comma-separated numbers (e.g. 0.1,0.2,0.3); got {text!r}.") from None
     if not values:

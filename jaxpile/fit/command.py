@@ -50,6 +50,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     unknown = set(names) - set(lawmod.PARAM_NAMES)
     if not names or unknown:
         raise InputError(f"--params must name {law} parameters ({', '.join(lawmod.PARAM_NAMES)}); got {args.params!r}.")
+    if len(set(names)) != len(names):
+        raise InputError(f"--params names a parameter twice; got {args.params!r}.")
     given = _values(args.set, lawmod.PARAM_NAMES, "--set")
     _, _, defaults = a.law_and_params(law, None)
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
