@@ -71,14 +71,14 @@ class Range:
         naming `name`, the range and the value. Arrays (batched parameters) are
         checked element by element and returned as they are, unless `scalar`."""
         if not is_number_like(value):
-            raise InputError(f"{name} must be a number {self.describe()}; got {value!r}.")
+            raise InputError(f"{name} must be {self._a_number()}; got {value!r}.")
         if isinstance(value, numbers.Real):
             return self._check_scalar(name, value)
         if _is_tracer(value):
             return value  # inside a trace (a fit, a vmapped sweep): checked where it was made
         array = np.asarray(value)
         if array.size == 0:
-            raise InputError(f"{name} must be a number {self.describe()}; got {value!r}.")
+            raise InputError(f"{name} must be {self._a_number()}; got {value!r}.")
         if array.ndim == 0:
             self._check_scalar(name, array.item())
             return value
@@ -87,6 +87,12 @@ class Range:
         for v in array.reshape(-1).tolist():
             self._check_scalar(name, v)
         return value
+
+    def _a_number(self) -> str:
+        """"a number >= 0", or the description itself where it already says what
+        the number is ("a positive whole number of disks")."""
+        text = self.describe()
+        return "a finite number" if text == "finite" else text if text.startswith("a ") else f"a number {text}"
 
     def _check_scalar(self, name, value):
         v = float(value) if not isinstance(value, numbers.Integral) else int(value)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import numbers
 import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -35,6 +36,8 @@ import numpy as np
 from jaxpile import budget as memory
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
+from jaxpile import ranges
+from jaxpile.ranges import COUNT, SEED
 from jaxpile.engine.simulate import RunInfo
 
 
@@ -194,13 +197,40 @@ class SweepResult:
         return np.array([r.get(name, np.nan) for r in self.rows], dtype=float)
 
 
+def _check_vary(vary: dict) -> dict:
+    """`vary` with each name's values as floats, or `InputError`: a list of finite numbers per name."""
+    if not isinstance(vary, dict):
+        raise InputError(f"vary must be a dict of name -> values; got {vary!r}.")
+    for name, values in vary.items():
+        if isinstance(values, (str, bytes)) or np.ndim(values) != 1:
+            raise InputError(f"the sweep over {name!r} takes a list of numbers; got {values!r}.")
+        if len(values) == 0:
+            raise InputError(f"the sweep over {name!r} has no values.")
+        for v in values:
+            _number(f"a value of the sweep over {name!r}", v)
+    return {name: [float(v) for v in values] for name, values in vary.items()}
+
+
+def _number(name: str, value) -> float:
+    """`value` as a float, or `InputError` when it is not one number (its range,
+    finiteness included, is the law's or the set-up's, checked with them)."""
+    if isinstance(value, (str, bytes, bool)) or not ranges.is_number_like(value) or np.ndim(value) != 0:
+        raise InputError(f"{name} must be a number; got {value!r}.")
+    return float(value)
+
+
 def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
     """Every (parameter values, seed) member: the product of the varied values,
     each with every seed."""
-    for name, values in vary.items():
-        if len(values) == 0:
-            raise InputError(f"the sweep over {name!r} has no values.")
-    seeds = list(range(int(seeds))) if np.ndim(seeds) == 0 else [int(s) for s in seeds]
+    _check_vary(vary)
+    if isinstance(seeds, (str, bytes)) or np.ndim(seeds) > 1:
+        raise InputError(f"seeds must be a count or a list of seeds; got {seeds!r}.")
+    if np.ndim(seeds) == 0:
+        if isinstance(seeds, numbers.Integral) and seeds < 1:
+            raise InputError("a sweep needs at least one seed.")
+        seeds = list(range(COUNT.check("the number of seeds", seeds, scalar=True)))
+    else:
+        seeds = [SEED.check("a seed", s, scalar=True) for s in seeds]
     if not seeds:
         raise InputError("a sweep needs at least one seed.")
     names = list(vary)
@@ -244,7 +274,7 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
     """
     a = adapter(protocol)
     law = law or a.default_law
-    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
+    vary = _check_vary(vary or {})
     options = dict(options or {})
     unknown = set(options) - a.options
     if unknown:
@@ -252,7 +282,9 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
     if points is not None:
         if vary:
             raise InputError("give a sweep either `vary` (a grid) or `points`, not both.")
-        points = [{k: float(v) for k, v in dict(point).items()} for point in points]
+        if any(not isinstance(point, dict) for point in points):
+            raise InputError(f"points must be a list of dicts of law parameters; got {points!r}.")
+        points = [{k: _number(f"{k} of a sweep point", v) for k, v in point.items()} for point in points]
         if not points:
             raise InputError("a sweep over `points` needs at least one point.")
         members = [(point, seed) for point in points for _, seed in grid({}, seeds)]
@@ -329,7 +361,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
         batch_size=batch_size, dtype=dtype, points=points)
     options = dict(options or {})
-    vary = {k: [float(v) for v in vals] for k, vals in (vary or {}).items()}
+    vary = _check_vary(vary or {})
     if points is not None:
         points = [{k: float(v) for k, v in dict(point).items()} for point in points]
     batch_size = len(members) if batch_size is None else int(batch_size)

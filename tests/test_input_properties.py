@@ -224,7 +224,8 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
     the box stage) had run."""
     from jaxpile import sweep
 
-    monkeypatch.setattr(sweep, "_ensemble", lambda *a, **k: pytest.fail("a batch was built before the grid was checked"))
+    monkeypatch.setattr(sweep, "_ensemble",
+                        lambda *a, **k: pytest.fail("a batch was built before the grid was checked"))
     with pytest.raises(InputError):
         sweep.sweep(protocol, vary=vary, seeds=1, options=options, progress=False)
 
@@ -286,3 +287,20 @@ def test_a_damaged_or_foreign_json_file_gets_one_line_not_a_traceback(content, t
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip()
         assert err.startswith("jaxpile: error:") and len(err.splitlines()) == 1, (argv, err)
+
+
+@pytest.mark.parametrize("kwargs, says", [
+    ({"seeds": [1.5]}, "seed"), ({"seeds": "a"}, "seeds"), ({"seeds": 0}, "at least one seed"),
+    ({"vary": {"mu": "0.1"}}, "list of numbers"), ({"vary": {"mu": [0.1, "x"]}}, "sweep over 'mu'"),
+    ({"vary": None, "points": [{"mu": "x"}]}, "sweep point"), ({"vary": None, "points": [3]}, "list of dicts"),
+    ({"vary": {"mu": [0.1, math.nan]}}, "lee-herrmann parameter mu"),  # the law's own range and message
+])
+def test_the_sweep_api_answers_a_bad_grid_with_an_input_error(kwargs, says):
+    """`sweep.plan` (what `sweep` checks first) from Python: a seed that is not
+    whole was truncated in silence (1.5 ran seed 1), a string of values was
+    iterated character by character (a ValueError)."""
+    from jaxpile import sweep
+
+    args = {"vary": {"mu": [0.1]}, "seeds": 1, **kwargs}
+    with pytest.raises(InputError, match=says):
+        sweep.plan("box", options={"n": 20}, **args)
