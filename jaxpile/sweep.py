@@ -313,8 +313,9 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
         else:
             batches.append([k, k + 1])
 
-    for start, _ in batches:  # every batch's set-up is checked before any batch runs (a bad value fails at once)
-        a.setup(law, members[start][1], dt, {**split(members[start][0])[1], "dtype": dtype})
+    for start, end in batches:  # every batch's set-up and memory, before any batch runs (a bad value fails at once)
+        p = a.setup(law, members[start][1], dt, {**split(members[start][0])[1], "dtype": dtype})
+        memory.check(p.particles.count, dtype or "float64", batch=end - start, what=f"a batch of the {protocol} sweep")
     return members, member_params, batches, split, dt
 
 
