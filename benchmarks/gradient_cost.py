@@ -20,7 +20,8 @@ when the profile changes shape: the M or the hump).
    before it held fixed with `stop_gradient`), plus the spread of the
    full-horizon gradient over 8 random starts (ensemble averaging).
 
-    python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--no-horizon] [--out FILE]
+    python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--no-horizon] [--thunks]
+                                       [--out FILE]
 """
 
 from __future__ import annotations
@@ -94,6 +95,24 @@ def temp_bytes(fn, *args) -> int:
     return int(getattr(analysis, "temp_size_in_bytes", -1)) if analysis is not None else -1
 
 
+def kernels_per_step(fn, args, steps: int) -> float:
+    """XLA:CPU kernels (thunks) launched per step by the compiled `fn(*args)`,
+    counted in a profile of one call (`jax.profiler`): the host-side cost of a
+    small pile, where each kernel's launch outweighs its arithmetic."""
+    import glob
+    import tempfile
+
+    jax.block_until_ready(fn(*args))
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder):
+            jax.block_until_ready(fn(*args))
+        planes = jax.profiler.ProfileData.from_file(sorted(glob.glob(f"{folder}/**/*.xplane.pb", recursive=True))[-1])
+        names = [ev.name for plane in planes.planes for line in plane.lines for ev in line.events]
+    # a kernel's events: its own name (its "end: " twin and the executor's and Python's own events left out)
+    kernels = [n for n in names if not n.startswith(("$", "end: ", "ThunkExecutor", "Threadpool", "Transpose"))]
+    return len(kernels) / steps
+
+
 def relative_gradient(grad, params, value):
     return {k: float(getattr(grad, k)) * float(getattr(params, k)) / float(value) for k in NAMES}
 
@@ -107,6 +126,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--window", type=int, default=200)
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--no-horizon", action="store_true", help="cost and memory only (skip part 2)")
+    parser.add_argument("--thunks", action="store_true",
+                        help="also count the XLA:CPU kernels each program launches per step (from a profile)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     horizons = [int(h) for h in args.horizons.split(",")]
@@ -132,6 +153,12 @@ def main(argv=None) -> dict:
                "mem_grad_forward_mode": temp_bytes(jvp, values)}
         row.update(compile_forward_s=compiles[0], compile_grad_checkpoint_s=compiles[1],
                    compile_grad_forward_mode_s=compiles[2])
+        if args.thunks:  # why the derivatives cost what they do on a small pile: kernel launches per step
+            row.update(kernels_forward=kernels_per_step(forward, (params,), steps),
+                       kernels_grad_checkpoint=kernels_per_step(grad_ckpt, (params,), steps),
+                       kernels_grad_forward_mode=kernels_per_step(jvp, (values,), steps))
+            print(f"  kernels per step: forward {row['kernels_forward']:.0f}, reverse checkpointed "
+                  f"{row['kernels_grad_checkpoint']:.0f}, forward mode x3 {row['kernels_grad_forward_mode']:.0f}")
         if steps <= args.no_store_limit:
             grad = jit_derivative(jax.grad(loss_fn(sim, state, steps, False)))
             row.update(grad_s=clock(grad, params, compile_times=compiles), mem_grad=temp_bytes(grad, params))
