@@ -69,8 +69,11 @@ def test_grad_of_base_profile_matches_central_differences(law_name):
     for name in names:
         x = float(getattr(params, name))
         h = 1e-6 * x
-        fd = (float(loss(params.set(**{name: jnp.asarray(x + h)})))
-              - float(loss(params.set(**{name: jnp.asarray(x - h)})))) / (2 * h)
+        # the shifted value keeps the parameter's own dtype (not a weakly typed Python float), so
+        # every shift runs the one compiled `loss` instead of compiling it again per parameter
+        dtype = getattr(params, name).dtype
+        fd = (float(loss(params.set(**{name: jnp.asarray(x + h, dtype)})))
+              - float(loss(params.set(**{name: jnp.asarray(x - h, dtype)})))) / (2 * h)
         g = float(getattr(grad, name))
         assert abs(g) * x > 1e-6, f"{law_name}: d/d{name} vanishes: the case does not exercise it"
         assert g == pytest.approx(fd, rel=1e-4, abs=1e-9 / x), f"{law_name}: d/d{name}"
