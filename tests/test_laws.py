@@ -56,19 +56,21 @@ def test_stacked_disks_settle_at_the_analytic_separation(name):
 def _reference_restitution(force, meff, u_in, r_start, dt=1e-7):
     """RK4 of meff dr/dt^2 = F(r, dr/dt) for the centre distance r of a head-on
     pair, from first touch until the pair leaves the interaction range."""
-    def rhs(y):
-        r, u = y
-        return np.array([u, force(r, u) / meff])
-
-    y = np.array([r_start, -u_in])
+    # the two components as Python floats (the same float64 arithmetic, in the same order, as
+    # a 2-vector in numpy, without an array per stage: several times faster for 10^5-10^6 steps)
+    r, u = float(r_start), -float(u_in)
+    half, sixth = 0.5 * dt, dt / 6
     for _ in range(10_000_000):
-        k1 = rhs(y)
-        k2 = rhs(y + 0.5 * dt * k1)
-        k3 = rhs(y + 0.5 * dt * k2)
-        k4 = rhs(y + dt * k3)
-        y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        if y[0] >= r_start and y[1] > 0:
-            return y[1] / u_in
+        k1r, k1u = u, force(r, u) / meff
+        r2, u2 = r + half * k1r, u + half * k1u
+        k2r, k2u = u2, force(r2, u2) / meff
+        r3, u3 = r + half * k2r, u + half * k2u
+        k3r, k3u = u3, force(r3, u3) / meff
+        r4, u4 = r + dt * k3r, u + dt * k3u
+        k4r, k4u = u4, force(r4, u4) / meff
+        r, u = r + sixth * (k1r + 2 * k2r + 2 * k3r + k4r), u + sixth * (k1u + 2 * k2u + 2 * k3u + k4u)
+        if r >= r_start and u > 0:
+            return u / u_in
     raise AssertionError("the reference pair never separated")
 
 
