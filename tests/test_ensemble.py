@@ -98,7 +98,8 @@ def test_ensemble_refuses_mismatched_members(batch):
 
 SHARDED = textwrap.dedent("""
     import os
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    # added to the suite's XLA flags (tests/conftest.py: the faster-compiling fusion emitters), not instead of them
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()
     import jax, numpy as np
     import jaxpile
     from jaxpile import ensemble
