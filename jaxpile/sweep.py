@@ -97,6 +97,10 @@ class Adapter:
       simulator_options: the set-up options the simulator depends on (None:
         all of them); members whose set-ups differ only in other options share
         one compiled batch (the hopper's orifice).
+      columns: the columns of a member's row, where they are known before a
+        pile is measured (a protocol that declares its row as names); None
+        where the row is computed. An ensemble fit refuses a column outside
+        them before it runs.
     """
 
     setup: Callable
@@ -116,6 +120,11 @@ class Adapter:
     stages: tuple = ()
     deterministic: bool = False
     simulator_options: frozenset | None = None
+    columns: frozenset | None = None
+
+
+MEMBER_COLUMNS = ("member", "seed", "steps")
+"""What `sweep` adds to every row besides the protocol's measurement and the member's point."""
 
 
 def heap_extent(base: str, centre_key: str, count_key: str):

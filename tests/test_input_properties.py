@@ -256,6 +256,8 @@ def test_a_tilt_refuses_its_own_options_before_it_builds_its_box_pile(monkeypatc
       "--ensemble", "2"], "rate_degrees must be"),
     (["sweep", "--protocol", "box", "--vary", "mu=0.1,,0.3"], "empty value"),  # not a 2-point sweep in silence
     (["fit", "--protocol", "pour", "--params", "n,n", "--truth", "n=30", "--ensemble", "2"], "twice"),
+    (["fit", "--protocol", "tilt", "--params", "mu", "--truth", "mu=0.3", "--ensemble", "2", "--statistics", "theta"],
+     "no column 'theta'"),  # the run found out only after the target ensemble had run
 ])
 def test_sweep_and_fit_dry_runs_refuse_what_their_runs_would(argv, says, tmp_path, capsys):
     """A dry run checks every member of the grid, the fit's start and truth and

@@ -100,6 +100,13 @@ def _check_statistics(statistics: Statistics, adapter) -> Statistics:
         raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
     if statistics.bins and adapter.extent is None:
         raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
+    if adapter.columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
+        from jaxpile.sweep import MEMBER_COLUMNS
+
+        known = adapter.columns | set(MEMBER_COLUMNS)
+        unknown = [c for c in statistics.columns if c not in known]
+        if unknown:
+            raise InputError(f"the protocol's measurement has no column {unknown[0]!r}; it has {sorted(known)}.")
     return statistics
 
 

@@ -340,7 +340,7 @@ def adapter(definition: Definition):
         return d.simulator(law, dt=dt, **sim_options)
 
     return Adapter(setup, simulator, finished, max_steps, row, d.law_and_params, d.default_dt, options=options,
-                   **extra)
+                   columns=_columns(d), **extra)
 
 
 def _continued_adapter(d: Definition):
@@ -386,7 +386,12 @@ def _continued_adapter(d: Definition):
     extra = dict(d.sweep)
     options = extra.pop("options", base.options | names)
     return Adapter(setup, base.simulator, base.finished, base.max_steps, row, d.law_and_params, base.default_dt,
-                   options=frozenset(options), stages=(stage,), **extra)
+                   options=frozenset(options), stages=(stage,), columns=_columns(d), **extra)
+
+
+def _columns(d: Definition) -> frozenset | None:
+    """A row's columns where the definition names them (None: its row is computed)."""
+    return None if callable(d.row) else frozenset(d.row)
 
 
 def _run_options(d: Definition, options: dict | None) -> dict:
