@@ -76,6 +76,10 @@ def write_json(path, obj) -> None:
 
 def atomic_write(path, write, text: bool = False) -> None:
     """Write to a temporary file in the same folder, fsync, then rename."""
+    if os.path.isdir(path):
+        from jaxpile.errors import InputError
+
+        raise InputError(f"{path} is a folder: give a file name to write to.")
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.splitext(path)[1])

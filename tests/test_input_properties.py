@@ -306,3 +306,23 @@ def test_the_sweep_api_answers_a_bad_grid_with_an_input_error(kwargs, says):
     args = {"vary": {"mu": [0.1]}, "seeds": 1, **kwargs}
     with pytest.raises(InputError, match=says):
         sweep.plan("box", options={"n": 20}, **args)
+
+
+def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_path):
+    """`Simulator.run(..., nan)` raised numpy's ValueError; writing a state or
+    a frame to a folder's path raised IsADirectoryError on a temporary name."""
+    from jaxpile import export, io
+    from jaxpile.laws import hooke
+    from jaxpile.protocols import lattice
+    from jaxpile.simulate import Simulator
+
+    particles, boundaries = lattice.equilateral_pile(2)
+    params = hooke.make_params(kn=1e4)
+    sim = Simulator(hooke.law(), 1e-4)
+    state = sim.init(params, particles, boundaries)
+    for steps in (math.nan, math.inf, "10", 2.5, -1):
+        with pytest.raises(InputError, match="n_steps"):
+            sim.run(params, state, steps)
+    for write in (lambda: io.save_state(str(tmp_path), state), lambda: export.write_xyz(str(tmp_path), state)):
+        with pytest.raises(InputError, match="is a folder"):
+            write()

@@ -537,7 +537,12 @@ class Simulator:
         """
         if not isinstance(state, SimState):
             raise InputError("run() takes a SimState; build one with Simulator.init(params, particles, boundaries).")
-        if int(n_steps) != n_steps or n_steps < 0:
+        try:  # a count: not NaN, inf, a fraction or text (a 0-d array of one is fine)
+            whole = (not isinstance(n_steps, bool) and math.isfinite(float(n_steps)) and int(n_steps) == n_steps
+                     and n_steps >= 0)
+        except (TypeError, ValueError):
+            whole = False
+        if not whole:
             raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
         self.check_params(params, state.particles)
         _check_finite(state.particles, step=int(state.step))
