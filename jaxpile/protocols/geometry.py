@@ -67,9 +67,12 @@ def random_positions(radius, width: float, height: float, rng: np.random.Generat
 
     for i in np.argsort(-radius, kind="stable").tolist():
         r = float(radius[i])
-        low, high = (r, r), (width - r, height - r)
+        span_x, span_y = (width - r) - r, (height - r) - r
         for _ in range(int(attempts)):
-            x, y = rng.uniform(low, high).tolist()
+            # rng.uniform((r, r), (width - r, height - r)) as numpy computes it (low + (high - low) * u, one
+            # double per coordinate from the same stream) without its per-call checks of array bounds
+            u, v = rng.random(2).tolist()
+            x, y = r + span_x * u, r + span_y * v
             gx, gy = min(int(x // cx), nx - 1), min(int(y // cy), ny - 1)
             if free(x, y, r, gx, gy):
                 position[i] = (x, y)
