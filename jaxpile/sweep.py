@@ -28,7 +28,7 @@ import math
 import numbers
 import time
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -223,7 +223,7 @@ def _check_vary(vary: dict) -> dict:
 def _number(name: str, value) -> float:
     """`value` as a float, or `InputError` when it is not one number (its range,
     finiteness included, is the law's or the set-up's, checked with them)."""
-    if isinstance(value, (str, bytes, bool)) or not ranges.is_number_like(value) or np.ndim(value) != 0:
+    if not ranges.is_number_like(value) or np.ndim(value) != 0:  # not None, text, a bool or a list
         raise InputError(f"{name} must be a number; got {value!r}.")
     return float(value)
 
@@ -267,6 +267,19 @@ def _ensemble(protocol, stage, law, dt, sim_options, options, devices, build) ->
     return _ENSEMBLES[key]
 
 
+class Plan(NamedTuple):
+    """A sweep checked before it runs (`plan`)."""
+
+    members: list  # (point, seed) per member
+    member_params: list  # its law parameters
+    batches: list  # [first, end) member ranges, one set-up each
+    split: Callable  # point -> (law overrides, set-up options)
+    dt: float
+    vary: dict  # name -> values as floats
+    points: list | None  # the law-parameter points as floats, or None
+    batch_size: int
+
+
 def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, seeds=4, params: dict | None = None,
          options: dict | None = None, dt: float | None = None, rotation: bool | None = None,
          batch_size: int | None = None, dtype=None, points: Sequence[dict] | None = None):
@@ -277,9 +290,7 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
     before it have run. Arguments as `sweep`.
 
     Returns:
-      `(members, member_params, batches, split, dt)`: `(point, seed)` per
-      member, its params, `[first, end)` member ranges of the batches (each
-      one set-up), `point -> (law overrides, set-up options)`, and the dt.
+      `Plan`.
     """
     a = adapter(protocol)
     law = law or a.default_law
@@ -325,7 +336,7 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
     for start, end in batches:  # every batch's set-up and memory, before any batch runs (a bad value fails at once)
         p = a.setup(law, members[start][1], dt, {**split(members[start][0])[1], "dtype": dtype})
         memory.check(p.particles.count, dtype or "float64", batch=end - start, what=f"a batch of the {protocol} sweep")
-    return members, member_params, batches, split, dt
+    return Plan(members, member_params, batches, split, dt, vary, points, batch_size)
 
 
 def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
@@ -367,14 +378,11 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """
     a = adapter(protocol)
     law = law or a.default_law
-    members, member_params, batches, split, dt = plan(
-        protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
-        batch_size=batch_size, dtype=dtype, points=points)
+    checked = plan(protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
+                   batch_size=batch_size, dtype=dtype, points=points)
+    members, member_params, batches, split, dt = checked[:5]
+    vary, points, batch_size = checked.vary, checked.points, checked.batch_size
     options = dict(options or {})
-    vary = _check_vary(vary or {})
-    if points is not None:
-        points = [{k: float(v) for k, v in dict(point).items()} for point in points]
-    batch_size = len(members) if batch_size is None else int(batch_size)
     sim_options = {} if rotation is None else {"rotation": rotation}
 
     def stage0(member_options):
@@ -412,8 +420,6 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         sim = ens.sim
         protocols = [a.setup(law, seed, dt, {**batch_options, "dtype": dtype}) for _, seed in chunk]
         budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, batch_options)
-        memory.check(protocols[0].particles.count, dtype or "float64", batch=len(chunk),
-                     what=f"a batch of the {protocol} sweep")  # before the batch is stacked and compiled
         state = ens.init(prms, protocols)
         resuming = resume is not None and start == first
         at_stage = int(saved.get("stage", 0)) if resuming else 0
@@ -571,5 +577,5 @@ def figure(result: SweepResult, by: str | None = None, path=None):
                              ylabel=ylabel, path=path)
 
 
-__all__ = ["ADAPTERS", "Adapter", "SweepResult", "adapter", "figure", "grid", "plan", "read", "summarise", "sweep",
-           "write_csv"]
+__all__ = ["ADAPTERS", "Adapter", "Plan", "SweepResult", "adapter", "figure", "grid", "plan", "read", "summarise",
+           "sweep", "write_csv"]

@@ -971,8 +971,8 @@ def run_sweep(args) -> dict:
 
         a = sw.adapter(args.protocol)
         # every member's parameters and every batch's set-up, as the sweep checks them before it runs
-        _, _, _, _, dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options,
-                                 dt=args.dt, batch_size=args.batch_size, dtype=dtype)
+        dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
+                     batch_size=args.batch_size, dtype=dtype).dt
         setup = a.setup(law, 0, dt, {**options, "dtype": dtype})
         batch = members if args.batch_size is None else min(int(args.batch_size), members)
         steps = a.max_steps(setup.info, options) if args.max_steps is None else int(args.max_steps)
