@@ -326,3 +326,11 @@ def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_pa
     for write in (lambda: io.save_state(str(tmp_path), state), lambda: export.write_xyz(str(tmp_path), state)):
         with pytest.raises(InputError, match="is a folder"):
             write()
+
+
+def test_a_negative_zero_jitter_drops_as_zero():
+    """-0.0 lies inside the drop's jitter range [0, 1); numpy's uniform(0.0, -0.0)
+    raised "high - low < 0" (drawn by the property test above)."""
+    drop = PROTOCOLS["drop"]
+    a, b = drop.protocol(n=12, jitter=-0.0), drop.protocol(n=12, jitter=0.0)
+    assert np.array_equal(np.asarray(a.particles.position), np.asarray(b.particles.position))

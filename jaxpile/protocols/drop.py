@@ -259,7 +259,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
     max_interval_steps = _steps("max_interval", max_interval, dt)
     if max_interval_steps <= quiet_steps:
         raise InputError(f"max_interval ({max_interval}) must be longer than quiet_time ({quiet_time}).")
-    jitter = float(jitter)
+    jitter = float(jitter) + 0.0  # -0.0 (inside [0, 1)) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
     if not 0.0 <= jitter < 1.0:
         raise InputError(f"jitter must be in [0, 1) diameters; got {jitter!r}.")
     axis, parked, box = layout(n, diameter, drop_height)
