@@ -328,9 +328,9 @@ def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_pa
             write()
 
 
-def test_a_negative_zero_jitter_drops_as_zero():
-    """-0.0 lies inside the drop's jitter range [0, 1); numpy's uniform(0.0, -0.0)
-    raised "high - low < 0" (drawn by the property test above)."""
-    drop = PROTOCOLS["drop"]
-    a, b = drop.protocol(n=12, jitter=-0.0), drop.protocol(n=12, jitter=0.0)
-    assert np.array_equal(np.asarray(a.particles.position), np.asarray(b.particles.position))
+def test_a_negative_zero_jitter_or_spread_acts_as_zero():
+    """-0.0 lies inside the drop's jitter range [0, 1) and the pour's spread range;
+    numpy's uniform(0.0, -0.0) raised "high - low < 0" (drawn by the property test above)."""
+    for make in (lambda x: PROTOCOLS["drop"].protocol(n=12, jitter=x), lambda x: PROTOCOLS["pour"].pour(12, spread=x)):
+        a, b = make(-0.0), make(0.0)
+        assert np.array_equal(np.asarray(a.particles.position), np.asarray(b.particles.position))

@@ -290,6 +290,7 @@ def pour(
     # substrate_disks: OPTION_RANGES), in one message format; then how the options bound each other
     ranges.check_all(OPTION_RANGES, locals(), pour)
     n = int(n)
+    spread = float(spread) + 0.0  # -0.0 (inside its range) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
     budget.check(1.1 * n, dtype or "float64", what="a pour (with its substrate row)")  # and its substrate row
     smallest = 1.0 - polydispersity
     if not (1.0 <= spacing < 1.0 + smallest) or not math.isfinite(spacing):
