@@ -23,6 +23,7 @@ docs/fit_recovery_CASE.png.
 from __future__ import annotations
 
 import argparse
+import glob
 import json
 import os
 import sys
@@ -77,15 +78,23 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
     """README's recovery table, from the cases' result JSON (a case not run yet is left out)."""
     lines = ["| case | fitted | truth | start | recovered | 95 % interval | truth inside | piles a side | "
              "sensitivity | cost |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for case in CASES:
-        path = os.path.join(folder, f"{case}.json")
+    runs = [(case, case, os.path.join(folder, f"{case}.json")) for case in CASES]
+    # GPU runs keep their own folders (gpu_h200/box-paper.json): named by file, the case from the command
+    for path in sorted(glob.glob(os.path.join(folder, "gpu_*", "*.json"))):
+        name = os.path.basename(path)[:-len(".json")]
+        if not name.endswith(("_checkpoint", "_target")):
+            with open(path) as fh:
+                runs.append((name, json.load(fh)["command"].split()[2], path))
+    for name, case, path in runs:
         if not os.path.exists(path):
             continue
         with open(path) as fh:
             r = json.load(fh)
         what = CASES[case]
         options = r.get("options", what["options"])
-        setting = f"{case}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
+        setting = f"{name}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
+        if " gpu " in r.get("machine", ""):
+            setting += f" (GPU: {r['machine'].split(' gpu x1 ')[-1]})"
         for name in r["names"]:
             lo, hi = r["interval"][name]
             err = 100 * r["relative_error"][name]
@@ -97,7 +106,7 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
                 f"{'yes' if r['truth_inside_interval'][name] else 'no'} | {r['ensemble']} | "
                 f"{r['sensitivity'][name]:.2g} | {len(r['history'])} iterations"
                 f"{'' if r.get('converged', True) else ' (not converged)'}, {r['particle_steps']:.2g} "
-                f"particle-steps, {r['wall_seconds'] / 60:.0f} min |")
+                f"particle-steps, {(r['wall_seconds'] + r.get('earlier_runs_seconds', 0)) / 60:.0f} min |")
     return "\n".join(lines) + "\n"
 
 
@@ -177,6 +186,10 @@ def main(argv=None) -> dict:
     print(f"target: {dict(zip(target.labels, np.round(target.mean, 4)))} ({time.perf_counter() - t0:.0f} s)",
           flush=True)
     checkpoint = os.path.join(args.out, f"{args.case}_checkpoint.json")
+    earlier = 0.0  # a resumed fit's iterations run before this process: counted in its cost
+    if os.path.exists(checkpoint):
+        with open(checkpoint) as fh:
+            earlier = float(sum(h.get("seconds", 0.0) for h in json.load(fh).get("history", [])))
     result = ef.fit(runner, list(case["start"]), case["start"], target, seeds=range(b), statistics=statistics,
                     steps=args.steps, checkpoint=checkpoint, step=case.get("step", 0.05),
                     resume=checkpoint if os.path.exists(checkpoint) else None)
@@ -189,6 +202,7 @@ def main(argv=None) -> dict:
     record["machine"] = _machine()
     record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv)
     record["wall_seconds"] = time.perf_counter() - t0
+    record["earlier_runs_seconds"] = earlier
     try:  # the code that made it
         import subprocess
 

@@ -10,7 +10,10 @@
 # A second device call did not find .gpu_runs/ (measured; the folder was ignored through
 # .git/info/exclude and empty here): to resume, unpack the returned recovery.tgz in the repository's root here and
 # name .gpu_runs in the call's `carry` (measured: a warm rerun without it redid both
-# targets and lost four minutes of device time).
+# targets and lost four minutes of device time). To resume from the committed results in a
+# later session: copy benchmarks/results/fit_recovery/gpu_h200/NAME_{checkpoint,target}.json
+# to .gpu_runs/NAME/CASE_{checkpoint,target}.json (NAME box-paper or pour-64, CASE box or pour)
+# and carry .gpu_runs (done on 2026-11-26: `bash benchmarks/gpu_recovery.sh OUT 270 110`).
 set -u
 out=${1:?usage: gpu_recovery.sh OUT [BOX_SECONDS] [POUR_SECONDS]}
 box_s=${2:-300}
