@@ -23,7 +23,6 @@ docs/fit_recovery_CASE.png.
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import os
 import sys
@@ -73,23 +72,24 @@ CASES = {
 
 START, END = "<!-- fit-recovery:start -->\n", "<!-- fit-recovery:end -->"
 
+MORE_RUNS = ("gpu_h200/box-paper", "gpu_h200/pour-64", "hopper_32/hopper")
+"""Runs kept in folders of their own (larger ensembles, a GPU), in the table
+after the cases: FOLDER/CASE.json is named by its folder, any other by its file."""
+
 
 def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
     """README's recovery table, from the cases' result JSON (a case not run yet is left out)."""
     lines = ["| case | fitted | truth | start | recovered | 95 % interval | truth inside | piles a side | "
              "sensitivity | cost |", "|---|---|---|---|---|---|---|---|---|---|"]
-    runs = [(case, case, os.path.join(folder, f"{case}.json")) for case in CASES]
-    # GPU runs keep their own folders (gpu_h200/box-paper.json): named by file, the case from the command
-    for path in sorted(glob.glob(os.path.join(folder, "gpu_*", "*.json"))):
-        name = os.path.basename(path)[:-len(".json")]
-        if not name.endswith(("_checkpoint", "_target")):
-            with open(path) as fh:
-                runs.append((name, json.load(fh)["command"].split()[2], path))
-    for name, case, path in runs:
+    runs = [(case, os.path.join(folder, f"{case}.json")) for case in CASES]
+    runs += [(os.path.dirname(run) if os.path.basename(run) in CASES else os.path.basename(run),
+              os.path.join(folder, f"{run}.json")) for run in MORE_RUNS]
+    for name, path in runs:
         if not os.path.exists(path):
             continue
         with open(path) as fh:
             r = json.load(fh)
+        case = r["command"].split()[2]  # python benchmarks/fit_recovery.py CASE ...
         what = CASES[case]
         options = r.get("options", what["options"])
         setting = f"{name}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
