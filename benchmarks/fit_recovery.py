@@ -95,16 +95,16 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
         setting = f"{name}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
         if " gpu " in r.get("machine", ""):
             setting += f" (GPU: {r['machine'].split(' gpu x1 ')[-1]})"
-        for name in r["names"]:
-            lo, hi = r["interval"][name]
-            err = 100 * r["relative_error"][name]
+        for param in r["names"]:
+            lo, hi = r["interval"][param]
+            err = 100 * r["relative_error"][param]
             err = f"{err:+.1f} %" if abs(err) >= 0.05 else f"{err:+.1e} %"
-            d = 5 if hi - lo > 1e-4 * abs(r["values"][name]) else 10  # a deterministic pile's interval is narrow
+            d = 5 if hi - lo > 1e-4 * abs(r["values"][param]) else 10  # a deterministic pile's interval is narrow
             lines.append(
-                f"| {setting} | {name} | {r['truth'][name]:.5g} | {r['start'][name]:.5g} | {r['values'][name]:.{d}g} "
-                f"({err}) | {lo:.{d}g} – {hi:.{d}g} | "
-                f"{'yes' if r['truth_inside_interval'][name] else 'no'} | {r['ensemble']} | "
-                f"{r['sensitivity'][name]:.2g} | {len(r['history'])} iterations"
+                f"| {setting} | {param} | {r['truth'][param]:.5g} | {r['start'][param]:.5g} | "
+                f"{r['values'][param]:.{d}g} ({err}) | {lo:.{d}g} – {hi:.{d}g} | "
+                f"{'yes' if r['truth_inside_interval'][param] else 'no'} | {r['ensemble']} | "
+                f"{r['sensitivity'][param]:.2g} | {len(r['history'])} iterations"
                 f"{'' if r.get('converged', True) else ' (not converged)'}, {r['particle_steps']:.2g} "
                 f"particle-steps, {(r['wall_seconds'] + r.get('earlier_runs_seconds', 0)) / 60:.0f} min |")
     return "\n".join(lines) + "\n"
