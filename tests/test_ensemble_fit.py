@@ -56,6 +56,12 @@ def test_gauss_newton_recovers_the_truth_inside_its_interval():
     lo, hi = result.interval["mu"]
     assert lo < 0.3137 < hi and lo < result.values["mu"] < hi
     assert result.history[-1]["converged"]
+    # every ensemble the fit ran is kept, for a regression over them: theta and theta +- h, then the end's
+    for h in result.history:
+        assert np.allclose(np.asarray(h["points"])[:, 0], h["theta"][0] + np.array([0.0, 0.05, -0.05]))
+        assert np.shape(h["point_means"]) == (3, 2) and h["point_means"][0] == h["mean"]
+    assert np.allclose(np.asarray(result.record["final_points"])[0], np.log(result.values["mu"]))
+    assert np.allclose(result.record["final_point_means"][0], result.fitted_mean)
     # the interval is the sandwich: tighter with noiseless piles
     exact = ef.fit(ToyRunner(noise=1e-6), ["mu"], {"mu": 0.2}, _target(ToyRunner(noise=1e-6)), seeds=range(4),
                    statistics=STATS, steps=8, progress=False)

@@ -333,7 +333,10 @@ class EnsembleFitResult(NamedTuple):
       interval: `{name: (low, high)}` the 95 % confidence interval.
       stderr_log: `{name: standard error of log value}`.
       history: one dict per iteration (values, loss, its standard error, the
-        gradient with its standard error, the ensembles' cost).
+        gradient with its standard error, the ensembles' cost; with central
+        differences also `points`, the 2d + 1 log-parameters run, and
+        `point_means`, their ensembles' means: every ensemble a fit runs, for
+        a regression over them).
       target: the `EnsembleTarget`.
       fitted_mean, start_mean: `[k]` ensemble means at the end and the start.
       fitted_members: `[B, k]` the fitted ensemble's piles.
@@ -543,8 +546,10 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         if done:
             break
         mean = None
+        points = None
         if estimator == "central":
-            s, missing, info = run(estimators.central_points(theta, step))
+            points = estimators.central_points(theta, step)
+            s, missing, info = run(points)
             est = estimators.central_from_members(s, objective, step)
             jac, base = jacobian_of(s), s[0]
             mean = base.mean(axis=0)
@@ -588,6 +593,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
                  "gradient_stderr": np.asarray(est.stderr, float).tolist(), "ensembles": int(est.evaluations),
                  "particle_steps": int(info["particle_steps"]), "missing": missing,
                  "mean": None if mean is None else mean.tolist(), "next_theta": (theta + delta).tolist(),
+                 **({} if points is None else {"points": points.tolist(), "point_means": s.mean(axis=1).tolist()}),
                  "converged": converged, "stopped_by": why, "step_stderr": step_stderr,
                  "seconds": info["total_seconds"]}
         history.append(entry)
@@ -605,7 +611,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
             break
 
     # the interval: a central-difference Jacobian at the fitted values
-    s, _, info = run(estimators.central_points(theta, step) if interval else theta[None])
+    final_points = estimators.central_points(theta, step) if interval else theta[None]
+    s, _, info = run(final_points)
     if interval:
         jac = jacobian_of(s)
         cov, dof = confidence(jac, w, s[0], target)
@@ -621,7 +628,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     # moves them is not determined by this target, whatever its interval says
     sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
     converged = bool(history) and bool(history[-1]["converged"])
-    record.update({"final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
+    record.update({"final_points": final_points.tolist(), "final_point_means": s.mean(axis=1).tolist(),
+                   "final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
                    "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
                    "interval_dof": dof, "interval_quantile": z, "converged": converged,
                    "message": message or ("" if converged or opt is not None else
