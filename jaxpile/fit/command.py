@@ -140,5 +140,10 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         lo, hi = result.interval[n]
         truth = f" (truth {target.truth[n]:.5g})" if target.truth and n in target.truth else ""
         print(f"jaxpile: {n} = {result.values[n]:.5g}, 95% interval [{lo:.5g}, {hi:.5g}]{truth}")
+    line = result.record.get("regression")
+    if line is not None:  # in a chaotic protocol the honest one (jaxpile.fit.regression)
+        print("jaxpile: through all " + f"{line['points']} ensembles: " + ", ".join(
+            f"{n} = {line['values'][n]:.5g} [{line['interval'][n][0]:.5g}, {line['interval'][n][1]:.5g}]"
+            for n in names))
     print(f"jaxpile: wrote {args.out}/fit.json, target.json, fit.png")
     return record

@@ -340,7 +340,9 @@ class EnsembleFitResult(NamedTuple):
       target: the `EnsembleTarget`.
       fitted_mean, start_mean: `[k]` ensemble means at the end and the start.
       fitted_members: `[B, k]` the fitted ensemble's piles.
-      record: the set-up (protocol, law, estimator, optimiser, seeds, cost).
+      record: the set-up (protocol, law, estimator, optimiser, seeds, cost), and
+        `regression`: the estimate from a line through all of the fit's
+        ensembles (`jaxpile.fit.regression`), or None.
     """
 
     names: list
@@ -638,9 +640,15 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
                    "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"])})
     first = history[0]["mean"] if history and history[0].get("mean") is not None else None
     start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
-    return EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
-                             {n: float(se[i]) for i, n in enumerate(names)}, history, target, s[0].mean(axis=0),
-                             start_mean, s[0], record)
+    result = EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
+                               {n: float(se[i]) for i, n in enumerate(names)}, history, target, s[0].mean(axis=0),
+                               start_mean, s[0], record)
+    # the same answer from a line through every ensemble run (jaxpile.fit.regression): the honest one in chaos
+    from jaxpile.fit import regression
+
+    estimate = regression.estimate(result, w)
+    record["regression"] = None if estimate is None else estimate.to_json()
+    return result
 
 
 def _write_json(path: str, record: dict) -> None:

@@ -1,0 +1,136 @@
+"""The fitted parameters from a regression over every ensemble a fit ran (issue 17).
+
+Gauss-Newton answers with its last iterate and a Jacobian from the last
+central difference. In a chaotic protocol (a silo's discharge, a pour) the
+ensembles at theta and theta +- h differ by more than the parameter change
+explains, even with the same seeds: common random numbers do not cancel
+chaos. The last step is then one noisy step, and an interval built on one
+finite-difference Jacobian is too narrow (measured on the hopper:
+README, "Recovery").
+
+Every ensemble of the fit is a point (theta_n, m_n) on the response of the
+ensemble means to the log-parameters. A straight line through all of them,
+m(theta) = a + J theta (least squares, per statistic), is estimated from
+3 (iterations + 1) ensembles instead of 3; its parameters where it best meets
+the target t, in the fit's weights W,
+
+    theta* = (J^T W J)^-1 J^T W (t - a),
+
+is classical inverse regression (calibration). Its covariance is the sandwich
+H^-1 J^T W C W J H^-1 (H = J^T W J), where C, the covariance of the mismatch
+a + J theta* - t, adds three parts: the line's own noise at theta* (the
+residual covariance times the leverage x*^T (X^T X)^-1 x*, x* = (1, theta*)),
+the target's sampling noise (Sigma_t / B_t) and that of the fit's seeds
+(Sigma / B: the piles the whole line was built on). The interval is Student-t
+with the residuals' N - d - 1 degrees of freedom. A straight line is the
+model: over iterates far apart on a curved response it is biased, so the
+estimate is for fits whose iterates stay near the answer (after the first
+steps), which is where Gauss-Newton's noise matters.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Regression(NamedTuple):
+    """`values`, `interval` (95 %) and `stderr_log` as in a fit's result;
+    `points`: the ensembles used; `scatter`: `[k]` the residual standard
+    deviation of each statistic about the line; `dof`: N - d - 1."""
+
+    values: dict
+    interval: dict
+    stderr_log: dict
+    points: int
+    scatter: list
+    dof: int
+
+    def to_json(self) -> dict:
+        return {"values": self.values, "interval": {k: list(v) for k, v in self.interval.items()},
+                "stderr_log": self.stderr_log, "points": self.points, "scatter": self.scatter, "dof": self.dof}
+
+
+def ensembles_of(result, skip: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """`(thetas [N, d], means [N, k])`: every ensemble a finished fit ran (all
+    2d + 1 of each iteration where the history kept them, else the one at
+    theta), then the final ones; the first `skip` iterations left out (the
+    start is far from the answer, where a straight line is no model)."""
+    thetas, means = [], []
+    for h in result.history[skip:]:
+        if "points" in h:
+            thetas += h["points"]
+            means += h["point_means"]
+        elif h.get("mean") is not None:
+            thetas.append(h["theta"])
+            means.append(h["mean"])
+    record = result.record
+    if "final_points" in record:
+        thetas += record["final_points"]
+        means += record["final_point_means"]
+    else:
+        thetas.append([math.log(result.values[n]) for n in result.names])
+        means.append(list(np.asarray(result.fitted_mean, float)))
+    return np.asarray(thetas, float), np.asarray(means, float)
+
+
+def _sampling(piles) -> np.ndarray | None:
+    """`[k, k]` covariance of the mean of `piles` `[B, k]`, or None (one pile, no spread)."""
+    if piles is None:
+        return None
+    p = np.asarray(piles, float)
+    if p.ndim != 2 or len(p) < 2 or not np.any(np.ptp(p, axis=0) > 0):
+        return None
+    return np.atleast_2d(np.cov(p, rowvar=False)) / len(p)
+
+
+def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression | None:
+    """The inverse-regression estimate of a finished `ensemble_fit.fit` (its
+    result or `EnsembleFitResult.from_json` of its record), or None when the
+    fit ran too few ensembles (N < d + 2) or the line does not move with the
+    parameters. `w`: the fit's weights (default `ensemble_fit.weights` of its
+    target)."""
+    from scipy import stats
+
+    from jaxpile.fit.ensemble_fit import weights
+
+    target = result.target
+    w = weights(target) if w is None else np.asarray(w, float)
+    thetas, means = ensembles_of(result, skip)
+    n, d = thetas.shape
+    if n < d + 2:
+        return None
+    x = np.hstack([np.ones((n, 1)), thetas])
+    xtx = x.T @ x
+    if np.linalg.matrix_rank(xtx) < d + 1:
+        return None
+    coef = np.linalg.solve(xtx, x.T @ means)  # [d + 1, k]
+    a, jac = coef[0], coef[1:].T  # [k], [k, d]
+    hessian = (jac.T * w) @ jac
+    if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < d:
+        return None
+    inv = np.linalg.inv(hessian)
+    theta = inv @ ((jac.T * w) @ (np.asarray(target.mean, float) - a))
+    resid = means - x @ coef
+    dof = n - d - 1
+    residual = resid.T @ resid / dof
+    at = np.concatenate([[1.0], theta])
+    c = residual * float(at @ np.linalg.solve(xtx, at))
+    for part in (_sampling(target.members), _sampling(result.fitted_members)):
+        if part is not None:
+            c = c + part
+    jw = jac.T * w
+    cov = inv @ jw @ c @ jw.T @ inv
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    z = float(stats.t.ppf(0.975, dof))
+    names = list(result.names)
+    return Regression({k: float(np.exp(theta[i])) for i, k in enumerate(names)},
+                      {k: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
+                       for i, k in enumerate(names)},
+                      {k: float(se[i]) for i, k in enumerate(names)}, int(n),
+                      np.sqrt(np.clip(np.diag(residual), 0, None)).tolist(), int(dof))
+
+
+__all__ = ["Regression", "ensembles_of", "estimate"]
