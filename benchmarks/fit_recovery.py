@@ -243,6 +243,7 @@ def main(argv=None) -> dict:
         print(f"{args.case}: {n} = {result.values[n]:.5g} (truth {case['truth'][n]}, start {case['start'][n]}): "
               f"{100 * record['relative_error'][n]:+.2f} %, 95 % interval [{lo:.5g}, {hi:.5g}], truth inside: "
               f"{record['truth_inside_interval'][n]}")
+        print(f"{args.case}: {n} through all ensembles: {_through_all(record.get('regression'), n, case['truth'][n])}")
     print(f"wrote {args.out}/{args.case}.json and {figure} ({record['wall_seconds']:.0f} s)")
     if args.out == os.path.join(HERE, "results", "fit_recovery"):
         rewrite_readme()
