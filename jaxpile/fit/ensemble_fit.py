@@ -660,7 +660,8 @@ def _write_json(path: str, record: dict) -> None:
 
 def figure(result: EnsembleFitResult, path=None):
     """The fit on one page: the parameters over the iterations with the final
-    95 % interval (and the truth of a synthetic target), the loss with its
+    95 % interval, the estimate through all ensembles beside it (open diamond)
+    and the truth of a synthetic target, the loss with its
     standard error, and the statistics of the target, the start and the fit
     (the base profile with its one-pile band where there is one)."""
     import matplotlib
@@ -678,6 +679,12 @@ def figure(result: EnsembleFitResult, path=None):
         axes[0].errorbar([it[-1]], [result.values[n] / result.start[n]],
                          yerr=[[(result.values[n] - lo) / result.start[n]], [(hi - result.values[n]) / result.start[n]]],
                          color=line.get_color(), capsize=4)
+        through_all = result.record.get("regression")
+        if through_all is not None:  # the line through every ensemble (jaxpile.fit.regression), beside it
+            v, (lo, hi) = through_all["values"][n], through_all["interval"][n]
+            axes[0].errorbar([it[-1] + 0.25], [v / result.start[n]], fmt="D", mfc="none", capsize=4,
+                             yerr=[[(v - lo) / result.start[n]], [(hi - v) / result.start[n]]],
+                             color=line.get_color(), label=f"{n} through all ensembles")
         truth = (result.target.truth or {}).get(n)
         if truth is not None:
             axes[0].axhline(truth / result.start[n], color=line.get_color(), ls=":", label=f"{n} truth")
