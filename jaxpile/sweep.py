@@ -380,8 +380,8 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     law = law or a.default_law
     checked = plan(protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
                    batch_size=batch_size, dtype=dtype, points=points)
-    members, member_params, batches, split, dt = checked[:5]
-    vary, points, batch_size = checked.vary, checked.points, checked.batch_size
+    members, member_params, batches, split = checked.members, checked.member_params, checked.batches, checked.split
+    dt, vary, points, batch_size = checked.dt, checked.vary, checked.points, checked.batch_size
     options = dict(options or {})
     sim_options = {} if rotation is None else {"rotation": rotation}
 
