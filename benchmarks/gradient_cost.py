@@ -11,7 +11,10 @@ when the profile changes shape: the M or the hump).
    and of `jax.grad` with respect to (kn, kt, mu), with `checkpoint=False`
    (every step's intermediates stored) and `checkpoint=True` (blocks of
    sqrt(T) steps recomputed), and of the same gradient in forward mode (one
-   jvp per parameter, batched: `fit.value_and_gradient(..., "forward")`), and
+   jvp per parameter, batched: `fit.value_and_gradient(..., "forward")`) over
+   the three and over mu alone (a one-parameter pathwise fit's), timed side by side
+   (`--rounds` rounds, every program once a round; the ratio to the forward
+   is the median over rounds), and
    the compiled temporary memory of each (`compiled.memory_analysis()`: XLA's
    own figure for the peak of live buffers). Derivative programs compile as
    jaxpile compiles them (`engine.compile.jit_derivative`).
@@ -21,12 +24,13 @@ when the profile changes shape: the M or the hump).
    full-horizon gradient over 8 random starts (ensemble averaging).
 
     python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--no-horizon] [--thunks]
-                                       [--out FILE]
+                                       [--rounds 7] [--out FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
 import jax
@@ -76,18 +80,29 @@ def loss_fn(sim, state, steps, checkpoint, window=None):
     return loss
 
 
-def clock(fn, *args, compile_times: list | None = None):
-    """Run time of `fn(*args)` after a first call (whose extra time, the trace and
-    compile, is appended to `compile_times`)."""
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    jax.block_until_ready(fn(*args))
-    run = time.perf_counter() - t0
-    if compile_times is not None:
-        compile_times.append(max(first - run, 0.0))
-    return run
+def side_by_side(programs: dict, rounds: int = 7) -> dict:
+    """`{name: (fn, args)}` timed side by side: each compiled by a first call
+    (its extra time over a run: `compile_NAME_s`), then `rounds` rounds in which
+    every program runs once. `NAME_s`: the best run; `NAME_ratio`: the median
+    over rounds of its time over the forward's in the same round, so a load
+    that comes and goes on a shared machine moves both alike."""
+    out, times = {}, {name: [] for name in programs}
+    for name, (fn, args) in programs.items():
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        out[f"compile_{name}_s"] = max(first - (time.perf_counter() - t0), 0.0)
+    for _ in range(rounds):
+        for name, (fn, args) in programs.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            times[name].append(time.perf_counter() - t0)
+    for name, t in times.items():
+        out[f"{name}_s"] = min(t)
+        out[f"{name}_ratio"] = float(np.median(np.asarray(t) / np.asarray(times["forward"])))
+    return out
 
 
 def temp_bytes(fn, *args) -> int:
@@ -128,6 +143,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--no-horizon", action="store_true", help="cost and memory only (skip part 2)")
     parser.add_argument("--thunks", action="store_true",
                         help="also count the XLA:CPU kernels each program launches per step (from a profile)")
+    parser.add_argument("--rounds", type=int, default=7, help="side-by-side timing rounds (median ratio)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     horizons = [int(h) for h in args.horizons.split(",")]
@@ -136,7 +152,7 @@ def main(argv=None) -> dict:
     rows = []
     print(f"{state.particles.count} disks, hooke with friction; times in s, memory = XLA temp buffers")
     print(f"{'T':>6} {'forward':>8} {'grad':>8} {'grad/fwd':>8} {'grad ckpt':>9} {'ckpt/fwd':>8} "
-          f"{'jvp x3':>8} {'jvp/fwd':>8} "
+          f"{'jvp x3':>8} {'jvp/fwd':>8} {'jvp mu':>8} {'/fwd':>6} "
           f"{'mem fwd':>9} {'mem grad':>9} {'mem ckpt':>9}")
     for steps in horizons:
         # every derivative program compiled as jaxpile compiles them (engine.compile.jit_derivative)
@@ -145,45 +161,47 @@ def main(argv=None) -> dict:
         # forward mode over the three parameters, as `fit.fit(mode="auto")` takes it for <= 4 values
         values = {k: getattr(params, k) for k in NAMES}
         jvp = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), values, "forward")
-        compiles = []
-        row = {"steps": steps, "forward_s": clock(forward, params, compile_times=compiles),
-               "grad_checkpoint_s": clock(grad_ckpt, params, compile_times=compiles),
-               "grad_forward_mode_s": clock(jvp, values, compile_times=compiles),
-               "mem_forward": temp_bytes(forward, params), "mem_grad_checkpoint": temp_bytes(grad_ckpt, params),
-               "mem_grad_forward_mode": temp_bytes(jvp, values)}
-        row.update(compile_forward_s=compiles[0], compile_grad_checkpoint_s=compiles[1],
-                   compile_grad_forward_mode_s=compiles[2])
-        if args.thunks:  # why the derivatives cost what they do on a small pile: kernel launches per step
-            row.update(kernels_forward=kernels_per_step(forward, (params,), steps),
-                       kernels_grad_checkpoint=kernels_per_step(grad_ckpt, (params,), steps),
-                       kernels_grad_forward_mode=kernels_per_step(jvp, (values,), steps))
-            print(f"  kernels per step: forward {row['kernels_forward']:.0f}, reverse checkpointed "
-                  f"{row['kernels_grad_checkpoint']:.0f}, forward mode x3 {row['kernels_grad_forward_mode']:.0f}")
+        # and over mu alone: what a pathwise fit of one parameter differentiates
+        one = {"mu": params.mu}
+        jvp_mu = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), one, "forward")
+        programs = {"forward": (forward, (params,)), "grad_checkpoint": (grad_ckpt, (params,)),
+                    "grad_forward_mode": (jvp, (values,)), "grad_forward_mode_mu": (jvp_mu, (one,))}
         if steps <= args.no_store_limit:
-            grad = jit_derivative(jax.grad(loss_fn(sim, state, steps, False)))
-            row.update(grad_s=clock(grad, params, compile_times=compiles), mem_grad=temp_bytes(grad, params))
-            row.update(compile_grad_s=compiles[3])
+            programs["grad"] = (jit_derivative(jax.grad(loss_fn(sim, state, steps, False))), (params,))
+        row = {"steps": steps, **side_by_side(programs, args.rounds)}
+        row.update({f"mem_{name}": temp_bytes(fn, *a) for name, (fn, a) in programs.items()})
+        if args.thunks:  # why the derivatives cost what they do on a small pile: kernel launches per step
+            row.update({f"kernels_{name}": kernels_per_step(fn, a, steps) for name, (fn, a) in programs.items()
+                        if name != "grad"})
+            print(f"  kernels per step: forward {row['kernels_forward']:.0f}, reverse checkpointed "
+                  f"{row['kernels_grad_checkpoint']:.0f}, forward mode x3 {row['kernels_grad_forward_mode']:.0f}, "
+                  f"x1 {row['kernels_grad_forward_mode_mu']:.0f}")
         rows.append(row)
         mb = 1 / 2**20
-        g = row.get("grad_s", float("nan"))
-        print(f"{steps:6d} {row['forward_s']:8.3f} {g:8.3f} {g / row['forward_s']:8.2f} "
-              f"{row['grad_checkpoint_s']:9.3f} {row['grad_checkpoint_s'] / row['forward_s']:8.2f} "
-              f"{row['grad_forward_mode_s']:8.3f} {row['grad_forward_mode_s'] / row['forward_s']:8.2f} "
-              f"{row['mem_forward'] * mb:8.2f}M {row.get('mem_grad', -1) * mb:8.2f}M "
-              f"{row['mem_grad_checkpoint'] * mb:8.2f}M")
+        print(f"{steps:6d} {row['forward_s']:8.3f} {row.get('grad_s', math.nan):8.3f} "
+              f"{row.get('grad_ratio', math.nan):8.2f} {row['grad_checkpoint_s']:9.3f} "
+              f"{row['grad_checkpoint_ratio']:8.2f} {row['grad_forward_mode_s']:8.3f} "
+              f"{row['grad_forward_mode_ratio']:8.2f} {row['grad_forward_mode_mu_s']:8.3f} "
+              f"{row['grad_forward_mode_mu_ratio']:6.2f} {row['mem_forward'] * mb:8.2f}M "
+              f"{row.get('mem_grad', -1) * mb:8.2f}M {row['mem_grad_checkpoint'] * mb:8.2f}M")
 
     n = state.particles.count
     table = [{"case": f"gradient: {n}-disk pile, {r['steps']} steps, d/d(kn, kt, mu) (checkpointed)",
               "jaxpile": n * r["steps"] / r["grad_checkpoint_s"], "lammps": None, "ratio": None,
-              "note": f"{r['grad_checkpoint_s'] / r['forward_s']:.1f}x the forward time; XLA temp "
+              "note": f"{r['grad_checkpoint_ratio']:.1f}x the forward time; XLA temp "
                       f"{r['mem_grad_checkpoint'] / 2**20:.1f} MB"
                       + (f" (stored: {r['mem_grad'] / 2**20:.1f} MB)" if "mem_grad" in r else "")
                       + f"; compile {r['compile_grad_checkpoint_s']:.1f} s"} for r in rows]
     table += [{"case": f"gradient: {n}-disk pile, {r['steps']} steps, d/d(kn, kt, mu) (forward mode)",
                "jaxpile": n * r["steps"] / r["grad_forward_mode_s"], "lammps": None, "ratio": None,
-               "note": f"{r['grad_forward_mode_s'] / r['forward_s']:.1f}x the forward time (fit's default for "
+               "note": f"{r['grad_forward_mode_ratio']:.1f}x the forward time (fit's default for "
                        f"<= 4 values); XLA temp {r['mem_grad_forward_mode'] / 2**20:.1f} MB, flat in T; "
                        f"compile {r['compile_grad_forward_mode_s']:.1f} s"} for r in rows]
+    table += [{"case": f"gradient: {n}-disk pile, {r['steps']} steps, d/d mu (forward mode, one parameter)",
+               "jaxpile": n * r["steps"] / r["grad_forward_mode_mu_s"], "lammps": None, "ratio": None,
+               "note": f"{r['grad_forward_mode_mu_ratio']:.1f}x the forward time (a one-parameter "
+                       f"pathwise fit's); XLA temp {r['mem_grad_forward_mode_mu'] / 2**20:.1f} MB, flat in T; "
+                       f"compile {r['compile_grad_forward_mode_mu_s']:.1f} s"} for r in rows]
     if args.no_horizon:
         out = {"machine": describe(),
                "disks": n, "cost": rows, "table": table}
