@@ -1,22 +1,40 @@
 """Which gradient estimator survives a pile built at random? (issue 17, item 3)
 
-The box protocol of Lee & Herrmann 1993 (theta_R moves from ~8 to ~46 deg over
-mu = 0.1-0.5): the loss is (mean theta_R over B boxes - target)^2, a function of
-theta = log mu. For each estimator (`jaxpile.estimators`) and ensemble size B,
-`--repeats` independent ensembles (disjoint seeds) give the estimate's spread;
-the bias is measured against a reference (central differences at the largest
-B, over all repeats' seeds). The cost is counted in particle-steps per gradient.
-Every ensemble of a given theta is one batched `jaxpile.sweep` call (the same
-seeds at every theta: common random numbers).
+Two cases, each a loss of ensemble means taken as a function of
+theta = log(parameters), at a point some way from where the loss is least:
 
-    python benchmarks/estimator_study.py [--mu 0.25] [--target 20] [--B 8,32] [--repeats 4]
-        [--n 409] [--estimators fd,smoothing] [--sigma 0.1] [--pairs 4] [--step 0.1]
+- `box` (Lee & Herrmann 1993; theta_R moves from ~8 to ~46 deg over
+  mu = 0.1-0.5): loss (mean theta_R over B boxes - target)^2 against log mu.
+- `pour` (Baxter et al. 1997, 40-disk heaps as in `fit_recovery.py pour`):
+  the fit's loss (the angles and the 9-bin normal and horizontal base profile,
+  in the fit's weights, against a target ensemble at the truth) against
+  log n and log mu (the paper calls the heap insensitive to mu in 0.2-0.6:
+  the mu component measures how much of an estimate is noise).
+
+For each estimator (`jaxpile.estimators`) and ensemble size B, `--repeats`
+independent ensembles (disjoint seeds) give the estimate's spread; the bias
+is measured against a reference: central differences over every seed of the
+central-difference rows together (their members, reused: no second run).
+The cost is counted in particle-steps per gradient. Every ensemble of a
+given theta is one batched `jaxpile.sweep` (through `ensemble_fit.Runner`;
+the same seeds at every theta: common random numbers).
+
+    python benchmarks/estimator_study.py [--case box|pour] [--B 8,32] [--repeats 4]
+        [--estimators fd,smoothing] [--step H] [--sigma S] [--pairs 4] [--resume] [--checkpoint-every STEPS]
         [--out benchmarks/results/estimator_study.json] [--figure docs/estimator_study.png]
+      box:  [--mu 0.25] [--target 20] [--n 409] [--option width=2 ...]
+      pour: [--n 40] (point n = 33, mu = 0.5; target 32 heaps at n = 41.3, seeds 10000+)
+    python benchmarks/estimator_study.py --table   # README's table from the results JSON
 
-The pathwise estimator is not in this study yet: differentiating a 250 000-step
+Each finished row is written to `--out` at once; `--resume` skips the rows
+already there (a study at B = 128 outlasts a session on 2 cores), and with
+`--checkpoint-every` continues the row that was running from its last save.
+
+The pathwise estimator is not in this study: differentiating a 250 000-step
 box pile needs the checkpointed reverse pass over the whole fill and collapse
-(issue 15's gradient cost) and explodes through the collapse (issue 17's
-measurements on the pour); it is measured on the synthetic chaotic response in
+and explodes through the collapse (issue 17's measurements on the pour); the
+pathwise and truncated estimators are measured on small heaps by
+`truncation_study.py` and on the synthetic chaotic response in
 tests/test_estimators.py.
 """
 
@@ -25,135 +43,298 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import pathlib
 import sys
 import time
 
 import numpy as np
 
+HERE = pathlib.Path(__file__).resolve().parent
 
-def box_members(n: int, seeds: list[int], options: dict, cost: list, missing: list | None = None):
-    """`thetas [m, 1] -> [m, B, 1]`: theta_R (method 3, degrees) of B boxes at
-    mu = exp(theta) for each theta, one batched sweep; adds the particle-steps
-    spent to `cost` and the piles left out (no angle at some theta) to `missing`."""
-    from jaxpile import sweep
-    from jaxpile.ensemble_fit import _fill_missing
+CASES = {
+    "box": dict(protocol="box", law="lee-herrmann", options={"n": 409}, point={"mu": 0.25},
+                statistics=dict(columns=("repose_cumulative_parabola",)), step=0.1),
+    # the fit_recovery pour, its gradient taken 20 % below the truth in n (where a fit from its start passes)
+    "pour": dict(protocol="pour", law="baxter", options={"n": 40}, point={"n": 33.0, "mu": 0.5},
+                 truth={"n": 41.3, "mu": 0.5}, target_seeds=32,
+                 statistics=dict(columns=("repose_mean", "angle_height_base"), bins=9), step=0.2),
+}
 
-    missing = [] if missing is None else missing
+STUDIES = ("estimator_study.json", "estimator_study_b32.json", "estimator_study_pour.json",
+           "estimator_study_b128.json")
+"""The results README's table is built from, in its order (those that exist)."""
 
-    def members_batch(thetas):
-        mus = [float(math.exp(t)) for t in np.asarray(thetas)[:, 0]]
-        unique = list(dict.fromkeys(mus))
-        result = sweep.sweep("box", vary={"mu": unique}, seeds=seeds, options={"n": n, **options}, progress=False)
-        cost.append(result.info["particle_steps_per_second"] * result.info["run_seconds"])
-        by = {(round(r["mu"], 12), r["seed"]): r["repose_cumulative_parabola"] for r in result.rows}
-        s = np.array([[[by[(round(mu, 12), s)]] for s in seeds] for mu in mus])
-        # a box with no surface to fit (small boxes, low mu) has no theta_R: leave that pile out at
-        # every theta, as the ensemble fit does (common random numbers), instead of a NaN gradient
+START, END = "<!-- estimator-study:start -->\n", "<!-- estimator-study:end -->"
+
+
+class Members:
+    """`[m, d]` log-parameters -> `[m, B, k]` statistics of the B seeds at each,
+    one batched run; keeps the particle-steps spent and the piles left out (a
+    pile with no statistic at some theta is left out at every theta, as the
+    ensemble fit does, instead of a NaN gradient)."""
+
+    def __init__(self, runner, names, seeds, statistics, checkpoint: str | None = None, every: int = 0):
+        self.runner, self.names, self.seeds, self.statistics = runner, list(names), list(seeds), statistics
+        self.checkpoint, self.every = checkpoint, int(every)
+        self.particle_steps, self.left_out, self.last = 0.0, 0, None
+
+    def _run(self, points):
+        """`runner.run`, with the batch saved every `every` steps to `checkpoint`
+        and resumed from it when it is there (a B = 128 batch of boxes runs
+        for hours on 2 cores)."""
+        if not (self.checkpoint and self.every):
+            return self.runner.run(points, self.seeds, self.statistics)
+        from jaxpile import sweep
+        from jaxpile.fit.ensemble_fit import _profile_hook, _row_statistics
+
+        r = self.runner
+        result = sweep.sweep(r.protocol, r.law, points=list(points), seeds=self.seeds, params=r.params,
+                             options=r.options, progress=False, extra_measure=_profile_hook(r.adapter(), self.statistics),
+                             checkpoint=(self.checkpoint, self.every),
+                             resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
+        rows = result.rows
+        s = np.stack([_row_statistics(row, self.statistics) for row in rows]).reshape(len(points), len(self.seeds), -1)
+        os.remove(self.checkpoint)  # the row is done: its JSON holds it
+        return s, {"particle_steps": result.info["n_particles"] * sum(int(row["steps"]) for row in rows)}
+
+    def __call__(self, thetas):
+        from jaxpile.fit.ensemble_fit import _fill_missing
+
+        thetas = np.asarray(thetas, dtype=float)
+        points = [{n: float(math.exp(t)) for n, t in zip(self.names, row)} for row in thetas]
+        s, info = self._run(points)
+        self.particle_steps += float(info["particle_steps"])
         s, filled = _fill_missing(s)
-        missing.append(filled)
+        self.left_out += filled
+        self.last = s
         return s
 
-    return members_batch
+
+def case_objective(case: str, args, runner, statistics, out: dict):
+    """The loss of the ensemble-mean statistics, and (pour) its target."""
+    import jax.numpy as jnp
+
+    from jaxpile.fit import ensemble_fit as ef
+
+    if case == "box":
+        return lambda m: (m[0] - args.target) ** 2
+    if "target_ensemble" in out:  # resumed: the same target
+        target = ef.EnsembleTarget.from_json(out["target_ensemble"])
+    else:
+        c = CASES[case]
+        t0 = time.perf_counter()
+        target = ef.make_target(runner, c["truth"], range(10_000, 10_000 + c["target_seeds"]), statistics)
+        out["target_ensemble"] = target.to_json()
+        out["target_seconds"] = time.perf_counter() - t0
+    w = ef.weights(target)
+    t, w = jnp.asarray(target.mean), jnp.asarray(w)
+    return lambda m: jnp.mean(w * (jnp.asarray(m) - t) ** 2)
 
 
-def one_call(members_batch, theta, step: float):
-    """`members(theta)` for central differences, served from one batched call
-    at theta and theta +- step e_i (one sweep, one compile, instead of 2d + 1)."""
-    thetas = [theta] + [theta + s * e for e in np.eye(theta.size) for s in (step, -step)]
-    values = members_batch(np.array(thetas))
-    table = {tuple(np.round(t, 12)): v for t, v in zip(thetas, values)}
-    return lambda t: table[tuple(np.round(np.asarray(t, dtype=float), 12))]
+def _save(out: dict, path: str) -> None:
+    pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump(out, fh, indent=1)
+    os.replace(tmp, path)
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--mu", type=float, default=0.25, help="where the gradient is taken")
-    parser.add_argument("--target", type=float, default=20.0, help="target mean theta_R (degrees)")
+    parser.add_argument("--case", choices=sorted(CASES), default="box")
+    parser.add_argument("--mu", type=float, default=None, help="box: where the gradient is taken (default 0.25)")
+    parser.add_argument("--target", type=float, default=20.0, help="box: target mean theta_R (degrees)")
     parser.add_argument("--B", default="8,32", help="ensemble sizes")
     parser.add_argument("--repeats", type=int, default=4, help="independent ensembles per (estimator, B)")
-    parser.add_argument("--n", type=int, default=409, help="disks per box (the paper's W = H = 4: 409)")
+    parser.add_argument("--n", type=int, default=None, help="disks per pile (box: the paper's W = H = 4: 409; "
+                                                            "pour: 40)")
     parser.add_argument("--option", action="append", default=[], metavar="NAME=VALUE",
-                        help="a box option (e.g. width=1.5, max_time=0.2 for a quick check)")
+                        help="a protocol option (e.g. width=1.5, max_time=0.2 for a quick check)")
     parser.add_argument("--estimators", default="fd,smoothing")
-    parser.add_argument("--step", type=float, default=0.1, help="central differences: h in log mu")
-    parser.add_argument("--sigma", type=float, default=0.1, help="smoothing: width in log mu")
+    parser.add_argument("--step", type=float, default=None, help="central differences: h in log-parameter "
+                                                                  "(box 0.1, pour 0.2: the fits' steps)")
+    parser.add_argument("--sigma", type=float, default=None, help="smoothing: width in log-parameter (default h)")
     parser.add_argument("--pairs", type=int, default=4, help="smoothing: antithetic pairs")
-    parser.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "estimator_study.json"))
+    parser.add_argument("--resume", action="store_true", help="keep the rows already in --out and run the rest")
+    parser.add_argument("--checkpoint-every", type=int, default=0, metavar="STEPS",
+                        help="save a row's batch every STEPS steps beside --out (OUT.ROW.ckpt) and, with --resume, "
+                             "continue it from there")
+    parser.add_argument("--out", default=str(HERE / "results" / "estimator_study.json"))
     parser.add_argument("--figure", default=None)
+    parser.add_argument("--table", action="store_true", help="rewrite README's table from the results and stop")
     args = parser.parse_args(argv)
+    if args.table:
+        rewrite_readme()
+        print(table())
+        return {}
 
     import jax
-    import jax.numpy as jnp
 
     import jaxpile  # noqa: F401  (float64)
     from jaxpile import cli, estimators
+    from jaxpile.fit import ensemble_fit as ef
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
 
-    options = {}
+    c = CASES[args.case]
+    options = dict(c["options"])
+    if args.n is not None:
+        options["n"] = args.n
     for item in args.option:
         name, _, value = item.partition("=")
         options[name] = float(value)
+    point = dict(c["point"])
+    if args.mu is not None:
+        point["mu"] = args.mu
+    step = args.step or c["step"]
+    sigma = args.sigma or step
+    names = list(point)
     sizes = [int(b) for b in args.B.split(",")]
-    theta = np.array([math.log(args.mu)])
-    objective = lambda m: (m[0] - args.target) ** 2
-    rows = []
+    theta = np.log([point[n] for n in names])
+    runner = ef.Runner(c["protocol"], c["law"], options=options)
+    statistics = ef.Statistics(**c["statistics"])
+    command = "python benchmarks/estimator_study.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    setting = {"case": args.case, "protocol": c["protocol"], "law": c["law"], "names": names, "point": point,
+               "options": options, "statistics": statistics.labels(), "step": step, "sigma": sigma,
+               "pairs": args.pairs, "target": args.target if args.case == "box" else c.get("truth")}
+    out = {**setting, "rows": [], "seconds": 0.0, "command": command}
+    if args.resume and os.path.exists(args.out):
+        with open(args.out) as fh:
+            old = json.load(fh)
+        differ = [k for k in setting if old.get(k) != setting[k]]
+        if differ:
+            raise SystemExit(f"{args.out} was made with other settings ({', '.join(differ)}); give another --out.")
+        out = {**old, "command": command, "resumed_from_seconds": old.get("seconds", 0.0)}
+    objective = case_objective(args.case, args, runner, statistics, out)
+    done = {(r["estimator"], r["B"], r["repeat"]) for r in out["rows"]}
+    t_all = time.perf_counter() - out.get("seconds", 0.0)
     seed_base = 0
-    t_all = time.perf_counter()
     for size in sizes:
         for r in range(args.repeats):
             seeds = list(range(seed_base, seed_base + size))
             seed_base += size
             for name in args.estimators.split(","):
-                cost, missing = [], []
-                batch = box_members(args.n, seeds, options, cost, missing)
+                if (name, size, r) in done:
+                    continue
+                members = Members(runner, names, seeds, statistics, f"{args.out}.{name}-B{size}-r{r}.ckpt",
+                                  args.checkpoint_every)
                 t0 = time.perf_counter()
                 if name == "fd":
-                    est = estimators.central_differences(one_call(batch, theta, args.step), objective, theta,
-                                                         step=args.step)
+                    s = members(estimators.central_points(theta, step))
+                    est = estimators.central_from_members(s, objective, step)
                 elif name == "smoothing":
-                    est = estimators.antithetic_smoothing(batch, objective, theta, jax.random.PRNGKey(seed_base + r),
-                                                          sigma=args.sigma, pairs=args.pairs)
+                    est = estimators.antithetic_smoothing(members, objective, theta,
+                                                          jax.random.PRNGKey(seed_base + r), sigma=sigma,
+                                                          pairs=args.pairs)
                 else:
                     parser.error(f"unknown estimator {name!r}; known: fd, smoothing")
                 row = {"estimator": name, "B": size, "repeat": r, "seeds": [seeds[0], seeds[-1]],
-                       "gradient": float(est.gradient[0]), "stderr": float(est.stderr[0]),
-                       "value": est.value, "ensembles": est.evaluations, "particle_steps": float(sum(cost)),
-                       "piles_left_out": int(sum(missing)),
-                       "seconds": time.perf_counter() - t0}
-                rows.append(row)
-                print(f"{name:10s} B {size:4d} repeat {r}: dL/dlog mu = {row['gradient']:.4g} +- {row['stderr']:.2g}, "
-                      f"{row['particle_steps']:.3g} particle-steps, {row['seconds']:.0f} s", flush=True)
-    # the reference: central differences over every seed used, at the study's h
-    all_seeds = list(range(seed_base))
-    cost = []
-    ref = estimators.central_differences(one_call(box_members(args.n, all_seeds, options, cost), theta, args.step),
-                                         objective, theta, step=args.step)
-    reference = {"gradient": float(ref.gradient[0]), "stderr": float(ref.stderr[0]), "B": len(all_seeds),
-                 "particle_steps": float(sum(cost))}
-    summary = {}
-    for name in args.estimators.split(","):
-        for size in sizes:
-            g = np.array([r["gradient"] for r in rows if r["estimator"] == name and r["B"] == size])
-            c = np.array([r["particle_steps"] for r in rows if r["estimator"] == name and r["B"] == size])
-            summary[f"{name}/B{size}"] = {
-                "mean": float(g.mean()), "spread": float(g.std(ddof=1)) if g.size > 1 else None,
-                "bias": float(g.mean() - reference["gradient"]),
-                "bias_stderr": float(g.std(ddof=1) / math.sqrt(g.size)) if g.size > 1 else None,
-                "particle_steps_per_gradient": float(c.mean())}
-    out = {"protocol": "box", "law": "lee-herrmann", "quantity": "theta_R (method 3)", "mu": args.mu,
-           "target": args.target, "n": args.n, "options": options, "step": args.step, "sigma": args.sigma,
-           "pairs": args.pairs, "reference": reference, "summary": summary, "rows": rows,
-           "seconds": time.perf_counter() - t_all,
-           "command": "python benchmarks/estimator_study.py " + " ".join(argv if argv is not None else sys.argv[1:])}
-    pathlib.Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    pathlib.Path(args.out).write_text(json.dumps(out, indent=1))
-    print(json.dumps({"reference": reference, "summary": summary}, indent=1))
+                       "gradient": np.asarray(est.gradient).tolist(), "stderr": np.asarray(est.stderr).tolist(),
+                       "value": est.value, "ensembles": est.evaluations, "particle_steps": members.particle_steps,
+                       "piles_left_out": members.left_out, "seconds": time.perf_counter() - t0}
+                if name == "fd":  # the reference reuses them
+                    row["members"] = members.last.tolist()
+                out["rows"].append(row)
+                out["seconds"] = time.perf_counter() - t_all
+                _save(out, args.out)
+                print(f"{name:10s} B {size:4d} repeat {r}: dL/dlog {names} = {np.round(row['gradient'], 4)} +- "
+                      f"{np.round(row['stderr'], 3)}, {row['particle_steps']:.3g} particle-steps, "
+                      f"{row['seconds']:.0f} s", flush=True)
+    out.update(summarise(out, objective))
+    out["seconds"] = time.perf_counter() - t_all
+    _save(out, args.out)
+    print(json.dumps({"reference": out["reference"], "summary": out["summary"]}, indent=1))
     if args.figure:
         figure(out, args.figure)
         print(f"figure: {args.figure}")
     return out
+
+
+def _gradient(row) -> np.ndarray:
+    """A row's gradient as `[d]` (the first studies wrote a scalar)."""
+    return np.atleast_1d(np.asarray(row["gradient"], dtype=float))
+
+
+def summarise(out: dict, objective) -> dict:
+    """The reference (central differences over the members of every `fd` row
+    together: the same thetas, disjoint seeds) and, per (estimator, B), the
+    mean, spread and bias of the estimates."""
+    from jaxpile import estimators
+
+    fd = [r for r in out["rows"] if r["estimator"] == "fd"]
+    if not fd:
+        raise SystemExit("the reference is built from the central-difference rows: include fd in --estimators.")
+    s = np.concatenate([np.asarray(r["members"], float) for r in fd], axis=1)
+    ref = estimators.central_from_members(s, objective, out["step"])
+    reference = {"gradient": np.asarray(ref.gradient).tolist(), "stderr": np.asarray(ref.stderr).tolist(),
+                 "B": int(s.shape[1]), "particle_steps": float(sum(r["particle_steps"] for r in fd))}
+    summary = {}
+    for key in dict.fromkeys(f"{r['estimator']}/B{r['B']}" for r in out["rows"]):
+        mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
+        g = np.stack([_gradient(r) for r in mine])
+        summary[key] = {
+            "mean": g.mean(axis=0).tolist(),
+            "spread": g.std(axis=0, ddof=1).tolist() if len(g) > 1 else None,
+            "bias": (g.mean(axis=0) - np.asarray(reference["gradient"])).tolist(),
+            "bias_stderr": (g.std(axis=0, ddof=1) / math.sqrt(len(g))).tolist() if len(g) > 1 else None,
+            "particle_steps_per_gradient": float(np.mean([r["particle_steps"] for r in mine]))}
+    return {"reference": reference, "summary": summary}
+
+
+def _fmt(x: float) -> str:
+    """3 significant figures (whole numbers from 100 up), a true minus sign."""
+    text = f"{x:.0f}" if 100 <= abs(x) < 1e5 else f"{x:.3g}".replace("e+0", "e").replace("e-0", "e-")
+    return text.replace("-", "−")
+
+
+def _cost(x: float) -> str:
+    return f"{x:.2g}".replace("e+0", "e").replace("e+", "e")
+
+
+def table(folder: pathlib.Path = HERE / "results") -> str:
+    """README's estimator-study table: one block of rows per study in
+    `STUDIES`, its reference first; each gradient component is a column group
+    (d loss / d log p)."""
+    lines = ["| case | estimator | B | d loss / d log | estimates | bias against the reference | "
+             "particle-steps per gradient |", "|---|---|---|---|---|---|---|"]
+    for file in STUDIES:
+        path = folder / file
+        if not path.exists():
+            continue
+        out = json.loads(path.read_text())
+        if "summary" not in out:  # a study still running (its rows so far are saved for --resume)
+            continue
+        case = out.get("case", "box")
+        names = out.get("names", ["mu"])
+        where = ", ".join(f"{n} = {v:g}" for n, v in out.get("point", {"mu": out.get("mu")}).items())
+        disks = out.get("options", {}).get("n", out.get("n"))
+        label = f"{case}, {disks:g} disks ({where})"
+        ref = out["reference"]
+        for i, n in enumerate(names):
+            g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
+            lines.append(f"| {label} | reference: central differences, h = {out['step']:g} | {ref['B']} | {n} | "
+                         f"{_fmt(g)} ± {_fmt(e)} | — | {_cost(ref['particle_steps'])} |")
+        for key, s in out["summary"].items():
+            estimator, size = key.split("/B")
+            what = (f"central differences, h = {out['step']:g}" if estimator == "fd" else
+                    f"antithetic smoothing, sigma = {out.get('sigma', out['step']):g}, {out['pairs']} pairs")
+            mine = [r for r in out["rows"] if r["estimator"] == estimator and r["B"] == int(size)]
+            for i, n in enumerate(names):
+                estimates = ", ".join(_fmt(_gradient(r)[i]) for r in mine)
+                bias = np.atleast_1d(s["bias"])[i]
+                be = s["bias_stderr"]
+                bias_text = _fmt(bias) + ("" if be is None else f" ± {_fmt(np.atleast_1d(be)[i])}")
+                lines.append(f"| {label} | {what} | {size} | {n} | {estimates} | {bias_text} | "
+                             f"{_cost(s['particle_steps_per_gradient'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def rewrite_readme(check: bool = False) -> bool:
+    """Writes `table()` between README's markers (with `check`: only compares)."""
+    import readme_block
+
+    return readme_block.rewrite(START, END, table(), check=check)
 
 
 def figure(out: dict, path: str) -> None:
@@ -162,22 +343,32 @@ def figure(out: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    names = out.get("names", ["mu"])
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(5 * (len(names) + 1), 4))
     ref = out["reference"]
-    a.axhspan(ref["gradient"] - ref["stderr"], ref["gradient"] + ref["stderr"], color="0.85",
-              label=f"reference: FD over {ref['B']} boxes")
-    for k, (key, s) in enumerate(out["summary"].items()):
-        mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
-        a.plot([k] * len(mine), [r["gradient"] for r in mine], "o", color=f"C{k}", alpha=0.5)
-        a.errorbar(k + 0.15, s["mean"], s["spread"] or 0, fmt="s", color=f"C{k}", capsize=3)
-        b.plot(s["particle_steps_per_gradient"], s["spread"] or float("nan"), "o", color=f"C{k}", label=key)
-    a.set_xticks(range(len(out["summary"])), list(out["summary"]), fontsize=8)
-    a.set_ylabel("dL / d log mu")
-    a.set_title(f"estimates (each repeat) and their spread; mu = {out['mu']}")
-    a.legend(fontsize=8)
+    keys = list(out["summary"])
+    for i, n in enumerate(names):
+        a = axes[i]
+        g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
+        a.axhspan(g - e, g + e, color="0.85", label=f"reference: FD over {ref['B']} piles")
+        for k, key in enumerate(keys):
+            s = out["summary"][key]
+            mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
+            a.plot([k] * len(mine), [_gradient(r)[i] for r in mine], "o", color=f"C{k}", alpha=0.5)
+            spread = 0.0 if s["spread"] is None else np.atleast_1d(s["spread"])[i]
+            a.errorbar(k + 0.15, np.atleast_1d(s["mean"])[i], spread, fmt="s", color=f"C{k}", capsize=3)
+        a.set_xticks(range(len(keys)), keys, fontsize=8)
+        a.set_ylabel(f"dL / d log {n}")
+        a.set_title(f"{out.get('case', 'box')}: estimates (each repeat) and their spread", fontsize=9)
+        a.legend(fontsize=8)
+    b = axes[-1]
+    for k, key in enumerate(keys):
+        s = out["summary"][key]
+        spread = float("nan") if s["spread"] is None else float(np.linalg.norm(s["spread"]))
+        b.plot(s["particle_steps_per_gradient"], spread, "o", color=f"C{k}", label=key)
     b.set_xscale("log")
     b.set_xlabel("particle-steps per gradient")
-    b.set_ylabel("spread of the estimate")
+    b.set_ylabel("spread of the estimate (norm over components)")
     b.set_title("cost against spread")
     b.legend(fontsize=8)
     fig.tight_layout()

@@ -138,3 +138,14 @@ def test_readme_recovery_table_is_the_one_the_results_give():
     import fit_recovery
 
     assert fit_recovery.rewrite_readme(check=True), "run `python benchmarks/fit_recovery.py --table`"
+
+
+def test_readme_estimator_study_table_is_the_one_the_results_give():
+    """benchmarks/estimator_study.py writes README's estimator-study table
+    (issue 17, item 3) from the committed results JSON: README must hold
+    exactly that table, one row per (estimator, B, parameter) of each study."""
+    import estimator_study
+
+    assert estimator_study.rewrite_readme(check=True), "run `python benchmarks/estimator_study.py --table`"
+    rows = estimator_study.table().splitlines()[2:]
+    assert any("| box, 102 disks (mu = 0.25) | central differences, h = 0.1 | 32 | mu | 346, 199 |" in r for r in rows)
