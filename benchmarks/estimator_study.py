@@ -90,7 +90,8 @@ class Members:
 
         r = self.runner
         result = sweep.sweep(r.protocol, r.law, points=list(points), seeds=self.seeds, params=r.params,
-                             options=r.options, progress=False, extra_measure=_profile_hook(r.adapter(), self.statistics),
+                             options=r.options, progress=False,
+                             extra_measure=_profile_hook(r.adapter(), self.statistics),
                              checkpoint=(self.checkpoint, self.every),
                              resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
         rows = result.rows
