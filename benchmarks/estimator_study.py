@@ -61,8 +61,8 @@ CASES = {
                  statistics=dict(columns=("repose_mean", "angle_height_base"), bins=9), step=0.2),
 }
 
-STUDIES = ("estimator_study.json", "estimator_study_b32.json", "estimator_study_pour.json",
-           "estimator_study_b128.json")
+STUDIES = ("estimator_study.json", "estimator_study_b32.json", "estimator_study_b128.json",
+           "estimator_study_pour.json", "estimator_study_pour_b128.json")
 """The results README's table is built from, in its order (those that exist)."""
 
 START, END = "<!-- estimator-study:start -->\n", "<!-- estimator-study:end -->"
