@@ -20,7 +20,7 @@ given theta is one batched `jaxpile.sweep` (through `ensemble_fit.Runner`;
 the same seeds at every theta: common random numbers).
 
     python benchmarks/estimator_study.py [--case box|pour] [--B 8,32] [--repeats 4]
-        [--estimators fd,smoothing] [--step H] [--sigma S] [--pairs 4] [--resume] [--checkpoint-every STEPS]
+        [--estimators fd,smoothing,truncated:W] [--step H] [--sigma S] [--pairs 4] [--resume] [--checkpoint-every STEPS]
         [--out benchmarks/results/estimator_study.json] [--figure docs/estimator_study.png]
       box:  [--mu 0.25] [--target 20] [--n 409] [--option width=2 ...]
       pour: [--n 40] (point n = 33, mu = 0.5; target 32 heaps at n = 41.3, seeds 10000+)
@@ -30,12 +30,18 @@ Each finished row is written to `--out` at once; `--resume` skips the rows
 already there (a study at B = 128 outlasts a session on 2 cores), and with
 `--checkpoint-every` continues the row that was running from its last save.
 
+`truncated:W` (the pour): `estimators.truncated_pathwise` with windows of W
+steps, their sensitivities averaged (`combine="mean"`, the low-noise one in
+`truncation_study.py`), through the same heaps run as fixed-length rollouts
+(`TruncatedPour`). It differentiates the base profile's terms of the loss
+only (the angles are fitted on the host): its bias is measured against
+central differences of those terms, from the same members.
+
 The pathwise estimator is not in this study: differentiating a 250 000-step
 box pile needs the checkpointed reverse pass over the whole fill and collapse
-and explodes through the collapse (issue 17's measurements on the pour); the
-pathwise and truncated estimators are measured on small heaps by
-`truncation_study.py` and on the synthetic chaotic response in
-tests/test_estimators.py.
+and explodes through the collapse (issue 17's measurements on the pour); it
+is measured on small heaps by `truncation_study.py` and on the synthetic
+chaotic response in tests/test_estimators.py.
 """
 
 from __future__ import annotations
@@ -112,14 +118,88 @@ class Members:
         return s
 
 
+class TruncatedPour:
+    """The pour's construction as fixed-length rollouts of the B heaps, for
+    `estimators.truncated_pathwise` (`advance`, `statistics`, `start`,
+    `steps`), at the study's point `theta`.
+
+    The heaps are set up as the sweep sets them up (the protocol's options and
+    seeds), on a simulator that carries every disk (a rollout has no host
+    blocks). A host run to the protocol's finish (every disk poured, then at
+    rest) at theta gives the construction's length, the longest member's, and
+    sizes the lists (a rollout has no overflow handling), with head-room. The
+    statistics are the traceable part of the pour's: the base profile, normal
+    and horizontal, as `ensemble_fit` measures it (the angles are fitted on
+    the host and have no tangent)."""
+
+    def __init__(self, options: dict, seeds, statistics, names, theta):
+        import jax
+        import jax.numpy as jnp
+
+        from jaxpile import fit, sweep
+        from jaxpile.engine import batch, ensemble
+        from jaxpile.engine import neighbors as nb
+        from jaxpile.measure import analysis
+        from jaxpile.protocols import pour
+
+        self.sim = sim = pour.make_simulator("baxter", in_play=None)
+        base = pour.law_params("baxter")
+
+        def params(t):
+            return base.set(**{n: jnp.exp(t[i]) for i, n in enumerate(names)})
+
+        setup = {k: v for k, v in options.items() if k != "n"}
+        protocols = [pour.pour(int(options["n"]), seed=s, **setup) for s in seeds]
+        d = pour.DEFINITION
+        p0 = params(jnp.asarray(theta))
+        ens = ensemble.Ensemble(sim)
+        start = ens.init([p0] * len(protocols), protocols)
+        end = ens.run([p0] * len(protocols), start, d.max_steps(protocols[0].info, d.run_options),
+                      until=d.finished(protocols[0].info, d.run_options), progress=False)
+        self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
+        slots = int(end.neighbors.max_occupancy) + 8
+        pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
+        self.start = batch.stack([batch.at_capacity(batch.member(start, i), slots, None, pairs)
+                                  for i in range(len(protocols))])
+        self.particles = int(self.start.particles.position.shape[1])
+        base_name, x_left, x_right = sweep.adapter("pour").extent(protocols[0])
+        bins, bandwidth = int(statistics.bins), statistics.bandwidth
+
+        def advance(t, state, k):
+            return jax.vmap(lambda m: sim.rollout(params(t), m, k))(state)
+
+        def stats(t, state):
+            def one(m):
+                load = analysis.base_load(sim, params(t), m, base=base_name)
+                profile = fit.smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=bins, bandwidth=bandwidth)
+                return jnp.concatenate([profile.normal, profile.horizontal])
+            return jax.vmap(one)(state)
+
+        self.advance, self.statistics = advance, stats
+        final = jax.jit(advance, static_argnums=2)(jnp.asarray(theta), self.start, self.steps)
+        if bool(np.any(np.asarray(nb.overflowed(final)))):
+            raise SystemExit("a list overflowed inside the rollout at the study's point: raise the head-room")
+
+
+def profile_part(labels, objective_weights, target_mean):
+    """`(indices, objective)`: the base-profile terms of the fit's loss alone
+    (the same weights and target; the angles' terms left out)."""
+    import jax.numpy as jnp
+
+    idx = np.array([i for i, label in enumerate(labels) if label.startswith(("normal[", "horizontal["))])
+    w, t, k = jnp.asarray(objective_weights)[idx], jnp.asarray(target_mean)[idx], len(labels)
+    return idx, lambda m: jnp.sum(w * (jnp.asarray(m) - t) ** 2) / k
+
+
 def case_objective(case: str, args, runner, statistics, out: dict):
-    """The loss of the ensemble-mean statistics, and (pour) its target."""
+    """`(objective, weights, target mean)`: the loss of the ensemble-mean
+    statistics, and (pour) the fit's weights and its target's means."""
     import jax.numpy as jnp
 
     from jaxpile.fit import ensemble_fit as ef
 
     if case == "box":
-        return lambda m: (m[0] - args.target) ** 2
+        return (lambda m: (m[0] - args.target) ** 2), None, None
     if "target_ensemble" in out:  # resumed: the same target
         target = ef.EnsembleTarget.from_json(out["target_ensemble"])
     else:
@@ -129,8 +209,8 @@ def case_objective(case: str, args, runner, statistics, out: dict):
         out["target_ensemble"] = target.to_json()
         out["target_seconds"] = time.perf_counter() - t0
     w = ef.weights(target)
-    t, w = jnp.asarray(target.mean), jnp.asarray(w)
-    return lambda m: jnp.mean(w * (jnp.asarray(m) - t) ** 2)
+    t, wj = jnp.asarray(target.mean), jnp.asarray(w)
+    return (lambda m: jnp.mean(wj * (jnp.asarray(m) - t) ** 2)), np.asarray(w), np.asarray(target.mean)
 
 
 def _save(out: dict, path: str) -> None:
@@ -207,7 +287,10 @@ def main(argv=None) -> dict:
         if differ:
             raise SystemExit(f"{args.out} was made with other settings ({', '.join(differ)}); give another --out.")
         out = {**old, "command": command, "resumed_from_seconds": old.get("seconds", 0.0)}
-    objective = case_objective(args.case, args, runner, statistics, out)
+    objective, weights, target_mean = case_objective(args.case, args, runner, statistics, out)
+    profile_idx, profile_objective = (None, None) if weights is None else profile_part(
+        statistics.labels(), weights, target_mean)
+    truncated = {}  # seeds -> TruncatedPour: one host run and compile per ensemble
     done = {(r["estimator"], r["B"], r["repeat"]) for r in out["rows"]}
     t_all = time.perf_counter() - out.get("seconds", 0.0)
     seed_base = 0
@@ -228,8 +311,17 @@ def main(argv=None) -> dict:
                     est = estimators.antithetic_smoothing(members, objective, theta,
                                                           jax.random.PRNGKey(seed_base + r), sigma=sigma,
                                                           pairs=args.pairs)
+                elif name.startswith("truncated:") and args.case == "pour":
+                    window = int(name.split(":")[1])
+                    key = (seeds[0], seeds[-1])
+                    if key not in truncated:
+                        truncated[key] = TruncatedPour(options, seeds, statistics, names, theta)
+                    tp = truncated[key]
+                    est = estimators.truncated_pathwise(tp.advance, tp.statistics, profile_objective, theta, tp.start,
+                                                        tp.steps, window, combine="mean")
+                    members.particle_steps = float(len(seeds) * tp.particles * tp.steps)
                 else:
-                    parser.error(f"unknown estimator {name!r}; known: fd, smoothing")
+                    parser.error(f"unknown estimator {name!r}; known: fd, smoothing, truncated:W (the pour)")
                 row = {"estimator": name, "B": size, "repeat": r, "seeds": [seeds[0], seeds[-1]],
                        "gradient": np.asarray(est.gradient).tolist(), "stderr": np.asarray(est.stderr).tolist(),
                        "value": est.value, "ensembles": est.evaluations, "particle_steps": members.particle_steps,
@@ -242,7 +334,7 @@ def main(argv=None) -> dict:
                 print(f"{name:10s} B {size:4d} repeat {r}: dL/dlog {names} = {np.round(row['gradient'], 4)} +- "
                       f"{np.round(row['stderr'], 3)}, {row['particle_steps']:.3g} particle-steps, "
                       f"{row['seconds']:.0f} s", flush=True)
-    out.update(summarise(out, objective))
+    out.update(summarise(out, objective, profile_idx, profile_objective))
     out["seconds"] = time.perf_counter() - t_all
     _save(out, args.out)
     print(json.dumps({"reference": out["reference"], "summary": out["summary"]}, indent=1))
@@ -257,30 +349,41 @@ def _gradient(row) -> np.ndarray:
     return np.atleast_1d(np.asarray(row["gradient"], dtype=float))
 
 
-def summarise(out: dict, objective) -> dict:
+def summarise(out: dict, objective, profile_idx=None, profile_objective=None) -> dict:
     """The reference (central differences over the members of every `fd` row
     together: the same thetas, disjoint seeds) and, per (estimator, B), the
-    mean, spread and bias of the estimates."""
+    mean, spread and bias of the estimates. The truncated rows differentiate
+    the base-profile terms of the loss alone: their reference
+    (`reference_profile`) is taken from the same members, those terms only."""
     from jaxpile import estimators
 
     fd = [r for r in out["rows"] if r["estimator"] == "fd"]
     if not fd:
         raise SystemExit("the reference is built from the central-difference rows: include fd in --estimators.")
     s = np.concatenate([np.asarray(r["members"], float) for r in fd], axis=1)
-    ref = estimators.central_from_members(s, objective, out["step"])
-    reference = {"gradient": np.asarray(ref.gradient).tolist(), "stderr": np.asarray(ref.stderr).tolist(),
-                 "B": int(s.shape[1]), "particle_steps": float(sum(r["particle_steps"] for r in fd))}
+    cost = float(sum(r["particle_steps"] for r in fd))
+
+    def reference_of(s, objective):
+        ref = estimators.central_from_members(s, objective, out["step"])
+        return {"gradient": np.asarray(ref.gradient).tolist(), "stderr": np.asarray(ref.stderr).tolist(),
+                "B": int(s.shape[1]), "particle_steps": cost}
+
+    reference = reference_of(s, objective)
+    extra = {}
+    if profile_objective is not None and any(r["estimator"].startswith("truncated") for r in out["rows"]):
+        extra["reference_profile"] = reference_of(s[..., profile_idx], profile_objective)
     summary = {}
     for key in dict.fromkeys(f"{r['estimator']}/B{r['B']}" for r in out["rows"]):
         mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
         g = np.stack([_gradient(r) for r in mine])
+        against = extra["reference_profile"] if key.startswith("truncated") else reference
         summary[key] = {
             "mean": g.mean(axis=0).tolist(),
             "spread": g.std(axis=0, ddof=1).tolist() if len(g) > 1 else None,
-            "bias": (g.mean(axis=0) - np.asarray(reference["gradient"])).tolist(),
+            "bias": (g.mean(axis=0) - np.asarray(against["gradient"])).tolist(),
             "bias_stderr": (g.std(axis=0, ddof=1) / math.sqrt(len(g))).tolist() if len(g) > 1 else None,
             "particle_steps_per_gradient": float(np.mean([r["particle_steps"] for r in mine]))}
-    return {"reference": reference, "summary": summary}
+    return {"reference": reference, **extra, "summary": summary}
 
 
 def _fmt(x: float) -> str:
@@ -311,14 +414,19 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
         where = ", ".join(f"{n} = {v:g}" for n, v in out.get("point", {"mu": out.get("mu")}).items())
         disks = out.get("options", {}).get("n", out.get("n"))
         label = f"{case}, {disks:g} disks ({where})"
-        ref = out["reference"]
-        for i, n in enumerate(names):
-            g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
-            lines.append(f"| {label} | reference: central differences, h = {out['step']:g} | {ref['B']} | {n} | "
-                         f"{_fmt(g)} ± {_fmt(e)} | — | {_cost(ref['particle_steps'])} |")
+        for which, title in (("reference", "reference: central differences"),
+                             ("reference_profile", "reference, the profile's terms: central differences")):
+            ref = out.get(which)
+            for i, n in enumerate(names if ref else []):
+                g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
+                lines.append(f"| {label} | {title}, h = {out['step']:g} | {ref['B']} | {n} | "
+                             f"{_fmt(g)} ± {_fmt(e)} | — | {_cost(ref['particle_steps'])} |")
         for key, s in out["summary"].items():
             estimator, size = key.split("/B")
             what = (f"central differences, h = {out['step']:g}" if estimator == "fd" else
+                    (f"truncated pathwise, mean over windows of {estimator.split(':')[1]} steps, the profile's terms "
+                     f"(one construction carrying {len(names)} tangents)")
+                    if estimator.startswith("truncated") else
                     f"antithetic smoothing, sigma = {out.get('sigma', out['step']):g}, {out['pairs']} pairs")
             mine = [r for r in out["rows"] if r["estimator"] == estimator and r["B"] == int(size)]
             for i, n in enumerate(names):
@@ -352,6 +460,9 @@ def figure(out: dict, path: str) -> None:
         a = axes[i]
         g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
         a.axhspan(g - e, g + e, color="0.85", label=f"reference: FD over {ref['B']} piles")
+        if "reference_profile" in out:
+            gp = np.atleast_1d(out["reference_profile"]["gradient"])[i]
+            a.axhline(gp, color="0.4", ls="--", lw=1, label="reference, the profile's terms (truncated rows)")
         for k, key in enumerate(keys):
             s = out["summary"][key]
             mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
