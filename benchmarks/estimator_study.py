@@ -25,6 +25,7 @@ the same seeds at every theta: common random numbers).
       box:  [--mu 0.25] [--target 20] [--n 409] [--option width=2 ...]
       pour: [--n 40] (point n = 33, mu = 0.5; target 32 heaps at n = 41.3, seeds 10000+)
     python benchmarks/estimator_study.py --table   # README's table from the results JSON
+    python benchmarks/estimator_study.py ... --resume --summarise-only   # the rows so far, summarised
 
 Each finished row is written to `--out` at once; `--resume` skips the rows
 already there (a study at B = 128 outlasts a session on 2 cores), and with
@@ -244,6 +245,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", default=str(HERE / "results" / "estimator_study.json"))
     parser.add_argument("--figure", default=None)
     parser.add_argument("--table", action="store_true", help="rewrite README's table from the results and stop")
+    parser.add_argument("--summarise-only", action="store_true",
+                        help="with --resume: run nothing, summarise the rows in --out (a study cut off by the end "
+                             "of a session; `complete` says whether every planned row is in)")
     args = parser.parse_args(argv)
     if args.table:
         rewrite_readme()
@@ -293,13 +297,14 @@ def main(argv=None) -> dict:
     truncated = {}  # seeds -> TruncatedPour: one host run and compile per ensemble
     done = {(r["estimator"], r["B"], r["repeat"]) for r in out["rows"]}
     t_all = time.perf_counter() - out.get("seconds", 0.0)
-    seed_base = 0
+    seed_base, planned = 0, set()
     for size in sizes:
         for r in range(args.repeats):
             seeds = list(range(seed_base, seed_base + size))
             seed_base += size
             for name in args.estimators.split(","):
-                if (name, size, r) in done:
+                planned.add((name, size, r))
+                if (name, size, r) in done or args.summarise_only:
                     continue
                 members = Members(runner, names, seeds, statistics, f"{args.out}.{name}-B{size}-r{r}.ckpt",
                                   args.checkpoint_every)
@@ -335,6 +340,7 @@ def main(argv=None) -> dict:
                       f"{np.round(row['stderr'], 3)}, {row['particle_steps']:.3g} particle-steps, "
                       f"{row['seconds']:.0f} s", flush=True)
     out.update(summarise(out, objective, profile_idx, profile_objective))
+    out["complete"] = planned <= {(r["estimator"], r["B"], r["repeat"]) for r in out["rows"]}
     out["seconds"] = time.perf_counter() - t_all
     _save(out, args.out)
     print(json.dumps({"reference": out["reference"], "summary": out["summary"]}, indent=1))
@@ -413,7 +419,7 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
         names = out.get("names", ["mu"])
         where = ", ".join(f"{n} = {v:g}" for n, v in out.get("point", {"mu": out.get("mu")}).items())
         disks = out.get("options", {}).get("n", out.get("n"))
-        label = f"{case}, {disks:g} disks ({where})"
+        label = f"{case}, {disks:g} disks ({where})" + ("" if out.get("complete", True) else ", in progress")
         for which, title in (("reference", "reference: central differences"),
                              ("reference_profile", "reference, the profile's terms: central differences")):
             ref = out.get(which)
