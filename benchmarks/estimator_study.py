@@ -262,6 +262,11 @@ def main(argv=None) -> dict:
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
 
+    for name in args.estimators.split(","):  # before any pile runs: a typo must not cost an hour's rows
+        window = name.partition(":")[2]
+        if not (name in ("fd", "smoothing") or (name.startswith("truncated:") and window.isdigit() and int(window) > 0
+                                                and args.case == "pour")):
+            parser.error(f"unknown estimator {name!r}; known: fd, smoothing, truncated:W (W > 0 steps; the pour)")
     c = CASES[args.case]
     options = dict(c["options"])
     if args.n is not None:
