@@ -58,6 +58,7 @@ import time
 import numpy as np
 
 HERE = pathlib.Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))  # jaxpile from this checkout where it is not installed (a GPU call)
 
 CASES = {
     "box": dict(protocol="box", law="lee-herrmann", options={"n": 409}, point={"mu": 0.25},
@@ -81,15 +82,19 @@ class Members:
     pile with no statistic at some theta is left out at every theta, as the
     ensemble fit does, instead of a NaN gradient)."""
 
-    def __init__(self, runner, names, seeds, statistics, checkpoint: str | None = None, every: int = 0):
+    def __init__(self, runner, names, seeds, statistics, checkpoint: str | None = None, every: int = 0,
+                 resume: bool = False):
         self.runner, self.names, self.seeds, self.statistics = runner, list(names), list(seeds), statistics
         self.checkpoint, self.every = checkpoint, int(every)
+        if checkpoint and os.path.exists(checkpoint) and not resume:  # another study's batch: not this one's
+            os.remove(checkpoint)
         self.particle_steps, self.left_out, self.last = 0.0, 0, None
 
     def _run(self, points):
         """`runner.run`, with the batch saved every `every` steps to `checkpoint`
         and resumed from it when it is there (a B = 128 batch of boxes runs
-        for hours on 2 cores)."""
+        for hours on 2 cores). The file stays until the row is in the JSON
+        (`main` removes it then)."""
         if not (self.checkpoint and self.every):
             return self.runner.run(points, self.seeds, self.statistics)
         from jaxpile import sweep
@@ -103,7 +108,6 @@ class Members:
                              resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
         rows = result.rows
         s = np.stack([_row_statistics(row, self.statistics) for row in rows]).reshape(len(points), len(self.seeds), -1)
-        os.remove(self.checkpoint)  # the row is done: its JSON holds it
         return s, {"particle_steps": result.info["n_particles"] * sum(int(row["steps"]) for row in rows)}
 
     def __call__(self, thetas):
@@ -262,7 +266,10 @@ def main(argv=None) -> dict:
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
 
-    for name in args.estimators.split(","):  # before any pile runs: a typo must not cost an hour's rows
+    estimator_names = list(dict.fromkeys(args.estimators.split(",")))  # each once
+    if args.summarise_only and not args.resume:
+        parser.error("--summarise-only summarises the rows of --out: give --resume as well.")
+    for name in estimator_names:  # before any pile runs: a typo must not cost an hour's rows
         window = name.partition(":")[2]
         if not (name in ("fd", "smoothing") or (name.startswith("truncated:") and window.isdigit() and int(window) > 0
                                                 and args.case == "pour")):
@@ -280,7 +287,7 @@ def main(argv=None) -> dict:
     step = args.step or c["step"]
     sigma = args.sigma or step
     names = list(point)
-    sizes = [int(b) for b in args.B.split(",")]
+    sizes = list(dict.fromkeys(int(b) for b in args.B.split(",")))
     theta = np.log([point[n] for n in names])
     runner = ef.Runner(c["protocol"], c["law"], options=options)
     statistics = ef.Statistics(**c["statistics"])
@@ -295,24 +302,32 @@ def main(argv=None) -> dict:
         differ = [k for k in setting if old.get(k) != setting[k]]
         if differ:
             raise SystemExit(f"{args.out} was made with other settings ({', '.join(differ)}); give another --out.")
-        out = {**old, "command": command, "resumed_from_seconds": old.get("seconds", 0.0)}
+        out = {k: v for k, v in old.items() if k not in ("summary", "reference", "reference_profile", "complete")}
+        out.update(command=command, resumed_from_seconds=old.get("seconds", 0.0))
     objective, weights, target_mean = case_objective(args.case, args, runner, statistics, out)
+    _save(out, args.out)  # the target (the pour's 32 heaps) is kept even if the first row is cut off
     profile_idx, profile_objective = (None, None) if weights is None else profile_part(
         statistics.labels(), weights, target_mean)
     truncated = {}  # seeds -> TruncatedPour: one host run and compile per ensemble
-    done = {(r["estimator"], r["B"], r["repeat"]) for r in out["rows"]}
+    done = {(r["estimator"], r["B"], r["repeat"]): r["seeds"] for r in out["rows"]}
     t_all = time.perf_counter() - out.get("seconds", 0.0)
     seed_base, planned = 0, set()
     for size in sizes:
         for r in range(args.repeats):
             seeds = list(range(seed_base, seed_base + size))
             seed_base += size
-            for name in args.estimators.split(","):
+            for name in estimator_names:
                 planned.add((name, size, r))
-                if (name, size, r) in done or args.summarise_only:
+                if (name, size, r) in done:
+                    if done[(name, size, r)] != [seeds[0], seeds[-1]]:  # --B or --repeats changed: other seeds
+                        raise SystemExit(f"{args.out}'s {name} row at B = {size}, repeat {r} has seeds "
+                                         f"{done[(name, size, r)]}, this plan {[seeds[0], seeds[-1]]}: resume "
+                                         "with the --B and --repeats that made it.")
+                    continue
+                if args.summarise_only:
                     continue
                 members = Members(runner, names, seeds, statistics, f"{args.out}.{name}-B{size}-r{r}.ckpt",
-                                  args.checkpoint_every)
+                                  args.checkpoint_every, resume=args.resume)
                 t0 = time.perf_counter()
                 if name == "fd":
                     s = members(estimators.central_points(theta, step))
@@ -338,9 +353,14 @@ def main(argv=None) -> dict:
                        "piles_left_out": members.left_out, "seconds": time.perf_counter() - t0}
                 if name == "fd":  # the reference reuses them
                     row["members"] = members.last.tolist()
+                if name == "smoothing":
+                    row["key"] = seed_base + r  # its directions: jax.random.PRNGKey(key)
                 out["rows"].append(row)
+                done[(name, size, r)] = row["seeds"]
                 out["seconds"] = time.perf_counter() - t_all
                 _save(out, args.out)
+                if members.checkpoint and os.path.exists(members.checkpoint):  # the row is in the JSON now
+                    os.remove(members.checkpoint)
                 print(f"{name:10s} B {size:4d} repeat {r}: dL/dlog {names} = {np.round(row['gradient'], 4)} +- "
                       f"{np.round(row['stderr'], 3)}, {row['particle_steps']:.3g} particle-steps, "
                       f"{row['seconds']:.0f} s", flush=True)
@@ -445,6 +465,8 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
                 bias = np.atleast_1d(s["bias"])[i]
                 be = s["bias_stderr"]
                 bias_text = _fmt(bias) + ("" if be is None else f" ± {_fmt(np.atleast_1d(be)[i])}")
+                if estimator == "fd":  # the reference pools these rows' members: 0 by construction
+                    bias_text = "— (pooled into the reference)"
                 lines.append(f"| {label} | {what} | {size} | {n} | {estimates} | {bias_text} | "
                              f"{_cost(s['particle_steps_per_gradient'])} |")
     return "\n".join(lines) + "\n"

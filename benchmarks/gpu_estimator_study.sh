@@ -30,13 +30,13 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader >>
 case "$case" in
     box) args=(--case box --n 102 --option width=2 --option height=2 --B 128 --repeats 2 --pairs 2
                --out benchmarks/results/estimator_study_b128.json --figure docs/estimator_study_b128.png) ;;
-    pour) args=(--case pour --B 128 --repeats 2 --pairs 2
+    pour) args=(--case pour --B 128 --repeats 2 --pairs 2 --estimators fd,smoothing,truncated:60
                 --out benchmarks/results/estimator_study_pour_b128.json --figure docs/estimator_study_pour_b128.png) ;;
     *) echo "CASE must be box or pour" >&2; exit 2 ;;
 esac
 t0=$SECONDS
 echo "== python benchmarks/estimator_study.py ${args[*]} --resume --checkpoint-every $every (limit $seconds s)" | tee -a "$log"
 timeout "$seconds" "${PYTHON:-python3}" benchmarks/estimator_study.py "${args[@]}" --resume --checkpoint-every "$every" 2>&1 \
-    | grep -v "Warning" | tee -a "$log"
+    | grep --line-buffered -v "Warning" | tee -a "$log"
 echo "== exit ${PIPESTATUS[0]} after $((SECONDS - t0)) s" | tee -a "$log"
 tar czf "$out/study.tgz" benchmarks/results/estimator_study_*b128.json* docs/estimator_study_*b128.png 2>/dev/null

@@ -147,6 +147,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     horizons = [int(h) for h in args.horizons.split(",")]
+    if args.rounds < 1:
+        parser.error("--rounds must be at least 1")
 
     sim, params, state = setup(args.layers, 0)
     rows = []
