@@ -431,8 +431,8 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
     """README's estimator-study table: one block of rows per study in
     `STUDIES`, its reference first; each gradient component is a column group
     (d loss / d log p)."""
-    lines = ["| case | estimator | B | d loss / d log | estimates | bias against the reference | "
-             "particle-steps per gradient |", "|---|---|---|---|---|---|---|"]
+    lines = ["| case | estimator | B | d loss / d log | estimates | bias against the reference (± s.e. of the mean) | "
+             "particle-steps per gradient | seconds per gradient |", "|---|---|---|---|---|---|---|---|"]
     for file in STUDIES:
         path = folder / file
         if not path.exists():
@@ -451,7 +451,7 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
             for i, n in enumerate(names if ref else []):
                 g, e = np.atleast_1d(ref["gradient"])[i], np.atleast_1d(ref["stderr"])[i]
                 lines.append(f"| {label} | {title}, h = {out['step']:g} | {ref['B']} | {n} | "
-                             f"{_fmt(g)} ± {_fmt(e)} | — | {_cost(ref['particle_steps'])} |")
+                             f"{_fmt(g)} ± {_fmt(e)} | — | {_cost(ref['particle_steps'])} | — |")
         for key, s in out["summary"].items():
             estimator, size = key.split("/B")
             what = (f"central differences, h = {out['step']:g}" if estimator == "fd" else
@@ -463,12 +463,19 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
             for i, n in enumerate(names):
                 estimates = ", ".join(_fmt(_gradient(r)[i]) for r in mine)
                 bias = np.atleast_1d(s["bias"])[i]
-                be = s["bias_stderr"]
-                bias_text = _fmt(bias) + ("" if be is None else f" ± {_fmt(np.atleast_1d(be)[i])}")
+                # the mean's s.e.: the larger of the repeats' spread / sqrt(R) and the estimates' own s.e.
+                # (jackknife, or over 2 pairs) combined: with two repeats neither alone is a measure of it
+                own = np.array([np.atleast_1d(np.asarray(r["stderr"], float))[i] for r in mine])
+                parts = [] if s["bias_stderr"] is None else [np.atleast_1d(s["bias_stderr"])[i]]
+                if np.all(np.isfinite(own)):
+                    parts.append(math.sqrt(np.sum(own ** 2)) / len(own))
+                be = max(parts) if parts else None
+                bias_text = _fmt(bias) + ("" if be is None else f" ± {_fmt(be)}")
                 if estimator == "fd":  # the reference pools these rows' members: 0 by construction
                     bias_text = "— (pooled into the reference)"
+                seconds = np.mean([r["seconds"] for r in mine])
                 lines.append(f"| {label} | {what} | {size} | {n} | {estimates} | {bias_text} | "
-                             f"{_cost(s['particle_steps_per_gradient'])} |")
+                             f"{_cost(s['particle_steps_per_gradient'])} | {seconds:.0f} |")
     return "\n".join(lines) + "\n"
 
 
