@@ -509,7 +509,7 @@ def figure(out: dict, path: str) -> None:
             a.plot([k] * len(mine), [_gradient(r)[i] for r in mine], "o", color=f"C{k}", alpha=0.5)
             spread = 0.0 if s["spread"] is None else np.atleast_1d(s["spread"])[i]
             a.errorbar(k + 0.15, np.atleast_1d(s["mean"])[i], spread, fmt="s", color=f"C{k}", capsize=3)
-        a.set_xticks(range(len(keys)), keys, fontsize=8)
+        a.set_xticks(range(len(keys)), keys, fontsize=8, rotation=20)
         a.set_ylabel(f"dL / d log {n}")
         a.set_title(f"{out.get('case', 'box')}: estimates (each repeat) and their spread", fontsize=9)
         a.legend(fontsize=8)
