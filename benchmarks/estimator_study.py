@@ -303,7 +303,10 @@ def main(argv=None) -> dict:
         if differ:
             raise SystemExit(f"{args.out} was made with other settings ({', '.join(differ)}); give another --out.")
         out = {k: v for k, v in old.items() if k not in ("summary", "reference", "reference_profile", "complete")}
-        out.update(command=command, resumed_from_seconds=old.get("seconds", 0.0))
+        if args.summarise_only:  # the command that ran the rows stays the record's
+            out["summarised_by"] = command
+        else:
+            out.update(command=command, resumed_from_seconds=old.get("seconds", 0.0))
     objective, weights, target_mean = case_objective(args.case, args, runner, statistics, out)
     _save(out, args.out)  # the target (the pour's 32 heaps) is kept even if the first row is cut off
     profile_idx, profile_objective = (None, None) if weights is None else profile_part(
