@@ -97,18 +97,8 @@ class Members:
         (`main` removes it then)."""
         if not (self.checkpoint and self.every):
             return self.runner.run(points, self.seeds, self.statistics)
-        from jaxpile import sweep
-        from jaxpile.fit.ensemble_fit import _profile_hook, _row_statistics
-
-        r = self.runner
-        result = sweep.sweep(r.protocol, r.law, points=list(points), seeds=self.seeds, params=r.params,
-                             options=r.options, progress=False,
-                             extra_measure=_profile_hook(r.adapter(), self.statistics),
-                             checkpoint=(self.checkpoint, self.every),
-                             resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
-        rows = result.rows
-        s = np.stack([_row_statistics(row, self.statistics) for row in rows]).reshape(len(points), len(self.seeds), -1)
-        return s, {"particle_steps": result.info["n_particles"] * sum(int(row["steps"]) for row in rows)}
+        return self.runner.run(points, self.seeds, self.statistics, checkpoint=(self.checkpoint, self.every),
+                               resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
 
     def __call__(self, thetas):
         from jaxpile.fit.ensemble_fit import _fill_missing
@@ -199,8 +189,6 @@ def profile_part(labels, objective_weights, target_mean):
 def case_objective(case: str, args, runner, statistics, out: dict):
     """`(objective, weights, target mean)`: the loss of the ensemble-mean
     statistics, and (pour) the fit's weights and its target's means."""
-    import jax.numpy as jnp
-
     from jaxpile.fit import ensemble_fit as ef
 
     if case == "box":
@@ -214,8 +202,7 @@ def case_objective(case: str, args, runner, statistics, out: dict):
         out["target_ensemble"] = target.to_json()
         out["target_seconds"] = time.perf_counter() - t0
     w = ef.weights(target)
-    t, wj = jnp.asarray(target.mean), jnp.asarray(w)
-    return (lambda m: jnp.mean(wj * (jnp.asarray(m) - t) ** 2)), np.asarray(w), np.asarray(target.mean)
+    return ef.objective_for(target, w), np.asarray(w), np.asarray(target.mean)
 
 
 def _save(out: dict, path: str) -> None:

@@ -175,10 +175,12 @@ class Runner(NamedTuple):
         parameters other than the fitted ones are compared by name)."""
         return {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
 
-    def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None) -> tuple[np.ndarray, dict]:
+    def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None, checkpoint=None,
+            resume=None) -> tuple[np.ndarray, dict]:
         """`[len(points), B, k]` statistics (the B seeds at every point, one
         batched run) and the sweep's record (`n_particles`, `batch_steps`,
-        `total_seconds` are used)."""
+        `total_seconds` are used). `checkpoint`, `resume`: as `sweep.sweep`'s
+        (a long batch saved as it runs, and continued)."""
         from jaxpile import sweep
 
         a = self.adapter()
@@ -193,7 +195,7 @@ class Runner(NamedTuple):
         result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
-                             extra_measure=_profile_hook(a, statistics))
+                             extra_measure=_profile_hook(a, statistics), checkpoint=checkpoint, resume=resume)
         rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
         s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
         # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)

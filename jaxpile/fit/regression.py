@@ -97,9 +97,7 @@ def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression |
     fit ran too few ensembles (N < d + 2) or the line does not move with the
     parameters. `w`: the fit's weights (default `ensemble_fit.weights` of its
     target)."""
-    from scipy import stats
-
-    from jaxpile.fit.ensemble_fit import weights
+    from jaxpile.fit.ensemble_fit import _quantile, weights
 
     target = result.target
     w = weights(target) if w is None else np.asarray(w, float)
@@ -129,7 +127,7 @@ def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression |
     jw = jac.T * w
     cov = inv @ jw @ c @ jw.T @ inv
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    z = float(stats.t.ppf(0.975, dof))
+    z = _quantile(dof)
     names = list(result.names)
     return Regression({k: float(np.exp(theta[i])) for i, k in enumerate(names)},
                       {k: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
