@@ -343,8 +343,10 @@ def main(argv=None) -> dict:
                        "piles_left_out": members.left_out, "seconds": time.perf_counter() - t0}
                 if name == "fd":  # the reference reuses them
                     row["members"] = members.last.tolist()
-                if name == "smoothing":
-                    row["key"] = seed_base + r  # its directions: jax.random.PRNGKey(key)
+                if name == "smoothing":  # its directions, drawn from jax.random.PRNGKey(key) by this JAX
+                    row["key"] = seed_base + r
+                    row["directions"] = estimators.smoothing_directions(jax.random.PRNGKey(row["key"]), args.pairs,
+                                                                        len(names)).tolist()
                 out["rows"].append(row)
                 done[(name, size, r)] = row["seeds"]
                 out["seconds"] = time.perf_counter() - t_all
@@ -390,6 +392,7 @@ def summarise(out: dict, objective, profile_idx=None, profile_objective=None) ->
                 "B": int(s.shape[1]), "particle_steps": cost}
 
     reference = reference_of(s, objective)
+    reference["by_size"] = central_by_size(s, objective, out["step"])
     extra = {}
     if profile_objective is not None and any(r["estimator"].startswith("truncated") for r in out["rows"]):
         extra["reference_profile"] = reference_of(s[..., profile_idx], profile_objective)
@@ -405,6 +408,26 @@ def summarise(out: dict, objective, profile_idx=None, profile_objective=None) ->
             "bias_stderr": (g.std(axis=0, ddof=1) / math.sqrt(len(g))).tolist() if len(g) > 1 else None,
             "particle_steps_per_gradient": float(np.mean([r["particle_steps"] for r in mine]))}
     return {"reference": reference, **extra, "summary": summary}
+
+
+def central_by_size(s: np.ndarray, objective, step: float, sizes=(8, 32, 128), draws: int = 400) -> dict:
+    """What central differences from B of the pooled piles `s` (`[2d + 1, N,
+    k]`) give, over `draws` random choices of B (the same piles at every
+    point): their mean and spread, for each B < N. The loss of an ensemble mean
+    depends on B through the mean's own variance; these say by how much, and
+    what spread a row of B should show."""
+    d, n = (s.shape[0] - 1) // 2, s.shape[1]
+    rng = np.random.default_rng(0)
+    result = {}
+    for size in (b for b in sizes if b < n):
+        g = []
+        for _ in range(draws):
+            f = [float(objective(m)) for m in s[:, rng.choice(n, size, replace=False)].mean(axis=1)]
+            g.append([(f[1 + i] - f[1 + d + i]) / (2 * step) for i in range(d)])
+        g = np.asarray(g)
+        result[str(size)] = {"mean": g.mean(axis=0).tolist(), "spread": g.std(axis=0, ddof=1).tolist(),
+                             "draws": draws}
+    return result
 
 
 def _fmt(x: float) -> str:
@@ -476,6 +499,13 @@ def rewrite_readme(check: bool = False) -> bool:
     return readme_block.rewrite(START, END, table(), check=check)
 
 
+def _spread(summary: dict, rows: list) -> np.ndarray:
+    """The spread over repeats, or (one repeat) that row's own standard error."""
+    if summary["spread"] is not None:
+        return np.atleast_1d(np.asarray(summary["spread"], dtype=float))
+    return np.atleast_1d(np.asarray(rows[0]["stderr"], dtype=float))
+
+
 def figure(out: dict, path: str) -> None:
     import matplotlib
 
@@ -497,20 +527,26 @@ def figure(out: dict, path: str) -> None:
             s = out["summary"][key]
             mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
             a.plot([k] * len(mine), [_gradient(r)[i] for r in mine], "o", color=f"C{k}", alpha=0.5)
-            spread = 0.0 if s["spread"] is None else np.atleast_1d(s["spread"])[i]
-            a.errorbar(k + 0.15, np.atleast_1d(s["mean"])[i], spread, fmt="s", color=f"C{k}", capsize=3)
+            a.errorbar(k + 0.15, np.atleast_1d(s["mean"])[i], _spread(s, mine)[i], fmt="s", color=f"C{k}", capsize=3)
+        scale = abs(g) + 3 * e  # an estimate far beyond it (one heap's window exploding) would flatten the rest
+        if max(abs(_gradient(r)[i]) for r in out["rows"]) > 20 * scale:
+            a.set_yscale("symlog", linthresh=scale)
         a.set_xticks(range(len(keys)), keys, fontsize=8, rotation=20)
         a.set_ylabel(f"dL / d log {n}")
         a.set_title(f"{out.get('case', 'box')}: estimates (each repeat) and their spread", fontsize=9)
         a.legend(fontsize=8)
     b = axes[-1]
+    spreads = []
     for k, key in enumerate(keys):
         s = out["summary"][key]
-        spread = float("nan") if s["spread"] is None else float(np.linalg.norm(s["spread"]))
+        spread = float(np.linalg.norm(_spread(s, [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key])))
         b.plot(s["particle_steps_per_gradient"], spread, "o", color=f"C{k}", label=key)
+        spreads.append(spread)
     b.set_xscale("log")
+    if min(spreads) > 0 and max(spreads) > 100 * min(spreads):
+        b.set_yscale("log")
     b.set_xlabel("particle-steps per gradient")
-    b.set_ylabel("spread of the estimate (norm over components)")
+    b.set_ylabel("spread of the estimate (norm over components;\none repeat: its standard error)")
     b.set_title("cost against spread")
     b.legend(fontsize=8)
     fig.tight_layout()

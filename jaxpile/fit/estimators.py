@@ -175,6 +175,12 @@ def loss_stderr(s, objective: Callable) -> float:
     return float(_jackknife_stderr(values)[0])
 
 
+def smoothing_directions(key, pairs: int, d: int) -> np.ndarray:
+    """`[pairs, d]` the directions u_k ~ N(0, I) `antithetic_smoothing` draws
+    from `key` (a record keeps them: the draw may differ between JAX versions)."""
+    return np.asarray(jax.random.normal(key, (int(pairs), int(d))), dtype=float)
+
+
 def antithetic_smoothing(members_batch: Callable, objective: Callable, theta, key, *, sigma: float = 0.05,
                          pairs: int = 8) -> Estimate:
     """The gradient of F smoothed by a Gaussian of width `sigma`, from `pairs`
@@ -196,7 +202,7 @@ def antithetic_smoothing(members_batch: Callable, objective: Callable, theta, ke
     theta = _theta(theta)
     sigma = POSITIVE.check("sigma", sigma, scalar=True)
     pairs = COUNT.check("pairs", pairs, scalar=True)
-    u = np.asarray(jax.random.normal(key, (pairs, theta.size)), dtype=float)
+    u = smoothing_directions(key, pairs, theta.size)
     thetas = np.concatenate([theta + sigma * u, theta - sigma * u])
     s = np.asarray(members_batch(jnp.asarray(thetas)), dtype=float)
     if s.ndim == 2:
