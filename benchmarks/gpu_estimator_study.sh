@@ -13,10 +13,12 @@
 # the .ckpt file in the call's `carry` (the JSON travels as an untracked file) and run the
 # same command again.
 #
-# Sizes, from the GPU fits (H200): 3 x 32 paper boxes (409 disks) per iteration in 61-79 s,
-# the same disks per batch as 3 x 128 boxes of 102; 3 x 64 heaps in 31-46 s. So the box's four
-# rows (2 x central differences, 2 x smoothing with 2 pairs) need about 5 min, the pour's
-# about 6 min plus its 32-heap target: one call each.
+# Measured on one H100 (2026-11-26), the two cases side by side on the one GPU
+# (XLA_PYTHON_CLIENT_MEM_FRACTION=0.4 each, `... box 540 & ... pour 540; wait`): the box's four
+# rows (2 x central differences, 2 x smoothing with 2 pairs) in 327 s; the pour's target and
+# its rows at 74-146 s (central differences), 81-105 s (smoothing) and 160 s (truncated:60,
+# its host run and compile included; a row has no mid-row save). The committed pour JSON
+# lacks one row (truncated:60, repeat 1): `... pour 400` on a GPU runs it alone.
 set -u
 out=${1:?usage: gpu_estimator_study.sh OUT CASE SECONDS [CHECKPOINT]}
 case=${2:?usage: gpu_estimator_study.sh OUT CASE SECONDS [CHECKPOINT]}
