@@ -34,8 +34,9 @@ already there (a study at B = 128 outlasts a session on 2 cores), and with
 `truncated:W` (the pour): `estimators.truncated_pathwise` with windows of W
 steps, their sensitivities averaged (`combine="mean"`, the low-noise one in
 `truncation_study.py`), through the same heaps run as fixed-length rollouts
-(`TruncatedPour`). It differentiates the base profile's terms of the loss
-only (the angles are fitted on the host): its bias is measured against
+(`jaxpile.fit.construction`, as `jaxpile fit --estimator truncated` runs
+them). It differentiates the base profile's terms of the loss only (the
+angles are fitted on the host): its bias is measured against
 central differences of those terms, from the same members.
 
 The pathwise estimator is not in this study: differentiating a 250 000-step
@@ -113,69 +114,6 @@ class Members:
         return s
 
 
-class TruncatedPour:
-    """The pour's construction as fixed-length rollouts of the B heaps, for
-    `estimators.truncated_pathwise` (`advance`, `statistics`, `start`,
-    `steps`), at the study's point `theta`.
-
-    The heaps are set up as the sweep sets them up (the protocol's options and
-    seeds), on a simulator that carries every disk (a rollout has no host
-    blocks). A host run to the protocol's finish (every disk poured, then at
-    rest) at theta gives the construction's length, the longest member's, and
-    sizes the lists (a rollout has no overflow handling), with head-room. The
-    statistics are the traceable part of the pour's: the base profile, normal
-    and horizontal, as `ensemble_fit` measures it (the angles are fitted on
-    the host and have no tangent)."""
-
-    def __init__(self, options: dict, seeds, statistics, names, theta):
-        import jax
-        import jax.numpy as jnp
-
-        from jaxpile import fit, sweep
-        from jaxpile.engine import batch, ensemble
-        from jaxpile.engine import neighbors as nb
-        from jaxpile.measure import analysis
-        from jaxpile.protocols import pour
-
-        self.sim = sim = pour.make_simulator("baxter", in_play=None)
-        base = pour.law_params("baxter")
-
-        def params(t):
-            return base.set(**{n: jnp.exp(t[i]) for i, n in enumerate(names)})
-
-        setup = {k: v for k, v in options.items() if k != "n"}
-        protocols = [pour.pour(int(options["n"]), seed=s, **setup) for s in seeds]
-        d = pour.DEFINITION
-        p0 = params(jnp.asarray(theta))
-        ens = ensemble.Ensemble(sim)
-        start = ens.init([p0] * len(protocols), protocols)
-        end = ens.run([p0] * len(protocols), start, d.max_steps(protocols[0].info, d.run_options),
-                      until=d.finished(protocols[0].info, d.run_options), progress=False)
-        self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
-        slots = int(end.neighbors.max_occupancy) + 8
-        pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
-        self.start = batch.stack([batch.at_capacity(batch.member(start, i), slots, None, pairs)
-                                  for i in range(len(protocols))])
-        self.particles = int(self.start.particles.position.shape[1])
-        base_name, x_left, x_right = sweep.adapter("pour").extent(protocols[0])
-        bins, bandwidth = int(statistics.bins), statistics.bandwidth
-
-        def advance(t, state, k):
-            return jax.vmap(lambda m: sim.rollout(params(t), m, k))(state)
-
-        def stats(t, state):
-            def one(m):
-                load = analysis.base_load(sim, params(t), m, base=base_name)
-                profile = fit.smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=bins, bandwidth=bandwidth)
-                return jnp.concatenate([profile.normal, profile.horizontal])
-            return jax.vmap(one)(state)
-
-        self.advance, self.statistics = advance, stats
-        final = jax.jit(advance, static_argnums=2)(jnp.asarray(theta), self.start, self.steps)
-        if bool(np.any(np.asarray(nb.overflowed(final)))):
-            raise SystemExit("a list overflowed inside the rollout at the study's point: raise the head-room")
-
-
 def profile_part(labels, objective_weights, target_mean):
     """`(indices, objective)`: the base-profile terms of the fit's loss alone
     (the same weights and target; the angles' terms left out)."""
@@ -249,6 +187,7 @@ def main(argv=None) -> dict:
 
     import jaxpile  # noqa: F401  (float64)
     from jaxpile import cli, estimators
+    from jaxpile.fit import construction
     from jaxpile.fit import ensemble_fit as ef
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
@@ -298,7 +237,7 @@ def main(argv=None) -> dict:
     _save(out, args.out)  # the target (the pour's 32 heaps) is kept even if the first row is cut off
     profile_idx, profile_objective = (None, None) if weights is None else profile_part(
         statistics.labels(), weights, target_mean)
-    truncated = {}  # seeds -> TruncatedPour: one host run and compile per ensemble
+    truncated = {}  # seeds -> Construction: one host run and compile per ensemble
     done = {(r["estimator"], r["B"], r["repeat"]): r["seeds"] for r in out["rows"]}
     t_all = time.perf_counter() - out.get("seconds", 0.0)
     seed_base, planned = 0, set()
@@ -329,8 +268,9 @@ def main(argv=None) -> dict:
                 elif name.startswith("truncated:") and args.case == "pour":
                     window = int(name.split(":")[1])
                     key = (seeds[0], seeds[-1])
-                    if key not in truncated:
-                        truncated[key] = TruncatedPour(options, seeds, statistics, names, theta)
+                    if key not in truncated:  # the traceable statistics: the base profile alone
+                        truncated[key] = construction.Construction(runner, seeds, statistics._replace(columns=()),
+                                                                   names, theta)
                     tp = truncated[key]
                     est = estimators.truncated_pathwise(tp.advance, tp.statistics, profile_objective, theta, tp.start,
                                                         tp.steps, window, combine="mean")

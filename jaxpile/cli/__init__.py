@@ -9,7 +9,7 @@
   jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
   jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
   jaxpile fit --protocol box|pour|drop|lattice|sloped|flux --params mu --truth mu=0.273 --set mu=0.19
-              --ensemble 16 [--estimator central|smoothing] --out DIR   (ensemble fits; --resume)
+              --ensemble 16 [--estimator central|smoothing|truncated] --out DIR   (ensemble fits; --resume)
 
 Every protocol writes summary.json (the set-up and the protocol's measurements),
 base_forces.csv, contacts.csv (the force network), state.npz, final.xyz
@@ -308,10 +308,14 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
                            "target (the drop's and the pour's central_dip column)")
     fitp.add_argument("--protocol", default="lattice", choices=_sweep_protocols(),
                       help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
-    fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing"],
+    fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing", "truncated"],
                       help="the gradient: pathwise through one pile (default with a CSV target), or of the "
-                           "ensemble-mean loss by central differences (default with --truth or a target.json) or "
-                           "Gaussian smoothing with antithetic pairs")
+                           "ensemble-mean loss by central differences (default with --truth or a target.json), "
+                           "Gaussian smoothing with antithetic pairs, or the pathwise gradient through the pour's "
+                           "construction truncated to windows of --truncation-window steps (the base profile "
+                           "alone; measured biased on 40-disk heaps: README's estimator study)")
+    fitp.add_argument("--truncation-window", type=int, default=60, metavar="W",
+                      help="--estimator truncated: steps each sensitivity is taken through (the study's 60)")
     fitp.add_argument("--ensemble", type=int, default=None, metavar="B",
                       help="ensemble fits: piles per ensemble (default 8; 1 for the deterministic lattice and sloped "
                            "piles)")

@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from jaxpile.errors import InputError
-from jaxpile.ranges import POSITIVE
+from jaxpile.ranges import COUNT, POSITIVE
 
 
 def _statistics(args, adapter):
@@ -71,6 +71,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
     if declared and args.statistics is None and args.bins is None:
         statistics = ensemble_fit.Statistics(columns=("central_dip",))  # what the declared target holds
+    elif estimator == "truncated" and args.statistics is None:  # what it can differentiate: the profile alone
+        statistics = ensemble_fit.Statistics(bins=int(args.bins or a.fit_statistics.get("bins") or 9))
     else:
         statistics = _statistics(args, a)
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
@@ -85,12 +87,18 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         raise InputError(f"--target-seeds {args.target_seeds} overlaps the fit's seeds 0..{b - 1}: a fit must not "
                          "see the piles its target was made from.")
     runner.check(statistics)
+    if estimator == "truncated":
+        from jaxpile.fit import construction
+
+        construction.check(runner, statistics)
+        COUNT.check("--truncation-window", args.truncation_window, scalar=True)
     # the start, the truth and the set-up, checked before any pile (the target's) is run, and by --dry-run
     for n in names:
         POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
     for values in (start, truth or {}):
         sweep.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options)
-    per_iteration = 2 * len(names) + 1 if estimator == "central" else 8  # 8: the smoothing's 4 antithetic pairs
+    # 8: the smoothing's 4 antithetic pairs; 2: the truncated estimator's host run and its rollouts
+    per_iteration = {"central": 2 * len(names) + 1, "truncated": 2}.get(estimator, 8)
     if args.dry_run:
         setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
@@ -127,7 +135,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
           f"({estimator}, {optimizer}) to {target.source}", flush=True)
     result = ensemble_fit.fit(runner, names, start, target, seeds=seeds, statistics=statistics,
                               estimator=estimator, optimizer=optimizer, steps=steps, lr=args.lr,
-                              step=args.difference_step,
+                              step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None)
     record = result.to_json()

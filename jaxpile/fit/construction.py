@@ -1,0 +1,112 @@
+"""A protocol's construction as fixed-length rollouts of its B piles, for the
+truncated pathwise estimator (`estimators.truncated_pathwise`: `advance`,
+`statistics`, `start`, `steps`) in `ensemble_fit.fit(estimator="truncated")`
+and `benchmarks/estimator_study.py`.
+
+Only the pour is built this way: its construction is one stage whose every
+step a rollout can carry (the release schedule is read from the state), and
+its base profile is traceable. The angles of repose are fitted on the host and
+have no tangent, so the statistics are the base profile alone.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jaxpile.errors import InputError
+
+PROTOCOLS = ("pour",)
+
+
+def check(runner, statistics) -> None:
+    """Raises `InputError` unless `runner`'s piles can be built as rollouts and
+    `statistics` are traceable (before any pile runs)."""
+    if runner.protocol not in PROTOCOLS:
+        raise InputError(f"the truncated pathwise estimator runs a construction as rollouts, which only "
+                         f"{', '.join(PROTOCOLS)} is built for; the {runner.protocol} pile: use --estimator "
+                         "central or smoothing.")
+    if statistics.columns or not statistics.bins:
+        raise InputError("the truncated pathwise estimator differentiates the base profile alone (the angles "
+                         "are fitted on the host, with no tangent): fit bins > 0 and no columns.")
+
+
+class Construction:
+    """The B piles of `seeds` built as `runner` builds them, as rollouts at the
+    log-parameters `theta` of `names`.
+
+    The piles are set up as a sweep sets them up (the runner's options and
+    fixed parameters), on a simulator that carries every disk (a rollout has
+    no host blocks). A host run to the protocol's finish at theta gives the
+    construction's length (the longest member's) and sizes the lists, with
+    head-room (a rollout has no overflow handling); a rollout at theta that
+    still overflows is refused.
+
+    Attributes:
+      advance: `(theta, state, n) -> state`, n steps of every pile.
+      statistics: `(theta, state) -> [B, k]` the base profile (normal, then
+        horizontal if the statistics take it).
+      start: the piles' first state; steps: the construction's length.
+      particles: disks per pile (the rollouts carry them all).
+    """
+
+    def __init__(self, runner, seeds, statistics, names, theta):
+        import jax
+        import jax.numpy as jnp
+
+        from jaxpile import sweep
+        from jaxpile.engine import batch, ensemble
+        from jaxpile.engine import neighbors as nb
+        from jaxpile.fit import smooth_base_profile
+        from jaxpile.measure import analysis
+        from jaxpile.protocols import pour
+
+        check(runner, statistics)
+        names, seeds = list(names), [int(s) for s in seeds]
+        law = runner.law_name()
+        sim_kwargs = {} if runner.dt is None else {"dt": float(runner.dt)}
+        self.sim = sim = pour.make_simulator(law, in_play=None, **sim_kwargs)
+        base = pour.law_params(law, dtype=runner.dtype, **(runner.params or {}))
+
+        def params(t):
+            return base.set(**{n: jnp.exp(t[i]) for i, n in enumerate(names)})
+
+        options = dict(runner.options or {})
+        d = pour.DEFINITION
+        size = options.pop("n", None)
+        setup = {k: v for k, v in options.items() if k not in d.run_options}
+        run_options = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
+        protocols = [pour.pour(**({} if size is None else {"n": int(size)}), seed=s, **setup) for s in seeds]
+        p0 = params(jnp.asarray(theta))
+        ens = ensemble.Ensemble(sim)
+        start = ens.init([p0] * len(protocols), protocols)
+        end = ens.run([p0] * len(protocols), start, d.max_steps(protocols[0].info, run_options),
+                      until=d.finished(protocols[0].info, run_options), progress=False)
+        self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
+        slots = int(end.neighbors.max_occupancy) + 8
+        pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
+        self.start = batch.stack([batch.at_capacity(batch.member(start, i), slots, None, pairs)
+                                  for i in range(len(protocols))])
+        self.particles = int(self.start.particles.position.shape[1])
+        base_name, x_left, x_right = sweep.adapter("pour").extent(protocols[0])
+        bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
+
+        def advance(t, state, k):
+            return jax.vmap(lambda m: sim.rollout(params(t), m, k))(state)
+
+        def stats(t, state):
+            def one(m):
+                load = analysis.base_load(sim, params(t), m, base=base_name)
+                prof = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=bins,
+                                           bandwidth=bandwidth)
+                return jnp.concatenate([prof.normal, prof.horizontal]) if horizontal else prof.normal
+            return jax.vmap(one)(state)
+
+        self.advance, self.statistics = advance, stats
+        final = jax.jit(advance, static_argnums=2)(jnp.asarray(theta), self.start, self.steps)
+        if bool(np.any(np.asarray(nb.overflowed(final)))):
+            raise InputError("a neighbour or contact list overflowed inside the construction's rollout at theta; "
+                             "the truncated estimator cannot resize it there: use --estimator central.")
+
+    def particle_steps(self) -> float:
+        """The host run that sized the lists and the rollouts' steps, every pile."""
+        return 2.0 * self.start.particles.position.shape[0] * self.particles * self.steps
