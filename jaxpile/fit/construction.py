@@ -63,19 +63,20 @@ class Construction:
         check(runner, statistics)
         names, seeds = list(names), [int(s) for s in seeds]
         law = runner.law_name()
-        sim_kwargs = {} if runner.dt is None else {"dt": float(runner.dt)}
-        self.sim = sim = pour.make_simulator(law, in_play=None, **sim_kwargs)
+        d = pour.DEFINITION
+        dt = d.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
+        self.sim = sim = pour.make_simulator(law, dt=dt, in_play=None)
         base = pour.law_params(law, dtype=runner.dtype, **(runner.params or {}))
 
         def params(t):
             return base.set(**{n: jnp.exp(t[i]) for i, n in enumerate(names)})
 
         options = dict(runner.options or {})
-        d = pour.DEFINITION
         size = options.pop("n", None)
         setup = {k: v for k, v in options.items() if k not in d.run_options}
         run_options = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
-        protocols = [pour.pour(**({} if size is None else {"n": int(size)}), seed=s, **setup) for s in seeds]
+        protocols = [pour.pour(**({} if size is None else {"n": int(size)}), seed=s, dt=dt, dtype=runner.dtype,
+                               **setup) for s in seeds]
         p0 = params(jnp.asarray(theta))
         ens = ensemble.Ensemble(sim)
         start = ens.init([p0] * len(protocols), protocols)
