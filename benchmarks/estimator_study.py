@@ -332,7 +332,8 @@ def summarise(out: dict, objective, profile_idx=None, profile_objective=None) ->
                 "B": int(s.shape[1]), "particle_steps": cost}
 
     reference = reference_of(s, objective)
-    reference["by_size"] = central_by_size(s, objective, out["step"])
+    reference["by_size"] = central_by_size(s, objective, out["step"],
+                                           sorted({8, 32, 128} | {int(r["B"]) for r in out["rows"]}))
     extra = {}
     if profile_objective is not None and any(r["estimator"].startswith("truncated") for r in out["rows"]):
         extra["reference_profile"] = reference_of(s[..., profile_idx], profile_objective)
@@ -355,7 +356,8 @@ def central_by_size(s: np.ndarray, objective, step: float, sizes=(8, 32, 128), d
     k]`) give, over `draws` random choices of B (the same piles at every
     point): their mean and spread, for each B < N. The loss of an ensemble mean
     depends on B through the mean's own variance; these say by how much, and
-    what spread a row of B should show."""
+    what spread a row of B independent piles should show (B drawn from N
+    without replacement vary less by sqrt((N - B) / (N - 1)), taken out)."""
     d, n = (s.shape[0] - 1) // 2, s.shape[1]
     rng = np.random.default_rng(0)
     result = {}
@@ -365,8 +367,9 @@ def central_by_size(s: np.ndarray, objective, step: float, sizes=(8, 32, 128), d
             f = [float(objective(m)) for m in s[:, rng.choice(n, size, replace=False)].mean(axis=1)]
             g.append([(f[1 + i] - f[1 + d + i]) / (2 * step) for i in range(d)])
         g = np.asarray(g)
-        result[str(size)] = {"mean": g.mean(axis=0).tolist(), "spread": g.std(axis=0, ddof=1).tolist(),
-                             "draws": draws}
+        finite_population = math.sqrt((n - size) / (n - 1))
+        result[str(size)] = {"mean": g.mean(axis=0).tolist(),
+                             "spread": (g.std(axis=0, ddof=1) / finite_population).tolist(), "draws": draws}
     return result
 
 

@@ -137,9 +137,10 @@ def test_the_truncated_estimator_is_offered_where_it_can_run_and_refused_in_one_
     assert cli.main(["fit", "--protocol", "pour", "--params", "n", "--truth", "n=30", "--ensemble", "2",
                      "--estimator", "truncated", "--bins", "4", "--dry-run", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "['normal[0]'" in out and "repose" not in out and "2 ensembles" in out
+    assert "['normal[0]'" in out and "repose" not in out and "3 ensembles" in out
     assert cli.main(["fit", "--protocol", "box", "--params", "mu", "--truth", "mu=0.3", "--estimator", "truncated",
                      "--dry-run", "--out", str(tmp_path)]) == 2
+    assert "only pour" in capsys.readouterr().err
     assert cli.main(["fit", "--protocol", "pour", "--params", "n", "--truth", "n=30", "--estimator", "truncated",
                      "--truncation-window", "0", "--dry-run", "--out", str(tmp_path)]) == 2
 
@@ -170,7 +171,7 @@ def test_a_truncated_fit_takes_the_constructions_gradient_and_records_it(monkeyp
             return state
 
         def particle_steps(self):
-            return 2.0 * self.start.shape[0] * self.steps
+            return 3.0 * self.start.shape[0] * self.steps
 
     monkeypatch.setattr(construction, "Construction", Toy)
     monkeypatch.setattr(construction, "check", lambda runner, statistics: None)
@@ -183,8 +184,13 @@ def test_a_truncated_fit_takes_the_constructions_gradient_and_records_it(monkeyp
     exact = jax.grad(lambda t: ef.objective_for(target, w)(toy.advance(t, toy.start, 400).mean(0)))(jnp.asarray(theta))
     entry = result.history[0]
     np.testing.assert_allclose(entry["gradient"], np.asarray(exact), rtol=1e-10)
-    assert entry["particle_steps"] == 1600 and result.record["window"] == 400 and entry["theta"] == theta.tolist()
+    assert entry["particle_steps"] == 2400 and result.record["window"] == 400 and entry["theta"] == theta.tolist()
     assert entry["next_theta"][0] == pytest.approx(theta[0] - 0.1 * np.sign(exact[0]), abs=1e-6)  # adam's first step
+    Toy.statistics = lambda self, t, state: state * jnp.nan  # a heap without a profile: no step on a NaN
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, estimator="truncated",
+                    optimizer="adam", window=400, steps=3, progress=False, interval=False)
+    assert len(result.history) == 1 and result.history[0]["next_theta"] == theta.tolist()
+    assert "not finite" in result.record["message"] and result.values["mu"] == pytest.approx(0.2)
 
 
 def test_a_tiny_box_fit_from_the_command_line_moves_mu_toward_the_truth(tmp_path):

@@ -72,7 +72,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if declared and args.statistics is None and args.bins is None:
         statistics = ensemble_fit.Statistics(columns=("central_dip",))  # what the declared target holds
     elif estimator == "truncated" and args.statistics is None:  # what it can differentiate: the profile alone
-        statistics = ensemble_fit.Statistics(bins=int(args.bins or a.fit_statistics.get("bins") or 9))
+        statistics = ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
+                                                      else a.fit_statistics.get("bins") or 9))
     else:
         statistics = _statistics(args, a)
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
@@ -97,8 +98,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
     for values in (start, truth or {}):
         sweep.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options)
-    # 8: the smoothing's 4 antithetic pairs; 2: the truncated estimator's host run and its rollouts
-    per_iteration = {"central": 2 * len(names) + 1, "truncated": 2}.get(estimator, 8)
+    # 8: the smoothing's 4 antithetic pairs; 3: the truncated estimator's host run and two rollouts
+    per_iteration = {"central": 2 * len(names) + 1, "truncated": 3}.get(estimator, 8)
     if args.dry_run:
         setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "

@@ -39,7 +39,9 @@ class Construction:
     no host blocks). A host run to the protocol's finish at theta gives the
     construction's length (the longest member's) and sizes the lists, with
     head-room (a rollout has no overflow handling); a rollout at theta that
-    still overflows is refused.
+    still overflows is refused. Every heap is rolled out to that length: one
+    that finished earlier goes on resting (the sweep freezes it at its own
+    finish), so it may creep a little further than the sweep's.
 
     Attributes:
       advance: `(theta, state, n) -> state`, n steps of every pile.
@@ -68,8 +70,9 @@ class Construction:
         self.sim = sim = pour.make_simulator(law, dt=dt, in_play=None)
         base = pour.law_params(law, dtype=runner.dtype, **(runner.params or {}))
 
-        def params(t):
-            return base.set(**{n: jnp.exp(t[i]) for i, n in enumerate(names)})
+        def params(t):  # each value in its parameter's own dtype (a float32 pile stays float32)
+            return base.set(**{n: jnp.exp(t[i]).astype(jnp.asarray(getattr(base, n)).dtype)
+                               for i, n in enumerate(names)})
 
         options = dict(runner.options or {})
         size = options.pop("n", None)
@@ -77,11 +80,14 @@ class Construction:
         run_options = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
         protocols = [pour.pour(**({} if size is None else {"n": int(size)}), seed=s, dt=dt, dtype=runner.dtype,
                                **setup) for s in seeds]
+        if d.check is not None:  # as the sweep's set-up: e.g. a voidage map too fine for the memory
+            d.check(protocols[0], run_options)
         p0 = params(jnp.asarray(theta))
         ens = ensemble.Ensemble(sim)
         start = ens.init([p0] * len(protocols), protocols)
-        end = ens.run([p0] * len(protocols), start, d.max_steps(protocols[0].info, run_options),
-                      until=d.finished(protocols[0].info, run_options), progress=False)
+        budget = runner.max_steps if runner.max_steps is not None else d.max_steps(protocols[0].info, run_options)
+        end = ens.run([p0] * len(protocols), start, int(budget), until=d.finished(protocols[0].info, run_options),
+                      progress=False)
         self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
         slots = int(end.neighbors.max_occupancy) + 8
         pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
@@ -109,5 +115,6 @@ class Construction:
                              "the truncated estimator cannot resize it there: use --estimator central.")
 
     def particle_steps(self) -> float:
-        """The host run that sized the lists and the rollouts' steps, every pile."""
-        return 2.0 * self.start.particles.position.shape[0] * self.particles * self.steps
+        """Every pile's steps in the host run that sized the lists, the rollout
+        that checked them, and the windows' rollout (its tangents not counted)."""
+        return 3.0 * self.start.particles.position.shape[0] * self.particles * self.steps

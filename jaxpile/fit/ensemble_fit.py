@@ -601,6 +601,9 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
                 # determined parameter must not take a huge step nor shrink the others'
                 damped = hessian + 1e-3 * np.diag(np.diag(hessian)) + 1e-12 * np.trace(hessian) * np.eye(d)
                 delta = np.clip(-np.linalg.solve(damped, (jac.T * w) @ r), -max_step, max_step)
+        elif not np.all(np.isfinite(gradient)):  # a pile's NaN would spoil the optimiser's state for good
+            message = f"the {estimator} gradient is not finite ({gradient.tolist()}): stopped before stepping"
+            delta = np.zeros(d)
         else:
             updates, opt_state = opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
             delta = np.asarray(updates, float)
