@@ -258,12 +258,13 @@ def main(argv=None) -> dict:
                 members = Members(runner, names, seeds, statistics, f"{args.out}.{name}-B{size}-r{r}.ckpt",
                                   args.checkpoint_every, resume=args.resume)
                 t0 = time.perf_counter()
+                direction_key = seed_base + r  # smoothing's directions: jax.random.PRNGKey(direction_key)
                 if name == "fd":
                     s = members(estimators.central_points(theta, step))
                     est = estimators.central_from_members(s, objective, step)
                 elif name == "smoothing":
                     est = estimators.antithetic_smoothing(members, objective, theta,
-                                                          jax.random.PRNGKey(seed_base + r), sigma=sigma,
+                                                          jax.random.PRNGKey(direction_key), sigma=sigma,
                                                           pairs=args.pairs)
                 elif name.startswith("truncated:") and args.case == "pour":
                     window = int(name.split(":")[1])
@@ -283,9 +284,9 @@ def main(argv=None) -> dict:
                        "piles_left_out": members.left_out, "seconds": time.perf_counter() - t0}
                 if name == "fd":  # the reference reuses them
                     row["members"] = members.last.tolist()
-                if name == "smoothing":  # its directions, drawn from jax.random.PRNGKey(key) by this JAX
-                    row["key"] = seed_base + r
-                    row["directions"] = estimators.smoothing_directions(jax.random.PRNGKey(row["key"]), args.pairs,
+                if name == "smoothing":  # its directions as this JAX drew them from the key
+                    row["key"] = direction_key
+                    row["directions"] = estimators.smoothing_directions(jax.random.PRNGKey(direction_key), args.pairs,
                                                                         len(names)).tolist()
                 out["rows"].append(row)
                 done[(name, size, r)] = row["seeds"]
@@ -339,7 +340,7 @@ def summarise(out: dict, objective, profile_idx=None, profile_objective=None) ->
         extra["reference_profile"] = reference_of(s[..., profile_idx], profile_objective)
     summary = {}
     for key in dict.fromkeys(f"{r['estimator']}/B{r['B']}" for r in out["rows"]):
-        mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
+        mine = _rows_of(out, key)
         g = np.stack([_gradient(r) for r in mine])
         against = extra["reference_profile"] if key.startswith("truncated") else reference
         summary[key] = {
@@ -415,7 +416,7 @@ def table(folder: pathlib.Path = HERE / "results") -> str:
                      f"(one construction carrying {len(names)} tangents)")
                     if estimator.startswith("truncated") else
                     f"antithetic smoothing, sigma = {out.get('sigma', out['step']):g}, {out['pairs']} pairs")
-            mine = [r for r in out["rows"] if r["estimator"] == estimator and r["B"] == int(size)]
+            mine = _rows_of(out, key)
             for i, n in enumerate(names):
                 estimates = ", ".join(_fmt(_gradient(r)[i]) for r in mine)
                 bias = np.atleast_1d(s["bias"])[i]
@@ -440,6 +441,11 @@ def rewrite_readme(check: bool = False) -> bool:
     import readme_block
 
     return readme_block.rewrite(START, END, table(), check=check)
+
+
+def _rows_of(out: dict, key: str) -> list:
+    """The rows of one `estimator/B` summary key."""
+    return [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
 
 
 def _spread(summary: dict, rows: list) -> np.ndarray:
@@ -468,7 +474,7 @@ def figure(out: dict, path: str) -> None:
             a.axhline(gp, color="0.4", ls="--", lw=1, label="reference, the profile's terms (truncated rows)")
         for k, key in enumerate(keys):
             s = out["summary"][key]
-            mine = [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key]
+            mine = _rows_of(out, key)
             a.plot([k] * len(mine), [_gradient(r)[i] for r in mine], "o", color=f"C{k}", alpha=0.5)
             a.errorbar(k + 0.15, np.atleast_1d(s["mean"])[i], _spread(s, mine)[i], fmt="s", color=f"C{k}", capsize=3)
         scale = abs(g) + 3 * e  # an estimate far beyond it (one heap's window exploding) would flatten the rest
@@ -482,7 +488,7 @@ def figure(out: dict, path: str) -> None:
     spreads = []
     for k, key in enumerate(keys):
         s = out["summary"][key]
-        spread = float(np.linalg.norm(_spread(s, [r for r in out["rows"] if f"{r['estimator']}/B{r['B']}" == key])))
+        spread = float(np.linalg.norm(_spread(s, _rows_of(out, key))))
         b.plot(s["particle_steps_per_gradient"], spread, "o", color=f"C{k}", label=key)
         spreads.append(spread)
     b.set_xscale("log")
