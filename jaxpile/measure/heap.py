@@ -5,6 +5,7 @@ central dip (Liffman et al. 1992, Fig. 20; the dropped pile)."""
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -169,3 +170,20 @@ def central_dip(profile: NormalProfile | BaseProfile) -> float:
     mid = len(f) // 2
     shoulder = min(f[:mid].max(), f[mid + 1:].max())
     return float(1.0 - f[mid] / shoulder) if shoulder > 0 else float("nan")
+
+
+# the size of a heap of n disks (packing fraction 0.8), for setting up its pour
+def substrate_size(n: int, spacing: float, min_angle: float = 15.0, margin: float = 5.0) -> int:
+    """Disks in a row long enough for the heap of n disks at any angle above
+    `min_angle` degrees: base B = 2 sqrt(A / tan(angle)) for a triangular heap of
+    area A = n (pi/4) / 0.8 (packing fraction 0.8), plus `margin` sigma at each
+    end. (`margin=0` and a steep `min_angle` make a row the heap spills over.)"""
+    area = n * (math.pi / 4.0) / 0.8
+    base = 2.0 * math.sqrt(area / math.tan(math.radians(min_angle))) + 2.0 * margin
+    return int(math.ceil(base / spacing)) + 1
+
+
+def steepest_heap_height(n: int) -> float:
+    """Height of a 45-degree heap of n disks (packing fraction 0.8), the
+    steepest these laws build: insertion must start above it."""
+    return math.sqrt(n * (math.pi / 4.0) / 0.8)

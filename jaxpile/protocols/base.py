@@ -96,7 +96,8 @@ def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None
       params: None (the setting's values for that law), a dict of overrides on
         top of them, or a ready params pytree of that law.
       rotation: integrate spins; None for `setting["rotation"]`.
-      setting: a protocol setting with `"params"` (per law name) and `"rotation"`.
+      setting: a protocol setting with `"params"` (per law name) and
+        `"rotation"` (None: the law's own default).
     """
     from jaxpile.laws import get_law_module
 
@@ -112,4 +113,4 @@ def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None
         raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or {lawmod.NAME}.make_params(...); "
                          f"got {type(params).__name__}.")
     rotation = setting["rotation"] if rotation is None else bool(rotation)
-    return lawmod, lawmod.law(rotation=rotation), params
+    return lawmod, lawmod.law() if rotation is None else lawmod.law(rotation=rotation), params

@@ -57,18 +57,18 @@ import numpy as np
 from jax import lax
 
 from jaxpile import budget, ranges
-from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import (  # noqa: F401  (pour.X as before)
-    BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape)
+    BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape, steepest_heap_height, substrate_size)
 # the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
 from jaxpile.measure.poured_heap import (  # noqa: F401  (pour.X as before)
-    SubstrateForces, heap_mask, measure, substrate_forces, summary, sweep_row)
-from jaxpile.protocols import definition, drivers
+    SubstrateForces, check_options, heap_mask, measure, report, substrate_forces, summary, sweep_row)
+from jaxpile.protocols import definition, drivers, geometry
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.sweep import heap_extent, marginal_stability, option_names
 
@@ -186,16 +186,7 @@ def driver(state: SimState) -> SimState:
     due = (state.step % ps.interval == 0) & (ps.poured < ps.total)
 
     def act(state: SimState) -> SimState:
-        p = state.particles
-        p = p.set(
-            active=p.active & ~fell,
-            position=jnp.where(fell[:, None], ps.park_position, p.position),
-            velocity=jnp.where(fell[:, None], 0.0, p.velocity),
-            angular_velocity=jnp.where(fell, 0.0, p.angular_velocity),
-            force=jnp.where(fell[:, None], 0.0, p.force),
-            torque=jnp.where(fell, 0.0, p.torque),
-        )
-        state = state.set(particles=p)
+        state = geometry.park_where(state, fell, ps.park_position)
         index = ps.first + jnp.minimum(ps.poured, ps.total - 1)
         state = drivers.activate(state, index, ps.release_position[index], ps.release_velocity, when=due)
         p = state.particles
@@ -219,22 +210,6 @@ def in_play(state: SimState, steps: int) -> int:
     step, interval = int(state.step), int(ps.interval)
     releases = (step + int(steps) - 1) // interval - (step - 1) // interval
     return int(ps.first) + min(int(ps.total), int(ps.poured) + max(releases, 0))
-
-
-def substrate_size(n: int, spacing: float, min_angle: float = 15.0, margin: float = 5.0) -> int:
-    """Disks in a row long enough for the heap of n disks at any angle above
-    `min_angle` degrees: base B = 2 sqrt(A / tan(angle)) for a triangular heap of
-    area A = n (pi/4) / 0.8 (packing fraction 0.8), plus `margin` sigma at each
-    end. (`margin=0` and a steep `min_angle` make a row the heap spills over.)"""
-    area = n * (math.pi / 4.0) / 0.8
-    base = 2.0 * math.sqrt(area / math.tan(math.radians(min_angle))) + 2.0 * margin
-    return int(math.ceil(base / spacing)) + 1
-
-
-def steepest_heap_height(n: int) -> float:
-    """Height of a 45-degree heap of n disks (packing fraction 0.8), the
-    steepest these laws build: insertion must start above it."""
-    return math.sqrt(n * (math.pi / 4.0) / 0.8)
 
 
 def pour(
@@ -390,13 +365,7 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
     """`(law module, ContactLaw, params)` with the pour setting: params None (the
     setting's values), a dict of overrides on top of them, or a params pytree;
     rotation None keeps the law's own default."""
-    from jaxpile.laws import get_law_module
-    from jaxpile.protocols.base import law_and_params as base_law_and_params
-
-    module = get_law_module(law) if isinstance(law, str) else law
-    default_rotation = module.law().rotation
-    setting = {"params": PAPER_SETTING["params"], "rotation": default_rotation}
-    return base_law_and_params(module, params, rotation, setting=setting, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting={**PAPER_SETTING, "rotation": None}, dtype=dtype)
 
 
 def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
@@ -436,12 +405,11 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
       (state, RunInfo): the run's steps and timings over both phases, `at_rest`
       and the final `max_speed` from the settling phase.
     """
+    from jaxpile import runner
     from jaxpile.engine import checkpoint as ckpt
     from jaxpile.engine.simulate import load_then_settle
 
-    if abs(sim.dt - protocol.info["dt"]) > 1e-12 * protocol.info["dt"]:
-        raise InputError(f"the protocol was set up for dt = {protocol.info['dt']:g} but the simulator "
-                         f"uses dt = {sim.dt:g}; pass the same dt to both.")
+    runner.check_dt(sim, protocol)
     if int(max_settle_steps) != max_settle_steps or max_settle_steps < 1:
         raise InputError(f"max_settle_steps must be a whole number >= 1; got {max_settle_steps!r}.")
     state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
@@ -461,17 +429,6 @@ def _execute(sim, params, protocol: Protocol, options: dict, *, progress=None, c
     return state, info, None
 
 
-def _report(measured: dict, protocol: Protocol, options: dict, info, samples, seconds: float) -> dict:
-    """One heap's output: `measure`'s dict plus `run`, `info` and `summary`."""
-    result = dict(measured)
-    result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
-                     "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
-                     "total_seconds": seconds, "neighbor_reallocations": info.reallocations}
-    result["info"] = dict(protocol.info)
-    result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
-    return result
-
-
 def _finished(info, options):
     """A batch's end for one heap: every disk poured, then its fastest disk below the tolerance."""
     from jaxpile.engine.simulate import max_speed
@@ -480,28 +437,12 @@ def _finished(info, options):
     return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
 
 
-def _check(protocol: Protocol, options: dict) -> None:
-    """Refuses, before the pour, more profile bins than substrate disks (a bin
-    narrower than a substrate spacing holds no contact) and a voidage map
-    whose cells are too fine for this machine's memory (the map covers at
-    most the substrate row and the steepest heap of the disks poured)."""
-    info = protocol.info
-    bins = options["bins"]
-    if bins is not None and bins > info["n_substrate"]:
-        raise InputError(f"bins ({bins:g}) must be at most the substrate's {info['n_substrate']} disks: a bin "
-                         "narrower than a substrate spacing holds no contact.")
-    width, height = info["substrate_length"], steepest_heap_height(info["n_poured"]) + 2.0
-    need = analysis.voidage_map_bytes(width, height, options["voidage_cell"], info["n_poured"], 0.5)
-    budget.check_host(need, f"the voidage map (voidage_cell = {options['voidage_cell']:g} sigma over up to "
-                            f"{width:.0f} x {height:.0f} sigma)", "Give a larger voidage_cell (the default is 3).")
-
-
 DEFINITION = definition.Definition(
     "pour", pour, make_simulator, law_and_params, lambda law: float(PAPER_SETTING["dt"]), _finished,
     lambda info, options: int(info["pour_steps"]) + int(options["max_settle_steps"]),
     lambda sim, params, state, p, options: measure(sim, params, state, bins=options["bins"],
                                                    voidage_cell=options["voidage_cell"]),
-    row=sweep_row, execute=_execute, report=_report, check=_check,
+    row=sweep_row, execute=_execute, report=report, check=check_options,
     run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
                  "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
     sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability, default_law="baxter",
@@ -588,27 +529,7 @@ def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options
 
 
 __all__ = [
-    "MIN_RELEASE_GAP",
-    "PAPER_SETTING",
-    "BaseProfile",
-    "MShape",
-    "PourState",
-    "SubstrateForces",
-    "base_profile",
-    "driver",
-    "execute",
-    "heap_mask",
-    "in_play",
-    "law_and_params",
-    "law_params",
-    "m_shape",
-    "make_simulator",
-    "measure",
-    "pour",
-    "protocol",
-    "run",
-    "substrate_forces",
-    "steepest_heap_height",
-    "substrate_size",
-    "summary",
+    "MIN_RELEASE_GAP", "PAPER_SETTING", "BaseProfile", "MShape", "PourState", "SubstrateForces", "base_profile",
+    "driver", "execute", "heap_mask", "in_play", "law_and_params", "law_params", "m_shape", "make_simulator",
+    "measure", "pour", "protocol", "run", "substrate_forces", "steepest_heap_height", "substrate_size", "summary"
 ]
