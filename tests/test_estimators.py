@@ -202,6 +202,29 @@ def test_truncated_pathwise_combines_the_windows_sensitivities_as_in_closed_form
         assert abs(float(est.gradient[1]) - exact) > 1e-3 * abs(exact)  # truncation is biased here
 
 
+def test_truncated_pathwise_compiles_the_windows_of_one_advance_function_once():
+    """A fit hands the same `advance` at every iterate (`construction._pieces`):
+    its windows are traced and compiled at the first call only, and the second
+    call's gradient is the same function's. A new function compiles afresh."""
+    from jaxpile.estimators import truncated_pathwise
+
+    traces = []
+
+    def advance(t, s, n):
+        traces.append(n)  # runs while jax traces it, not when the compiled window runs
+        return _advance(t, s, n, A_MAP)
+
+    def gradient(fn, theta):
+        return truncated_pathwise(fn, _statistics, lambda m: jnp.sum(m ** 2), theta, _start(), 12, 4).gradient
+
+    first = gradient(advance, THETA)
+    assert traces == [4]
+    again = gradient(advance, THETA + 0.1)
+    assert traces == [4]
+    np.testing.assert_allclose(again, gradient(lambda t, s, n: _advance(t, s, n, A_MAP), THETA + 0.1), rtol=1e-12)
+    assert not np.allclose(first, again)
+
+
 def test_truncated_pathwise_refuses_a_window_of_no_steps_and_an_unknown_combination():
     with pytest.raises(InputError, match="window must be a positive whole number"):
         _truncated(12, 0)

@@ -11,6 +11,9 @@ have no tangent, so the statistics are the base profile alone.
 
 from __future__ import annotations
 
+import json
+from typing import Callable, NamedTuple
+
 import numpy as np
 
 from jaxpile.errors import InputError
@@ -52,14 +55,11 @@ class Construction:
     """
 
     def __init__(self, runner, seeds, statistics, names, theta):
-        import jax
         import jax.numpy as jnp
 
         from jaxpile import sweep
         from jaxpile.engine import batch, ensemble
         from jaxpile.engine import neighbors as nb
-        from jaxpile.fit import smooth_base_profile
-        from jaxpile.measure import analysis
         from jaxpile.protocols import pour
 
         check(runner, statistics)
@@ -67,13 +67,6 @@ class Construction:
         law = runner.law_name()
         d = pour.DEFINITION
         dt = d.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
-        self.sim = sim = pour.make_simulator(law, dt=dt, in_play=None)
-        base = pour.law_params(law, dtype=runner.dtype, **(runner.params or {}))
-
-        def params(t):  # each value in its parameter's own dtype (a float32 pile stays float32)
-            return base.set(**{n: jnp.exp(t[i]).astype(jnp.asarray(getattr(base, n)).dtype)
-                               for i, n in enumerate(names)})
-
         options = dict(runner.options or {})
         size = options.pop("n", None)
         setup = {k: v for k, v in options.items() if k not in d.run_options}
@@ -82,34 +75,21 @@ class Construction:
                                **setup) for s in seeds]
         if d.check is not None:  # as the sweep's set-up: e.g. a voidage map too fine for the memory
             d.check(protocols[0], run_options)
-        p0 = params(jnp.asarray(theta))
-        ens = ensemble.Ensemble(sim)
-        start = ens.init([p0] * len(protocols), protocols)
+        extent = tuple(sweep.adapter("pour").extent(protocols[0]))
+        pieces = _pieces(law, dt, runner.dtype, runner.params, tuple(names), extent, statistics)
+        self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics
+        p0 = pieces.params(jnp.asarray(theta))
+        start = pieces.ensemble.init([p0] * len(protocols), protocols)
         budget = runner.max_steps if runner.max_steps is not None else d.max_steps(protocols[0].info, run_options)
-        end = ens.run([p0] * len(protocols), start, int(budget), until=d.finished(protocols[0].info, run_options),
-                      progress=False)
+        end = pieces.ensemble.run([p0] * len(protocols), start, int(budget),
+                                  until=d.finished(protocols[0].info, run_options), progress=False)
         self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
         slots = int(end.neighbors.max_occupancy) + 8
         pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
         self.start = batch.stack([batch.at_capacity(batch.member(start, i), slots, None, pairs)
                                   for i in range(len(protocols))])
         self.particles = int(self.start.particles.position.shape[1])
-        base_name, x_left, x_right = sweep.adapter("pour").extent(protocols[0])
-        bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
-
-        def advance(t, state, k):
-            return jax.vmap(lambda m: sim.rollout(params(t), m, k))(state)
-
-        def stats(t, state):
-            def one(m):
-                load = analysis.base_load(sim, params(t), m, base=base_name)
-                prof = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=bins,
-                                           bandwidth=bandwidth)
-                return jnp.concatenate([prof.normal, prof.horizontal]) if horizontal else prof.normal
-            return jax.vmap(one)(state)
-
-        self.advance, self.statistics = advance, stats
-        final = jax.jit(advance, static_argnums=2)(jnp.asarray(theta), self.start, self.steps)
+        final = pieces.rollout(jnp.asarray(theta), self.start, self.steps)
         if bool(np.any(np.asarray(nb.overflowed(final)))):
             raise InputError("a neighbour or contact list overflowed inside the construction's rollout at theta; "
                              "the truncated estimator cannot resize it there: use --estimator central.")
@@ -118,3 +98,59 @@ class Construction:
         """Every pile's steps in the host run that sized the lists, the rollout
         that checked them, and the windows' rollout (its tangents not counted)."""
         return 3.0 * self.start.particles.position.shape[0] * self.particles * self.steps
+
+
+class _Pieces(NamedTuple):
+    sim: object
+    ensemble: object
+    params: Callable
+    advance: Callable
+    statistics: Callable
+    rollout: Callable
+
+
+_PIECES: dict = {}
+
+
+def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent: tuple, statistics) -> _Pieces:
+    """The simulator, its batch and the rollout functions of one construction's
+    configuration, made once: a fit builds a new `Construction` at every
+    iterate, and with the same functions its host run, its checking rollout
+    and the estimator's windows (`estimators.truncated_pathwise`, keyed by
+    `advance`) compile once for the whole fit."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxpile.engine import ensemble
+    from jaxpile.fit import smooth_base_profile
+    from jaxpile.measure import analysis
+    from jaxpile.protocols import pour
+
+    bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
+    key = (law, float(dt), str(dtype), json.dumps(fixed or {}, sort_keys=True, default=repr), names, extent,
+           bins, bandwidth, horizontal)
+    if key in _PIECES:
+        return _PIECES[key]
+    sim = pour.make_simulator(law, dt=dt, in_play=None)
+    base = pour.law_params(law, dtype=dtype, **(fixed or {}))
+    base_name, x_left, x_right = extent
+
+    def params(t):  # each value in its parameter's own dtype (a float32 pile stays float32)
+        return base.set(**{n: jnp.exp(t[i]).astype(jnp.asarray(getattr(base, n)).dtype)
+                           for i, n in enumerate(names)})
+
+    def advance(t, state, k):
+        return jax.vmap(lambda m: sim.rollout(params(t), m, k))(state)
+
+    def stats(t, state):
+        def one(m):
+            load = analysis.base_load(sim, params(t), m, base=base_name)
+            prof = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=bins, bandwidth=bandwidth)
+            return jnp.concatenate([prof.normal, prof.horizontal]) if horizontal else prof.normal
+        return jax.vmap(one)(state)
+
+    if len(_PIECES) >= 4:  # a few configurations at a time: each holds compiled programs
+        _PIECES.pop(next(iter(_PIECES)))
+    _PIECES[key] = pieces = _Pieces(sim, ensemble.Ensemble(sim), params, advance, stats,
+                                    jax.jit(advance, static_argnums=2))
+    return pieces

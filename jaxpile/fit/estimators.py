@@ -248,6 +248,31 @@ def _is_float(x) -> bool:
     return jnp.issubdtype(jnp.result_type(x), jnp.inexact)
 
 
+def _window_run(advance: Callable):
+    """`(directions, theta, state, n) -> (state, tangents)`: n steps of `advance`
+    with its d tangents, jitted once per `advance` function (one compile per
+    window length, at most two) and kept on it: a fit that hands the same
+    `advance` at every iterate (`construction.Construction`) compiles its
+    windows once."""
+    from jaxpile.engine.compile import jit_derivative
+
+    kept = getattr(advance, "_window_run", None)
+    if kept is not None:
+        return kept
+
+    @functools.partial(jit_derivative, static_argnums=3)
+    def window_run(directions, x0, s, n):
+        def along(e):
+            return jax.jvp(lambda x: advance(x, s, n), (x0,), (e,))
+        return jax.vmap(along, out_axes=(None, 0))(directions)
+
+    try:
+        advance._window_run = window_run
+    except AttributeError:  # a bound method or a builtin: compiled for this call alone
+        pass
+    return window_run
+
+
 def truncated_pathwise(advance: Callable, statistics: Callable, objective: Callable, theta, state, steps: int,
                        window: int, combine: str = "sum") -> Estimate:
     """The truncated pathwise gradient of F through a construction of `steps` steps.
@@ -295,14 +320,7 @@ def truncated_pathwise(advance: Callable, statistics: Callable, objective: Calla
     t = jnp.asarray(theta)
     directions = jnp.eye(theta.size, dtype=t.dtype)
 
-    from jaxpile.engine.compile import jit_derivative
-
-    @functools.partial(jit_derivative, static_argnums=2)  # one compile per window length (at most two)
-    def window_run(x0, s, n):
-        def along(e):
-            return jax.jvp(lambda x: advance(x, s, n), (x0,), (e,))
-        return jax.vmap(along, out_axes=(None, 0))(directions)
-
+    window_run = functools.partial(_window_run(advance), directions)
     moving = [i for i, x in enumerate(jax.tree.leaves(state)) if _is_float(x)]  # integer leaves have no tangent
     total, s, done = None, state, 0
     while done < steps:
