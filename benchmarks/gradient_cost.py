@@ -41,7 +41,6 @@ import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
 from jaxpile import fit
 from jaxpile.boundaries import GROUND
-from jaxpile.engine.compile import jit_derivative
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
@@ -159,17 +158,20 @@ def main(argv=None) -> dict:
     for steps in horizons:
         # every derivative program compiled as jaxpile compiles them (engine.compile.jit_derivative)
         forward = jax.jit(loss_fn(sim, state, steps, False))
-        grad_ckpt = jit_derivative(jax.grad(loss_fn(sim, state, steps, True)))
-        # forward mode over the three parameters, as `fit.fit(mode="auto")` takes it for <= 4 values
+        # reverse mode over the three parameters alone (the others held: their cotangents are not computed)
         values = {k: getattr(params, k) for k in NAMES}
+        grad_ckpt = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, True)(params.set(**v)), values,
+                                           "reverse")
+        # forward mode over the same three, as `fit.fit(mode="auto")` takes it for <= 4 values
         jvp = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), values, "forward")
         # and over mu alone: what a pathwise fit of one parameter differentiates
         one = {"mu": params.mu}
         jvp_mu = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), one, "forward")
-        programs = {"forward": (forward, (params,)), "grad_checkpoint": (grad_ckpt, (params,)),
+        programs = {"forward": (forward, (params,)), "grad_checkpoint": (grad_ckpt, (values,)),
                     "grad_forward_mode": (jvp, (values,)), "grad_forward_mode_mu": (jvp_mu, (one,))}
         if steps <= args.no_store_limit:
-            programs["grad"] = (jit_derivative(jax.grad(loss_fn(sim, state, steps, False))), (params,))
+            programs["grad"] = (fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)),
+                                                       values, "reverse"), (values,))
         row = {"steps": steps, **side_by_side(programs, args.rounds)}
         row.update({f"mem_{name}": temp_bytes(fn, *a) for name, (fn, a) in programs.items()})
         if args.thunks:  # why the derivatives cost what they do on a small pile: kernel launches per step
