@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 
 import jax
@@ -24,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import gradient_cost as gc  # benchmarks/ (scripts run from there)
-from jaxpile import fit
+from jaxpile import fit, io
 from jaxpile.engine.compile import jit_derivative
 from jaxpile.laws import base, hooke
 from jaxpile.simulate import Simulator
@@ -94,8 +93,7 @@ def main(argv=None) -> dict:
     print(f"forward bit-identical: {out['forward_bit_identical']}; reverse differs by at most "
           f"{out['reverse_max_relative_difference']:.1e} (relative)")
     if args.out:
-        with open(args.out, "w") as f:
-            json.dump(out, f, indent=1)
+        io.write_json(args.out, out)
     return out
 
 

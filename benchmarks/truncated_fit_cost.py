@@ -17,7 +17,6 @@ The gradients of the two modes must agree bit for bit (the script checks it).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -30,6 +29,7 @@ jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import machine  # noqa: E402
 
+from jaxpile import io  # noqa: E402
 from jaxpile.fit import construction, ensemble_fit, estimators  # noqa: E402
 
 
@@ -78,8 +78,7 @@ def main(argv=None):
         out = {"machine": machine.details(), "command": "python benchmarks/truncated_fit_cost.py " + " ".join(
             argv if argv is not None else sys.argv[1:]), "disks": args.disks, "seeds": args.seeds,
             "window": args.window, "rows": rows, "later_iterate_s": later}
-        with open(args.out, "w") as f:
-            json.dump(out, f, indent=1)
+        io.write_json(args.out, out)
 
 
 if __name__ == "__main__":
