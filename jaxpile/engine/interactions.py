@@ -62,6 +62,25 @@ def _kernel_over(law: ContactLaw):
     return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
 
 
+def pair_ends(fields, i: Array, j: Array) -> tuple:
+    """Each per-disk field (`[n]` or `[n, c]`) at the pair ends i and j,
+    component-major (`[P]` or `[c, P]`): one gather per field and end."""
+    return tuple((x.T[..., i], x.T[..., j]) for x in fields)
+
+
+def pair_sums(values_i, values_j, i: Array, j: Array, n: int, signs_j) -> tuple:
+    """Per-pair values (component-major, `[P]` or `[c, P]`) summed onto the
+    disks: `values_i` at i, plus or minus (`signs_j`) `values_j` at j; each
+    `[n]` or `[n, c]`. Two scatters per field: a concatenated [F, -F] would be
+    a fusion of its own that evaluates the law a second time."""
+    sums = []
+    for a, b, sign in zip(values_i, values_j, signs_j):
+        at_i = jax.ops.segment_sum(a.T, i, n, indices_are_sorted=True)
+        at_j = jax.ops.segment_sum(b.T, j, n)
+        sums.append(at_i + at_j if sign > 0 else at_i - at_j)
+    return tuple(sums)
+
+
 def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positions=None):
     """The geometry of every half pair, component-major (vectors `[2, P]`; masked
     pairs put `FAR` apart), and the pair ends i, j. (One gather per field: packing
@@ -82,20 +101,21 @@ def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positi
     r_i, r_j = p.radius[i], p.radius[j]
     far = jnp.stack([FAR * (r_i + r_j), jnp.zeros_like(r_i)])
 
-    def apart(x):
-        x = x.T
-        return jnp.where(mask, x[:, i] - x[:, j], far)
+    steps = () if step_positions is None else tuple(step_positions)
+    (x_i, x_j), (v_i, v_j), (w_i, w_j), *step_ends = pair_ends((p.position, p.velocity, omega) + steps, i, j)
 
-    velocity = p.velocity.T
+    def apart(ends):
+        return jnp.where(mask, ends[0] - ends[1], far)
+
     geometry = PairGeometry(
-        displacement=apart(p.position),
+        displacement=apart((x_i, x_j)),
         radius_i=r_i,
         radius_j=r_j,
-        velocity=velocity[:, i] - velocity[:, j],
-        angular_velocity_i=omega[i],
-        angular_velocity_j=omega[j],
+        velocity=v_i - v_j,
+        angular_velocity_i=w_i,
+        angular_velocity_j=w_j,
         effective_mass=m_eff,
-        step_displacements=None if step_positions is None else jnp.stack([apart(x) for x in step_positions]),
+        step_displacements=None if step_positions is None else jnp.stack([apart(e) for e in step_ends]),
         partner_fixed=fixed_i | fixed_j,
     )
     return geometry, i, j
@@ -130,17 +150,18 @@ def evaluate(
 
     geometry, i, j = _pair_geometry(p, contacts.pairs, omega, step_positions)
     pair = _kernel_over(law)(params, geometry, contacts.history.T, dt)
+    # each pair once: +F on i, -F on j (and the law's torques on each)
+    if law.rotation:
+        force, torque = pair_sums((pair.force, pair.torque), (pair.force, pair.torque_j), i, j, n, (-1, 1))
+    else:
+        force, = pair_sums((pair.force,), (pair.force,), i, j, n, (-1,))
     pair = pair._replace(force=pair.force.T, history=pair.history.T)
-    # each pair once: +F on i, -F on j. Two scatters of the same F: a concatenated
-    # [F, -F] would be a fusion of its own that evaluates the law a second time
-    force = jax.ops.segment_sum(pair.force, i, n, indices_are_sorted=True) - jax.ops.segment_sum(pair.force, j, n)
 
     wall, wall_force, wall_torque = _wall_forces(law, params, p, omega, contacts.wall_history, boundaries, dt,
                                                  step_positions)
     force = force + wall_force
     if law.rotation:
-        torque = (jax.ops.segment_sum(pair.torque, i, n, indices_are_sorted=True)
-                  + jax.ops.segment_sum(pair.torque_j, j, n) + wall_torque)
+        torque = torque + wall_torque
     else:
         torque = jnp.zeros_like(p.angular_velocity)
     return ContactForces(pair=pair, wall=wall, force=force, torque=torque)
