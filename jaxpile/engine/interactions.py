@@ -65,7 +65,7 @@ def _kernel_over(law: ContactLaw):
 def pair_ends(fields, i: Array, j: Array) -> tuple:
     """Each per-disk field (`[n]` or `[n, c]`) at the pair ends i and j,
     component-major (`[P]` or `[c, P]`): one gather per field and end."""
-    return tuple((x.T[..., i], x.T[..., j]) for x in fields)
+    return tuple((x[..., i], x[..., j]) for x in (f.T for f in fields))
 
 
 def pair_sums(values_i, values_j, i: Array, j: Array, n: int, signs_j) -> tuple:
@@ -75,8 +75,10 @@ def pair_sums(values_i, values_j, i: Array, j: Array, n: int, signs_j) -> tuple:
     a fusion of its own that evaluates the law a second time."""
     sums = []
     for a, b, sign in zip(values_i, values_j, signs_j):
-        at_i = jax.ops.segment_sum(a.T, i, n, indices_are_sorted=True)
-        at_j = jax.ops.segment_sum(b.T, j, n)
+        a_rows = a.T
+        b_rows = a_rows if b is a else b.T
+        at_i = jax.ops.segment_sum(a_rows, i, n, indices_are_sorted=True)
+        at_j = jax.ops.segment_sum(b_rows, j, n)
         sums.append(at_i + at_j if sign > 0 else at_i - at_j)
     return tuple(sums)
 
