@@ -39,12 +39,15 @@ from machine import details
 AS_IS = (interactions.pair_ends, interactions.pair_sums)
 
 
-def _columns(x):
-    return x.reshape(x.shape[0], -1)
-
-
-def _rows(v):
-    return v[None] if v.ndim == 1 else v
+def _split(table, widths, axis: int) -> list:
+    """`table` cut along `axis` into fields of the given numbers of components
+    (None: one, the axis dropped)."""
+    out, k = [], 0
+    for c in widths:
+        part = jax.lax.slice_in_dim(table, k, k + (c or 1), axis=axis)
+        out.append(part if c else jnp.squeeze(part, axis))
+        k += c or 1
+    return out
 
 
 @jax.custom_jvp
@@ -55,35 +58,27 @@ def packed_ends(fields, i, j):
 @packed_ends.defjvp
 def _packed_ends_jvp(primals, tangents):
     fields, i, j = primals
-    table = jnp.concatenate([_columns(d) for d in tangents[0]], axis=1)  # [n, m]
-    ends = []
-    for rows in (table[i].T, table[j].T):  # [m, P]
-        out, k = [], 0
-        for x in fields:
-            c = 1 if x.ndim == 1 else x.shape[1]
-            out.append(rows[k] if x.ndim == 1 else rows[k:k + c])
-            k += c
-        ends.append(out)
+    table = jnp.concatenate([d.reshape(d.shape[0], -1) for d in tangents[0]], axis=1)  # [n, m]
+    widths = [x.shape[1] if x.ndim > 1 else None for x in fields]
+    ends = [_split(rows, widths, axis=0) for rows in (table[i].T, table[j].T)]  # rows: [m, P]
     return AS_IS[0](fields, i, j), tuple(zip(*ends))
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
-def packed_sums(values_i, values_j, i, j, n, signs_j):
-    return AS_IS[1](values_i, values_j, i, j, n, signs_j)
+@functools.partial(jax.custom_jvp, nondiff_argnums=(4,))
+def packed_sums(at_i, at_j, i, j, n):
+    return AS_IS[1](at_i, at_j, i, j, n)
 
 
 @packed_sums.defjvp
-def _packed_sums_jvp(n, signs_j, primals, tangents):
-    values_i, values_j, i, j = primals
-    at_i = jnp.concatenate([_rows(v) for v in tangents[0]], axis=0)  # [m, P]
-    at_j = jnp.concatenate([_rows(v) * s for v, s in zip(tangents[1], signs_j)], axis=0)
-    table = jax.ops.segment_sum(jnp.concatenate([at_i, at_j], axis=1).T, jnp.concatenate([i, j]), n)  # [n, m]
-    out, k = [], 0
-    for v in values_i:
-        c = 1 if v.ndim == 1 else v.shape[0]
-        out.append(table[:, k] if v.ndim == 1 else table[:, k:k + c])
-        k += c
-    return AS_IS[1](values_i, values_j, i, j, n, signs_j), tuple(out)
+def _packed_sums_jvp(n, primals, tangents):
+    at_i, at_j, i, j = primals
+    d_i, d_j = tangents[0], tangents[1]
+    rows = [v if v.ndim > 1 else v[None] for v in d_i]  # [c, P] each
+    rows_j = [-r if b is None else (d if d.ndim > 1 else d[None]) for r, b, d in zip(rows, at_j, d_j)]
+    table = jax.ops.segment_sum(jnp.concatenate([jnp.concatenate(rows), jnp.concatenate(rows_j)], axis=1).T,
+                                jnp.concatenate([i, j]), n)  # [n, m]
+    widths = [v.shape[0] if v.ndim > 1 else None for v in at_i]
+    return AS_IS[1](at_i, at_j, i, j, n), tuple(_split(table, widths, axis=1))
 
 
 VARIANTS = {"as_is": AS_IS, "ends": (packed_ends, AS_IS[1]), "sums": (AS_IS[0], packed_sums),

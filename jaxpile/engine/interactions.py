@@ -68,18 +68,17 @@ def pair_ends(fields, i: Array, j: Array) -> tuple:
     return tuple((x[..., i], x[..., j]) for x in (f.T for f in fields))
 
 
-def pair_sums(values_i, values_j, i: Array, j: Array, n: int, signs_j) -> tuple:
+def pair_sums(at_i, at_j, i: Array, j: Array, n: int) -> tuple:
     """Per-pair values (component-major, `[P]` or `[c, P]`) summed onto the
-    disks: `values_i` at i, plus or minus (`signs_j`) `values_j` at j; each
-    `[n]` or `[n, c]`. Two scatters per field: a concatenated [F, -F] would be
-    a fusion of its own that evaluates the law a second time."""
+    disks, each `[n]` or `[n, c]`: `at_i[k]` at i plus `at_j[k]` at j, where
+    `at_j[k]` None stands for the reaction, `-at_i[k]` at j. Two scatters per
+    field: a concatenated [F, -F] would be a fusion of its own that evaluates
+    the law a second time."""
     sums = []
-    for a, b, sign in zip(values_i, values_j, signs_j):
-        a_rows = a.T
-        b_rows = a_rows if b is a else b.T
-        at_i = jax.ops.segment_sum(a_rows, i, n, indices_are_sorted=True)
-        at_j = jax.ops.segment_sum(b_rows, j, n)
-        sums.append(at_i + at_j if sign > 0 else at_i - at_j)
+    for a, b in zip(at_i, at_j):
+        rows = a.T
+        on_i = jax.ops.segment_sum(rows, i, n, indices_are_sorted=True)
+        sums.append(on_i - jax.ops.segment_sum(rows, j, n) if b is None else on_i + jax.ops.segment_sum(b.T, j, n))
     return tuple(sums)
 
 
@@ -154,9 +153,9 @@ def evaluate(
     pair = _kernel_over(law)(params, geometry, contacts.history.T, dt)
     # each pair once: +F on i, -F on j (and the law's torques on each)
     if law.rotation:
-        force, torque = pair_sums((pair.force, pair.torque), (pair.force, pair.torque_j), i, j, n, (-1, 1))
+        force, torque = pair_sums((pair.force, pair.torque), (None, pair.torque_j), i, j, n)
     else:
-        force, = pair_sums((pair.force,), (pair.force,), i, j, n, (-1,))
+        force, = pair_sums((pair.force,), (None,), i, j, n)
     pair = pair._replace(force=pair.force.T, history=pair.history.T)
 
     wall, wall_force, wall_torque = _wall_forces(law, params, p, omega, contacts.wall_history, boundaries, dt,
