@@ -1,0 +1,193 @@
+"""Where the test suite's time goes: per test, its wall time, XLA's backend
+compile time, JAX's tracing and lowering time, and how many distinct programs
+it compiled.
+
+    python benchmarks/suite_profile.py                 # the whole suite, as `make test` runs it
+    python benchmarks/suite_profile.py tests/test_protocol_tilt.py -n 0
+
+runs pytest with this file as a plugin (each worker records its own tests) on a
+fresh, empty compile cache, as CI's clean clone does, then prints the slowest
+tests, modules and program names and writes benchmarks/results/<backend>/suite_profile.json.
+A "distinct program" is one StableHLO module, debug information left out: the
+same module compiled again (in the same worker or the other) is a "repeat",
+which the persistent compile cache makes cheap.
+"""
+
+from __future__ import annotations
+
+import collections
+import hashlib
+import json
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+_RECORD_DIR = "JAXPILE_SUITE_PROFILE_DIR"
+_COMPILE = "/jax/core/compile/backend_compile_duration"
+_TRACE = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
+
+
+# ------------------------------------------------------------- the plugin
+class _Recorder:
+    """Per-test sums of JAX's compile events and the programs compiled."""
+
+    def __init__(self):
+        self.test = "<collection>"
+        self.tests = collections.defaultdict(lambda: {"wall": 0.0, "compile": 0.0, "trace": 0.0, "compiles": 0})
+        self.programs = []  # (test, program name, module hash, seconds)
+
+    def on_event(self, event, seconds, **_):
+        t = self.tests[self.test]
+        if event == _COMPILE:
+            t["compile"] += seconds
+            t["compiles"] += 1
+        elif event in _TRACE:
+            t["trace"] += seconds
+
+    def wrap_compiler(self):
+        """Names and hashes each module JAX hands XLA (a private JAX function:
+        where it has moved, the per-program table is left empty)."""
+        try:
+            from jax._src import compiler
+        except ImportError:
+            return
+        original = getattr(compiler, "compile_or_get_cached", None)
+        if original is None:
+            return
+
+        def compile_or_get_cached(backend, computation, *args, **kwargs):
+            attrs = computation.operation.attributes
+            name = str(attrs["sym_name"]).strip('"') if "sym_name" in attrs else "?"
+            text = computation.operation.get_asm(enable_debug_info=False)
+            t0 = time.perf_counter()
+            out = original(backend, computation, *args, **kwargs)
+            self.programs.append((self.test, name, hashlib.sha1(text.encode()).hexdigest()[:16],
+                                  time.perf_counter() - t0))
+            return out
+
+        compiler.compile_or_get_cached = compile_or_get_cached
+
+
+_recorder = None
+
+
+def pytest_configure(config):
+    global _recorder
+    import jax.monitoring
+
+    _recorder = _Recorder()
+    jax.monitoring.register_event_duration_secs_listener(_recorder.on_event)
+    _recorder.wrap_compiler()
+
+
+def _protocol_wrapper(item, nextitem):
+    _recorder.test = item.nodeid
+    t0 = time.perf_counter()
+    yield
+    _recorder.tests[item.nodeid]["wall"] += time.perf_counter() - t0
+
+
+pytest_runtest_protocol = pytest.hookimpl(hookwrapper=True)(_protocol_wrapper)
+
+
+def pytest_sessionfinish(session):
+    folder = os.environ.get(_RECORD_DIR)
+    if not folder or _recorder is None:
+        return
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    pathlib.Path(folder, f"{worker}.json").write_text(json.dumps(
+        {"worker": worker, "tests": _recorder.tests, "programs": _recorder.programs}))
+
+
+# ------------------------------------------------------------- the report
+def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
+    tests, programs = {}, []
+    for r in records:
+        tests.update(r["tests"])
+        programs += [(r["worker"], *p) for p in r["programs"]]
+    first_seen, repeats, repeat_seconds = set(), 0, 0.0
+    by_name = collections.defaultdict(lambda: {"compiles": 0, "seconds": 0.0, "distinct": set()})
+    for worker, test, name, digest, seconds in programs:
+        by_name[name]["compiles"] += 1
+        by_name[name]["seconds"] += seconds
+        by_name[name]["distinct"].add(digest)
+        if digest in first_seen:
+            repeats += 1
+            repeat_seconds += seconds
+        first_seen.add(digest)
+    modules = collections.defaultdict(lambda: {"wall": 0.0, "compile": 0.0, "trace": 0.0})
+    for nodeid, t in tests.items():
+        for key in modules[nodeid.split("::")[0]]:
+            modules[nodeid.split("::")[0]][key] += t[key]
+    total = {key: sum(t[key] for t in tests.values()) for key in ("wall", "compile", "trace", "compiles")}
+    return {
+        "suite_wall_seconds": round(wall_seconds, 1),
+        "worker_seconds": {k: round(v, 1) for k, v in total.items() if k != "compiles"},
+        "backend_compiles": total["compiles"],
+        "distinct_programs": len(first_seen),
+        "repeated_programs": {"count": repeats, "seconds": round(repeat_seconds, 1)},
+        "programs_by_name": [
+            {"name": n, "compiles": v["compiles"], "distinct": len(v["distinct"]), "seconds": round(v["seconds"], 1)}
+            for n, v in sorted(by_name.items(), key=lambda kv: -kv[1]["seconds"])[:top]],
+        "modules": [{"module": m, **{k: round(x, 1) for k, x in v.items()}}
+                    for m, v in sorted(modules.items(), key=lambda kv: -kv[1]["wall"])],
+        "slowest_tests": [{"test": n, "wall": round(t["wall"], 1), "compile": round(t["compile"], 1),
+                           "trace": round(t["trace"], 1), "compiles": t["compiles"]}
+                          for n, t in sorted(tests.items(), key=lambda kv: -kv[1]["wall"])[:top]],
+    }
+
+
+def _print(summary: dict) -> None:
+    w = summary["worker_seconds"]
+    print(f"suite: {summary['suite_wall_seconds']:.0f} s wall; worker time {w['wall']:.0f} s, of it "
+          f"backend compile {w['compile']:.0f} s ({w['compile'] / w['wall']:.0%}), tracing and lowering "
+          f"{w['trace']:.0f} s ({w['trace'] / w['wall']:.0%})")
+    r = summary["repeated_programs"]
+    print(f"{summary['backend_compiles']} compiles of {summary['distinct_programs']} distinct programs; "
+          f"repeats: {r['count']}, {r['seconds']:.0f} s")
+    print("\nprogram              compiles distinct  seconds")
+    for p in summary["programs_by_name"][:12]:
+        print(f"{p['name'][:20]:20s} {p['compiles']:8d} {p['distinct']:8d} {p['seconds']:8.1f}")
+    print("\n  wall compile trace  test")
+    for t in summary["slowest_tests"]:
+        print(f"{t['wall']:6.1f} {t['compile']:7.1f} {t['trace']:5.1f}  {t['test']}")
+
+
+def main(argv: list[str]) -> int:
+    root = pathlib.Path(__file__).resolve().parent.parent
+    jobs = min(4, os.cpu_count() or 2)
+    args = argv or ["-n", str(jobs), "--dist", "loadscope"]
+    with tempfile.TemporaryDirectory() as records, tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, **{_RECORD_DIR: records, "JAX_COMPILATION_CACHE_DIR": cache})
+        env["PYTHONPATH"] = os.pathsep.join([str(root / "benchmarks"), str(root), env.get("PYTHONPATH", "")])
+        t0 = time.perf_counter()
+        rc = subprocess.call([sys.executable, "-m", "pytest", "-q", "-p", "suite_profile", "-p", "no:cacheprovider",
+                              *args], cwd=root, env=env)
+        wall = time.perf_counter() - t0
+        records = [json.loads(p.read_text()) for p in sorted(pathlib.Path(records).glob("*.json"))]
+    if not records:
+        print("no test recorded (pytest failed to start?)", file=sys.stderr)
+        return rc or 1
+    summary = summarise(records, wall)
+    summary["pytest_args"] = args
+    summary["pytest_exit_code"] = rc
+    _print(summary)
+    import jax
+
+    from jaxpile.io import write_json
+    from machine import details  # benchmarks/machine.py
+
+    summary["machine"] = details()
+    out = root / "benchmarks" / "results" / jax.default_backend() / "suite_profile.json"
+    write_json(out, summary)
+    print(f"\nwrote {out.relative_to(root)}")
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
