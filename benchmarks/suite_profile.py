@@ -85,14 +85,14 @@ def pytest_configure(config):
     _recorder.wrap_compiler()
 
 
-def _protocol_wrapper(item, nextitem):
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """A test's wall time, its fixtures' set-up included (a module's shared
+    pile counts in the module's first test)."""
     _recorder.test = item.nodeid
     t0 = time.perf_counter()
     yield
     _recorder.tests[item.nodeid]["wall"] += time.perf_counter() - t0
-
-
-pytest_runtest_protocol = pytest.hookimpl(hookwrapper=True)(_protocol_wrapper)
 
 
 def pytest_sessionfinish(session):
@@ -122,8 +122,9 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
         first_seen.add(digest)
     modules = collections.defaultdict(lambda: {"wall": 0.0, "compile": 0.0, "trace": 0.0})
     for nodeid, t in tests.items():
-        for key in modules[nodeid.split("::")[0]]:
-            modules[nodeid.split("::")[0]][key] += t[key]
+        module = modules[nodeid.split("::")[0]]
+        for key in module:
+            module[key] += t[key]
     total = {key: sum(t[key] for t in tests.values()) for key in ("wall", "compile", "trace", "compiles")}
     return {
         "suite_wall_seconds": round(wall_seconds, 1),
