@@ -167,17 +167,16 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     padded_order = jnp.concatenate([order, jnp.full((window + 1,), n, jnp.int32)])
     left, right = jnp.maximum(cx - 1, 0), jnp.minimum(cx + 1, nx - 1)
     span = jnp.arange(window, dtype=jnp.int32)
-    candidates, overflow = [], jnp.zeros((), bool)
-    for dy in (-1, 0, 1):
-        row = cy + dy
-        row_ok = (row >= 0) & (row < ny)
-        lo, hi = row * nx + left, row * nx + right
-        first = _run_starts(sorted_key, lo, hi, nx * ny)
-        at = first[:, None] + span[None, :]
-        inside = row_ok[:, None] & (padded_key[at] <= hi[:, None])
-        candidates.append(jnp.where(inside, padded_order[at], n))
-        overflow = overflow | jnp.any(row_ok & (padded_key[first + window] <= hi))
-    candidate = jnp.concatenate(candidates, axis=1)  # [n, 3 window]
+    # the three rows dy = -1, 0, 1 as a leading axis, not a Python loop: one
+    # copy of the gathers in the compiled program instead of three
+    row = cy[None, :] + jnp.arange(-1, 2, dtype=jnp.int32)[:, None]  # [3, n]
+    row_ok = (row >= 0) & (row < ny)
+    lo, hi = row * nx + left, row * nx + right
+    first = _run_starts(sorted_key, lo.reshape(-1), hi.reshape(-1), nx * ny).reshape(3, n)
+    at = first[..., None] + span
+    inside = row_ok[..., None] & (padded_key[at] <= hi[..., None])
+    overflow = jnp.any(row_ok & (padded_key[first + window] <= hi))
+    candidate = jnp.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, 3 * window)
     partner = jnp.minimum(candidate, n - 1)
     dx = position[:, 0, None] - position[partner, 0]
     dy_ = position[:, 1, None] - position[partner, 1]
@@ -190,11 +189,11 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     # that costs less than a row sort (a cumsum, scatter and sort: more again)
     value = jnp.where(keep, candidate, n)
     if slots <= SELECT_SLOTS:
-        columns, last = [], jnp.full((n,), -1, jnp.int32)
-        for _ in range(slots):
-            last = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
-            columns.append(last)
-        idx = jnp.stack(columns, axis=1)
+        def pick(last, _):  # a scan, not a Python loop: one copy in the program for any slot count
+            least = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
+            return least, least
+
+        idx = lax.scan(pick, jnp.full((n,), -1, jnp.int32), None, length=slots)[1].T
     else:
         idx = jnp.sort(value, axis=1)[:, :slots]
         if idx.shape[1] < slots:
