@@ -10,6 +10,7 @@ import jaxpile
 from jaxpile import interactions
 from jaxpile.laws import hooke
 from jaxpile import neighbors as nb
+from jaxpile.engine import host_lists
 from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
 from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
@@ -145,6 +146,47 @@ def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
     np.testing.assert_array_equal(new[2], 0.0)  # (1, 2) is new
     np.testing.assert_array_equal(new[3:], 0.0)  # empty entries
     assert pair_entry(new_pairs, 3, 0) == 1 and pair_entry(new_pairs, 0, 2) is None
+
+
+def test_host_lists_equal_their_traced_twins(monkeypatch):
+    """`host_lists` (numpy: set-up, re-allocation, checkpoints) and the traced
+    list code of the step loop build the same lists (and `allocate` the same
+    list either way, see `HOST_BUILD_MAX`): 200 clustered disks, a
+    quarter outside the box, with room (window 64, 40 slots: the row sort), with
+    too few slots (6: the slot-by-slot picks) and too small a window; then the
+    half pairs with too little room, their count, and history carried onto the
+    pairs of the list after the disks moved, from an old list cut short."""
+    rng = np.random.default_rng(11)
+    settings = nb.NeighborSettings((15.0, 15.0), 1.0, 0.2, 1.5)
+    pos = np.concatenate([rng.normal(7.5, 2.0, (150, 2)), rng.uniform(-3.0, 18.0, (50, 2))])
+    moved = pos + rng.normal(0.0, 0.2, pos.shape)
+    grid, reach = nb._grid(settings), 1.2
+    traced = jax.jit(nb._build, static_argnums=(1, 2, 3, 4))
+    seen = set()
+    for window, slots in ((64, 40), (64, 6), (3, 40)):
+        host = host_lists.build(pos, grid, reach, window, slots)
+        twin = traced(jnp.asarray(pos), grid, reach, window, slots)
+        np.testing.assert_array_equal(host[0], twin[0])
+        assert host[0].dtype == np.int32 and host[1:] == (int(twin[1]), bool(twin[2]))
+        seen.add((host[1] > slots, host[2]))
+    assert seen == {(False, False), (True, False), (False, True)}  # each case happened
+    on_host = nb.allocate(settings, pos)
+    monkeypatch.setattr(nb, "HOST_BUILD_MAX", 0)
+    compiled = nb.allocate(settings, pos)
+    for a, b in zip(jax.tree.leaves(on_host), jax.tree.leaves(compiled)):
+        np.testing.assert_array_equal(a, b)
+    old = host_lists.build(pos, grid, reach, 64, 40)[0]
+    new = host_lists.build(moved, grid, reach, 64, 40)[0]
+    for idx in (old, new):
+        assert host_lists.pair_count(idx) == int(nb.pair_count(jnp.asarray(idx))) > 100
+        for capacity in (64, 512):
+            np.testing.assert_array_equal(host_lists.half_pairs(idx, capacity), half_pairs(jnp.asarray(idx), capacity))
+    old_history = rng.normal(size=(64, 2))  # room for the first 64 of the old pairs only
+    new_pairs = host_lists.half_pairs(new, 512)
+    carried = host_lists.carry_history(old, old_history, new_pairs)
+    np.testing.assert_array_equal(carried, carry_history(jnp.asarray(old), jnp.asarray(old_history),
+                                                         jnp.asarray(new_pairs)))
+    assert 0 < (carried[:, 0] != 0).sum() < host_lists.pair_count(new)  # some carried, some new or cut
 
 
 def _sliding_pair(skin):

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile.engine import host_lists
 from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.state import SimState
@@ -88,7 +89,7 @@ def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None, 
     neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity,
                                        state.neighbor_settings)
     return state.set(neighbors=neighbors,
-                     contacts=nb.contacts_for_jit(state.contacts, state.neighbors.idx, neighbors.idx, pairs))
+                     contacts=host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs))
 
 
 def stack_states(states: Sequence[SimState]) -> SimState:

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import batch
+from jaxpile.engine import host_lists
 from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
@@ -215,7 +216,7 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
                                        template.neighbor_settings)
     c = template.contacts
-    pairs = nb.half_pairs_jit(neighbors.idx, pairs)
+    pairs = jnp.asarray(host_lists.half_pairs(neighbors.idx, pairs))
     contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
 

@@ -53,6 +53,8 @@ import numpy as np
 from jax import lax
 from jax_md import partition
 
+from jaxpile.engine import host_lists
+
 Array = Any
 
 
@@ -167,16 +169,17 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     padded_order = jnp.concatenate([order, jnp.full((window + 1,), n, jnp.int32)])
     left, right = jnp.maximum(cx - 1, 0), jnp.minimum(cx + 1, nx - 1)
     span = jnp.arange(window, dtype=jnp.int32)
-    # the three rows dy = -1, 0, 1 as a leading axis, not a Python loop: one
-    # copy of the gathers in the compiled program instead of three
-    row = cy[None, :] + jnp.arange(-1, 2, dtype=jnp.int32)[:, None]  # [3, n]
-    row_ok = (row >= 0) & (row < ny)
-    lo, hi = row * nx + left, row * nx + right
-    first = _run_starts(sorted_key, lo.reshape(-1), hi.reshape(-1), nx * ny).reshape(3, n)
-    at = first[..., None] + span
-    inside = row_ok[..., None] & (padded_key[at] <= hi[..., None])
-    overflow = jnp.any(row_ok & (padded_key[first + window] <= hi))
-    candidate = jnp.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, 3 * window)
+    candidates, overflow = [], jnp.zeros((), bool)
+    for dy in (-1, 0, 1):
+        row = cy + dy
+        row_ok = (row >= 0) & (row < ny)
+        lo, hi = row * nx + left, row * nx + right
+        first = _run_starts(sorted_key, lo, hi, nx * ny)
+        at = first[:, None] + span[None, :]
+        inside = row_ok[:, None] & (padded_key[at] <= hi[:, None])
+        candidates.append(jnp.where(inside, padded_order[at], n))
+        overflow = overflow | jnp.any(row_ok & (padded_key[first + window] <= hi))
+    candidate = jnp.concatenate(candidates, axis=1)  # [n, 3 window]
     partner = jnp.minimum(candidate, n - 1)
     dx = position[:, 0, None] - position[partner, 0]
     dy_ = position[:, 1, None] - position[partner, 1]
@@ -189,11 +192,11 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     # that costs less than a row sort (a cumsum, scatter and sort: more again)
     value = jnp.where(keep, candidate, n)
     if slots <= SELECT_SLOTS:
-        def pick(last, _):  # a scan, not a Python loop: one copy in the program for any slot count
-            least = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
-            return least, least
-
-        idx = lax.scan(pick, jnp.full((n,), -1, jnp.int32), None, length=slots)[1].T
+        columns, last = [], jnp.full((n,), -1, jnp.int32)
+        for _ in range(slots):
+            last = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
+            columns.append(last)
+        idx = jnp.stack(columns, axis=1)
     else:
         idx = jnp.sort(value, axis=1)[:, :slots]
         if idx.shape[1] < slots:
@@ -201,7 +204,22 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     return idx, occupancy, overflow
 
 
+HOST_BUILD_MAX = 200_000
+"""Lists of up to this many disks are allocated on the host (`host_lists.build`,
+numpy: nothing to compile, ~0.6 s saved per new pile size on 2 CPU cores);
+larger ones by the compiled `_build` (1e6 disks, 2 CPU cores: numpy 4.0 s,
+XLA 1.9 s after a 1 s compile; on a GPU XLA's takes milliseconds)."""
+
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
+
+
+def _build_outside_loop(position, grid, reach: float, window: int, slots: int):
+    """`(idx, occupancy, window_overflow)` of a list built outside the step
+    loop, the occupancy and overflow as host values (see `HOST_BUILD_MAX`)."""
+    if position.shape[0] <= HOST_BUILD_MAX:
+        return host_lists.build(position, grid, reach, window, slots)
+    idx, occupancy, over = _build_jit(jnp.asarray(position), grid, reach, window, slots)
+    return idx, int(occupancy), bool(over)
 
 
 def _no_update(*args, **kwargs):
@@ -224,8 +242,10 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
 
     One build, wide enough for every candidate (3 W slots), gives both the
     occupancy and the list: its rows are in increasing index order, so their
-    first K columns are what a build with K slots gives (a second build cost
-    a second compile for every new size, ~0.4 s on 2 CPU cores)."""
+    first K columns are what a build with K slots gives. Up to
+    `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
+    same list as the traced `_build`): compiled, it was an XLA program for
+    every new pile size (~0.6 s each on 2 CPU cores)."""
     host = np.asarray(position)
     position = jnp.asarray(position)
     n = int(position.shape[0])
@@ -246,13 +266,18 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
     window = max(1, min(n, int(math.ceil(most * headroom)) + int(extra_capacity)))
     probe = max(1, min(n - 1, 3 * window))
-    wide, occupancy, over = _build_jit(position, grid, float(settings.cutoff + settings.skin), window, probe)
-    slots = int(int(occupancy) * settings.capacity_multiplier) + int(extra_capacity)
+    wide, occupancy, over = _build_outside_loop(position, grid, float(settings.cutoff + settings.skin), window, probe)
+    slots = int(occupancy * settings.capacity_multiplier) + int(extra_capacity)
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
+    return _make_list(settings, jnp.asarray(idx), position, window, _error(occupancy > slots, over))
+
+
+def _error(overflowed: bool, window_overflowed: bool):
+    """A fresh list's error flag: its slots and its window overflowed or not."""
     error = partition.PartitionError(jnp.zeros((), jnp.uint8))
-    error = error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, occupancy > slots)
-    return _make_list(settings, idx, position, window, error.update(partition.PEC.CELL_LIST_OVERFLOW, over))
+    error = error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, jnp.asarray(overflowed))
+    return error.update(partition.PEC.CELL_LIST_OVERFLOW, jnp.asarray(window_overflowed))
 
 
 def rebuild(neighbors, position: Array, settings: NeighborSettings):
@@ -308,12 +333,14 @@ def update(neighbors, position: Array, settings: NeighborSettings, axis_name: st
 def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_capacity: int | None,
                         settings: NeighborSettings):
     """The list rebuilt from `position` with `max_occupancy` slots per particle
-    and a window of `cell_capacity` (so lists of a batch share their shapes).
-    Host-side, compiled once per shape (`_rebuild_jit`)."""
+    and a window of `cell_capacity` (so lists of a batch share their shapes);
+    an overflow of either raises its error flag. Host-side (see `HOST_BUILD_MAX`)."""
     n = position.shape[0]
     window = n if cell_capacity is None else int(cell_capacity)
-    fresh = _make_list(settings, np.full((n, int(max_occupancy)), n, np.int32), position, window)
-    return _rebuild_jit(fresh, position, settings)
+    idx, occupancy, over = _build_outside_loop(position, _grid(settings), float(settings.cutoff + settings.skin),
+                                               window, int(max_occupancy))
+    return _make_list(settings, jnp.asarray(idx), jnp.asarray(position), window,
+                      _error(occupancy > max_occupancy, over))
 
 
 PAIRS_PER_DISK = 3.0
@@ -364,7 +391,7 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
     least `at_least`, at most `pair_capacity` (which holds them all), rounded
     up to `PAIR_ALIGN`."""
     n, k = idx.shape
-    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * int(pair_count_jit(idx))))
+    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * host_lists.pair_count(idx)))
     return min(pair_capacity(n, k), aligned(wanted))
 
 
@@ -470,16 +497,6 @@ def overflowed(state) -> Array:
     rebuild (or the laying of the pairs itself) found more half pairs than the
     pair list holds. Traceable; for a batch, per member."""
     return state.neighbors.did_buffer_overflow | (state.contacts.demand > state.contacts.pairs.shape[-2])
-
-
-# The host's entry points (set-up, re-allocation, checkpoints, batches), each
-# compiled once per shape. Run op by op, each of their 20-150 primitives was
-# compiled for every new shape: a tiny box fit from the command line spent
-# ~10 s of its 63 there. Traced code calls the plain functions.
-_rebuild_jit = jax.jit(rebuild, static_argnums=(2,))
-pair_count_jit = jax.jit(pair_count)
-half_pairs_jit = jax.jit(half_pairs, static_argnums=(1,))
-contacts_for_jit = jax.jit(contacts_for, static_argnums=(3,))
 
 
 def pair_entry(pairs, i: int, j: int) -> int | None:

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxpile.engine import blocks
+from jaxpile.engine import blocks, host_lists
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.checkpoint import step_of
 from jaxpile.engine.collisions import HardCollisions, hard_collision_velocities
@@ -346,10 +346,10 @@ class Simulator:
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = nb.half_pairs_jit(neighbors.idx, nb.pair_capacity_for(neighbors.idx))
+        pairs = jnp.asarray(host_lists.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx)))
         contacts = Contacts(
             pairs=pairs,
-            demand=nb.pair_count_jit(neighbors.idx),
+            demand=jnp.asarray(host_lists.pair_count(neighbors.idx), jnp.int32),
             history=jnp.zeros((pairs.shape[0], h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
@@ -466,7 +466,7 @@ class Simulator:
         extra = max(4, overflowed.neighbors.max_occupancy)
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
         pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed))
-        contacts = nb.contacts_for_jit(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
+        contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
     def _block_for(self, state: SimState, n: int) -> int | None:

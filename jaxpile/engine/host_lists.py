@@ -1,0 +1,131 @@
+"""The neighbour and pair lists built on the host, in numpy: set-up,
+re-allocation, batches brought to one capacity and checkpoints restored.
+
+These run a few times per run, each on one pile, with shapes that change
+from pile to pile: compiled with `jax.jit` they were an XLA program per new
+shape (the suite compiled 140 list builds, 85 s of its workers' time;
+`benchmarks/suite_profile.py`), for work numpy does in well under a second
+even for 1e5 disks. The step loop keeps the traced twins in
+`jaxpile.engine.neighbors` (`_build`, `half_pairs`, `carry_history`,
+`pair_count`); each function here returns exactly what its twin returns
+(`tests/test_engine.py` compares them), so a list allocated here and one
+rebuilt inside the loop are the same list.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+Array = Any
+
+
+def _cells(position: np.ndarray, grid) -> tuple[np.ndarray, np.ndarray]:
+    """Each disk's cell, as `neighbors._cells` (clamped into the border cells;
+    non-finite positions in cell (0, 0))."""
+    nx, ny, wx, wy = grid
+    x, y = position[:, 0], position[:, 1]
+    ok = np.isfinite(x) & np.isfinite(y)
+    with np.errstate(invalid="ignore"):
+        cx = np.where(ok, np.clip(np.floor(x / wx), 0, nx - 1), 0).astype(np.int64)
+        cy = np.where(ok, np.clip(np.floor(y / wy), 0, ny - 1), 0).astype(np.int64)
+    return cx, cy
+
+
+def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.ndarray, int, bool]:
+    """`neighbors._build` on the host: `(idx [n, slots] int32, occupancy,
+    window_overflow)`, each row the neighbours within `reach` in increasing
+    index order (empty = n), the most neighbours any disk has, and whether a
+    run of three cells of a row held more than `window` disks."""
+    position = np.asarray(position)
+    n = position.shape[0]
+    if n == 0:
+        return np.zeros((0, slots), np.int32), 0, False
+    nx, ny = grid[0], grid[1]
+    cx, cy = _cells(position, grid)
+    key = cy * nx + cx
+    order = np.argsort(key, kind="stable")  # ties by index, as the traced sort of key n + index
+    sorted_key = key[order]
+    padded_key = np.concatenate([sorted_key, np.full(window + 1, nx * ny)])
+    padded_order = np.concatenate([order, np.full(window + 1, n)])
+    left, right = np.maximum(cx - 1, 0), np.minimum(cx + 1, nx - 1)
+    row = cy[None, :] + np.arange(-1, 2)[:, None]  # [3, n]: the rows dy = -1, 0, 1
+    row_ok = (row >= 0) & (row < ny)
+    lo, hi = row * nx + left, row * nx + right
+    first = np.searchsorted(sorted_key, lo, side="left")
+    at = first[..., None] + np.arange(window)
+    inside = row_ok[..., None] & (padded_key[at] <= hi[..., None])
+    overflow = bool(np.any(row_ok & (padded_key[first + window] <= hi)))
+    candidate = np.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, 3 * window)
+    partner = np.minimum(candidate, n - 1)
+    dx = position[:, 0, None] - position[partner, 0]
+    dy = position[:, 1, None] - position[partner, 1]
+    keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & (dx * dx + dy * dy < reach * reach)
+    occupancy = int(keep.sum(axis=1).max(initial=0))
+    idx = np.sort(np.where(keep, candidate, n), axis=1)[:, :slots]
+    if idx.shape[1] < slots:
+        idx = np.concatenate([idx, np.full((n, slots - idx.shape[1]), n)], axis=1)
+    return idx.astype(np.int32), occupancy, overflow
+
+
+def half_slots(idx) -> tuple[np.ndarray, np.ndarray]:
+    """`neighbors.half_slots` on the host: the slots (i, k) with i < idx[i, k],
+    and each one's entry in the half pair list in row-major order (-1 elsewhere)."""
+    idx = np.asarray(idx)
+    n = idx.shape[0]
+    keep = (idx < n) & (idx > np.arange(n)[:, None])
+    entry = np.cumsum(keep.reshape(-1)).reshape(keep.shape) - 1
+    return keep, np.where(keep, entry, -1)
+
+
+def pair_count(idx) -> int:
+    """The number of half pairs of a full list (`neighbors.pair_count`)."""
+    return int(half_slots(idx)[0].sum())
+
+
+def half_pairs(idx, capacity: int) -> np.ndarray:
+    """`neighbors.half_pairs` on the host: `[capacity, 2]` int32 `(i, j)`, i < j,
+    each pair once in row-major slot order; pairs past `capacity` are left
+    out; empty entries `(n, n)`."""
+    idx = np.asarray(idx)
+    n = idx.shape[0]
+    keep, entry = half_slots(idx)
+    rows, _ = np.nonzero(keep)
+    e = entry[keep]
+    held = e < capacity
+    pairs = np.full((int(capacity), 2), n, np.int32)
+    pairs[e[held], 0] = rows[held]
+    pairs[e[held], 1] = idx[keep][held]
+    return pairs
+
+
+def carry_history(old_idx, old_history, new_pairs) -> np.ndarray:
+    """`neighbors.carry_history` on the host: each new pair's history taken
+    from the same pair of the old list (a copy, bit for bit), zero for a new
+    pair or one the old list had no room for."""
+    old_idx, old_history, new_pairs = np.asarray(old_idx), np.asarray(old_history), np.asarray(new_pairs)
+    n = old_idx.shape[0]
+    keep, entry = half_slots(old_idx)
+    i, j = new_pairs[:, 0], new_pairs[:, 1]
+    row = np.minimum(i, n - 1)
+    match = keep[row] & (old_idx[row] == j[:, None])
+    found = np.max(np.where(match, entry[row], -1), axis=1, initial=-1)
+    found = np.where(found < old_history.shape[0], found, -1)
+    old = old_history[np.maximum(found, 0)]
+    return np.where(((found >= 0) & (i < n))[:, None], old, np.zeros_like(old))
+
+
+def contacts_for(contacts, old_idx, new_idx, capacity: int | None = None):
+    """`neighbors.contacts_for` on the host: `contacts` re-laid on the half
+    pairs of `new_idx` (`capacity` entries; default as many as now), history
+    carried pair by pair from `old_idx`, the demand the new list's pairs."""
+    capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
+    pairs = half_pairs(new_idx, capacity)
+    history = carry_history(old_idx, contacts.history, pairs)
+    return contacts.set(pairs=jnp.asarray(pairs), history=jnp.asarray(history, contacts.history.dtype),
+                        demand=jnp.asarray(pair_count(new_idx), jnp.int32))
+
+
+__all__ = ["build", "half_slots", "pair_count", "half_pairs", "carry_history", "contacts_for"]
