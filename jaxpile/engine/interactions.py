@@ -174,37 +174,32 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
     zero radius and infinite mass at the foot of the normal; and its sums over
     the walls, force `[n, 2]` and torque `[n]`.
 
-    The walls are one `lax.scan`, so the law's kernel is compiled once for all
-    of them, not once per wall (a box's three walls and a pair loop made the
-    step loop four kernels' worth of code, and compiling it ~0.4 s longer).
-    Each wall is behind its own `lax.cond` on it being on: a wall that is off
+    Each wall behind its own `lax.cond` on it being on: a wall that is off
     costs nothing (a pour has none on, the lattice pile only its ground, a box
     loses a wall). Walls that are off give exactly zero either way (the law's
     out-of-contact branch), so both branches agree bit for bit; under `vmap`
     with a wall differing between members its cond becomes a select and costs
     what the kernel alone did."""
+    w = boundaries.wall_normal.shape[0]
     mass_free = (p.active & ~p.fixed)
     wall_law = law.wall_params(params)
 
-    def displacement(x, normal, offset, mask):
-        """`[2, n]` from the wall's plane to each centre along its normal. A centre
+    def displacement(x, k, mask):
+        """`[2, n]` from wall k's plane to each centre along its normal. A centre
         pushed through the wall keeps the wall's normal (never flips it). Where
         `mask` is False (a fixed or parked disk) the distance is put far out of
         every law's reach: a disk far behind the wall would otherwise sit "1e-6 r
         from it", where a steep law (baxter's (sigma/r)^(n+1)) overflows, and
-        inf * 0 in the masked-out force makes NaN gradients. The product with
-        the normal written out: a `[n, 2] @ [2]` dot is a kernel of its own."""
-        distance = x[:, 0] * normal[0] + x[:, 1] * normal[1] - offset
+        inf * 0 in the masked-out force makes NaN gradients."""
+        distance = x @ boundaries.wall_normal[k] - boundaries.wall_offset[k]
         distance = jnp.where(mask, jnp.maximum(distance, 1e-6 * p.radius), 1e3 * p.radius)
-        return normal[:, None] * distance[None, :]
+        return boundaries.wall_normal[k][:, None] * distance[None, :]
 
-    def one(sums, wall):
-        normal, offset, active, history = wall
-
+    def one(k):
         def on():
-            mask = mass_free & active
+            mask = mass_free & boundaries.wall_active[k]
             geometry = PairGeometry(
-                displacement=displacement(p.position, normal, offset, mask),
+                displacement=displacement(p.position, k, mask),
                 radius_i=p.radius,
                 radius_j=jnp.zeros_like(p.radius),
                 velocity=p.velocity.T,
@@ -212,23 +207,22 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
                 angular_velocity_j=jnp.zeros_like(omega),
                 effective_mass=jnp.where(mask, p.mass, 1.0),  # finite where masked (see _pair_geometry)
                 step_displacements=None if step_positions is None else jnp.stack(
-                    [displacement(x, normal, offset, mask) for x in step_positions]),
+                    [displacement(x, k, mask) for x in step_positions]),
                 partner_fixed=jnp.ones_like(mask),
             )
-            out = _kernel_over(law)(wall_law, geometry, history.T, dt)
-            return out._replace(force=out.force.T, history=out.history.T)
+            wall = _kernel_over(law)(wall_law, geometry, wall_history[:, k].T, dt)
+            return wall._replace(force=wall.force.T, history=wall.history.T)
 
         def off():
             return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(on))
 
-        out = lax.cond(active, on, off)
-        return (sums[0] + out.force, sums[1] + out.torque), out
+        return lax.cond(boundaries.wall_active[k], on, off)
 
-    walls = (boundaries.wall_normal, boundaries.wall_offset, boundaries.wall_active,
-             jnp.moveaxis(wall_history, 1, 0))
-    zero = (jnp.zeros_like(p.position), jnp.zeros_like(p.radius))
-    (force, torque), stacked = lax.scan(one, zero, walls)
-    return jax.tree.map(lambda a: jnp.moveaxis(a, 0, 1), stacked), force, torque
+    walls = [one(k) for k in range(w)]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *walls)
+    force = sum(wall.force for wall in walls) if w else jnp.zeros_like(p.position)
+    torque = sum(wall.torque for wall in walls) if w else jnp.zeros_like(p.radius)
+    return stacked, force, torque
 
 
 def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
