@@ -266,7 +266,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
     window = max(1, min(n, int(math.ceil(most * headroom)) + int(extra_capacity)))
     probe = max(1, min(n - 1, 3 * window))
-    wide, occupancy, over = _build_outside_loop(position, grid, float(settings.cutoff + settings.skin), window, probe)
+    wide, occupancy, over = _build_outside_loop(host, grid, float(settings.cutoff + settings.skin), window, probe)
     slots = int(occupancy * settings.capacity_multiplier) + int(extra_capacity)
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
