@@ -7,9 +7,12 @@ shape (the suite compiled 140 list builds, 85 s of its workers' time;
 `benchmarks/suite_profile.py`), for work numpy does in well under a second
 even for 1e5 disks. The step loop keeps the traced twins in
 `jaxpile.engine.neighbors` (`_build`, `half_pairs`, `carry_history`,
-`pair_count`); each function here returns exactly what its twin returns
-(`tests/test_engine.py` compares them), so a list allocated here and one
-rebuilt inside the loop are the same list.
+`pair_count`); each function here returns what its twin returns
+(`tests/test_engine.py` compares the build, pair lists, count and carried
+history). The one exception is rounding: XLA may divide by a cell width as a
+product with its inverse and fuse dx*dx + dy*dy into one multiply-add, so a
+disk within a rounding unit of a cell's edge, or a pair within one of the
+reach (cutoff + skin), beyond any force, can fall on the other side here.
 """
 
 from __future__ import annotations
@@ -46,24 +49,25 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
     nx, ny = grid[0], grid[1]
     cx, cy = _cells(position, grid)
     key = cy * nx + cx
-    order = np.argsort(key, kind="stable")  # ties by index, as the traced sort of key n + index
+    order = np.argsort(key, kind="stable").astype(np.int32)  # ties by index, as the traced sort of key n + index
     sorted_key = key[order]
     padded_key = np.concatenate([sorted_key, np.full(window + 1, nx * ny)])
-    padded_order = np.concatenate([order, np.full(window + 1, n)])
+    padded_order = np.concatenate([order, np.full(window + 1, n, np.int32)])
     left, right = np.maximum(cx - 1, 0), np.minimum(cx + 1, nx - 1)
     row = cy[None, :] + np.arange(-1, 2)[:, None]  # [3, n]: the rows dy = -1, 0, 1
     row_ok = (row >= 0) & (row < ny)
     lo, hi = row * nx + left, row * nx + right
-    first = np.searchsorted(sorted_key, lo, side="left")
-    at = first[..., None] + np.arange(window)
+    first = np.searchsorted(sorted_key, lo, side="left").astype(np.int32)
+    at = first[..., None] + np.arange(window, dtype=np.int32)
     inside = row_ok[..., None] & (padded_key[at] <= hi[..., None])
     overflow = bool(np.any(row_ok & (padded_key[first + window] <= hi)))
     candidate = np.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, 3 * window)
     partner = np.minimum(candidate, n - 1)
-    dx = position[:, 0, None] - position[partner, 0]
-    dy = position[:, 1, None] - position[partner, 1]
-    keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & (dx * dx + dy * dy < reach * reach)
-    occupancy = int(keep.sum(axis=1).max(initial=0))
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite disks: the runner stops on them
+        dx = position[:, 0, None] - position[partner, 0]
+        dy = position[:, 1, None] - position[partner, 1]
+        keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & (dx * dx + dy * dy < reach * reach)
+    occupancy = int(keep.sum(axis=1).max(initial=0))  # int32 throughout: a window of n holds [3, n, n]
     idx = np.sort(np.where(keep, candidate, n), axis=1)[:, :slots]
     if idx.shape[1] < slots:
         idx = np.concatenate([idx, np.full((n, slots - idx.shape[1]), n)], axis=1)

@@ -205,10 +205,11 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
 
 
 HOST_BUILD_MAX = 200_000
-"""Lists of up to this many disks are allocated on the host (`host_lists.build`,
-numpy: nothing to compile, ~0.6 s saved per new pile size on 2 CPU cores);
-larger ones by the compiled `_build` (1e6 disks, 2 CPU cores: numpy 4.0 s,
-XLA 1.9 s after a 1 s compile; on a GPU XLA's takes milliseconds)."""
+"""Lists of up to this many disks are allocated and rebuilt to a capacity on
+the host (`host_lists.build`, numpy: nothing to compile, ~0.6 s saved per new
+pile size on 2 CPU cores); larger ones by the compiled `_build` (1e6 disks,
+2 CPU cores: numpy 4.0 s, XLA 1.9 s after a 1 s compile; on a GPU XLA's takes
+milliseconds)."""
 
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
 
@@ -244,8 +245,8 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     occupancy and the list: its rows are in increasing index order, so their
     first K columns are what a build with K slots gives. Up to
     `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
-    same list as the traced `_build`): compiled, it was an XLA program for
-    every new pile size (~0.6 s each on 2 CPU cores)."""
+    traced `_build`'s list up to rounding at the reach): compiled, it was an
+    XLA program for every new pile size (~0.6 s each on 2 CPU cores)."""
     host = np.asarray(position)
     position = jnp.asarray(position)
     n = int(position.shape[0])
@@ -266,7 +267,8 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
     window = max(1, min(n, int(math.ceil(most * headroom)) + int(extra_capacity)))
     probe = max(1, min(n - 1, 3 * window))
-    wide, occupancy, over = _build_outside_loop(host, grid, float(settings.cutoff + settings.skin), window, probe)
+    on_host = host if n <= HOST_BUILD_MAX else position  # no second copy to the device above the switch
+    wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
     slots = int(occupancy * settings.capacity_multiplier) + int(extra_capacity)
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
