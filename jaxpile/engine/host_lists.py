@@ -25,18 +25,6 @@ import numpy as np
 Array = Any
 
 
-def _cells(position: np.ndarray, grid) -> tuple[np.ndarray, np.ndarray]:
-    """Each disk's cell, as `neighbors._cells` (clamped into the border cells;
-    non-finite positions in cell (0, 0))."""
-    nx, ny, wx, wy = grid
-    x, y = position[:, 0], position[:, 1]
-    ok = np.isfinite(x) & np.isfinite(y)
-    with np.errstate(invalid="ignore"):
-        cx = np.where(ok, np.clip(np.floor(x / wx), 0, nx - 1), 0).astype(np.int64)
-        cy = np.where(ok, np.clip(np.floor(y / wy), 0, ny - 1), 0).astype(np.int64)
-    return cx, cy
-
-
 def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.ndarray, int, bool]:
     """`neighbors._build` on the host: `(idx [n, slots] int32, occupancy,
     window_overflow)`, each row the neighbours within `reach` in increasing
@@ -46,8 +34,10 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
     n = position.shape[0]
     if n == 0:
         return np.zeros((0, slots), np.int32), 0, False
+    from jaxpile.engine.neighbors import _cells  # imported here: neighbors imports this module
+
     nx, ny = grid[0], grid[1]
-    cx, cy = _cells(position, grid)
+    cx, cy = (c.astype(np.int64) for c in _cells(position, grid, xp=np))
     key = cy * nx + cx
     order = np.argsort(key, kind="stable").astype(np.int32)  # ties by index, as the traced sort of key n + index
     sorted_key = key[order]
