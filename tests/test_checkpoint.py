@@ -37,7 +37,8 @@ def falling_disks(n=36, seed=0, dtype=jnp.float64):
 @pytest.fixture(scope="module")
 def setting():
     params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
-    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=CHUNK, capacity_multiplier=1.0)
+    # lists sized for the disks as they start, so the falling disks force a re-allocation
+    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=CHUNK, capacity_multiplier=1.0, packed_lists=False)
     return sim, params
 
 

@@ -1,6 +1,8 @@
 """Engine invariants: Newton's third law, neighbour list == all pairs, history
 carried across rebuilds and cleared on separation, overflow re-runs, purity."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -225,7 +227,8 @@ def test_history_survives_neighbor_rebuilds_and_clears_on_separation():
     assert float(jnp.abs(state.contacts.history).max()) == 0.0
 
 
-def _falling_heap(capacity_multiplier):
+@functools.lru_cache(maxsize=None)  # each heap is run once, shared by the tests below
+def _falling_heap(capacity_multiplier, packed_lists=False):
     """Disks in loose rows (two neighbours each at allocation) that fall into a
     heap with four to six neighbours each."""
     grid = np.stack(np.meshgrid(np.arange(6) * 1.1, np.arange(5) * 1.6), -1).reshape(-1, 2)
@@ -233,7 +236,9 @@ def _falling_heap(capacity_multiplier):
     pos = grid + [1.0, 0.6] + rng.uniform(-0.02, 0.02, grid.shape)
     particles = jaxpile.make_particles(pos, 0.5)
     boundaries = jaxpile.make_boundaries(left=0.3, right=7.2)
-    sim = Simulator(hooke.law(), dt=5e-4, capacity_multiplier=capacity_multiplier, chunk_steps=500)
+    # packed_lists=False: lists sized by the multiplier alone (the tight one overflows)
+    sim = Simulator(hooke.law(), dt=5e-4, capacity_multiplier=capacity_multiplier, chunk_steps=500,
+                    packed_lists=packed_lists)
     state = sim.init(PARAMS, particles, boundaries)
     info = jaxpile.RunInfo()
     state = sim.run(PARAMS, state, 4000, progress=False, info=info)
@@ -247,6 +252,40 @@ def test_too_small_capacity_gives_the_same_result_as_ample_capacity():
     assert tight.neighbors.idx.shape[1] < ample.neighbors.idx.shape[1]
     np.testing.assert_allclose(tight.particles.position, ample.particles.position, rtol=0, atol=1e-9)
     np.testing.assert_allclose(tight.particles.velocity, ample.particles.velocity, rtol=0, atol=1e-7)
+
+
+def test_packed_capacity_is_the_triangular_packing_of_the_smallest_disks():
+    """Equal disks (diameter 1), reach 1.2: six lattice neighbours (the next
+    shell is at sqrt(3)), times the multiplier; a run of three cells 1.2 wide
+    holds at most 8 points of the packing. Smaller disks raise both; far
+    smaller ones get the caps."""
+    settings = nb.NeighborSettings((12.0, 12.0), 1.0, 0.2, 1.5)
+    assert nb._grid(settings)[2:] == (1.2, 1.2)
+    assert nb.packed_capacity(settings, 0.5) == (9, 8)
+    assert nb.packed_capacity(settings._replace(capacity_multiplier=1.0), 0.5) == (6, 8)
+    slots, window = nb.packed_capacity(settings, 0.3)  # spacing 0.6: 18 points within 1.2 (2 spacings)
+    assert slots == nb.PACKED_SLOTS_MAX and 8 < window <= 2 * nb.PACKED_SLOTS_MAX
+    assert nb.packed_capacity(settings, 0.01) == (nb.PACKED_SLOTS_MAX, 2 * nb.PACKED_SLOTS_MAX)
+    assert nb.packed_capacity(settings, 0.0) == (1, 1)
+    # a list allocated with disks far apart gets them; one that needs more keeps its own
+    apart = jnp.asarray(np.stack(np.meshgrid(np.arange(5) * 2.0, np.arange(5) * 2.0), -1).reshape(-1, 2) + 1.0)
+    loose = nb.allocate(settings, apart)
+    packed = nb.allocate(settings, apart, packed_radius=0.5)
+    assert loose.max_occupancy < 9 and loose.cell_list_capacity < 8
+    assert (packed.max_occupancy, packed.cell_list_capacity) == (9, 8)
+    np.testing.assert_array_equal(np.asarray(packed.idx)[:, :loose.max_occupancy], np.asarray(loose.idx))
+
+
+def test_a_heap_that_falls_together_keeps_the_list_sized_for_it_packed():
+    """Loose rows falling into a heap (two neighbours each at allocation, four
+    to six at the end): sized for the packed heap from the start (the
+    default), the list is never re-allocated, and the run ends where the
+    re-allocated one does."""
+    packed, info = _falling_heap(1.5, packed_lists=True)
+    tight, info_tight = _falling_heap(1.0)
+    assert info.reallocations == 0 and info_tight.reallocations > 0
+    np.testing.assert_allclose(packed.particles.position, tight.particles.position, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(packed.particles.velocity, tight.particles.velocity, rtol=0, atol=1e-7)
 
 
 def test_second_call_of_jitted_step_does_not_recompile(agitated):

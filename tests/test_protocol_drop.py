@@ -177,7 +177,7 @@ def test_a_drop_run_on_blocks_of_its_dropped_disks_is_bit_identical_to_the_full_
     in_play = drop.make_in_play(p.info["quiet_steps"])
     states = {}
     for blocked in (True, False):
-        sim = Simulator(law, 1e-3, driver=p.driver, capacity_multiplier=4.0, chunk_steps=250,
+        sim = Simulator(law, 1e-3, driver=p.driver, chunk_steps=250,
                         in_play=in_play if blocked else None)
         state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
         if blocked:

@@ -25,7 +25,8 @@ def _converging_grid(spacing=1.5, speed=1.0):
 
 def test_reallocation_grows_from_an_almost_empty_list_within_one_chunk():
     particles, boundaries = _converging_grid()
-    sim = Simulator(hooke.law(), dt=5e-4, chunk_steps=2000)
+    # sized for the disks as they start (packed_lists=False), the list must grow
+    sim = Simulator(hooke.law(), dt=5e-4, chunk_steps=2000, packed_lists=False)
     state = sim.init(PARAMS, particles, boundaries)
     info = jaxpile.RunInfo()
     state = sim.run(PARAMS, state, 2000, progress=False, info=info)

@@ -209,7 +209,8 @@ class Ensemble:
         extra = max(4, old_slots)
         settings = state.neighbor_settings
         members = [member(state, i) for i in range(batch_size(state))]
-        fresh = [nb.allocate(settings, m.particles.position, extra_capacity=extra) for m in members]
+        fresh = [nb.allocate(settings, m.particles.position, extra_capacity=extra,
+                             packed_radius=self.sim.packed_radius(m.particles)) for m in members]
         slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)

@@ -235,11 +235,66 @@ def _make_list(settings: NeighborSettings, idx, position, window: int, error=Non
                                   float(settings.cutoff + settings.skin), None, _no_update)
 
 
-def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0):
+PACKED_SLOTS_MAX = 16
+"""`packed_capacity` gives at most this many slots (`SELECT_SLOTS`: rebuilds stay
+slot by slot) and at most twice this window: a pile with disks far smaller than
+its largest gets these, and is re-allocated if it packs denser."""
+
+
+def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int]:
+    """`(slots, window)` for a close-packed pile of disks of `radius` (the
+    smallest disks: the densest pile of them), from a triangular packing of
+    spacing 2 radius: the slots are its points within the reach of a point
+    times the capacity multiplier (the head-room `allocate` gives any list:
+    a disordered pile puts a seventh or eighth disk within the reach), the
+    window the most of its points in a run of three cells (over 64 offsets and
+    the lattice's two orientations: already the densest, no head-room); at
+    most `PACKED_SLOTS_MAX` and twice it. A list sized so from the start is
+    not re-allocated when its disks fall, flow or are pressed into a pile
+    (each re-allocation compiles the step loop again and re-runs a chunk).
+    Equal disks, reach 1.2 diameters: 9 slots (multiplier 1.5), a window of 8."""
+    if not (radius > 0 and math.isfinite(radius)):
+        return 1, 1
+    reach = settings.cutoff + settings.skin
+    _, _, wx, wy = _grid(settings)
+    spacing = 2.0 * radius
+
+    def lattice(extent):  # the triangular lattice's points within about `extent` of the origin
+        m = int(math.ceil(extent / spacing)) + 2
+        a, b = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1))
+        return np.stack([a + 0.5 * b, b * (math.sqrt(3.0) / 2.0)], -1).reshape(-1, 2) * spacing
+
+    per_area = 2.0 / (math.sqrt(3.0) * spacing**2)  # points per unit area
+    if math.pi * reach**2 * per_area > 4 * PACKED_SLOTS_MAX:  # disks far smaller than the reach
+        neighbours = 4 * PACKED_SLOTS_MAX
+    else:
+        points = lattice(reach)
+        distance = np.hypot(points[:, 0], points[:, 1])
+        neighbours = int(np.count_nonzero((distance > 0) & (distance <= reach)))
+    if 3 * wx * wy * per_area > 4 * PACKED_SLOTS_MAX:  # wide cells or small disks: the cap
+        most = 4 * PACKED_SLOTS_MAX
+    else:
+        points, most = lattice(max(3 * wx, wy)), 0
+        for turned in (points, points[:, ::-1]):
+            for ox in np.linspace(0.0, spacing, 8, endpoint=False):
+                for oy in np.linspace(0.0, spacing * math.sqrt(3.0), 8, endpoint=False):
+                    x, y = turned[:, 0] + ox, turned[:, 1] + oy
+                    most = max(most, int(np.count_nonzero((x >= 0) & (x < 3 * wx) & (y >= 0) & (y < wy))))
+    slots = min(PACKED_SLOTS_MAX, int(math.ceil(neighbours * settings.capacity_multiplier)))
+    window = min(2 * PACKED_SLOTS_MAX, most)
+    return max(1, slots), max(1, window)
+
+
+def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0,
+             packed_radius: float | None = None):
     """A new neighbour list (host-side), sized like jax-md's: the window W is
     the most disks in any run of three cells of a row times the capacity
     multiplier (at most `WINDOW_HEADROOM`), the slots K the most neighbours of
-    any disk times the multiplier, each plus `extra_capacity`.
+    any disk times the multiplier, each plus `extra_capacity`. With
+    `packed_radius` (the smallest disk's radius), K and W are at least what a
+    close-packed pile of such disks needs (`packed_capacity`), so disks that
+    start apart (parked, poured, dropped, a loose fill) get a list for the
+    pile they will make.
 
     One build, wide enough for every candidate (3 W slots), gives both the
     occupancy and the list: its rows are in increasing index order, so their
@@ -265,11 +320,12 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     runs = count(centres, True) + count(centres - 1, x > 0) + count(centres + 1, x < nx - 1)
     most = int(runs.max()) if n else 0
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
-    window = max(1, min(n, int(math.ceil(most * headroom)) + int(extra_capacity)))
+    packed_slots, packed_window = (0, 0) if packed_radius is None else packed_capacity(settings, packed_radius)
+    window = max(1, min(n, max(int(math.ceil(most * headroom)) + int(extra_capacity), packed_window)))
     probe = max(1, min(n - 1, 3 * window))
     on_host = host if n <= HOST_BUILD_MAX else position  # no second copy to the device above the switch
     wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
-    slots = int(occupancy * settings.capacity_multiplier) + int(extra_capacity)
+    slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots)
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
     return _make_list(settings, jnp.asarray(idx), position, window, _error(occupancy > slots, over))

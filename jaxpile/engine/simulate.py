@@ -223,6 +223,11 @@ class Simulator:
         off by default (every contact is soft).
       skin: neighbour-list skin (default: 20% of the largest diameter).
       capacity_multiplier: head-room of the neighbour slots at allocation.
+      packed_lists: size the neighbour list from the start for the disks
+        close-packed (`neighbors.packed_capacity`), so disks that start apart
+        and fall, flow or are pressed into a pile keep their list; False sizes
+        it for the disks as they start (smallest; re-allocated as they pack,
+        each time a new compile of the step loop and a chunk run again).
       chunk_steps: steps per compiled chunk between host checks.
       max_initial_overlap: largest allowed start overlap as a fraction of the
         contact distance r_i + r_j (deeper means the start positions are wrong).
@@ -245,6 +250,7 @@ class Simulator:
         driver: Callable | None = None,
         skin: float | None = None,
         capacity_multiplier: float = 1.5,
+        packed_lists: bool = True,
         chunk_steps: int = 1000,
         max_initial_overlap: float = 0.05,
         in_play: Callable[[SimState, int], int] | None = None,
@@ -263,6 +269,7 @@ class Simulator:
         self.dt = float(dt)
         self.skin = skin
         self.capacity_multiplier = capacity_multiplier
+        self.packed_lists = bool(packed_lists)
         self.chunk_steps = int(chunk_steps)
         self.max_initial_overlap = max_initial_overlap
         self.schedule = schedule
@@ -301,6 +308,13 @@ class Simulator:
                 f"{self.integrator.name} integrator (about {limit:.3g} for the stiffest contact and "
                 f"lightest disk); use dt <= {limit:.3g}, or about {limit / 5:.3g} for accurate collisions."
             )
+
+    def packed_radius(self, particles: Particles) -> float | None:
+        """The radius lists are sized for a packed pile of (`neighbors.allocate`):
+        the smallest disk's, or None with `packed_lists=False`."""
+        if not self.packed_lists or particles.count == 0:
+            return None
+        return float(np.min(np.asarray(particles.radius)))
 
     def neighbor_settings(self, params, particles: Particles, box=None) -> nb.NeighborSettings:
         """The neighbour-list settings `init` uses: the law's reach for the
@@ -341,7 +355,7 @@ class Simulator:
         self.check_params(params, particles)
         _check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
-        neighbors = nb.allocate(settings, particles.position)
+        neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles))
         n = neighbors.idx.shape[0]
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
@@ -464,7 +478,8 @@ class Simulator:
         """A neighbour list with more slots (and cell capacity), history carried over."""
         # at least double: a chunk that starts with few neighbours may end with many
         extra = max(4, overflowed.neighbors.max_occupancy)
-        neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra)
+        neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra,
+                                packed_radius=self.packed_radius(state.particles))
         pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed))
         contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)

@@ -317,9 +317,9 @@ def make_simulator(law="liffman", *, dt: float = SETTING["dt"], rotation: bool |
     _, contact_law, _ = law_and_params(law, None, rotation)
     p = protocol(seed=0, dt=dt, **dict(setup_options or {}))
     extra = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
-    # capacity: the list is allocated with the disks parked apart (see `pour.make_simulator`)
+    # the list is allocated with the disks parked apart and sized for the pile (`packed_lists`)
     return Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
-                     capacity_multiplier=4.0, in_play=make_in_play(p.info["quiet_steps"]), **extra)
+                     in_play=make_in_play(p.info["quiet_steps"]), **extra)
 
 
 def _execute(sim, params, p: Protocol, options: dict, *, progress=None, checkpoint=None, resume=None):

@@ -372,9 +372,8 @@ angles = analysis.recorded_repose_angles  # the angles of each recorded surface 
 
 def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
                    integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
-    """A `Simulator` running the flux `driver` (see `box.make_simulator`), with
-    neighbour head-room for the disks inserted later (see `pour.make_simulator`)."""
-    kwargs.setdefault("capacity_multiplier", 4.0)
+    """A `Simulator` running the flux `driver` (see `box.make_simulator`); its
+    list is sized for the packed pile the inserted disks make (`packed_lists`)."""
     return boxes.make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, chunk_steps=chunk_steps,
                                 driver=driver, **kwargs)
 

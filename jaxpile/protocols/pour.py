@@ -383,10 +383,8 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
     if rotation is not None:
         options["rotation"] = rotation
     contact_law = module.law(**options)
-    # The list is allocated while the disks to pour are parked far apart; head-room
-    # for the packed heap saves a re-allocation and a recompile per heap (measured:
-    # 48 disks, 21.5 s -> 15.6 s).
-    kwargs.setdefault("capacity_multiplier", 4.0)
+    # The list is allocated while the disks to pour are parked far apart: the
+    # Simulator sizes it for the packed heap (`packed_lists`), so the heap keeps it.
     kwargs.setdefault("in_play", in_play)  # each chunk runs on the disks poured by its end
     return Simulator(contact_law, dt, integrator=integrator, driver=driver, chunk_steps=chunk_steps, **kwargs)
 
