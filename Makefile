@@ -28,8 +28,9 @@ demo: $(STAMP)
 # Test workers: one per core, at most 4 (each holds its own JAX compile cache).
 JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$n)
 
+# Each module (or test class) on one worker, the costliest first (tests/conftest.py).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope
+	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope --no-loadscope-reorder
 
 # Benchmarks (about 10 minutes on 2 CPU cores; LAMMPS `lmp` is raced when installed):
 # JSON in benchmarks/results/<backend>/, README table regenerated. BENCH=--full for full sizes.

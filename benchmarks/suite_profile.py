@@ -162,7 +162,7 @@ def _print(summary: dict) -> None:
 def main(argv: list[str]) -> int:
     root = pathlib.Path(__file__).resolve().parent.parent
     jobs = min(4, os.cpu_count() or 2)
-    args = argv or ["-n", str(jobs), "--dist", "loadscope"]
+    args = argv or ["-n", str(jobs), "--dist", "loadscope", "--no-loadscope-reorder"]  # as `make test`
     with tempfile.TemporaryDirectory() as records, tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, **{_RECORD_DIR: records, "JAX_COMPILATION_CACHE_DIR": cache})
         env["PYTHONPATH"] = os.pathsep.join([str(root / "benchmarks"), str(root), env.get("PYTHONPATH", "")])

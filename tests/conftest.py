@@ -8,6 +8,7 @@ most of the suite's time. Set here, before jax is imported, so every process
 the suite starts inherits it.
 """
 
+import json
 import os
 import pathlib
 
@@ -75,8 +76,50 @@ def random_disks(n, seed=0, box=6.0, radius=(0.4, 0.5), overlap=0.02):
     return np.array(pos), np.array(rad)
 
 
+PROFILE = pathlib.Path(__file__).resolve().parent.parent / "benchmarks" / "results" / "cpu" / "suite_profile.json"
+
+
+def _scope_seconds(scopes: list[str]) -> dict[str, float]:
+    """Each scheduling scope's seconds in the committed suite profile
+    (`benchmarks/suite_profile.py`): a module's, or for a test class (the
+    notebooks) its test's, else its module's shared out; scopes it does not
+    know get the median."""
+    try:
+        profile = json.loads(PROFILE.read_text())
+    except (OSError, ValueError):
+        return {}
+    seconds = {m["module"]: m["wall"] for m in profile.get("modules", [])}
+    for t in profile.get("slowest_tests", []):
+        if t["test"].count("::") == 2:  # a test class: its own scope, no longer part of its module's
+            seconds[t["test"].rsplit("::", 1)[0]] = t["wall"]
+            seconds[t["test"].split("::")[0]] = max(0.0, seconds.get(t["test"].split("::")[0], 0.0) - t["wall"])
+    per_module = {}
+    for scope in scopes:
+        per_module[scope.split("::")[0]] = per_module.get(scope.split("::")[0], 0) + 1
+    known = sorted(seconds.values()) or [0.0]
+    median = known[len(known) // 2]
+
+    def cost(scope):
+        module = scope.split("::")[0]
+        if scope in seconds:
+            return seconds[scope]
+        return seconds[module] / per_module[module] if module in seconds else median
+
+    return {scope: cost(scope) for scope in scopes}
+
+
 def pytest_collection_modifyitems(config, items):
-    """The notebooks (the longest single tests, about a minute each) first: under
-    `pytest -n` they then start at once on separate workers instead of leaving
-    one worker running a notebook alone at the end."""
-    items.sort(key=lambda item: 0 if item.nodeid.startswith("tests/test_notebooks.py") else 1)  # stable
+    """The costliest scopes first (pytest-xdist's `--dist loadscope` sends each
+    module, or test class, to one worker, in this order: `make test` passes
+    `--no-loadscope-reorder`, which would otherwise order them by their count of
+    tests and leave the notebooks, one test each and about a minute, to the
+    end). Longest first leaves the workers short scopes to even out at the
+    end. Costs come from the committed suite profile; each scope's own
+    tests keep their order."""
+    scope_of = [item.nodeid.rsplit("::", 1)[0] for item in items]  # xdist's own split
+    first = {}
+    for i, scope in enumerate(scope_of):
+        first.setdefault(scope, i)
+    seconds = _scope_seconds(list(first))
+    order = sorted(range(len(items)), key=lambda i: (-seconds.get(scope_of[i], 0.0), first[scope_of[i]], i))
+    items[:] = [items[i] for i in order]
