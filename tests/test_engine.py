@@ -288,6 +288,33 @@ def test_a_heap_that_falls_together_keeps_the_list_sized_for_it_packed():
     np.testing.assert_allclose(packed.particles.velocity, tight.particles.velocity, rtol=0, atol=1e-7)
 
 
+def test_one_off_programs_compile_at_level_0_for_small_piles_with_the_same_forces(agitated, monkeypatch):
+    """The start and the measured contact forces of a small pile compile at
+    LLVM level 0 (`engine.compile.ONE_OFF_MAX_DISKS`); a large pile, or a level
+    the user set in XLA_FLAGS, keeps XLA's default. The two levels give the
+    start's forces and the contact forces of a pile with shear history to
+    round-off (not bit for bit: measured up to 6e-15 relative)."""
+    from jaxpile.engine import compile as xc
+    from jaxpile.engine.simulate import _evaluate
+
+    assert xc.one_off_options(36) == {"xla_backend_optimization_level": 0}
+    assert xc.one_off_options(xc.ONE_OFF_MAX_DISKS + 1) is None
+    with monkeypatch.context() as m:
+        m.setenv("XLA_FLAGS", "--xla_backend_optimization_level=1")
+        assert xc.one_off_options(36) is None
+    sim, state = agitated
+    for fn, args, out in ((sim.start, (PARAMS, state), lambda s: (s.particles.force, s.particles.torque)),
+                          (_evaluate, (sim.law, PARAMS, state), lambda cf: (cf.force, cf.torque, cf.pair.history))):
+        pick = xc.jit_one_off(fn, static_argnums=0) if fn is _evaluate else xc.jit_one_off(fn)
+        small, large = pick(36, *args[1:]), pick(10**9, *args[1:])
+        assert small is not large
+        inside = []  # under a trace (a gradient's, another jit's): XLA's default, options being top-level only
+        jax.jit(lambda st: inside.append(pick(36, st)) or 0)(state)
+        assert inside == [large]
+        for a, b in zip(out(small(*args)), out(large(*args))):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * float(jnp.abs(b).max()))
+
+
 def test_second_call_of_jitted_step_does_not_recompile(agitated):
     sim, state = agitated
     traces = []

@@ -50,6 +50,7 @@ from jaxpile.engine import blocks
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.checkpoint import step_of
+from jaxpile.engine.compile import jit_one_off
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed, non_finite_disks
 from jaxpile.engine.state import SimState
@@ -94,11 +95,11 @@ class Ensemble:
         self.mesh = Mesh(np.array(self.devices), (AXIS,)) if len(self.devices) > 1 else None
         if self.mesh is None:
             self._advance_jit = jax.jit(self._advance)
-            self._start_jit = jax.jit(jax.vmap(sim.start))
+            self._start_jit = jit_one_off(jax.vmap(sim.start))  # run once per batch: see engine.compile
         else:  # every leaf split along the batch axis, in and out; the step count replicated
             split, whole = NamedSharding(self.mesh, PartitionSpec(AXIS)), NamedSharding(self.mesh, PartitionSpec())
             self._advance_jit = jax.jit(self._advance, in_shardings=(split, split, split, whole), out_shardings=split)
-            self._start_jit = jax.jit(jax.vmap(sim.start), in_shardings=(split, split), out_shardings=split)
+            self._start_jit = jit_one_off(jax.vmap(sim.start), in_shardings=(split, split), out_shardings=split)
         self._compiled: dict = {}
         # the simulator's `in_play` blocks, for every member at once (see `_block_for`)
         self._take_jit = jax.jit(lambda s, size, room: jax.vmap(lambda m: blocks.take(m, size, room))(s),
@@ -144,7 +145,10 @@ class Ensemble:
                                  f"dt = {self.sim.dt:g}; pass the same dt to both.")
             states.append(self.sim.prepare(prm, p.particles, p.boundaries, protocol_state=p.protocol_state,
                                            neighbor_settings=settings))
-        return self._start_jit(self.shard(stack(params_list)), self.shard(stack_states(states)))
+        # the level a member's own start compiles at (see engine.compile), so that a
+        # member starts exactly as the same pile run alone
+        params, state = self.shard(stack(params_list)), self.shard(stack_states(states))
+        return self._start_jit(states[0].particles.count, params, state)(params, state)
 
     def member_params(self, params, count: int) -> list:
         """`params` as a list of `count` unbatched pytrees (see `init`)."""

@@ -26,6 +26,7 @@ import numpy as np
 from jax import lax
 
 from jaxpile.engine import blocks, host_lists
+from jaxpile.engine.compile import jit_one_off
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.checkpoint import step_of
 from jaxpile.engine.collisions import HardCollisions, hard_collision_velocities
@@ -283,7 +284,7 @@ class Simulator:
         self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions, driver)
         self._advance_jit = jax.jit(self._advance)
         self._refresh_jit = jax.jit(self.refresh_forces)
-        self._start_jit = jax.jit(self.start)
+        self._start_jit = jit_one_off(self.start)  # run once per pile: see engine.compile
         self._compiled: dict = {}
 
     # ------------------------------------------------------------------ set-up
@@ -345,7 +346,7 @@ class Simulator:
         """
         state = self.prepare(params, particles, boundaries, box=box, protocol_state=protocol_state,
                              neighbor_settings=neighbor_settings)
-        return self._start_jit(params, state)
+        return self._start_jit(state.particles.count, params, state)(params, state)
 
     def prepare(self, params, particles: Particles, boundaries: Boundaries, *, box=None, protocol_state=None,
                 neighbor_settings: nb.NeighborSettings | None = None) -> SimState:
@@ -402,7 +403,7 @@ class Simulator:
         """Every contact's force at the state as stored, without advancing
         history; `pair` laid out as the neighbour slots `[n, k]` (each disk's
         view of its contacts, `interactions.in_slots`), for the measurements."""
-        return _evaluate_jit(self.law, params, state)
+        return _evaluate_jit(state.particles.count, params, state)(self.law, params, state)
 
     def _check_overlaps(self, state: SimState) -> None:
         p = state.particles
@@ -730,4 +731,4 @@ def _evaluate(law: ContactLaw, params, state: SimState) -> ContactForces:
     return cf._replace(pair=in_slots(cf.pair, state.contacts.pairs, state.neighbors.idx))
 
 
-_evaluate_jit = jax.jit(_evaluate, static_argnums=0)
+_evaluate_jit = jit_one_off(_evaluate, static_argnums=0)  # a measurement's one call: see engine.compile
