@@ -86,13 +86,14 @@ def _scope_seconds(scopes: list[str]) -> dict[str, float]:
     know get the median."""
     try:
         profile = json.loads(PROFILE.read_text())
-    except (OSError, ValueError):
+        seconds = {m["module"]: float(m["wall"]) for m in profile.get("modules", [])}
+        for t in profile.get("slowest_tests", []):
+            if t["test"].count("::") == 2:  # a test class: its own scope, no longer part of its module's
+                scope, module = t["test"].rsplit("::", 1)[0], t["test"].split("::")[0]
+                seconds[scope] = seconds.get(scope, 0.0) + float(t["wall"])
+                seconds[module] = max(0.0, seconds.get(module, 0.0) - float(t["wall"]))
+    except Exception:  # no profile, or not one this reads: collection order, as written
         return {}
-    seconds = {m["module"]: m["wall"] for m in profile.get("modules", [])}
-    for t in profile.get("slowest_tests", []):
-        if t["test"].count("::") == 2:  # a test class: its own scope, no longer part of its module's
-            seconds[t["test"].rsplit("::", 1)[0]] = t["wall"]
-            seconds[t["test"].split("::")[0]] = max(0.0, seconds.get(t["test"].split("::")[0], 0.0) - t["wall"])
     per_module = {}
     for scope in scopes:
         per_module[scope.split("::")[0]] = per_module.get(scope.split("::")[0], 0) + 1

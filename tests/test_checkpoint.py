@@ -88,6 +88,14 @@ def test_restore_refuses_another_law_parameters_precision_or_setup(setting, tmp_
         checkpoint.restore(path, fresh(Simulator(hooke.law(), 5e-4), single, dtype=jnp.float32), "hooke", params)
     with pytest.raises(InputError, match="holds 36 disks"):
         checkpoint.restore(path, fresh(sim, params, n=30), "hooke", params)
+    # another box, cutoff or skin is another set-up; another capacity multiplier (it only sizes
+    # new lists: the run resumes at its saved capacities) is not
+    settings = state.neighbor_settings
+    with pytest.raises(InputError, match="neighbour settings"):
+        checkpoint.restore(path, state.set(neighbor_settings=settings._replace(skin=2 * settings.skin)), "hooke", params)
+    other = checkpoint.restore(path, state.set(neighbor_settings=settings._replace(capacity_multiplier=4.0)),
+                               "hooke", params)
+    np.testing.assert_array_equal(np.asarray(other.particles.position), np.asarray(state.particles.position))
     (tmp_path / "junk.npz").write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="not a readable jaxpile checkpoint"):
         checkpoint.restore(tmp_path / "junk.npz", state, "hooke", params)

@@ -288,6 +288,7 @@ def test_a_heap_that_falls_together_keeps_the_list_sized_for_it_packed():
     np.testing.assert_allclose(packed.particles.velocity, tight.particles.velocity, rtol=0, atol=1e-7)
 
 
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="level 0 is for CPU programs only")
 def test_one_off_programs_compile_at_level_0_for_small_piles_with_the_same_forces(agitated, monkeypatch):
     """The start and the measured contact forces of a small pile compile at
     LLVM level 0 (`engine.compile.ONE_OFF_MAX_DISKS`); a large pile, or a level
@@ -295,7 +296,7 @@ def test_one_off_programs_compile_at_level_0_for_small_piles_with_the_same_force
     start's forces and the contact forces of a pile with shear history to
     round-off (not bit for bit: measured up to 6e-15 relative)."""
     from jaxpile.engine import compile as xc
-    from jaxpile.engine.simulate import _evaluate
+    from jaxpile.engine.simulate import _evaluate, _evaluate_jit
 
     assert xc.one_off_options(36) == {"xla_backend_optimization_level": 0}
     assert xc.one_off_options(xc.ONE_OFF_MAX_DISKS + 1) is None
@@ -303,6 +304,9 @@ def test_one_off_programs_compile_at_level_0_for_small_piles_with_the_same_force
         m.setenv("XLA_FLAGS", "--xla_backend_optimization_level=1")
         assert xc.one_off_options(36) is None
     sim, state = agitated
+    # the engine's own start and contact forces take the two programs by size
+    assert sim._start_jit(36, PARAMS, state) is not sim._start_jit(10**9, PARAMS, state)
+    assert _evaluate_jit(36, PARAMS, state) is not _evaluate_jit(10**9, PARAMS, state)
     for fn, args, out in ((sim.start, (PARAMS, state), lambda s: (s.particles.force, s.particles.torque)),
                           (_evaluate, (sim.law, PARAMS, state), lambda cf: (cf.force, cf.torque, cf.pair.history))):
         pick = xc.jit_one_off(fn, static_argnums=0) if fn is _evaluate else xc.jit_one_off(fn)

@@ -21,6 +21,9 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             "assert callable(jax_md.energy.soft_sphere) and callable(jax_md.simulate.nve)\n"
             "from jax_md import quantity\n"
             "assert callable(quantity.force)\n"
+            # and starts no XLA backend: threads, host devices and jax.distributed are still the user's to set
+            "from jax._src import xla_bridge\n"
+            "assert not xla_bridge.backends_are_initialized()\n"
             # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
             "import os\n"
             "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"

@@ -272,7 +272,9 @@ def restore(path, template: SimState, law, params) -> SimState:
         raise InputError(f"{path} holds {meta['n_particles']} disks; the set-up to resume has "
                          f"{template.particles.count}. Build the same set-up it was written from.")
 
-    if meta["neighbor_settings"] != json.loads(json.dumps(list(template.neighbor_settings))):
+    # box, cutoff and skin; not the capacity multiplier, which only sizes new lists (the run resumes
+    # at its saved capacities): pours saved when their simulators asked for 4.0 resume with 1.5
+    if meta["neighbor_settings"][:3] != json.loads(json.dumps(list(template.neighbor_settings)))[:3]:
         raise InputError(f"{path} was written with neighbour settings {meta['neighbor_settings']}; the set-up "
                          f"to resume has {list(template.neighbor_settings)}. Build the same set-up (box, skin).")
 

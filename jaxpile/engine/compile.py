@@ -49,7 +49,9 @@ default in the last bit (the 36-disk agitated pile's start forces: up to
 6e-15 relative, `tests/test_engine.py`); a pile and an
 ensemble member of the same size start at the same level (`Ensemble.init`
 picks by the member's disks), so a member still starts exactly as it does
-alone."""
+alone; a batch's start then runs at level 0 over all its members' disks
+(256 members of 1000 disks: ~2 s once, against ~0.15 s, for ~0.6 s of
+compile saved: estimated from the figures above)."""
 
 _LEVEL = "xla_backend_optimization_level"
 
@@ -68,12 +70,18 @@ def jit_one_off(fn, **kwargs):
     pile's disk count and the arguments first, `jit_one_off(fn)(disks, *args)(*args)`.
     Under a trace (inside another jit, a grad) it is XLA's default jit: compile
     options belong to the outermost program only."""
-    small = jax.jit(fn, compiler_options=one_off_options(0), **kwargs)
     large = jax.jit(fn, **kwargs)
+    small = []  # made at the first small pile: deciding needs the backend, which import must not start
 
     def pick(disks: int, *args):
-        traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(args))
-        return small if not traced and one_off_options(disks) is not None else large
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(args)):
+            return large
+        options = one_off_options(disks)
+        if options is None:
+            return large
+        if not small:
+            small.append(jax.jit(fn, compiler_options=options, **kwargs))
+        return small[0]
 
     return pick
 
