@@ -305,12 +305,12 @@ def test_one_off_programs_compile_at_level_0_for_small_piles_with_the_same_force
         assert xc.one_off_options(36) is None
     sim, state = agitated
     # the engine's own start and contact forces take the two programs by size
-    assert sim._start_jit(36, PARAMS, state) is not sim._start_jit(10**9, PARAMS, state)
-    assert _evaluate_jit(36, PARAMS, state) is not _evaluate_jit(10**9, PARAMS, state)
+    assert sim._start_jit.program(36, PARAMS, state) is not sim._start_jit.program(10**9, PARAMS, state)
+    assert _evaluate_jit.program(36, sim.law, PARAMS, state) is not _evaluate_jit.program(10**9, sim.law, PARAMS, state)
     for fn, args, out in ((sim.start, (PARAMS, state), lambda s: (s.particles.force, s.particles.torque)),
                           (_evaluate, (sim.law, PARAMS, state), lambda cf: (cf.force, cf.torque, cf.pair.history))):
-        pick = xc.jit_one_off(fn, static_argnums=0) if fn is _evaluate else xc.jit_one_off(fn)
-        small, large = pick(36, *args[1:]), pick(10**9, *args[1:])
+        pick = (xc.jit_one_off(fn, static_argnums=0) if fn is _evaluate else xc.jit_one_off(fn)).program
+        small, large = pick(36, *args), pick(10**9, *args)
         assert small is not large
         inside = []  # under a trace (a gradient's, another jit's): XLA's default, options being top-level only
         jax.jit(lambda st: inside.append(pick(36, st)) or 0)(state)

@@ -66,14 +66,14 @@ def one_off_options(disks: int) -> dict | None:
 
 
 def jit_one_off(fn, **kwargs):
-    """`fn` jitted twice, as `one_off_options` says: call the result with the
-    pile's disk count and the arguments first, `jit_one_off(fn)(disks, *args)(*args)`.
-    Under a trace (inside another jit, a grad) it is XLA's default jit: compile
-    options belong to the outermost program only."""
+    """`fn` jitted as `one_off_options` says, called as `run(disks, *args)`
+    with the pile's disk count first; `run.program(disks, *args)` is the
+    jitted function it calls. Under a trace (inside another jit, a grad) it
+    is XLA's default jit: compile options belong to the outermost program only."""
     large = jax.jit(fn, **kwargs)
     small = []  # made at the first small pile: deciding needs the backend, which import must not start
 
-    def pick(disks: int, *args):
+    def program(disks: int, *args):
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(args)):
             return large
         options = one_off_options(disks)
@@ -83,7 +83,11 @@ def jit_one_off(fn, **kwargs):
             small.append(jax.jit(fn, compiler_options=options, **kwargs))
         return small[0]
 
-    return pick
+    def run(disks: int, *args):
+        return program(disks, *args)(*args)
+
+    run.program = program
+    return run
 
 
 __all__ = ["ONE_OFF_MAX_DISKS", "derivative_options", "jit_derivative", "jit_one_off", "one_off_options"]

@@ -148,7 +148,7 @@ class Ensemble:
         # the level a member's own start compiles at (see engine.compile), so that a
         # member starts exactly as the same pile run alone
         params, state = self.shard(stack(params_list)), self.shard(stack_states(states))
-        return self._start_jit(states[0].particles.count, params, state)(params, state)
+        return self._start_jit(states[0].particles.count, params, state)
 
     def member_params(self, params, count: int) -> list:
         """`params` as a list of `count` unbatched pytrees (see `init`)."""

@@ -44,6 +44,7 @@ window too small for a crowded run of cells. `allocate` runs outside jit,
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -241,6 +242,7 @@ slot by slot) and at most twice this window: a pile with disks far smaller than
 its largest gets these, and is re-allocated if it packs denser."""
 
 
+@functools.lru_cache(maxsize=256)  # ~3 ms a call, and an ensemble asks once per member with the same values
 def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int]:
     """`(slots, window)` for a close-packed pile of disks of `radius` (the
     smallest disks: the densest pile of them), from a triangular packing of

@@ -346,7 +346,7 @@ class Simulator:
         """
         state = self.prepare(params, particles, boundaries, box=box, protocol_state=protocol_state,
                              neighbor_settings=neighbor_settings)
-        return self._start_jit(state.particles.count, params, state)(params, state)
+        return self._start_jit(state.particles.count, params, state)
 
     def prepare(self, params, particles: Particles, boundaries: Boundaries, *, box=None, protocol_state=None,
                 neighbor_settings: nb.NeighborSettings | None = None) -> SimState:
@@ -403,7 +403,7 @@ class Simulator:
         """Every contact's force at the state as stored, without advancing
         history; `pair` laid out as the neighbour slots `[n, k]` (each disk's
         view of its contacts, `interactions.in_slots`), for the measurements."""
-        return _evaluate_jit(state.particles.count, params, state)(self.law, params, state)
+        return _evaluate_jit(state.particles.count, self.law, params, state)
 
     def _check_overlaps(self, state: SimState) -> None:
         p = state.particles
