@@ -95,7 +95,9 @@ def test_checkpointed_gradient_memory_grows_sublinearly_with_steps():
 
     def temp_bytes(steps):
         g = jax.jit(jax.grad(lambda p: jnp.sum(sim.rollout(p, state, steps, checkpoint=True).particles.position)))
-        return g.lower(params).compile().memory_analysis().temp_size_in_bytes
+        # the figure comes from XLA's buffer assignment, before LLVM: LLVM's level 0 gives the same
+        # bytes (130000 and 406416 at both levels) and compiles in ~2/3 of the time
+        return g.lower(params).compile({"xla_backend_optimization_level": 0}).memory_analysis().temp_size_in_bytes
 
     small, large = temp_bytes(64), temp_bytes(1024)
     assert large < 6 * small, (small, large)
