@@ -140,6 +140,11 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
         "slowest_tests": [{"test": n, "wall": round(t["wall"], 1), "compile": round(t["compile"], 1),
                            "trace": round(t["trace"], 1), "compiles": t["compiles"]}
                           for n, t in sorted(tests.items(), key=lambda kv: -kv[1]["wall"])[:top]],
+        # time outside XLA's compile and JAX's tracing: running, and host round trips between runs
+        "most_time_outside_compile": [
+            {"test": n, "outside": round(t["wall"] - t["compile"] - t["trace"], 1), "wall": round(t["wall"], 1)}
+            for n, t in sorted(tests.items(), key=lambda kv: kv[1]["compile"] + kv[1]["trace"] - kv[1]["wall"])
+            if "test_notebooks.py" not in n][:top],  # a notebook compiles in its own kernel, out of view
     }
 
 
@@ -157,6 +162,9 @@ def _print(summary: dict) -> None:
     print("\n  wall compile trace  test")
     for t in summary["slowest_tests"]:
         print(f"{t['wall']:6.1f} {t['compile']:7.1f} {t['trace']:5.1f}  {t['test']}")
+    print("\n  outside compile and tracing (running, host round trips)")
+    for t in summary["most_time_outside_compile"][:12]:
+        print(f"{t['outside']:6.1f} of {t['wall']:5.1f}  {t['test']}")
 
 
 def main(argv: list[str]) -> int:
