@@ -430,14 +430,25 @@ def pair_capacity(n: int, slots: int) -> int:
     return aligned(most)
 
 
+PAIR_GROWTH = 1.25
+"""A re-allocation that ran out of pair room grows it by at least this factor
+(`pairs_needed`)."""
+
+
 def pairs_needed(state, overflowed) -> int:
     """Host-side: the pair capacity a re-allocation of `state` must give at
     least, after the chunk that ended in `overflowed`: the old one, or, if the
-    chunk found more pairs than that, the more of twice it and the demand (a
-    chunk that starts with few contacts may end with many)."""
+    chunk found more pairs than that, the more of `PAIR_GROWTH` times it and
+    `PAIR_HEADROOM` times the demand (a chunk that starts with few contacts
+    may end with more; a growth too small re-allocates again, at a compile and
+    a chunk's re-run each). It doubled once: a 409-disk 1993 box (radii
+    0.07-0.13) that found 1290 pairs in 1280 then ran on 2560, its step 1.7x
+    the time of the same pile on 1408 (benchmarks/packed_lists_ab.py)."""
     capacity = int(state.contacts.pairs.shape[-2])
     demand = int(np.max(np.asarray(overflowed.contacts.demand)))
-    return capacity if demand <= capacity else max(2 * capacity, demand)
+    if demand <= capacity:
+        return capacity
+    return max(math.ceil(PAIR_GROWTH * capacity), math.ceil(PAIR_HEADROOM * demand))
 
 
 def pair_count(idx: Array) -> Array:
