@@ -18,13 +18,15 @@ when the profile changes shape: the M or the hump).
    the compiled temporary memory of each (`compiled.memory_analysis()`: XLA's
    own figure for the peak of live buffers). Derivative programs compile as
    jaxpile compiles them (`engine.compile.jit_derivative`).
+   With `--breakdown`, the checkpointed reverse program's kernel time per
+   step is classed from a profile (`reverse_breakdown`): what to shrink next.
 2. Horizon: |dL/dmu| and |dL/dkn| (relative, d log L / d log theta) against T,
    full-horizon and differentiating only the final window of 200 steps (the state
    before it held fixed with `stop_gradient`), plus the spread of the
    full-horizon gradient over 8 random starts (ensemble averaging).
 
     python benchmarks/gradient_cost.py [--layers 10] [--horizons 250,1000,4000,16000] [--no-horizon] [--thunks]
-                                       [--rounds 7] [--out FILE]
+                                       [--rounds 7] [--breakdown] [--out FILE]
 """
 
 from __future__ import annotations
@@ -127,6 +129,55 @@ def kernels_per_step(fn, args, steps: int) -> float:
     return len(kernels) / steps
 
 
+def reverse_breakdown(fn, args, steps: int) -> dict:
+    """Where a compiled reverse-mode program's kernel time goes, per step, from
+    a profile of one call: each XLA:CPU kernel classed by what its HLO came
+    from (the instruction's op_name) and its kind: the reverse pass of the
+    pair law, of the walls (their `cond`s), the stores and loads of the
+    per-step residuals (dynamic-update-slice / dynamic-slice), copies, the
+    scatter-adds (the reverse of the gathers), and the rest of the forward
+    (the block's recomputation). Nested events (cond, while) are left out, so
+    every kernel counts once. `{class: [kernels per step, us per step]}`."""
+    import collections
+    import glob
+    import re
+    import tempfile
+
+    jax.block_until_ready(fn(*args))
+    op_name = {}
+    for line in fn.lower(*args).compile().as_text().splitlines():
+        m = re.match(r"\s*(?:ROOT )?%([\w.\-]+) = .*?op_name=\"([^\"]*)\"", line)
+        if m:
+            op_name[m.group(1)] = m.group(2)
+    with tempfile.TemporaryDirectory() as folder:
+        with jax.profiler.trace(folder):
+            jax.block_until_ready(fn(*args))
+        planes = jax.profiler.ProfileData.from_file(sorted(glob.glob(f"{folder}/**/*.xplane.pb", recursive=True))[-1])
+        events = [(ev.name, ev.duration_ns) for plane in planes.planes for line in plane.lines for ev in line.events]
+    classes = collections.defaultdict(lambda: [0.0, 0.0])
+    for name, ns in events:
+        if name.startswith(("$", "end: ", "ThunkExecutor", "Threadpool", "Transpose", "PjitFunction")) or re.match(
+                r"(cond|while|conditional)\.", name):
+            continue
+        op = op_name.get(name, "")
+        reverse = "transpose(" in op
+        if name.startswith("copy"):
+            kind = "copies"
+        elif "dynamic-update-slice" in name or "dynamic_update_slice" in op:
+            kind = "residual stores"
+        elif "dynamic-slice" in name or op.endswith("dynamic_slice"):
+            kind = "residual loads"
+        elif "scatter" in op:
+            kind = "scatter-adds (reverse)" if reverse else "scatter-adds (forward)"
+        elif reverse:
+            kind = "reverse: walls" if "branch_1_fun" in op else "reverse: pairs, integrator, rest"
+        else:
+            kind = "forward and recomputation"
+        classes[kind][0] += 1 / steps
+        classes[kind][1] += ns / 1e3 / steps
+    return {k: [round(c, 2), round(t, 1)] for k, (c, t) in sorted(classes.items(), key=lambda kv: -kv[1][1])}
+
+
 def relative_gradient(grad, params, value):
     return {k: float(getattr(grad, k)) * float(getattr(params, k)) / float(value) for k in NAMES}
 
@@ -143,6 +194,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--thunks", action="store_true",
                         help="also count the XLA:CPU kernels each program launches per step (from a profile)")
     parser.add_argument("--rounds", type=int, default=7, help="side-by-side timing rounds (median ratio)")
+    parser.add_argument("--breakdown", action="store_true",
+                        help="also class the checkpointed reverse program's kernel time per step (from a profile)")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
     horizons = [int(h) for h in args.horizons.split(",")]
@@ -180,6 +233,10 @@ def main(argv=None) -> dict:
             print(f"  kernels per step: forward {row['kernels_forward']:.0f}, reverse checkpointed "
                   f"{row['kernels_grad_checkpoint']:.0f}, forward mode x3 {row['kernels_grad_forward_mode']:.0f}, "
                   f"x1 {row['kernels_grad_forward_mode_mu']:.0f}")
+        if args.breakdown:  # where the checkpointed reverse pass spends its kernel time
+            row["reverse_breakdown"] = reverse_breakdown(grad_ckpt, (values,), steps)
+            print("  checkpointed reverse, per step (kernels, us): " + "; ".join(
+                f"{k} {c:.0f}, {t:.0f}" for k, (c, t) in row["reverse_breakdown"].items()))
         rows.append(row)
         mb = 1 / 2**20
         print(f"{steps:6d} {row['forward_s']:8.3f} {row.get('grad_s', math.nan):8.3f} "
