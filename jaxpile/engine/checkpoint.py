@@ -272,9 +272,11 @@ def restore(path, template: SimState, law, params) -> SimState:
         raise InputError(f"{path} holds {meta['n_particles']} disks; the set-up to resume has "
                          f"{template.particles.count}. Build the same set-up it was written from.")
 
-    # box, cutoff and skin; not the capacity multiplier, which only sizes new lists (the run resumes
-    # at its saved capacities): pours saved when their simulators asked for 4.0 resume with 1.5
-    if meta["neighbor_settings"][:3] != json.loads(json.dumps(list(template.neighbor_settings)))[:3]:
+    # every setting but the capacity multiplier, which only sizes new lists (the run resumes at its
+    # saved capacities): pours saved when their simulators asked for 4.0 resume with 1.5
+    compared = [i for i, name in enumerate(nb.NeighborSettings._fields) if name != "capacity_multiplier"]
+    saved, wanted = meta["neighbor_settings"], json.loads(json.dumps(list(template.neighbor_settings)))
+    if [saved[i] for i in compared] != [wanted[i] for i in compared]:
         raise InputError(f"{path} was written with neighbour settings {meta['neighbor_settings']}; the set-up "
                          f"to resume has {list(template.neighbor_settings)}. Build the same set-up (box, skin).")
 
