@@ -10,7 +10,14 @@ with both sizings, alternated (`--rounds` rounds, the seeds 0, 1, ...), in one
 process: run time (chunks, compile excluded), compile time, re-allocations and
 the list shapes at the start and the end.
 
-    python benchmarks/packed_lists_ab.py [--widths 2,4] [--rounds 2] [--out FILE]
+With `--rebuild-slots 16,22,29` it also times one rebuild (the full list, its
+half pairs, the history carried; as `rebuild_cost.py`) of the last packed
+run's final pile at each of those slot counts (same window and pair room),
+alternated over `--rounds` rounds: what a re-allocation's slot count costs
+each time the list is rebuilt (more than 16 slots: a row sort instead of the
+slot-by-slot selection, `neighbors.SELECT_SLOTS`).
+
+    python benchmarks/packed_lists_ab.py [--widths 2,4] [--rounds 2] [--rebuild-slots 16,22,29] [--out FILE]
 """
 
 from __future__ import annotations
@@ -18,16 +25,19 @@ from __future__ import annotations
 import argparse
 import time
 
+import jax
 import numpy as np
+from jax import lax
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
-from jaxpile.engine import simulate
+from jaxpile.engine import batch, simulate
+from jaxpile.engine import neighbors as nb
 from jaxpile.protocols import box, definition
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 
-def one_run(width: float, seed: int, packed: bool) -> dict:
+def one_run(width: float, seed: int, packed: bool, keep: dict | None = None) -> dict:
     starts = []
     init = simulate.Simulator.init
 
@@ -44,6 +54,8 @@ def one_run(width: float, seed: int, packed: bool) -> dict:
         total = time.perf_counter() - t0
     finally:
         simulate.Simulator.init = init
+    if keep is not None:
+        keep["state"] = state
     radius = np.asarray(state.particles.radius)
     return {"width": width, "seed": seed, "packed_lists": packed, "disks": int(state.particles.count),
             "radius_min": float(radius.min()), "radius_max": float(radius.max()),
@@ -55,19 +67,41 @@ def one_run(width: float, seed: int, packed: bool) -> dict:
             "repose_cumulative_parabola": m.get("repose_cumulative_parabola")}
 
 
+def rebuild_us(state, slots: int, turns: int) -> float:
+    """Microseconds per rebuild of `state`'s pile with `slots` slots (its window
+    and pair room), in a compiled loop of `turns` (positions nudged by 1e-12
+    every other turn, so nothing is hoisted out of the loop)."""
+    at = batch.at_capacity(state, slots, state.neighbors.cell_list_capacity, int(state.contacts.pairs.shape[0]))
+    settings, position = at.neighbor_settings, at.particles.position
+
+    def rebuild(i, c):
+        neighbors, contacts = c
+        new = nb.rebuild(neighbors, position + (i % 2) * 1e-12, settings)
+        return new, nb.contacts_for(contacts, neighbors.idx, new.idx)
+
+    loop = jax.jit(lambda c: lax.fori_loop(0, turns, rebuild, c))
+    carry = (at.neighbors, at.contacts)
+    jax.block_until_ready(loop(carry))
+    t0 = time.perf_counter()
+    jax.block_until_ready(loop(carry))
+    return 1e6 * (time.perf_counter() - t0) / turns
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--widths", default="2,4", help="box widths = heights (cm), comma-separated")
     parser.add_argument("--rounds", type=int, default=2, help="seeds; each runs with both sizings, alternated")
+    parser.add_argument("--rebuild-slots", default=None,
+                        help="comma-separated slot counts: time a rebuild of the last packed pile at each")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
-    rows = []
+    rows, last_packed = [], {}
     print(f"{'W':>4} {'seed':>4} {'packed':>6} {'disks':>5} {'slots':>9} {'realloc':>7} {'steps':>6} "
           f"{'run s':>6} {'us/step':>7} {'compile s':>9}")
     for width in (float(w) for w in args.widths.split(",")):
         for seed in range(args.rounds):
             for packed in (True, False):
-                r = one_run(width, seed, packed)
+                r = one_run(width, seed, packed, keep=last_packed if packed else None)
                 rows.append(r)
                 print(f"{width:4g} {seed:4d} {packed!s:>6} {r['disks']:5d} {r['slots_start']:4d}->{r['slots_end']:<4d} "
                       f"{r['reallocations']:7d} {r['steps']:6d} {r['run_seconds']:6.2f} {r['us_per_step']:7.1f} "
@@ -82,7 +116,16 @@ def main(argv=None) -> dict:
     for k, v in summary.items():
         print(f"{k}: old / packed: step time {v['us_per_step_old_over_packed']:.2f}x, "
               f"compile {v['compile_old_over_packed']:.2f}x")
-    out = {"machine": describe(), "rows": rows, "old_over_packed": summary,
+    rebuilds = []
+    if args.rebuild_slots:
+        state = last_packed["state"]
+        for r in range(args.rounds):
+            for slots in (int(k) for k in args.rebuild_slots.split(",")):
+                rebuilds.append({"round": r, "slots": slots, "disks": int(state.particles.count),
+                                 "rebuild_us": rebuild_us(state, slots, 2000)})
+                print(f"rebuild of the final {state.particles.count}-disk pile, {slots} slots: "
+                      f"{rebuilds[-1]['rebuild_us']:.1f} us", flush=True)
+    out = {"machine": describe(), "rows": rows, "old_over_packed": summary, "rebuild_by_slots": rebuilds,
            "command": "python benchmarks/packed_lists_ab.py " + " ".join(argv or [])}
     if args.out:
         io.write_json(args.out, out)

@@ -20,7 +20,10 @@ from jaxpile.laws import hooke
 from jaxpile.simulate import RunInfo, Simulator
 from jaxpile.state import make_particles
 
-CHUNK, EVERY, TOTAL = 250, 1500, 4500  # the list grows between 3500 and 3750
+CHUNK = 250
+# the resumed run: its slots grow between steps 200 and 250 (K 1 -> 6: sized by the neighbours its
+# rebuilds found) and its window later, so a resume from step 200 carries both re-allocations
+RESUME_CHUNK, EVERY, TOTAL = 100, 200, 600
 
 
 def falling_disks(n=36, seed=0, dtype=jnp.float64):
@@ -38,7 +41,8 @@ def falling_disks(n=36, seed=0, dtype=jnp.float64):
 def setting():
     params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
     # lists sized for the disks as they start, so the falling disks force a re-allocation
-    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=CHUNK, capacity_multiplier=1.0, packed_lists=False)
+    sim = Simulator(hooke.law(rotation=True), 5e-4, chunk_steps=RESUME_CHUNK, capacity_multiplier=1.0,
+                    packed_lists=False)
     return sim, params
 
 
@@ -59,18 +63,29 @@ def test_resumed_run_is_bit_identical_across_a_reallocation(setting, tmp_path):
     path = str(tmp_path / "ck-{step}.npz")
     whole = sim.run(params, fresh(sim, params), TOTAL, progress=False, info=info, checkpoint=(path, EVERY))
     saved = sorted(os.listdir(tmp_path))
-    assert saved == [f"ck-{s}.npz" for s in (1500, 3000, 4500)]
-    first = checkpoint.read_metadata(tmp_path / "ck-1500.npz")
+    assert saved == [f"ck-{s}.npz" for s in (200, 400, 600)]
+    first = checkpoint.read_metadata(tmp_path / "ck-200.npz")
     # the list grew after the first checkpoint: the resume must carry a re-allocation
-    assert info.reallocations >= 1 and whole.neighbors.max_occupancy > first["neighbor_capacity"]
-    assert first["step"] == 1500 and first["law"] == "hooke" and first["precision"] == "float64"
+    assert info.reallocations >= 2 and whole.neighbors.max_occupancy > first["neighbor_capacity"]
+    assert whole.neighbors.cell_list_capacity > first["cell_capacity"]
+    assert first["step"] == 200 and first["law"] == "hooke" and first["precision"] == "float64"
 
-    resumed = checkpoint.restore(tmp_path / "ck-1500.npz", fresh(sim, params), "hooke", params)
-    assert int(resumed.step) == 1500
+    resumed = checkpoint.restore(tmp_path / "ck-200.npz", fresh(sim, params), "hooke", params)
+    assert int(resumed.step) == 200
     resumed = sim.run(params, resumed, TOTAL - EVERY, progress=False)
     assert_identical(resumed, whole)
+    # a format-2 file (before Contacts.slot_demand) resumes the same run: the re-allocation ahead
+    # is sized by what its chunk's rebuilds record, not by the value restored
+    with np.load(tmp_path / "ck-200.npz") as z:
+        arrays = {k: z[k] for k in z.files if k != "leaf:.contacts.slot_demand"}
+    assert len(arrays) == len(z.files) - 1
+    arrays["metadata"] = np.asarray(json.dumps({**json.loads(str(arrays["metadata"])), "format": 2}))
+    np.savez(tmp_path / "format2.npz", **arrays)
+    older = checkpoint.restore(tmp_path / "format2.npz", fresh(sim, params), "hooke", params)
+    assert int(older.contacts.slot_demand) <= older.neighbors.max_occupancy
+    assert_identical(sim.run(params, older, TOTAL - EVERY, progress=False), whole)
     # and the last checkpoint is the end state itself
-    assert_identical(checkpoint.restore(tmp_path / "ck-4500.npz", fresh(sim, params), "hooke", params), whole)
+    assert_identical(checkpoint.restore(tmp_path / "ck-600.npz", fresh(sim, params), "hooke", params), whole)
 
 
 def test_restore_refuses_another_law_parameters_precision_or_setup(setting, tmp_path):
@@ -146,7 +161,9 @@ def test_checkpoints_from_elsewhere_get_one_line_in_jaxpiles_words(setting, tmp_
         with pytest.raises(InputError, match=words) as err:
             checkpoint.restore(tmp_path / name, state, hooke.law(rotation=True), params)
         assert "allow_pickle" not in str(err.value) and "\n" not in str(err.value)
-    for version, words in ((3, "newer than this jaxpile's 2: update jaxpile"), (1, "older checkpoint format 1")):
+    newer = checkpoint.FORMAT + 1
+    for version, words in ((newer, f"newer than this jaxpile's {checkpoint.FORMAT}: update jaxpile"),
+                           (1, "older checkpoint format 1")):
         with np.load(good) as z:
             arrays = {k: z[k] for k in z.files}
         meta = json.loads(str(arrays["metadata"]))

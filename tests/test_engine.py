@@ -352,6 +352,30 @@ def test_a_pair_list_that_overflows_grows_by_a_quarter_or_to_its_demand_not_doub
     assert nb.pairs_needed(state, after(1600)) == math.ceil(nb.PAIR_HEADROOM * 1600)  # 1.1 times the demand
 
 
+def test_a_slot_list_that_overflows_grows_to_the_neighbours_its_chunk_found():
+    """Adding the old K on any overflow to what the chunk's start needs put a
+    409-disk 1993 box whose pair room overflowed on 29 slots instead of its
+    16 (a rebuild 1.3-1.6x dearer, benchmarks/packed_lists_ab.py): the slots
+    now follow the most neighbours a rebuild found (Contacts.slot_demand)."""
+    from types import SimpleNamespace
+    from jax_md.partition import PEC
+
+    state = SimpleNamespace(neighbors=SimpleNamespace(max_occupancy=16, cell_list_capacity=24))
+
+    def after(slot_demand, code=0, pair_demand=0):
+        return SimpleNamespace(contacts=SimpleNamespace(slot_demand=np.int32(slot_demand), demand=np.int32(pair_demand),
+                                                        pairs=np.zeros((100, 2), np.int32)),
+                               neighbors=SimpleNamespace(error=SimpleNamespace(code=np.uint8(code))))
+
+    slot_flag, window_flag = int(PEC.NEIGHBOR_LIST_OVERFLOW), int(PEC.CELL_LIST_OVERFLOW)
+    assert nb.slots_needed(state, after(12)) == 16  # room enough: unchanged
+    assert nb.slots_needed(state, after(17, slot_flag)) == math.ceil(nb.SLOT_HEADROOM * 17) == 22
+    assert nb.slots_needed(state, after(12, slot_flag, pair_demand=101)) == 16  # the pairs overflowed, not the slots
+    assert nb.slots_needed(state, after(12, slot_flag)) == 32  # flagged outside any rebuild: grown as before
+    assert nb.window_needed(state, after(17, slot_flag)) == 24
+    assert nb.window_needed(state, after(12, window_flag)) == 24 + 16
+
+
 def test_pair_capacity_overflow_reallocates_and_changes_nothing():
     """A half pair list too small for the pile (64 entries for 330 pairs) is
     flagged as an overflow on the first rebuild: the chunk is re-run with room

@@ -118,7 +118,7 @@ def test_gradient_stays_finite_for_a_disk_behind_a_wall_that_is_off():
     law = baxter.law()
     pairs = jnp.full((1, 2), 2)  # no pair
     contacts = Contacts(pairs=pairs, history=jnp.zeros((1, 1)), wall_history=jnp.zeros((2, 3, 1)),
-                        demand=jnp.int32(0))
+                        demand=jnp.int32(0), slot_demand=jnp.int32(0))
 
     def total(n):
         cf = evaluate(law, baxter.make_params(n=n), particles, contacts, boundaries, 1e-3)

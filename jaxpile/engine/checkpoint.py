@@ -41,7 +41,15 @@ from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
 from jaxpile.engine.state import SimState
 
-FORMAT = 2  # 2: contact history per half pair (Contacts.pairs). Bump when the layout of the file changes
+FORMAT = 3  # 2: contact history per half pair (Contacts.pairs); 3: Contacts.slot_demand. Bump when the layout changes
+OLDEST_FORMAT = 2
+"""The oldest format `restore` reads: a format-2 file lacks `Contacts.slot_demand`,
+which it is given from its list (`_SINCE_3`)."""
+
+_SINCE_3 = ".contacts.slot_demand"
+"""Format 3's one new array. It only sizes a re-allocation after a chunk whose
+rebuild overflowed the slots, and such a rebuild raises it past the slots
+itself; at a chunk boundary any value up to the slots resumes the same run."""
 
 
 def _version() -> str:
@@ -221,6 +229,12 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     return template.set(neighbors=neighbors, contacts=contacts)
 
 
+def _slot_count(idx: np.ndarray) -> np.ndarray:
+    """The fullest row of a saved list (`[n, K]`, or `[B, n, K]` for a batch), as int32."""
+    n = idx.shape[-2]
+    return np.max(np.sum(idx < n, axis=-1), axis=-1, initial=0).astype(np.int32)
+
+
 def restore(path, template: SimState, law, params) -> SimState:
     """The state saved in `path`, rebuilt on `template`'s structure.
 
@@ -245,9 +259,10 @@ def restore(path, template: SimState, law, params) -> SimState:
     if meta["format"] > FORMAT:
         raise InputError(f"{path} was written by jaxpile {meta.get('jaxpile_version', '?')} in checkpoint format "
                          f"{meta['format']}, newer than this jaxpile's {FORMAT}: update jaxpile to resume it.")
-    if meta["format"] < FORMAT:
+    if meta["format"] < OLDEST_FORMAT:
         raise InputError(f"{path} has the older checkpoint format {meta['format']} (jaxpile "
-                         f"{meta.get('jaxpile_version', '?')}); this jaxpile reads format {FORMAT}: run it again.")
+                         f"{meta.get('jaxpile_version', '?')}); this jaxpile reads formats {OLDEST_FORMAT} to "
+                         f"{FORMAT}: run it again.")
     missing = sorted({"law", "params", "precision", "n_particles", "neighbor_settings", "neighbor_capacity"} - set(meta))
     if missing:
         raise InputError(f"{path} is not a readable jaxpile checkpoint: its metadata lacks {', '.join(missing)}.")
@@ -291,6 +306,8 @@ def restore(path, template: SimState, law, params) -> SimState:
         raise InputError(f"{path} holds no contact pair list: it was not written by this jaxpile.")
     template = _at_saved_capacity(template, meta["neighbor_capacity"], meta["cell_capacity"], saved_pairs.shape[-2])
     names, leaves, treedef = _leaves(template)
+    if meta["format"] < 3 and _SINCE_3 in names and _SINCE_3 not in saved:
+        saved[_SINCE_3] = _slot_count(saved[".neighbors.idx"])
     if set(saved) != set(names):
         raise InputError(f"{path} holds another kind of state (arrays {sorted(set(saved) ^ set(names))[:4]} do "
                          "not match): build the same set-up, protocol and integrator it was written from.")

@@ -207,15 +207,15 @@ class Ensemble:
         return compiled_for(self._compiled, self._advance_jit, (params, state, frozen), info)
 
     def _reallocate(self, state: SimState, overflowed: SimState) -> SimState:
-        """Every member re-allocated from its chunk-start positions with room to
-        grow (as `Simulator._reallocate`), at the largest capacity any needs."""
-        old_slots = state.neighbors.max_occupancy
-        extra = max(4, old_slots)
+        """Every member re-allocated from its chunk-start positions with room for
+        what the chunk found in any member (as `Simulator._reallocate`), at the
+        largest capacity any needs."""
         settings = state.neighbor_settings
+        least_slots, least_window = nb.slots_needed(state, overflowed), nb.window_needed(state, overflowed)
         members = [member(state, i) for i in range(batch_size(state))]
-        fresh = [nb.allocate(settings, m.particles.position, extra_capacity=extra,
-                             packed_radius=self.sim.packed_radius(m.particles)) for m in members]
-        slots = max(max(f.max_occupancy for f in fresh), old_slots + 1)
+        fresh = [nb.allocate(settings, m.particles.position, packed_radius=self.sim.packed_radius(m.particles),
+                             min_slots=least_slots, min_window=least_window) for m in members]
+        slots = max(f.max_occupancy for f in fresh)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
         needed = nb.pairs_needed(state, overflowed)

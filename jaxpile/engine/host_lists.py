@@ -74,6 +74,12 @@ def half_slots(idx) -> tuple[np.ndarray, np.ndarray]:
     return keep, np.where(keep, entry, -1)
 
 
+def slot_count(idx) -> int:
+    """The most neighbours any row of a full list holds (`neighbors.slot_count`)."""
+    idx = np.asarray(idx)
+    return int(np.max(np.sum(idx < idx.shape[0], axis=1), initial=0))
+
+
 def pair_count(idx) -> int:
     """The number of half pairs of a full list (`neighbors.pair_count`)."""
     return int(half_slots(idx)[0].sum())
@@ -114,12 +120,14 @@ def carry_history(old_idx, old_history, new_pairs) -> np.ndarray:
 def contacts_for(contacts, old_idx, new_idx, capacity: int | None = None):
     """`neighbors.contacts_for` on the host: `contacts` re-laid on the half
     pairs of `new_idx` (`capacity` entries; default as many as now), history
-    carried pair by pair from `old_idx`, the demand the new list's pairs."""
+    carried pair by pair from `old_idx`, the demands the new list's pairs and
+    its fullest row."""
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
     pairs = half_pairs(new_idx, capacity)
     history = carry_history(old_idx, contacts.history, pairs)
     return contacts.set(pairs=jnp.asarray(pairs), history=jnp.asarray(history, contacts.history.dtype),
-                        demand=jnp.asarray(pair_count(new_idx), jnp.int32))
+                        demand=jnp.asarray(pair_count(new_idx), jnp.int32),
+                        slot_demand=jnp.asarray(slot_count(new_idx), jnp.int32))
 
 
-__all__ = ["build", "half_slots", "pair_count", "half_pairs", "carry_history", "contacts_for"]
+__all__ = ["build", "half_slots", "slot_count", "pair_count", "half_pairs", "carry_history", "contacts_for"]

@@ -37,7 +37,10 @@ allocation cost three re-allocations, each re-running a chunk). A rebuild
 that finds more pairs than P keeps the first P, records the demand in
 `Contacts.demand` and raises the list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
 as for an overflow of the full list (no contact is ever dropped); so does a
-window too small for a crowded run of cells. `allocate` runs outside jit,
+window too small for a crowded run of cells. Every rebuild also records the
+most neighbours of any disk (`Contacts.slot_demand`): a re-allocation sizes
+the slots by it (`slots_needed`), the pair room by the pair demand
+(`pairs_needed`). `allocate` runs outside jit,
 `update` inside; the runner checks `overflowed(state)` after each chunk (see
 `simulate`).
 """
@@ -288,7 +291,7 @@ def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int
 
 
 def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0,
-             packed_radius: float | None = None):
+             packed_radius: float | None = None, min_slots: int = 0, min_window: int = 0):
     """A new neighbour list (host-side), sized like jax-md's: the window W is
     the most disks in any run of three cells of a row times the capacity
     multiplier (at most `WINDOW_HEADROOM`), the slots K the most neighbours of
@@ -296,7 +299,8 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     `packed_radius` (the smallest disk's radius), K and W are at least what a
     close-packed pile of such disks needs (`packed_capacity`), so disks that
     start apart (parked, poured, dropped, a loose fill) get a list for the
-    pile they will make.
+    pile they will make. `min_slots` and `min_window` are floors on K and W
+    (a re-allocation's: see `slots_needed`).
 
     One build, wide enough for every candidate (3 W slots), gives both the
     occupancy and the list: its rows are in increasing index order, so their
@@ -323,11 +327,12 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     most = int(runs.max()) if n else 0
     headroom = min(settings.capacity_multiplier, WINDOW_HEADROOM)
     packed_slots, packed_window = (0, 0) if packed_radius is None else packed_capacity(settings, packed_radius)
-    window = max(1, min(n, max(int(math.ceil(most * headroom)) + int(extra_capacity), packed_window)))
+    window = max(int(math.ceil(most * headroom)) + int(extra_capacity), packed_window, int(min_window))
+    window = max(1, min(n, window))
     probe = max(1, min(n - 1, 3 * window))
     on_host = host if n <= HOST_BUILD_MAX else position  # no second copy to the device above the switch
     wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
-    slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots)
+    slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots, int(min_slots))
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
     return _make_list(settings, jnp.asarray(idx), position, window, _error(occupancy > slots, over))
@@ -343,11 +348,17 @@ def _error(overflowed: bool, window_overflowed: bool):
 def rebuild(neighbors, position: Array, settings: NeighborSettings):
     """`neighbors` rebuilt from `position` with its own capacities (traceable);
     an overflow of its slots or window is or-ed into its error flag."""
+    return _rebuilt(neighbors, position, settings)[0]
+
+
+def _rebuilt(neighbors, position: Array, settings: NeighborSettings):
+    """`rebuild`, and the most neighbours any disk has (more than the list's
+    slots when it overflowed: what a re-allocation must make room for)."""
     idx, occupancy, over = _build(position, _grid(settings), float(settings.cutoff + settings.skin),
                                   int(neighbors.cell_list_capacity), int(neighbors.max_occupancy))
     error = neighbors.error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, occupancy > neighbors.max_occupancy)
     return neighbors.set(idx=idx, reference_position=position,
-                         error=error.update(partition.PEC.CELL_LIST_OVERFLOW, over))
+                         error=error.update(partition.PEC.CELL_LIST_OVERFLOW, over)), occupancy
 
 
 def any_member(flag: Array, axis_name: str | None) -> Array:
@@ -372,12 +383,13 @@ def needs_rebuild(neighbors, position: Array, skin: float) -> Array:
 
 def _rebuilt_where_needed(neighbors, position: Array, settings: NeighborSettings, need: Array,
                           axis_name: str | None):
-    """The rebuilt list; in a batch, members that did not move keep theirs
-    (each member's list is exactly what it would be alone)."""
-    new = rebuild(neighbors, position, settings)
+    """The rebuilt list and its occupancy (`_rebuilt`); in a batch, members
+    that did not move keep theirs and count 0 (each member's list, and what
+    it records, is exactly what it would be alone)."""
+    new, occupancy = _rebuilt(neighbors, position, settings)
     if axis_name is None:
-        return new
-    return jax.tree.map(lambda a, b: jnp.where(need, a, b), new, neighbors)
+        return new, occupancy
+    return jax.tree.map(lambda a, b: jnp.where(need, a, b), new, neighbors), jnp.where(need, occupancy, 0)
 
 
 def update(neighbors, position: Array, settings: NeighborSettings, axis_name: str | None = None):
@@ -386,7 +398,7 @@ def update(neighbors, position: Array, settings: NeighborSettings, axis_name: st
     under vmap would become a select: every member rebuilding at every step)."""
     own = needs_rebuild(neighbors, position, settings.skin)
     return lax.cond(any_member(own, axis_name),
-                    lambda: _rebuilt_where_needed(neighbors, position, settings, own, axis_name),
+                    lambda: _rebuilt_where_needed(neighbors, position, settings, own, axis_name)[0],
                     lambda: neighbors)
 
 
@@ -449,6 +461,53 @@ def pairs_needed(state, overflowed) -> int:
     if demand <= capacity:
         return capacity
     return max(math.ceil(PAIR_GROWTH * capacity), math.ceil(PAIR_HEADROOM * demand))
+
+
+SLOT_HEADROOM, SLOT_EXTRA = 1.25, 4
+"""A re-allocation after the slots overflowed gives this many times the most
+neighbours any disk had in the chunk (`Contacts.slot_demand`; `slots_needed`),
+and at least this many more: a growth of one or two slots in a small list
+re-allocated three times in a chunk of 36 falling disks, a compile each."""
+
+
+def slots_needed(state, overflowed) -> int:
+    """Host-side: the slots a re-allocation of `state` must give at least,
+    after the chunk that ended in `overflowed`: the old K, or, if some rebuild
+    of the chunk found a disk with more neighbours than that,
+    `SLOT_HEADROOM` times the most it found (at least `SLOT_EXTRA` more). It
+    added the old K on any overflow (the pair room's too) to the slots the
+    chunk's start needs, blind to how the chunk packed: a 409-disk 1993 box
+    whose pair room overflowed went from 16 slots to 29, and a rebuild of it
+    costs 520-604 us on 16 slots against 765-990 us on 29
+    (`benchmarks/packed_lists_ab.py --rebuild-slots`)."""
+    slots = int(state.neighbors.max_occupancy)
+    demand = int(np.max(np.asarray(overflowed.contacts.slot_demand)))
+    if demand > slots:
+        return max(math.ceil(SLOT_HEADROOM * demand), demand + SLOT_EXTRA)
+    flagged = (np.asarray(overflowed.neighbors.error.code) & int(partition.PEC.NEIGHBOR_LIST_OVERFLOW)) != 0
+    pairs_short = np.asarray(overflowed.contacts.demand) > overflowed.contacts.pairs.shape[-2]
+    if np.any(flagged & ~pairs_short):
+        # flagged by no rebuild of the chunk (a list rebuilt to a given capacity outside it,
+        # as a batch's or a checkpoint's): grow as re-allocations always did
+        return slots + max(4, slots)
+    return slots
+
+
+def window_needed(state, overflowed) -> int:
+    """Host-side: the window W a re-allocation of `state` must give at least:
+    the old one, or, if some rebuild of the chunk that ended in `overflowed`
+    (any member of a batch) found more disks in a run of three cells than it
+    holds, the old one plus the old slots (at least 4), the growth it always had."""
+    window = int(state.neighbors.cell_list_capacity or 0)
+    code = np.asarray(overflowed.neighbors.error.code)
+    if not np.any(code & int(partition.PEC.CELL_LIST_OVERFLOW)):
+        return window
+    return window + max(4, int(state.neighbors.max_occupancy))
+
+
+def slot_count(idx: Array) -> Array:
+    """The most neighbours any row of a full list holds."""
+    return jnp.max(jnp.sum(idx < idx.shape[0], axis=1, dtype=jnp.int32), initial=0)
 
 
 def pair_count(idx: Array) -> Array:
@@ -537,28 +596,30 @@ def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array
 def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None = None):
     """`contacts` (a `state.Contacts`) re-laid on the half pairs of `new_idx`
     (`capacity` entries; default: as many as now), history carried pair by
-    pair from the list `old_idx` it was laid on; the demand restarts from the
-    new list's pairs."""
+    pair from the list `old_idx` it was laid on; the demands restart from the
+    new list's pairs and its fullest row."""
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
     pairs = half_pairs(new_idx, capacity)
     return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, pairs),
-                        demand=pair_count(new_idx))
+                        demand=pair_count(new_idx), slot_demand=slot_count(new_idx))
 
 
 def update_with_contacts(neighbors, contacts, position: Array, settings: NeighborSettings,
                          axis_name: str | None = None):
     """`update` and, when the list was rebuilt, the contacts re-laid on its
     half pairs, in one branch: the steps with no rebuild pay for neither. More
-    pairs than the pair capacity raise the list's overflow flag."""
+    pairs than the pair capacity raise the list's overflow flag. The contacts
+    record the most pairs and the most neighbours of a disk any rebuild found
+    (`Contacts.demand`, `Contacts.slot_demand`): a re-allocation's sizes."""
     own = needs_rebuild(neighbors, position, settings.skin)
 
     def rebuild():
-        new = _rebuilt_where_needed(neighbors, position, settings, own, axis_name)
+        new, occupancy = _rebuilt_where_needed(neighbors, position, settings, own, axis_name)
         laid = contacts_for(contacts, neighbors.idx, new.idx)
         demand = jnp.maximum(contacts.demand, laid.demand)
         over = demand > contacts.pairs.shape[0]
         new = new.set(error=new.error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, over))
-        return new, laid.set(demand=demand)
+        return new, laid.set(demand=demand, slot_demand=jnp.maximum(contacts.slot_demand, occupancy))
 
     return lax.cond(any_member(own, axis_name), rebuild, lambda: (neighbors, contacts))
 

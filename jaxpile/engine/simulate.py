@@ -365,6 +365,7 @@ class Simulator:
         contacts = Contacts(
             pairs=pairs,
             demand=jnp.asarray(host_lists.pair_count(neighbors.idx), jnp.int32),
+            slot_demand=jnp.asarray(host_lists.slot_count(neighbors.idx), jnp.int32),
             history=jnp.zeros((pairs.shape[0], h), dtype),
             wall_history=jnp.zeros((n, w, h), dtype),
         )
@@ -476,11 +477,13 @@ class Simulator:
 
     # ------------------------------------------------------------ host runs
     def _reallocate(self, state: SimState, overflowed) -> SimState:
-        """A neighbour list with more slots (and cell capacity), history carried over."""
-        # at least double: a chunk that starts with few neighbours may end with many
-        extra = max(4, overflowed.neighbors.max_occupancy)
-        neighbors = nb.allocate(state.neighbor_settings, state.particles.position, extra_capacity=extra,
-                                packed_radius=self.packed_radius(state.particles))
+        """Lists with room for what the chunk that ended in `overflowed` found
+        (`nb.slots_needed`, `nb.window_needed`, `nb.pairs_needed`), history
+        carried over; a list never shrinks."""
+        neighbors = nb.allocate(state.neighbor_settings, state.particles.position,
+                                packed_radius=self.packed_radius(state.particles),
+                                min_slots=nb.slots_needed(state, overflowed),
+                                min_window=nb.window_needed(state, overflowed))
         pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed))
         contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)

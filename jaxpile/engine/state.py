@@ -82,12 +82,17 @@ class Contacts:
       demand: int scalar, the most half pairs any rebuild found since the pair
         list was allocated (more than P: the list overflowed and is re-allocated
         with room for them).
+      slot_demand: int scalar, the most neighbours any disk had at a rebuild of
+        the full list since it was allocated (more than its K slots: the list
+        overflowed, and is re-allocated with room for that many;
+        `neighbors.slots_needed`).
     """
 
     pairs: Array
     history: Array
     wall_history: Array
     demand: Array
+    slot_demand: Array
 
 
 @dataclasses.dataclass
