@@ -149,3 +149,15 @@ def test_readme_estimator_study_table_is_the_one_the_results_give():
     assert estimator_study.rewrite_readme(check=True), "run `python benchmarks/estimator_study.py --table`"
     rows = estimator_study.table().splitlines()[2:]
     assert any("| box, 102 disks (mu = 0.25) | central differences, h = 0.1 | 32 | mu | 346, 199 |" in r for r in rows)
+
+
+def test_the_machine_line_names_the_cpus_vector_instructions():
+    """The same "AMD EPYC" VM ran the lattice race at 1.27x LAMMPS with AVX-512
+    and 0.6-0.7x without it: each benchmark row must say which it had."""
+    import machine
+
+    assert machine.vector_isa({"fpu", "avx2", "avx512f"}) == "AVX-512"
+    assert machine.vector_isa({"fpu", "avx", "avx2"}) == "AVX2"
+    assert machine.vector_isa(set()) is None
+    isa = machine.details()["vector_isa"]
+    assert (f"({isa})" in machine.describe()) if isa else "(" not in machine.describe().split(",")[0]
