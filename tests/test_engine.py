@@ -391,3 +391,43 @@ def test_pair_capacity_overflow_reallocates_and_changes_nothing():
     assert int(ample.contacts.demand) > 64 and info.reallocations >= 1
     assert out.contacts.pairs.shape[0] >= int(ample.contacts.demand)
     np.testing.assert_allclose(out.particles.position, ref.particles.position, rtol=0, atol=1e-12)
+
+
+def test_setting_up_a_pile_of_a_new_size_compiles_no_small_programs():
+    """`jnp.asarray` of a numpy array, `jnp.zeros` and eager ops on concrete
+    arrays compile a program for each new shape (~10-40 ms each with tracing):
+    three small protocols compiled 78 programs besides their step loops and
+    starts, 19 once the host code kept to numpy and `engine.transfer`
+    (benchmarks/eager_compiles.py). Making the particles and walls of a new pile
+    size, its lists and contacts, and reading its flags and movable disks on the
+    host compile nothing; the values are those jnp would have made."""
+    from jaxpile.boundaries import LEFT_WALL, set_wall
+    from jaxpile.engine import transfer
+
+    compiled = []
+
+    def listener(event, secs, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    rng = np.random.default_rng(7)
+    position = lattice.equilateral_positions(7)[:27] + rng.normal(0, 1e-3, (27, 2))  # a size no other test has
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        particles = jaxpile.make_particles(position, rng.uniform(0.45, 0.5, 27))
+        boundaries = set_wall(jaxpile.make_boundaries(left=-1.0, right=9.0), LEFT_WALL, active=False, position=-2.0)
+        state = Simulator(hooke.law(), dt=1e-4).prepare(PARAMS, particles, boundaries)
+        flags, movable = nb.overflowed(state), state.particles.movable
+        host = np.arange(5.0)
+        copied = transfer.to_device(host)
+        host[0] = 9.0
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert compiled == []
+    assert not bool(flags) and bool(np.all(np.asarray(movable)))
+    assert float(copied[0]) == 0.0  # a copy: the caller's array edited later never reaches the pile
+    assert state.particles.mass.dtype == jnp.float64 and state.contacts.slot_demand.dtype == jnp.int32
+    assert np.asarray(boundaries.wall_active).tolist() == [True, False, True]
+    assert np.asarray(boundaries.wall_offset).tolist() == [0.0, -2.0, -9.0]
+    np.testing.assert_array_equal(np.asarray(state.particles.inertia),
+                                  0.5 * np.asarray(particles.mass) * np.asarray(particles.radius) ** 2)

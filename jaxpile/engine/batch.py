@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import host_lists
+from jaxpile.engine import transfer
 from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.state import SimState
@@ -45,7 +46,7 @@ def stack(trees: Sequence[Any]) -> Any:
 
     def one(*xs):
         if all(_concrete(x) for x in xs):
-            return jnp.asarray(np.stack([np.asarray(x) for x in xs]))
+            return transfer.to_device(np.stack([np.asarray(x) for x in xs]))
         return jnp.stack([jnp.asarray(x) for x in xs])
 
     return jax.tree.map(one, *trees)

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import math
 
-import jax.numpy as jnp
+import jax
+import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.engine import transfer
 from jaxpile.engine.state import Boundaries
 
 GROUND, LEFT_WALL, RIGHT_WALL = 0, 1, 2
@@ -47,14 +49,15 @@ def make_boundaries(
         raise InputError(f"gravity must be a finite magnitude >= 0; got {gravity}.")
     if not sides and (left is not None or right is not None):
         raise InputError("sides=False makes the ground alone: left and right walls cannot be given.")
-    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    dtype = transfer.default_float() if dtype is None else dtype
     if not sides:
         return Boundaries(gravity=gravity_vector(gravity, tilt_degrees, dtype),
-                          wall_normal=jnp.array([[0.0, 1.0]], dtype), wall_offset=jnp.array([ground], dtype),
-                          wall_active=jnp.array([True]))
-    normal = jnp.array([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0]], dtype)
-    offset = jnp.array([ground, 0.0 if left is None else left, 0.0 if right is None else -right], dtype)
-    active = jnp.array([True, left is not None, right is not None])
+                          wall_normal=transfer.to_device([[0.0, 1.0]], dtype),
+                          wall_offset=transfer.to_device([ground], dtype),
+                          wall_active=transfer.to_device([True]))
+    normal = transfer.to_device([[0.0, 1.0], [1.0, 0.0], [-1.0, 0.0]], dtype)
+    offset = transfer.to_device([ground, 0.0 if left is None else left, 0.0 if right is None else -right], dtype)
+    active = transfer.to_device([True, left is not None, right is not None])
     return Boundaries(
         gravity=gravity_vector(gravity, tilt_degrees, dtype),
         wall_normal=normal,
@@ -66,7 +69,7 @@ def make_boundaries(
 def gravity_vector(g: float, tilt_degrees: float, dtype=None):
     """`[2]` gravity of magnitude g, rotated counter-clockwise by `tilt_degrees` from -y."""
     t = math.radians(tilt_degrees)
-    return jnp.array([g * math.sin(t), -g * math.cos(t)], dtype)
+    return transfer.to_device([g * math.sin(t), -g * math.cos(t)], dtype)
 
 
 def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, position=None) -> Boundaries:
@@ -77,13 +80,23 @@ def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, p
         raise InputError(f"wall {wall} does not exist: these boundaries have {b.wall_active.shape[0]} wall(s)"
                          " (made with sides=False?).")
     if active is not None:
-        b = b.set(wall_active=b.wall_active.at[wall].set(active))
+        b = b.set(wall_active=_set_entry(b.wall_active, wall, active))
     if position is not None:
-        normal = b.wall_normal[wall]
+        normal = (b.wall_normal if isinstance(b.wall_normal, jax.core.Tracer) else np.asarray(b.wall_normal))[wall]
         # offset = normal . (point on the wall); for an axis-aligned normal that
         # is (n_x + n_y) * position
-        b = b.set(wall_offset=b.wall_offset.at[wall].set((normal[0] + normal[1]) * position))
+        b = b.set(wall_offset=_set_entry(b.wall_offset, wall, (normal[0] + normal[1]) * position))
     return b
+
+
+def _set_entry(array, index: int, value):
+    """`array.at[index].set(value)`; on the host when nothing is traced (an
+    eager scatter compiled a program per shape)."""
+    if any(isinstance(x, jax.core.Tracer) for x in (array, value)):
+        return array.at[index].set(value)
+    host = np.array(array)
+    host[index] = np.asarray(value)
+    return transfer.to_device(host)
 
 
 def wall_distance(boundaries: Boundaries, position):

@@ -31,11 +31,11 @@ import zipfile
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import batch
 from jaxpile.engine import host_lists
+from jaxpile.engine import transfer
 from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError
 from jaxpile.io import atomic_write
@@ -224,8 +224,8 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
                                        template.neighbor_settings)
     c = template.contacts
-    pairs = jnp.asarray(host_lists.half_pairs(neighbors.idx, pairs))
-    contacts = c.set(pairs=pairs, history=jnp.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
+    pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, pairs))
+    contacts = c.set(pairs=pairs, history=transfer.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
 
 
@@ -317,5 +317,5 @@ def restore(path, template: SimState, law, params) -> SimState:
         if value.shape != np.shape(leaf) or value.dtype != np.asarray(leaf).dtype:
             raise InputError(f"{path}: {name} is {value.dtype}{list(value.shape)}, the set-up has "
                              f"{np.asarray(leaf).dtype}{list(np.shape(leaf))}. Build the same set-up.")
-        restored.append(jnp.asarray(value))
+        restored.append(transfer.to_device(value))
     return jax.tree_util.tree_unflatten(treedef, restored)

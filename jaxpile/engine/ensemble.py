@@ -258,7 +258,7 @@ class Ensemble:
             new = fn(params, state, frozen, jnp.int32(n))
             jax.block_until_ready(new)
             info.wall_seconds += time.perf_counter() - t0
-            if not bool(jnp.any(nb.overflowed(new))):
+            if not bool(np.any(nb.overflowed(new))):
                 return new
             info.reallocations += 1
             state = self._reallocate(state, new)

@@ -22,6 +22,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile.engine import transfer
+
 Array = Any
 
 
@@ -125,9 +127,9 @@ def contacts_for(contacts, old_idx, new_idx, capacity: int | None = None):
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
     pairs = half_pairs(new_idx, capacity)
     history = carry_history(old_idx, contacts.history, pairs)
-    return contacts.set(pairs=jnp.asarray(pairs), history=jnp.asarray(history, contacts.history.dtype),
-                        demand=jnp.asarray(pair_count(new_idx), jnp.int32),
-                        slot_demand=jnp.asarray(slot_count(new_idx), jnp.int32))
+    return contacts.set(pairs=transfer.to_device(pairs), history=transfer.to_device(history, contacts.history.dtype),
+                        demand=transfer.to_device(pair_count(new_idx), jnp.int32),
+                        slot_demand=transfer.to_device(slot_count(new_idx), jnp.int32))
 
 
 __all__ = ["build", "half_slots", "slot_count", "pair_count", "half_pairs", "carry_history", "contacts_for"]

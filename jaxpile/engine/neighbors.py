@@ -57,7 +57,7 @@ import numpy as np
 from jax import lax
 from jax_md import partition
 
-from jaxpile.engine import host_lists
+from jaxpile.engine import host_lists, transfer
 
 Array = Any
 
@@ -234,7 +234,7 @@ def _no_update(*args, **kwargs):
 def _make_list(settings: NeighborSettings, idx, position, window: int, error=None):
     """A jax-md `NeighborList` holding our list: `max_occupancy` is the slot
     count K, `cell_list_capacity` the window W of a three-cell run."""
-    error = partition.PartitionError(jnp.zeros((), jnp.uint8)) if error is None else error
+    error = _error(False, False) if error is None else error
     return partition.NeighborList(idx, position, error, int(window), int(idx.shape[1]), partition.Dense,
                                   float(settings.cutoff + settings.skin), None, _no_update)
 
@@ -309,7 +309,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     traced `_build`'s list up to rounding at the reach): compiled, it was an
     XLA program for every new pile size (~0.6 s each on 2 CPU cores)."""
     host = np.asarray(position)
-    position = jnp.asarray(position)
+    position = transfer.to_device(position)
     n = int(position.shape[0])
     grid = _grid(settings)
     cx, cy = (a.astype(np.int64) for a in _cells(host, grid, xp=np))
@@ -335,14 +335,15 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots, int(min_slots))
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
-    return _make_list(settings, jnp.asarray(idx), position, window, _error(occupancy > slots, over))
+    return _make_list(settings, transfer.to_device(idx), position, window, _error(occupancy > slots, over))
 
 
 def _error(overflowed: bool, window_overflowed: bool):
-    """A fresh list's error flag: its slots and its window overflowed or not."""
-    error = partition.PartitionError(jnp.zeros((), jnp.uint8))
-    error = error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, jnp.asarray(overflowed))
-    return error.update(partition.PEC.CELL_LIST_OVERFLOW, jnp.asarray(window_overflowed))
+    """A fresh list's error flag (host values): its slots and its window
+    overflowed or not. Made on the host: jax-md's `update` is three compiles."""
+    code = (int(partition.PEC.NEIGHBOR_LIST_OVERFLOW) if overflowed else 0) | (
+        int(partition.PEC.CELL_LIST_OVERFLOW) if window_overflowed else 0)
+    return partition.PartitionError(transfer.to_device(np.uint8(code)))
 
 
 def rebuild(neighbors, position: Array, settings: NeighborSettings):
@@ -411,7 +412,7 @@ def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_cap
     window = n if cell_capacity is None else int(cell_capacity)
     idx, occupancy, over = _build_outside_loop(position, _grid(settings), float(settings.cutoff + settings.skin),
                                                window, int(max_occupancy))
-    return _make_list(settings, jnp.asarray(idx), jnp.asarray(position), window,
+    return _make_list(settings, transfer.to_device(idx), transfer.to_device(position), window,
                       _error(occupancy > max_occupancy, over))
 
 
@@ -627,8 +628,14 @@ def update_with_contacts(neighbors, contacts, position: Array, settings: Neighbo
 def overflowed(state) -> Array:
     """Whether a state's lists lost anything: the full list overflowed, or some
     rebuild (or the laying of the pairs itself) found more half pairs than the
-    pair list holds. Traceable; for a batch, per member."""
-    return state.neighbors.did_buffer_overflow | (state.contacts.demand > state.contacts.pairs.shape[-2])
+    pair list holds. Traceable; for a batch, per member. A concrete state is
+    read on the host (numpy: the runner asks after every chunk, and the three
+    eager ops compiled a program each per pile size)."""
+    code, demand = state.neighbors.error.code, state.contacts.demand
+    if isinstance(code, jax.core.Tracer) or isinstance(demand, jax.core.Tracer):
+        return state.neighbors.did_buffer_overflow | (demand > state.contacts.pairs.shape[-2])
+    lost = (np.asarray(code) & int(partition.PEC.NEIGHBOR_LIST_OVERFLOW | partition.PEC.CELL_LIST_OVERFLOW)) != 0
+    return lost | (np.asarray(demand) > state.contacts.pairs.shape[-2])
 
 
 def pair_entry(pairs, i: int, j: int) -> int | None:

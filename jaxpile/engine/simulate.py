@@ -26,6 +26,7 @@ import numpy as np
 from jax import lax
 
 from jaxpile.engine import blocks, host_lists
+from jaxpile.engine import transfer
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.checkpoint import step_of
@@ -361,15 +362,15 @@ class Simulator:
         h = self.law.history_size
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = jnp.asarray(host_lists.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx)))
-        contacts = Contacts(
+        pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx)))
+        contacts = Contacts(  # put on the device without compiling (see engine.transfer)
             pairs=pairs,
-            demand=jnp.asarray(host_lists.pair_count(neighbors.idx), jnp.int32),
-            slot_demand=jnp.asarray(host_lists.slot_count(neighbors.idx), jnp.int32),
-            history=jnp.zeros((pairs.shape[0], h), dtype),
-            wall_history=jnp.zeros((n, w, h), dtype),
+            demand=transfer.to_device(host_lists.pair_count(neighbors.idx), jnp.int32),
+            slot_demand=transfer.to_device(host_lists.slot_count(neighbors.idx), jnp.int32),
+            history=transfer.zeros((pairs.shape[0], h), dtype),
+            wall_history=transfer.zeros((n, w, h), dtype),
         )
-        state = SimState(particles, contacts, boundaries, neighbors, jnp.zeros((), jnp.int32), settings,
+        state = SimState(particles, contacts, boundaries, neighbors, transfer.zeros((), jnp.int32), settings,
                          protocol_state=protocol_state)
         self._check_overlaps(state)
         return state
@@ -710,11 +711,21 @@ def non_finite_disks(p: Particles) -> Array:
     return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
 
 
+def _non_finite_on_host(p: Particles) -> np.ndarray:
+    """`non_finite_disks` as a numpy array; on a CPU computed by numpy on the
+    arrays' zero-copy views (no program to compile per pile size), elsewhere
+    by the compiled reduction (no copy of every position to the host)."""
+    if jax.default_backend() != "cpu":
+        return np.asarray(non_finite_disks(p))
+    finite = np.isfinite(np.asarray(p.position)).all(-1) & np.isfinite(np.asarray(p.velocity)).all(-1)
+    return ~(finite & np.isfinite(np.asarray(p.angular_velocity)))
+
+
 def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
     p = particles
-    bad = non_finite_disks(p)
-    if np.asarray(bad).any():
-        first = int(jnp.argmax(bad))
+    bad = _non_finite_on_host(p)
+    if bad.any():
+        first = int(np.argmax(bad))
         if last_good is None:
             raise InputError(
                 f"particle {first} has a non-finite position or velocity in the input "

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 from typing import Any
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 from jax_md import dataclasses
 from jax_md.partition import NeighborList
 
 from jaxpile.errors import InputError
+from jaxpile.engine import transfer
 
 Array = Any
 
@@ -62,8 +63,11 @@ class Particles:
 
     @property
     def movable(self) -> Array:
-        """`[n]` bool: disks the integrator moves."""
-        return self.active & ~self.fixed
+        """`[n]` bool: disks the integrator moves (on the host for concrete
+        arrays: two eager ops compiled a program each per pile size)."""
+        if isinstance(self.active, jax.core.Tracer) or isinstance(self.fixed, jax.core.Tracer):
+            return self.active & ~self.fixed
+        return transfer.to_device(np.asarray(self.active) & ~np.asarray(self.fixed))
 
 
 @dataclasses.dataclass
@@ -179,7 +183,7 @@ def make_particles(
     """
     position = np.asarray(position)
     if dtype is None:
-        dtype = position.dtype if np.issubdtype(position.dtype, np.floating) else jnp.zeros(()).dtype
+        dtype = position.dtype if np.issubdtype(position.dtype, np.floating) else transfer.default_float()
     position = np.asarray(position, dtype=dtype)
     if position.ndim != 2 or position.shape[1] != 2:
         raise InputError(f"position must have shape [n, 2]; got {position.shape}.")
@@ -223,16 +227,16 @@ def make_particles(
             f"fixed particle {bad} has a non-zero velocity or spin; fixed disks never move, "
             "so give them zero velocity."
         )
-    return Particles(
-        position=jnp.asarray(position),
-        velocity=jnp.asarray(velocity),
-        angle=jnp.zeros(n, dtype),
-        angular_velocity=jnp.asarray(omega),
-        force=jnp.zeros_like(jnp.asarray(position)),
-        torque=jnp.zeros(n, dtype),
-        radius=jnp.asarray(radius),
-        mass=jnp.asarray(mass),
-        inertia=jnp.asarray(0.5 * mass * radius**2),
-        fixed=jnp.asarray(fixed),
-        active=jnp.asarray(active),
+    return Particles(  # put on the device without compiling (see engine.transfer)
+        position=transfer.to_device(position),
+        velocity=transfer.to_device(velocity),
+        angle=transfer.zeros(n, dtype),
+        angular_velocity=transfer.to_device(omega),
+        force=transfer.zeros(position.shape, dtype),
+        torque=transfer.zeros(n, dtype),
+        radius=transfer.to_device(radius),
+        mass=transfer.to_device(mass),
+        inertia=transfer.to_device(0.5 * mass * radius**2),
+        fixed=transfer.to_device(fixed),
+        active=transfer.to_device(active),
     )

@@ -57,6 +57,7 @@ class BaseLoad(NamedTuple):
     weight: Array
 
 
+@jax.jit  # one program, not the ~12 eager ops it was on a concrete state (a compile each per pile size)
 def traced_force_unit(state: SimState):
     """mg as a traceable scalar: the mean mass of the active movable disks times
     |g| (mass 1 when no disk moves, g taken as 1 when gravity is off)."""
