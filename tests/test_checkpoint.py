@@ -83,6 +83,10 @@ def test_resumed_run_is_bit_identical_across_a_reallocation(setting, tmp_path):
     np.savez(tmp_path / "format2.npz", **arrays)
     older = checkpoint.restore(tmp_path / "format2.npz", fresh(sim, params), "hooke", params)
     assert int(older.contacts.slot_demand) <= older.neighbors.max_occupancy
+    from jaxpile.cli.show import state_from_checkpoint  # `jaxpile show` reads it too
+
+    assert np.array_equal(state_from_checkpoint(tmp_path / "format2.npz")[0].contacts.slot_demand,
+                          older.contacts.slot_demand)
     assert_identical(sim.run(params, older, TOTAL - EVERY, progress=False), whole)
     # and the last checkpoint is the end state itself
     assert_identical(checkpoint.restore(tmp_path / "ck-600.npz", fresh(sim, params), "hooke", params), whole)

@@ -47,9 +47,12 @@ OLDEST_FORMAT = 2
 which it is given from its list (`_SINCE_3`)."""
 
 _SINCE_3 = ".contacts.slot_demand"
-"""Format 3's one new array. It only sizes a re-allocation after a chunk whose
-rebuild overflowed the slots, and such a rebuild raises it past the slots
-itself; at a chunk boundary any value up to the slots resumes the same run."""
+"""Format 3's one new array, given to a format-2 file as its list's fullest
+row. It only sizes a re-allocation after a chunk whose rebuild overflowed the
+slots, and such a rebuild raises it past the slots itself: at a chunk boundary
+any value up to the slots resumes the same run, bit for bit. The array itself
+may then read lower than the uninterrupted run's (the most neighbours since
+the list was allocated) until the run's next re-allocation restarts it."""
 
 
 def _version() -> str:
@@ -207,12 +210,16 @@ def read_metadata(path) -> dict:
 
 
 def read_leaves(path) -> dict:
-    """The saved arrays of a checkpoint by pytree path (`.particles.position`, ...)."""
+    """The saved arrays of a checkpoint by pytree path (`.particles.position`, ...),
+    a format-2 file's given the one array format 3 added (`_SINCE_3`)."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            return {k[len("leaf:"):]: data[k] for k in data.files if k.startswith("leaf:")}
+            leaves = {k[len("leaf:"):]: data[k] for k in data.files if k.startswith("leaf:")}
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
         raise _unreadable(path, e) from e
+    if ".contacts.pairs" in leaves and ".neighbors.idx" in leaves and _SINCE_3 not in leaves:
+        leaves[_SINCE_3] = _slot_count(leaves[".neighbors.idx"])
+    return leaves
 
 
 def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs: int) -> SimState:
@@ -306,8 +313,6 @@ def restore(path, template: SimState, law, params) -> SimState:
         raise InputError(f"{path} holds no contact pair list: it was not written by this jaxpile.")
     template = _at_saved_capacity(template, meta["neighbor_capacity"], meta["cell_capacity"], saved_pairs.shape[-2])
     names, leaves, treedef = _leaves(template)
-    if meta["format"] < 3 and _SINCE_3 in names and _SINCE_3 not in saved:
-        saved[_SINCE_3] = _slot_count(saved[".neighbors.idx"])
     if set(saved) != set(names):
         raise InputError(f"{path} holds another kind of state (arrays {sorted(set(saved) ^ set(names))[:4]} do "
                          "not match): build the same set-up, protocol and integrator it was written from.")

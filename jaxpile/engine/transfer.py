@@ -31,7 +31,7 @@ def to_device(x: Any, dtype=None) -> jax.Array:
     a dtype, goes to `jnp.asarray`, and anything else on the host (a numpy
     array or scalar, a list, a Python scalar given a dtype) is copied and put
     on the device."""
-    if isinstance(x, jax.core.Tracer):
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(x)):  # a list may hold one
         return jnp.asarray(x, dtype)
     if isinstance(x, (bool, int, float, complex)) and dtype is None:
         return jnp.asarray(x)  # weakly typed, as jnp makes it (one compile per dtype and process)
