@@ -25,16 +25,14 @@ from __future__ import annotations
 import argparse
 import time
 
-import jax
 import numpy as np
-from jax import lax
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
 from jaxpile.engine import batch, simulate
-from jaxpile.engine import neighbors as nb
 from jaxpile.protocols import box, definition
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
+from rebuild_cost import rebuild_us
 
 
 def one_run(width: float, seed: int, packed: bool, keep: dict | None = None) -> dict:
@@ -67,24 +65,10 @@ def one_run(width: float, seed: int, packed: bool, keep: dict | None = None) -> 
             "repose_cumulative_parabola": m.get("repose_cumulative_parabola")}
 
 
-def rebuild_us(state, slots: int, turns: int) -> float:
-    """Microseconds per rebuild of `state`'s pile with `slots` slots (its window
-    and pair room), in a compiled loop of `turns` (positions nudged by 1e-12
-    every other turn, so nothing is hoisted out of the loop)."""
+def rebuild_us_at(state, slots: int, turns: int) -> float:
+    """`rebuild_cost.rebuild_us` of `state`'s pile with `slots` slots (its window and pair room)."""
     at = batch.at_capacity(state, slots, state.neighbors.cell_list_capacity, int(state.contacts.pairs.shape[0]))
-    settings, position = at.neighbor_settings, at.particles.position
-
-    def rebuild(i, c):
-        neighbors, contacts = c
-        new = nb.rebuild(neighbors, position + (i % 2) * 1e-12, settings)
-        return new, nb.contacts_for(contacts, neighbors.idx, new.idx)
-
-    loop = jax.jit(lambda c: lax.fori_loop(0, turns, rebuild, c))
-    carry = (at.neighbors, at.contacts)
-    jax.block_until_ready(loop(carry))
-    t0 = time.perf_counter()
-    jax.block_until_ready(loop(carry))
-    return 1e6 * (time.perf_counter() - t0) / turns
+    return rebuild_us(at, turns)
 
 
 def main(argv=None) -> dict:
@@ -122,7 +106,7 @@ def main(argv=None) -> dict:
         for r in range(args.rounds):
             for slots in (int(k) for k in args.rebuild_slots.split(",")):
                 rebuilds.append({"round": r, "slots": slots, "disks": int(state.particles.count),
-                                 "rebuild_us": rebuild_us(state, slots, 2000)})
+                                 "rebuild_us": rebuild_us_at(state, slots, 2000)})
                 print(f"rebuild of the final {state.particles.count}-disk pile, {slots} slots: "
                       f"{rebuilds[-1]['rebuild_us']:.1f} us", flush=True)
     out = {"machine": describe(), "rows": rows, "old_over_packed": summary, "rebuild_by_slots": rebuilds,

@@ -218,7 +218,7 @@ def read_leaves(path) -> dict:
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as e:
         raise _unreadable(path, e) from e
     if ".contacts.pairs" in leaves and ".neighbors.idx" in leaves and _SINCE_3 not in leaves:
-        leaves[_SINCE_3] = _slot_count(leaves[".neighbors.idx"])
+        leaves[_SINCE_3] = host_lists.slot_count(leaves[".neighbors.idx"])
     return leaves
 
 
@@ -234,12 +234,6 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
     pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, pairs))
     contacts = c.set(pairs=pairs, history=transfer.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))
     return template.set(neighbors=neighbors, contacts=contacts)
-
-
-def _slot_count(idx: np.ndarray) -> np.ndarray:
-    """The fullest row of a saved list (`[n, K]`, or `[B, n, K]` for a batch), as int32."""
-    n = idx.shape[-2]
-    return np.max(np.sum(idx < n, axis=-1), axis=-1, initial=0).astype(np.int32)
 
 
 def restore(path, template: SimState, law, params) -> SimState:

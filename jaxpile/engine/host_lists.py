@@ -76,10 +76,11 @@ def half_slots(idx) -> tuple[np.ndarray, np.ndarray]:
     return keep, np.where(keep, entry, -1)
 
 
-def slot_count(idx) -> int:
-    """The most neighbours any row of a full list holds (`neighbors.slot_count`)."""
+def slot_count(idx) -> np.ndarray:
+    """The most neighbours any row of a full list holds (`neighbors.slot_count`),
+    int32; for a batch's lists `[B, n, K]`, one per member."""
     idx = np.asarray(idx)
-    return int(np.max(np.sum(idx < idx.shape[0], axis=1), initial=0))
+    return np.max(np.sum(idx < idx.shape[-2], axis=-1), axis=-1, initial=0).astype(np.int32)
 
 
 def pair_count(idx) -> int:
