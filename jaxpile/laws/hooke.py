@@ -134,8 +134,10 @@ def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
     sliding = ft2 > cap * cap
     # cap / |F_t| with a select between the divide and the sqrt: XLA rewrites
     # a / sqrt(b) into a * rsqrt(b), and XLA:CPU emits a float64 rsqrt as scalar
-    # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py)
-    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(ft2), 1.0), 1.0)
+    # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
+    # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
+    # in the unselected branch would make the gradient NaN where F_t = 0.
+    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
     # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
     has_kt = p.kt > 0
     inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, p.kt, 1.0), 0.0)
