@@ -49,7 +49,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxpile.engine import blocks
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
-from jaxpile.engine.checkpoint import step_of
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed, non_finite_disks
