@@ -38,6 +38,20 @@ import warnings as _warnings
 if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
     _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "") + " --xla_cpu_prefer_vector_width=512").strip()
 
+# XLA:CPU fuses a producer into each of its consumers, copying it, unless its
+# multi-output fusion is on: then one fusion computes a shared chain once and
+# writes every output it feeds. A contact law's arithmetic feeds the force,
+# its two scatters and the new history, so by default the whole law ran three
+# to five times a step (benchmarks/profile_step.py: 5.4e6 -> 3.8e6 flops a
+# step on the 45-layer lattice; 176-195 -> 118-149 us a step, benchmarks/fusion_ab.py).
+# Results move at round-off only (other fusions, other rounding order). A user
+# who sets xla_backend_extra_options in XLA_FLAGS keeps theirs;
+# JAXPILE_MULTI_OUTPUT_FUSION=0 leaves XLA's default (for A/B runs).
+if (_os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION", "1") != "0"
+        and "xla_backend_extra_options" not in _os.environ.get("XLA_FLAGS", "")):
+    _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "")
+                                + " --xla_backend_extra_options=xla_cpu_use_multi_output_fusion").strip()
+
 # One thread for XLA's CPU client (see the docstring; read when the CPU client
 # is made, so a value the user set wins and a JAX already running keeps its own).
 _ONE_THREAD_BY_DEFAULT = "PJRT_NPROC" not in _os.environ

@@ -27,9 +27,11 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
             "import os\n"
             "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
+            # and XLA:CPU's multi-output fusion: a contact law computed once a step, not once per output
+            "assert '--xla_backend_extra_options=xla_cpu_use_multi_output_fusion' in os.environ['XLA_FLAGS']\n"
             # and one XLA thread for a pile's small kernels (88 vs 119 us a lattice step on 2 cores)
             f"{XLA_THREADS}assert xla_threads() == 1, xla_threads()\n")
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PJRT_NPROC")}
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION")}
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
 
@@ -85,6 +87,57 @@ def test_a_vector_width_the_user_gave_xla_is_kept():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["--xla_cpu_prefer_vector_width=256"]
+
+
+PILE_AND_GRADIENT = """
+import json, os
+import jax.numpy as jnp, numpy as np
+import jaxpile
+from jaxpile import fit
+from jaxpile.laws import hooke
+from jaxpile.protocols import lattice
+from jaxpile.simulate import Simulator
+
+particles, boundaries = lattice.equilateral_pile(6)
+rng = np.random.default_rng(0)  # sliding and spinning contacts while it settles
+particles = particles.set(velocity=jnp.asarray(rng.normal(0, 0.2, (particles.count, 2))),
+                          angular_velocity=jnp.asarray(rng.normal(0, 1.0, particles.count)))
+params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3, wall_mu=0.5)
+sim = Simulator(hooke.law(rotation=True), dt=5e-4, skin=0.1)
+state = sim.init(params, particles, boundaries)
+
+def loss(values):  # a base-force moment after 300 steps
+    end = sim.rollout(params.set(**values), state, 300)
+    return jnp.sum(sim.contact_forces(params, end).wall.normal[:, 0] * end.particles.position[:, 0] ** 2)
+
+values = {k: getattr(params, k) for k in ("kn", "kt", "mu")}
+value, grad = fit.value_and_gradient(loss, values, "reverse")(values)
+print(json.dumps({"flags": os.environ["XLA_FLAGS"], "value": float(value),
+                  "grad": {k: float(v) for k, v in grad.items()}}))
+"""
+
+
+def test_multi_output_fusion_gives_the_same_pile_and_gradient():
+    """The configuration `import jaxpile` gives users (XLA's default emitters,
+    multi-output fusion on) against the one the suite runs (older emitters, no
+    multi-output fusion; tests/conftest.py): a base-force moment of a settling
+    frictional pile and its reverse-mode gradient agree to round-off (with the
+    older emitters, multi-output fusion made this gradient ~20x slower:
+    `engine.compile.derivative_options` takes XLA's default emitters with it)."""
+    import json
+
+    runs = {}
+    user = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAXPILE_MULTI_OUTPUT_FUSION")}
+    for name, env in (("user", user), ("suite", dict(os.environ))):
+        done = subprocess.run([sys.executable, "-c", PILE_AND_GRADIENT], capture_output=True, text=True, timeout=300,
+                              env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[name] = json.loads(done.stdout.strip().splitlines()[-1])
+    assert "xla_cpu_use_multi_output_fusion" in runs["user"]["flags"]
+    assert "xla_cpu_use_multi_output_fusion" not in runs["suite"]["flags"]
+    assert runs["suite"]["value"] > 0 and abs(runs["user"]["value"] - runs["suite"]["value"]) <= 1e-10 * runs["suite"]["value"]
+    for k, g in runs["suite"]["grad"].items():
+        assert g != 0 and abs(runs["user"]["grad"][k] - g) <= 1e-8 * abs(g), (k, runs["user"]["grad"][k], g)
 
 
 def test_the_engine_imports_no_protocol_and_no_module_of_it_imports_itself_back():
