@@ -5,9 +5,9 @@ By default XLA:CPU copies a producer into each fusion that consumes it; a
 contact law's arithmetic feeds the force, its scatters and the new history, so
 the law ran several times a step. With multi-output fusion on
 (`--xla_backend_extra_options=xla_cpu_use_multi_output_fusion`, which `import
-jaxpile` sets unless JAXPILE_MULTI_OUTPUT_FUSION=0) one fusion computes it once
-and writes every output. The flag is read once per process, so each
-configuration runs in a child process of its own, the two alternated for
+jaxpile` sets with JAXPILE_MULTI_OUTPUT_FUSION=1, and `jaxpile pile` and `sweep`
+set themselves) one fusion computes it once and writes every output. The flag
+is read once per process, so each configuration runs in a child process of its own, the two alternated for
 `--rounds` rounds on the same machine; each figure is the best of its rounds.
 
 Cases (all float64, one XLA thread, as jaxpile runs a pile):
@@ -17,9 +17,14 @@ Cases (all float64, one XLA thread, as jaxpile runs a pile):
   ensemble: 16 box piles x 100 disks in one vmapped call, particle-steps/s
   gradient: the 55-disk frictional pile, 1000 steps (gradient_cost.py): forward,
             checkpointed reverse and forward mode x3, seconds (best of 3 rounds)
-Derivative programs compile as jaxpile compiles them (`engine.compile`), which
-depends on the fusion setting. Also checks that the two configurations agree
-to round-off (the lattice's positions after 1000 steps).
+With the fusion on, the child also sets --xla_cpu_use_fusion_emitters=true,
+so derivative programs take XLA's newer emitters instead of the older ones
+jaxpile gives them (`engine.compile`): with the older ones the fusion makes a
+reverse gradient ~20x slower, and with the newer ones it aborts compiling some
+other gradients (jax 0.10.2), which is why jaxpile turns the fusion on only in
+`jaxpile pile` and `sweep`. Off is jaxpile's default throughout. Also checks
+that the two configurations agree to round-off (the lattice's positions after
+1000 steps, the gradient).
 
     python benchmarks/fusion_ab.py [--rounds 2] [--cases lattice,box,pour,ensemble,gradient] [--out FILE]
 """
@@ -159,6 +164,8 @@ def main(argv=None) -> dict:
     for r in range(args.rounds):
         for name, flag in (("off", "0"), ("on", "1")):
             env = {**os.environ, "JAXPILE_MULTI_OUTPUT_FUSION": flag}
+            if flag == "1":  # derivatives with the newer emitters too (see the docstring)
+                env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=true").strip()
             done = subprocess.run([sys.executable, os.path.abspath(__file__), "--child", "--cases", ",".join(cases)],
                                   capture_output=True, text=True, env=env)
             if done.returncode != 0:

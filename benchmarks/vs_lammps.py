@@ -83,6 +83,10 @@ import jax
 import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
+
+# jaxpile raced as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (each
+# law computed once a step; see jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
 from jaxpile import analysis, ensemble, io
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour

@@ -40,17 +40,37 @@ if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
 
 # XLA:CPU fuses a producer into each of its consumers, copying it, unless its
 # multi-output fusion is on: then one fusion computes a shared chain once and
-# writes every output it feeds. A contact law's arithmetic feeds the force,
-# its two scatters and the new history, so by default the whole law ran three
-# to five times a step (benchmarks/profile_step.py: 5.4e6 -> 3.8e6 flops a
-# step on the 45-layer lattice; 176-195 -> 118-149 us a step, benchmarks/fusion_ab.py).
-# Results move at round-off only (other fusions, other rounding order). A user
-# who sets xla_backend_extra_options in XLA_FLAGS keeps theirs;
-# JAXPILE_MULTI_OUTPUT_FUSION=0 leaves XLA's default (for A/B runs).
-if (_os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION", "1") != "0"
-        and "xla_backend_extra_options" not in _os.environ.get("XLA_FLAGS", "")):
-    _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "")
-                                + " --xla_backend_extra_options=xla_cpu_use_multi_output_fusion").strip()
+# writes every output it feeds. A contact law's arithmetic feeds the force, its
+# two scatters and the new history, so without it the law runs three to five
+# times a step (benchmarks/profile_step.py: 5.4e6 -> 3.8e6 flops a step on the
+# 45-layer lattice; 176-195 -> 118-149 us a step, benchmarks/fusion_ab.py).
+# It is not on by default: with XLA's default (newer) fusion emitters it aborts
+# the process compiling some gradients (jax 0.10.2: "Check failed: GetNumDims()
+# == other.GetNumResults()" in the loop fusion emitter; a jitted value_and_grad
+# through a rollout, tests/test_fit.py), and with the older emitters it makes a
+# reverse gradient 20x slower. `jaxpile pile` and `jaxpile sweep`, which run no
+# derivative, turn it on (`use_multi_output_fusion`); JAXPILE_MULTI_OUTPUT_FUSION=1
+# turns it on for a whole process (forward runs: a gradient may abort), =0 keeps
+# it off, commands included. A user's own xla_backend_extra_options wins.
+_MULTI_OUTPUT_FUSION_FLAG = "--xla_backend_extra_options=xla_cpu_use_multi_output_fusion"
+
+
+def use_multi_output_fusion() -> bool:
+    """Turns XLA:CPU's multi-output fusion on for this process (see above),
+    unless JAXPILE_MULTI_OUTPUT_FUSION=0 or XLA_FLAGS already sets
+    xla_backend_extra_options. Read when JAX first compiles: call it before any
+    JAX computation. Returns whether the flag is in XLA_FLAGS now."""
+    flags = _os.environ.get("XLA_FLAGS", "")
+    if _MULTI_OUTPUT_FUSION_FLAG in flags:
+        return True
+    if _os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION") == "0" or "xla_backend_extra_options" in flags:
+        return False
+    _os.environ["XLA_FLAGS"] = (flags + " " + _MULTI_OUTPUT_FUSION_FLAG).strip()
+    return True
+
+
+if _os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION") == "1":
+    use_multi_output_fusion()
 
 # One thread for XLA's CPU client (see the docstring; read when the CPU client
 # is made, so a value the user set wins and a JAX already running keeps its own).

@@ -5,17 +5,16 @@ compile at LLVM level 0 when the pile is small (`ONE_OFF_MAX_DISKS`): their
 compile time is then most of their cost.
 
 Derivative programs (a gradient or Jacobian through a rollout) compile with
-XLA:CPU's older fusion emitters when its multi-output fusion is off, where a
-forward run keeps XLA's default: the newer emitters then make the forward step
-faster and its derivatives slower (measured, 55-disk frictional pile, 1000
-steps, one CPU thread: forward 9.5 against 13.0 ms; checkpointed reverse 72
-against 61 ms; forward mode over three parameters 80 against 47 ms;
-`benchmarks/gradient_cost.py`). With multi-output fusion on (jaxpile's
-default, `jaxpile/__init__.py`) it is the other way round: the older emitters
-made the reverse 20x slower (2.3 s against 0.11 s), the newer ones the
-fastest of all (see `benchmarks/fusion_ab.py`), so every program keeps XLA's
-default. The option exists on the CPU backend only, and a flag the user set
-in XLA_FLAGS wins.
+XLA:CPU's older fusion emitters, where a forward run keeps XLA's default:
+the newer emitters make the forward step faster and its derivatives slower
+(measured, 55-disk frictional pile, 1000 steps, one CPU thread: forward 9.5
+against 13.0 ms; checkpointed reverse 72 against 61 ms; forward mode over
+three parameters 80 against 47 ms; `benchmarks/gradient_cost.py`). With
+XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`) the
+newer emitters were faster still for derivatives (reverse 54 ms, forward
+mode 34 ms; `benchmarks/fusion_ab.py`) but abort compiling some gradients,
+so derivatives keep the older emitters there too. The option exists on the
+CPU backend only, and a flag the user set in XLA_FLAGS wins.
 """
 
 from __future__ import annotations
@@ -25,15 +24,12 @@ import os
 import jax
 
 _FLAG = "xla_cpu_use_fusion_emitters"
-_MULTI_OUTPUT = "xla_cpu_use_multi_output_fusion"
 
 
 def derivative_options() -> dict:
     """`compiler_options` for `jax.jit` of a derivative program: the older
-    fusion emitters on a CPU without multi-output fusion; nothing elsewhere,
-    with multi-output fusion, or when XLA_FLAGS sets the emitters."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if jax.default_backend() != "cpu" or _FLAG in flags or _MULTI_OUTPUT in flags:
+    fusion emitters on a CPU, nothing elsewhere or when XLA_FLAGS sets them."""
+    if jax.default_backend() != "cpu" or _FLAG in os.environ.get("XLA_FLAGS", ""):
         return {}
     return {_FLAG: False}
 
