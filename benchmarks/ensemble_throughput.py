@@ -33,6 +33,10 @@ from jaxpile import ensemble, io
 from jaxpile.protocols import box
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
+# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
+# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
+
 LAW = "lee-herrmann"
 
 

@@ -7,7 +7,13 @@ kernel (fusion) per step. Kernels are grouped by the jaxpile code they come
 from (read from the HLO's stack-frame tables): the contact law, the geometry and force
 sums around it, the neighbour list, the integrator. Also prints XLA's own cost analysis of one step (flops, bytes).
 
-    python benchmarks/profile_step.py [--layers 45] [--steps 500] [--precision float64] [--top 12] [--out FILE]
+With `--case pour` the step profiled is a pour's (hooke, vs_lammps.py's
+pour of `--pour-n` disks at its half-way point, on the block of disks in
+play, as `Simulator.run` runs it): where a small, changing pile spends its
+step.
+
+    python benchmarks/profile_step.py [--case lattice|pour] [--layers 45] [--pour-n 1000] [--steps 500]
+                                      [--precision float64] [--top 12] [--out FILE]
 """
 
 from __future__ import annotations
@@ -27,9 +33,14 @@ from jax import lax
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
 from jaxpile.laws import hooke
-from jaxpile.protocols import lattice
+from jaxpile.protocols import lattice, pour
 from jaxpile.simulate import Simulator, gravity_ramp
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
+
+# the step as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (see
+# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
+
 
 def _table(hlo_text: str, title: str) -> dict[int, str]:
     m = re.search(rf"^{title}\n(.*?)(?:\n\n|\n[A-Z]\w+\n)", hlo_text, re.S | re.M)
@@ -80,9 +91,34 @@ def group_of(source: str) -> str:
     return "step glue (" + source + ")"
 
 
+def pour_at_half_way(n: int, steps: int):
+    """`(sim, params, state, title)`: vs_lammps.py's hooke pour of n disks run
+    to half its pour steps, cut to the block of disks in play over the next
+    `steps` steps (`jaxpile.engine.blocks`), as `Simulator.run` would run them."""
+    import vs_lammps
+    from jaxpile.engine import blocks
+
+    protocol = vs_lammps.pour_setup(n, 0.15, 0)
+    _, _, params = pour.law_and_params("hooke")
+    sim = pour.make_simulator("hooke", dt=vs_lammps.DT, chunk_steps=vs_lammps.POUR_CHUNK,
+                              integrator="velocity_verlet")
+    state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
+                     protocol_state=protocol.protocol_state)
+    state = sim.run(params, state, protocol.info["pour_steps"] // 2, progress=False)
+    total = state.particles.count
+    size = sim._block_for(state, steps)
+    if size is not None:
+        state = blocks.take_jit(state, size, blocks.pair_room(state, size, 0))
+    in_play = int(jnp.sum(state.particles.active))
+    return sim, params, state, (f"pour of {n} disks (hooke) half-way: {in_play} disks in play, "
+                                f"block of {state.particles.count} of {total}")
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--case", default="lattice", choices=["lattice", "pour"])
     parser.add_argument("--layers", type=int, default=45)
+    parser.add_argument("--pour-n", type=int, default=1000, help="pour: disks poured")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--precision", default="float64", choices=["float32", "float64"])
     parser.add_argument("--top", type=int, default=12)
@@ -90,11 +126,15 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
 
     dtype = jnp.float32 if args.precision == "float32" else jnp.float64
-    params = hooke.make_params(dtype=dtype, **lattice.PAPER_SETTING["params"]["hooke"])
-    sim = Simulator(hooke.law(rotation=False), lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(20_000))
-    particles, boundaries = lattice.equilateral_pile(args.layers, dtype=dtype)
-    state = sim.init(params, particles, boundaries)
-    state = sim.run(params, state, 2000, progress=False)  # loaded and in contact
+    if args.case == "pour":
+        sim, params, state, title = pour_at_half_way(args.pour_n, args.steps)
+    else:
+        params = hooke.make_params(dtype=dtype, **lattice.PAPER_SETTING["params"]["hooke"])
+        sim = Simulator(hooke.law(rotation=False), lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(20_000))
+        particles, boundaries = lattice.equilateral_pile(args.layers, dtype=dtype)
+        state = sim.init(params, particles, boundaries)
+        state = sim.run(params, state, 2000, progress=False)  # loaded and in contact
+        title = f"{args.layers}-layer lattice pile ({particles.count} disks), hooke"
 
     run = jax.jit(lambda s: lax.fori_loop(0, args.steps, lambda i, s: sim.step(params, s), s))
     compiled = run.lower(state).compile()
@@ -119,9 +159,8 @@ def main(argv=None) -> dict:
     for name, us in per_kernel.items():
         groups[group_of(names[name])] += us
 
-    n = particles.count
-    print(f"{args.layers}-layer lattice pile ({n} disks), hooke, {args.precision}, "
-          f"{describe()}")
+    n = state.particles.count
+    print(f"{title}, {args.precision}, {describe()}")
     print(f"kernel time per step: {total:.1f} us ({total / n * 1e3:.0f} ns per particle), "
           f"{len(per_kernel)} kernels")
     for group, us in groups.most_common():
@@ -133,7 +172,7 @@ def main(argv=None) -> dict:
     print(f"XLA cost analysis of the compiled loop (both branches of each cond counted): "
           f"{flops:.3g} flops, {cost.get('bytes accessed', float('nan')):.3g} bytes per step" if flops else "")
 
-    out = {"machine": describe(),
+    out = {"machine": describe(), "case": title,
            "disks": n, "precision": args.precision, "steps": args.steps,
            "kernel_us_per_step": total, "groups_us_per_step": dict(groups),
            "top_kernels": [{"name": k, "us_per_step": v, "op": names[k]} for k, v in per_kernel.most_common(args.top)],

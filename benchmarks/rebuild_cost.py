@@ -33,6 +33,10 @@ from jaxpile.protocols import pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 from vs_lammps import DT, pour_setup
 
+# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
+# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
+
 
 def per_turn(loop, carry, turns: int) -> float:
     """Microseconds per turn of a compiled loop (compiled and warmed up first)."""

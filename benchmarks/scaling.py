@@ -36,6 +36,10 @@ from jaxpile.simulate import RunInfo, Simulator
 from jaxpile.state import make_particles
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
+# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
+# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
+
 DT = 1e-3
 
 
