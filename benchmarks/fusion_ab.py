@@ -7,8 +7,9 @@ the law ran several times a step. With multi-output fusion on
 (`--xla_backend_extra_options=xla_cpu_use_multi_output_fusion`, which `import
 jaxpile` sets with JAXPILE_MULTI_OUTPUT_FUSION=1, and `jaxpile pile` and `sweep`
 set themselves) one fusion computes it once and writes every output. The flag
-is read once per process, so each configuration runs in a child process of its own, the two alternated for
-`--rounds` rounds on the same machine; each figure is the best of its rounds.
+is read once per process, so each configuration runs in a child process of its
+own, the two alternated for `--rounds` rounds on the same machine; each figure
+is the best of its rounds.
 
 Cases (all float64, one XLA thread, as jaxpile runs a pile):
   lattice:  the 45-layer 1992 pile (1035 disks, hooke), us per step (1000-step loop, best of 5)
@@ -41,8 +42,8 @@ import time
 CASES = ("lattice", "box", "pour", "ensemble", "gradient")
 
 
-def _loop_us(sim, params, state, steps: int = 1000, repeats: int = 5) -> tuple[float, float]:
-    """`(compile s, best us per step)` of a jitted `steps`-step loop."""
+def _loop_us(sim, params, state, steps: int = 1000, repeats: int = 5) -> tuple:
+    """`(compile s, best us per step, end state)` of a jitted `steps`-step loop."""
     import jax
     from jax import lax
 

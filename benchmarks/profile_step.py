@@ -124,6 +124,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--top", type=int, default=12)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
+    if args.case == "pour" and args.precision != "float64":
+        parser.error("--case pour runs vs_lammps.py's pour, in float64")
 
     dtype = jnp.float32 if args.precision == "float32" else jnp.float64
     if args.case == "pour":

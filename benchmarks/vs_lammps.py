@@ -83,10 +83,6 @@ import jax
 import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
-
-# jaxpile raced as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (each
-# law computed once a step; see jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
 from jaxpile import analysis, ensemble, io
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
@@ -99,6 +95,10 @@ try:
 except ImportError:  # run as a script: benchmarks/ is on sys.path
     import lammps_peer as peer
     from machine import describe, details
+
+# jaxpile raced as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (each
+# law computed once a step; see jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.use_multi_output_fusion()
 
 FULL = {"ramp": 20_000, "hold": 20_000, "pour_n": 1000, "pour_settle": 30_000, "ensemble_steps": "5000,5000"}
 SMALL = {"ramp": 20_000, "hold": 20_000, "pour_n": 200, "pour_settle": 20_000, "ensemble_steps": "1000,1000"}
