@@ -191,6 +191,9 @@ def test_host_lists_equal_their_traced_twins(monkeypatch):
     carried = host_lists.carry_history(old, old_history, new_pairs)
     np.testing.assert_array_equal(carried, carry_history(jnp.asarray(old), jnp.asarray(old_history),
                                                          jnp.asarray(new_pairs)))
+    # and the step's carry, read from the old half pairs themselves (the first 64, as the history holds)
+    np.testing.assert_array_equal(carried, nb.carry_history_from_pairs(
+        jnp.asarray(host_lists.half_pairs(old, 64)), jnp.asarray(old_history), jnp.asarray(new_pairs), *old.shape))
     assert 0 < (carried[:, 0] != 0).sum() < host_lists.pair_count(new)  # some carried, some new or cut
 
 

@@ -581,7 +581,10 @@ def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array
 
     Returns:
       `[P_new, h]`. Exact (a gather, no arithmetic): a list rebuilt where
-      nothing moved gives the same history bit for bit. O(P K_old).
+      nothing moved gives the same history bit for bit. O(P K_old). The step
+      carries with `carry_history_from_pairs`, the same gather read from the
+      old pairs themselves; this form, from the old full list, is the
+      reference the host twin (`host_lists.carry_history`) and tests use.
     """
     n = old_idx.shape[0]
     keep, entry = half_slots(old_idx)
@@ -594,14 +597,38 @@ def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array
     return jnp.where(((found >= 0) & (i < n))[:, None], old, jnp.zeros_like(old))
 
 
+def carry_history_from_pairs(old_pairs: Array, old_history: Array, new_pairs: Array, n: int, k: int) -> Array:
+    """`carry_history` read from the old half pairs themselves, `old_pairs`
+    `[P_old, 2]` (`half_pairs(old_idx, P_old)`: row-major, each row's pairs in
+    increasing j, empty entries (n, n) last), for a full list of `k` slots:
+    row i's pairs start where the rows above end (a count per row and one
+    cumulative sum over the n rows), and the new pair (i, j) is looked for
+    among the at most `k` entries from there. The same gather as
+    `carry_history`, bit for bit, without its `[n, K, K]` triangle and two of
+    its three `[P_new, K]` gathers."""
+    p_old = old_pairs.shape[0]
+    count = jax.ops.segment_sum(jnp.ones((p_old,), jnp.int32), old_pairs[:, 0], n + 1)[:n]
+    start = jnp.cumsum(count, dtype=jnp.int32) - count
+    i, j = new_pairs[:, 0], new_pairs[:, 1]
+    row = jnp.minimum(i, n - 1)
+    at = start[row][:, None] + jnp.arange(k, dtype=jnp.int32)[None, :]  # [P_new, K]
+    ok = jnp.arange(k)[None, :] < count[row][:, None]
+    match = ok & (old_pairs[jnp.minimum(at, p_old - 1), 1] == j[:, None])
+    found = jnp.max(jnp.where(match, at, -1), axis=1, initial=-1)
+    old = old_history[jnp.maximum(found, 0)]
+    return jnp.where(((found >= 0) & (i < n))[:, None], old, jnp.zeros_like(old))
+
+
 def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None = None):
     """`contacts` (a `state.Contacts`) re-laid on the half pairs of `new_idx`
     (`capacity` entries; default: as many as now), history carried pair by
-    pair from the list `old_idx` it was laid on; the demands restart from the
-    new list's pairs and its fullest row."""
+    pair from the pairs it was laid on (`contacts.pairs`, the half pairs of
+    `old_idx`); the demands restart from the new list's pairs and its fullest row."""
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
     pairs = half_pairs(new_idx, capacity)
-    return contacts.set(pairs=pairs, history=carry_history(old_idx, contacts.history, pairs),
+    n, k = old_idx.shape
+    history = carry_history_from_pairs(contacts.pairs, contacts.history, pairs, n, k)
+    return contacts.set(pairs=pairs, history=history,
                         demand=pair_count(new_idx), slot_demand=slot_count(new_idx))
 
 

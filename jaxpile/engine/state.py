@@ -81,7 +81,7 @@ class Contacts:
       history: `[P, h]` per-pair history, in the frame of the pair's lower id i
         (for `hooke`: the accumulated shear displacement of i relative to j).
         Non-zero only while the pair is in contact; carried pair by pair across
-        neighbour-list rebuilds (`neighbors.carry_history`).
+        neighbour-list rebuilds (`neighbors.contacts_for`).
       wall_history: `[n, w, h]` the same for each particle against each wall.
       demand: int scalar, the most half pairs any rebuild found since the pair
         list was allocated (more than P: the list overflowed and is re-allocated
