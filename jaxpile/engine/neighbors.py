@@ -569,6 +569,13 @@ def half_pairs(idx: Array, capacity: int | None = None) -> Array:
     return jnp.stack([i, j], axis=1)
 
 
+def _history_at(old_history: Array, found: Array, valid: Array) -> Array:
+    """Each new pair's history: the old entry `found` (-1: none, a new pair),
+    zero where `found` is -1 or the new entry is empty (`valid` False)."""
+    old = old_history[jnp.maximum(found, 0)]
+    return jnp.where(((found >= 0) & valid)[:, None], old, jnp.zeros_like(old))
+
+
 def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array:
     """History of the half pairs `new_pairs`, each taken from the same pair
     (i, j) of the old list, or zero for a new pair.
@@ -593,8 +600,7 @@ def carry_history(old_idx: Array, old_history: Array, new_pairs: Array) -> Array
     match = keep[row] & (old_idx[row] == j[:, None])  # [P_new, K_old]
     found = jnp.max(jnp.where(match, entry[row], -1), axis=1, initial=-1)
     found = jnp.where(found < old_history.shape[0], found, -1)  # past the old capacity: it was not kept
-    old = old_history[jnp.maximum(found, 0)]
-    return jnp.where(((found >= 0) & (i < n))[:, None], old, jnp.zeros_like(old))
+    return _history_at(old_history, found, i < n)
 
 
 def carry_history_from_pairs(old_pairs: Array, old_history: Array, new_pairs: Array, n: int, k: int) -> Array:
@@ -615,8 +621,7 @@ def carry_history_from_pairs(old_pairs: Array, old_history: Array, new_pairs: Ar
     ok = jnp.arange(k)[None, :] < count[row][:, None]
     match = ok & (old_pairs[jnp.minimum(at, p_old - 1), 1] == j[:, None])
     found = jnp.max(jnp.where(match, at, -1), axis=1, initial=-1)
-    old = old_history[jnp.maximum(found, 0)]
-    return jnp.where(((found >= 0) & (i < n))[:, None], old, jnp.zeros_like(old))
+    return _history_at(old_history, found, i < n)
 
 
 def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None = None):
