@@ -18,12 +18,10 @@ Cases (all float64, one XLA thread, as jaxpile runs a pile):
   ensemble: 16 box piles x 100 disks in one vmapped call, particle-steps/s
   gradient: the 55-disk frictional pile, 1000 steps (gradient_cost.py): forward,
             checkpointed reverse and forward mode x3, seconds (best of 3 rounds)
-With the fusion on, the child also sets --xla_cpu_use_fusion_emitters=true,
-so derivative programs take XLA's newer emitters instead of the older ones
-jaxpile gives them (`engine.compile`): with the older ones the fusion makes a
-reverse gradient ~20x slower, and with the newer ones it aborts compiling some
-other gradients (jax 0.10.2), which is why jaxpile turns the fusion on only in
-`jaxpile pile` and `sweep`. Off is jaxpile's default throughout. Also checks
+With the fusion on, derivative programs take XLA's newer emitters instead of
+the older ones jaxpile gives them without it (`engine.compile`): with the older
+ones the fusion makes a reverse gradient ~20x slower. Off is jaxpile's Python
+default; `jaxpile pile`, `sweep` and `fit` run on. Also checks
 that the two configurations agree to round-off (the lattice's positions after
 1000 steps, the gradient).
 
@@ -165,8 +163,6 @@ def main(argv=None) -> dict:
     for r in range(args.rounds):
         for name, flag in (("off", "0"), ("on", "1")):
             env = {**os.environ, "JAXPILE_MULTI_OUTPUT_FUSION": flag}
-            if flag == "1":  # derivatives with the newer emitters too (see the docstring)
-                env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=true").strip()
             done = subprocess.run([sys.executable, os.path.abspath(__file__), "--child", "--cases", ",".join(cases)],
                                   capture_output=True, text=True, env=env)
             if done.returncode != 0:
@@ -178,7 +174,8 @@ def main(argv=None) -> dict:
         values = [run[case][key] for run in runs[name]]
         return max(values) if larger else min(values)
 
-    summary = {"machine": describe(), "rounds": args.rounds}
+    summary = {"machine": describe(), "rounds": args.rounds,
+               "command": " ".join(["python benchmarks/fusion_ab.py", *(sys.argv[1:] if argv is None else argv)])}
     lines = []
     for case, key, larger, unit in (("lattice", "us_per_step", False, "us/step"),
                                     ("lattice", "compile_s", False, "s compile"),

@@ -48,6 +48,11 @@ from jaxpile.protocols import lattice
 from jaxpile.simulate import Simulator
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
+# the programs as `jaxpile fit` compiles them: XLA:CPU's multi-output fusion on
+# and derivatives with XLA's default emitters (jaxpile/__init__.py,
+# engine/compile.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0 (Python's default)
+jaxpile.use_multi_output_fusion()
+
 NAMES = ("kn", "kt", "mu")
 
 

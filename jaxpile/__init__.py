@@ -44,14 +44,17 @@ if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
 # two scatters and the new history, so without it the law runs three to five
 # times a step (benchmarks/profile_step.py: 5.4e6 -> 3.8e6 flops a step on the
 # 45-layer lattice; 176-195 -> 118-149 us a step, benchmarks/fusion_ab.py).
-# It is not on by default: with XLA's default (newer) fusion emitters it aborts
-# the process compiling some gradients (jax 0.10.2: "Check failed: GetNumDims()
-# == other.GetNumResults()" in the loop fusion emitter; a jitted value_and_grad
-# through a rollout, tests/test_fit.py), and with the older emitters it makes a
-# reverse gradient 20x slower. `jaxpile pile` and `jaxpile sweep`, which run no
-# derivative, turn it on (`use_multi_output_fusion`); JAXPILE_MULTI_OUTPUT_FUSION=1
-# turns it on for a whole process (forward runs: a gradient may abort), =0 keeps
-# it off, commands included. A user's own xla_backend_extra_options wins.
+# It is not on by default in Python: in jax 0.10.2 XLA's newer fusion emitters
+# abort the process ("Check failed: GetNumDims() == other.GetNumResults()") on
+# a multi-output fusion of some scatter-adds, such as the two that the
+# derivative of `jnp.interp` makes, and a user's own loss may hold one. jaxpile's
+# own losses hold none (`fit.profile_loss` reads a profile by a select, not
+# `jnp.interp`), so the commands turn it on: `jaxpile pile`, `sweep` and `fit`
+# (`use_multi_output_fusion`), and a derivative program then compiles with the
+# newer emitters too (`engine.compile`; with the older ones the fusion makes a
+# reverse gradient 20x slower). JAXPILE_MULTI_OUTPUT_FUSION=1 turns it on for a
+# whole process, =0 keeps it off, commands included. A user's own
+# xla_backend_extra_options wins.
 _MULTI_OUTPUT_FUSION_FLAG = "--xla_backend_extra_options=xla_cpu_use_multi_output_fusion"
 
 

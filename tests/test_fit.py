@@ -286,6 +286,30 @@ def test_profile_loss_is_zero_on_the_target_and_grows_away_from_it():
         fit.profile_loss(flat, target._replace(horizontal=None), horizontal_weight=1.0)
 
 
+def test_profile_interpolation_is_jnp_interp_and_its_gradient_has_no_scatter():
+    """profile_loss reads a profile between its points like jnp.interp, by a
+    select instead of gathers: the gathers' derivative is a scatter-add, and
+    XLA:CPU's multi-output fusion of two of them aborts the process in jax
+    0.10.2 (jaxpile.use_multi_output_fusion)."""
+    rng = np.random.default_rng(3)
+    xp = np.concatenate([[0.0, 0.0], np.sort(rng.uniform(0, 1, 7)), [1.0]])  # a repeated point, as at a foot
+    fp = rng.normal(size=xp.size)
+    x = np.concatenate([rng.uniform(-0.2, 1.2, 40), xp])  # outside, inside and on the points
+    got = fit._interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), jnp.asarray(fp))
+    np.testing.assert_allclose(np.asarray(got), np.asarray(jnp.interp(x, xp, fp)), rtol=1e-14, atol=1e-15)
+    assert float(fit._interp_without_scatter(jnp.asarray(0.3), jnp.asarray(xp), jnp.asarray(fp))) == pytest.approx(
+        float(jnp.interp(0.3, xp, fp)), rel=1e-14)
+
+    def both(values):  # two reads of traced values: the pattern whose scatters XLA fused and aborted on
+        return (fit._interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), values) ** 2).sum() + (
+            fit._interp_without_scatter(jnp.asarray(x[::-1]), jnp.asarray(xp), 2 * values) ** 3).sum()
+
+    grad = jax.jit(jax.grad(both))
+    assert "scatter" not in grad.lower(jnp.asarray(fp)).as_text()
+    reference = jax.grad(lambda v: (jnp.interp(x, xp, v) ** 2).sum() + (jnp.interp(x[::-1], xp, 2 * v) ** 3).sum())
+    np.testing.assert_allclose(np.asarray(grad(jnp.asarray(fp))), np.asarray(reference(jnp.asarray(fp))), rtol=1e-12)
+
+
 def test_dip_and_feature_losses():
     target = fit.smid_novosad_target()
     shallow = fit.smid_novosad_target(dip=0.1)

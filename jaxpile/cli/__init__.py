@@ -706,10 +706,10 @@ def main(argv=None) -> int:
         _check_flags(args)
         if wants_xla_threads(args):
             threads_for_batches()
-        if args.command in ("pile", "sweep") and "JAXPILE_MULTI_OUTPUT_FUSION" not in os.environ:
+        if args.command in ("pile", "sweep", "fit") and "JAXPILE_MULTI_OUTPUT_FUSION" not in os.environ:
             import jaxpile
 
-            jaxpile.use_multi_output_fusion()  # forward runs only: each law computed once a step
+            jaxpile.use_multi_output_fusion()  # each law once a step (fit's losses: no interp scatters)
         use_compile_cache()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)

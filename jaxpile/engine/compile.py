@@ -10,11 +10,12 @@ the newer emitters make the forward step faster and its derivatives slower
 (measured, 55-disk frictional pile, 1000 steps, one CPU thread: forward 9.5
 against 13.0 ms; checkpointed reverse 72 against 61 ms; forward mode over
 three parameters 80 against 47 ms; `benchmarks/gradient_cost.py`). With
-XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`) the
-newer emitters were faster still for derivatives (reverse 54 ms, forward
-mode 34 ms; `benchmarks/fusion_ab.py`) but abort compiling some gradients,
-so derivatives keep the older emitters there too. The option exists on the
-CPU backend only, and a flag the user set in XLA_FLAGS wins.
+XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`, as
+`jaxpile pile`, `sweep` and `fit` run) the newer emitters are the faster for
+derivatives too (reverse 54 ms, forward mode 34 ms; `benchmarks/fusion_ab.py`)
+and the older ones make a reverse gradient ~20x slower, so derivatives keep
+XLA's default there. The option exists on the CPU backend only, and a flag
+the user set in XLA_FLAGS wins.
 """
 
 from __future__ import annotations
@@ -24,12 +25,15 @@ import os
 import jax
 
 _FLAG = "xla_cpu_use_fusion_emitters"
+_MULTI_OUTPUT_FUSION = "xla_cpu_use_multi_output_fusion"
 
 
 def derivative_options() -> dict:
     """`compiler_options` for `jax.jit` of a derivative program: the older
-    fusion emitters on a CPU, nothing elsewhere or when XLA_FLAGS sets them."""
-    if jax.default_backend() != "cpu" or _FLAG in os.environ.get("XLA_FLAGS", ""):
+    fusion emitters on a CPU without multi-output fusion; nothing with it,
+    elsewhere, or when XLA_FLAGS sets them."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if jax.default_backend() != "cpu" or _FLAG in flags or _MULTI_OUTPUT_FUSION in flags:
         return {}
     return {_FLAG: False}
 

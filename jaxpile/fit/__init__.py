@@ -410,9 +410,30 @@ def _profile_at(profile, u):
         first = jnp.where(xp[0] > 0, 0.0, values[0])
         last = jnp.where(xp[-1] < 1, 0.0, values[-1])
         fs = jnp.concatenate([first[None], values, last[None]])
-        return jnp.interp(jnp.asarray(u), xs, fs)
+        return _interp_without_scatter(jnp.asarray(u), xs, fs)
 
     return at(profile.normal), None if profile.horizontal is None else at(profile.horizontal)
+
+
+def _interp_without_scatter(x, xp, fp):
+    """`jnp.interp(x, xp, fp)` (ends held constant) with each point's two
+    neighbours picked by a select over xp instead of gathers: the gathers'
+    derivative is a scatter-add whose multi-output fusion aborts XLA:CPU's
+    newer emitters (jax 0.10.2; see `jaxpile.use_multi_output_fusion`), and
+    xp holds a few dozen points, so a [len(x), len(xp)] select costs nothing.
+    Same formula as jnp.interp: the same values to round-off."""
+    i = jnp.clip(jnp.searchsorted(xp, x, side="right"), 1, xp.shape[0] - 1)
+    slots = jnp.arange(xp.shape[0])
+
+    def pick(values, at):  # values[at], a select and a sum (its derivative: a select, no scatter)
+        return jnp.where(slots == at[..., None], values, jnp.zeros_like(values)).sum(axis=-1)
+
+    f_lo, f_hi, x_lo, x_hi = pick(fp, i - 1), pick(fp, i), pick(xp, i - 1), pick(xp, i)
+    dx = x_hi - x_lo
+    dx0 = jnp.abs(dx) <= np.spacing(np.finfo(xp.dtype).eps)  # jnp.interp's guard against NaN gradients
+    f = jnp.where(dx0, f_lo, f_lo + ((x - x_lo) / jnp.where(dx0, 1, dx)) * (f_hi - f_lo))
+    f = jnp.where(x < xp[0], fp[0], f)
+    return jnp.where(x > xp[-1], fp[-1], f)
 
 
 def profile_loss(predicted: Profile, target: ProfileTarget, *, horizontal_weight: float = 0.0) -> Array:
