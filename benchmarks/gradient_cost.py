@@ -134,6 +134,47 @@ def kernels_per_step(fn, args, steps: int) -> float:
     return len(kernels) / steps
 
 
+def loop_kernels(fn, args) -> list:
+    """The compiled program's loops, read from its HLO: for each `while`, its
+    trip count and the kernels its body launches on a step that does not
+    rebuild the neighbour list (fusions, copies, scatters...; of each
+    `conditional` the smaller branch, plus one for the cond itself). A
+    checkpointed reverse program holds three loops over steps: the forward
+    that finds each block's start, the block's recomputation, and the
+    transposed step. `[(trip count, kernels), ...]` in the order of the text."""
+    import re
+
+    comps, cur = {}, None
+    for line in fn.lower(*args).compile().as_text().splitlines():
+        head = re.match(r"^(?:ENTRY )?%?([\w.\-]+) .*\{$", line)
+        if head and not line.startswith(" "):
+            cur = comps.setdefault(head.group(1), [])
+        elif line.startswith("}"):
+            cur = None
+        elif cur is not None:
+            cur.append(line)
+    free = ("get-tuple-element", "tuple", "parameter", "bitcast", "constant", "while")
+
+    def kernels(name):
+        n = 0
+        for line in comps[name]:
+            m = re.match(r"\s*(?:ROOT )?%[\w.\-]+ = \S.*? ([\w\-]+)\(", line)
+            if not m or m.group(1) in free:
+                continue
+            branches = re.search(r"branch_computations=\{([^}]*)\}", line)
+            n += 1 + (min(kernels(b.strip().lstrip("%")) for b in branches.group(1).split(",")) if branches else 0)
+        return n
+
+    loops = []
+    for lines in comps.values():
+        for line in lines:
+            m = re.search(r" while\(.*body=%([\w.\-]+)", line)
+            if m:
+                trips = re.search(r'"known_trip_count":\{"n":"(\d+)"', line)
+                loops.append((int(trips.group(1)) if trips else -1, kernels(m.group(1))))
+    return loops
+
+
 def reverse_breakdown(fn, args, steps: int) -> dict:
     """Where a compiled reverse-mode program's kernel time goes, per step, from
     a profile of one call: each XLA:CPU kernel classed by what its HLO came
@@ -197,7 +238,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--no-horizon", action="store_true", help="cost and memory only (skip part 2)")
     parser.add_argument("--thunks", action="store_true",
-                        help="also count the XLA:CPU kernels each program launches per step (from a profile)")
+                        help="also count the XLA:CPU kernels each program launches per step (from a profile), "
+                             "and each loop's kernels in its compiled HLO")
     parser.add_argument("--rounds", type=int, default=7, help="side-by-side timing rounds (median ratio)")
     parser.add_argument("--breakdown", action="store_true",
                         help="also class the checkpointed reverse program's kernel time per step (from a profile)")
@@ -238,6 +280,9 @@ def main(argv=None) -> dict:
             print(f"  kernels per step: forward {row['kernels_forward']:.0f}, reverse checkpointed "
                   f"{row['kernels_grad_checkpoint']:.0f}, forward mode x3 {row['kernels_grad_forward_mode']:.0f}, "
                   f"x1 {row['kernels_grad_forward_mode_mu']:.0f}")
+            row["loop_kernels"] = {name: loop_kernels(fn, a) for name, (fn, a) in programs.items() if name != "grad"}
+            print("  loops in the compiled programs (trips, kernels a trip; conds at their lighter branch): " + "; ".join(
+                f"{name} {loops}" for name, loops in row["loop_kernels"].items()))
         if args.breakdown:  # where the checkpointed reverse pass spends its kernel time
             row["reverse_breakdown"] = reverse_breakdown(grad_ckpt, (values,), steps)
             print("  checkpointed reverse, per step (kernels, us): " + "; ".join(
