@@ -58,7 +58,11 @@ def _kernel_over(law: ContactLaw):
     histories `[h, m]`, scalars `[m]`. The batch axis last keeps each component
     one contiguous row, so the law's component-by-component arithmetic fuses
     without transposes in its forward pass and without pads in its reverse pass
-    (measured: benchmarks/gradient_cost.py)."""
+    (measured: benchmarks/gradient_cost.py). Under `jax.checkpoint` the
+    reverse pass recomputes the law instead of storing its residuals; with
+    XLA:CPU's multi-output fusion, dropping it left the derivatives' times
+    about as they were and made the forward 1.3-1.7x slower (55 and 465
+    disks, two alternated rounds, 2026-11-27)."""
     return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
 
 
