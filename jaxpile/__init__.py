@@ -58,14 +58,20 @@ if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
 _MULTI_OUTPUT_FUSION_FLAG = "--xla_backend_extra_options=xla_cpu_use_multi_output_fusion"
 
 
+def multi_output_fusion_on() -> bool:
+    """Whether XLA_FLAGS asks XLA:CPU for its multi-output fusion (jaxpile's
+    flag or a user's own xla_backend_extra_options holding the option)."""
+    return "xla_cpu_use_multi_output_fusion" in _os.environ.get("XLA_FLAGS", "")
+
+
 def use_multi_output_fusion() -> bool:
     """Turns XLA:CPU's multi-output fusion on for this process (see above),
     unless JAXPILE_MULTI_OUTPUT_FUSION=0 or XLA_FLAGS already sets
     xla_backend_extra_options. Read when JAX first compiles: call it before any
     JAX computation. Returns whether the flag is in XLA_FLAGS now."""
-    flags = _os.environ.get("XLA_FLAGS", "")
-    if _MULTI_OUTPUT_FUSION_FLAG in flags:
+    if multi_output_fusion_on():
         return True
+    flags = _os.environ.get("XLA_FLAGS", "")
     if _os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION") == "0" or "xla_backend_extra_options" in flags:
         return False
     _os.environ["XLA_FLAGS"] = (flags + " " + _MULTI_OUTPUT_FUSION_FLAG).strip()

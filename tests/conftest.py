@@ -22,9 +22,10 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
 # before any computation initialises the backend (which reads XLA_FLAGS once).
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=false").strip()
-# XLA:CPU's multi-output fusion, which `jaxpile pile` and `sweep` turn on, stays off
-# in the suite, commands included, as in the Python API by default (it aborts
-# compiling some gradients); tests/test_imports.py runs a pile both ways.
+# XLA:CPU's multi-output fusion, which `jaxpile pile`, `sweep` and `fit` turn on,
+# stays off in the suite, commands included, as in the Python API by default (a
+# user's own loss may hold the pattern it aborts on); tests/test_imports.py runs a
+# pile both ways.
 os.environ.setdefault("JAXPILE_MULTI_OUTPUT_FUSION", "0")
 
 import jax  # noqa: E402

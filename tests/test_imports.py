@@ -27,7 +27,7 @@ def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_awa
             # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
             "import os\n"
             "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
-            # and leaves XLA:CPU's multi-output fusion off (it aborts compiling some gradients)
+            # and leaves XLA:CPU's multi-output fusion off (it aborts compiling some users' gradients)
             "assert 'multi_output' not in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
             # and one XLA thread for a pile's small kernels (88 vs 119 us a lattice step on 2 cores)
             f"{XLA_THREADS}assert xla_threads() == 1, xla_threads()\n")

@@ -25,15 +25,15 @@ import os
 import jax
 
 _FLAG = "xla_cpu_use_fusion_emitters"
-_MULTI_OUTPUT_FUSION = "xla_cpu_use_multi_output_fusion"
 
 
 def derivative_options() -> dict:
     """`compiler_options` for `jax.jit` of a derivative program: the older
     fusion emitters on a CPU without multi-output fusion; nothing with it,
     elsewhere, or when XLA_FLAGS sets them."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if jax.default_backend() != "cpu" or _FLAG in flags or _MULTI_OUTPUT_FUSION in flags:
+    from jaxpile import multi_output_fusion_on
+
+    if jax.default_backend() != "cpu" or _FLAG in os.environ.get("XLA_FLAGS", "") or multi_output_fusion_on():
         return {}
     return {_FLAG: False}
 
