@@ -25,15 +25,16 @@ import os
 import jax
 
 _FLAG = "xla_cpu_use_fusion_emitters"
+_MULTI_OUTPUT_FUSION = "xla_cpu_use_multi_output_fusion"  # as jaxpile.multi_output_fusion_on reads it (the
+# engine imports nothing from the package's top, tests/test_layers.py)
 
 
 def derivative_options() -> dict:
     """`compiler_options` for `jax.jit` of a derivative program: the older
     fusion emitters on a CPU without multi-output fusion; nothing with it,
     elsewhere, or when XLA_FLAGS sets them."""
-    from jaxpile import multi_output_fusion_on
-
-    if jax.default_backend() != "cpu" or _FLAG in os.environ.get("XLA_FLAGS", "") or multi_output_fusion_on():
+    flags = os.environ.get("XLA_FLAGS", "")
+    if jax.default_backend() != "cpu" or _FLAG in flags or _MULTI_OUTPUT_FUSION in flags:
         return {}
     return {_FLAG: False}
 
