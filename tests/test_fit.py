@@ -409,6 +409,20 @@ def test_forward_and_reverse_mode_give_one_gradient_and_one_fit():
         fit.fit(_toy_loss, start, "mu", mode="sideways")
 
 
+def test_auto_mode_takes_forward_mode_up_to_the_measured_count_and_explicit_modes_as_given():
+    """`mode="auto"` switches to reverse mode above `FORWARD_MODE_MAX` values
+    (benchmarks/forward_mode_threshold.py); explicit modes are kept whatever
+    the count, and `value_and_gradient` refuses an unknown one."""
+    most = fit.FORWARD_MODE_MAX
+    assert most >= 1
+    assert [fit.gradient_mode(k) for k in (1, most, most + 1, 50)] == ["forward", "forward", "reverse", "reverse"]
+    assert fit.gradient_mode(1, "reverse") == "reverse" and fit.gradient_mode(50, "forward") == "forward"
+    for bad in (lambda: fit.gradient_mode(3, "sideways"),
+                lambda: fit.value_and_gradient(lambda u: u ** 2, jnp.asarray(1.0), "sideways")):
+        with pytest.raises(InputError, match="mode"):
+            bad()
+
+
 def test_fit_stops_when_the_loss_stalls_and_with_an_explicit_optimizer():
     params = {"a": 1.0, "b": 2.0}
     result = fit.fit(lambda p: 1.0 + 0.0 * p["a"], params, "a", patience=5, steps=50)

@@ -63,7 +63,11 @@ def _kernel_over(law: ContactLaw):
     XLA:CPU's multi-output fusion, dropping it left the derivatives' times
     within this host's noise and the forward program the same HLO, and took
     a checkpointed reverse's XLA temporaries from 1.4 to 3.2 MB (55 disks,
-    1000 steps; 5.7 -> 12.8 MB at 465 disks, 250 steps; 2026-11-27)."""
+    1000 steps; 5.7 -> 12.8 MB at 465 disks, 250 steps; 2026-11-27). It also
+    keeps the fusion's emitter abort away (see `engine.compile`): the walls'
+    kernel without it and outside its `cond` (as a batched predicate makes it
+    under `vmap`) aborted the 55-disk pile's checkpointed reverse with the
+    fusion on; with it, the same program ran (2026-11-27)."""
     return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
 
 

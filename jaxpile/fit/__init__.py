@@ -684,10 +684,28 @@ def _scalar_or_list(value):
 GRADIENT_MODES = ("auto", "reverse", "forward")
 FORWARD_MODE_MAX = 4
 """`mode="auto"` takes forward-mode gradients up to this many fitted values.
-Measured (benchmarks/gradient_cost.py, CPU, d/d(kn, kt, mu), both compiled with
-`engine.compile.derivative_options`): 55 disks x 1000 steps, forward mode 47 ms
-against 61 ms reverse (checkpointed); 465 disks x 256 steps, 73 against 92 ms.
-Forward mode costs about one tangent pass per value, reverse one pass in all."""
+Forward mode costs about one tangent pass per value, the checkpointed reverse
+three passes (forward, recomputation, transpose) whatever the count; forward
+mode's memory is also flat in the horizon. Measured side by side, XLA:CPU's
+multi-output fusion off and on (benchmarks/forward_mode_threshold.py,
+results/cpu/forward_mode_threshold.json; gradient time over forward time,
+checkpointed reverse over 1 and 10 values against forward mode over 4 and 6):
+off, 55 disks x 1000 steps: 5.4-6.9 against 5.7 and 7.8; 465 disks x 250
+steps: 5.9-6.9 against 6.9 and 10.2. On (as `jaxpile fit` runs): 4.8-5.2
+against 3.4 and 4.4; 465 disks: 5.0-5.3 against 4.6 and 6.0. So 4 values is
+about where the two cost the same without the fusion and the most that forward
+mode wins at 465 disks with it (at 55 disks with it, up to 6-8)."""
+
+
+def gradient_mode(size: int, mode: str = "auto") -> str:
+    """`"forward"` or `"reverse"`: how `value_and_gradient` takes the gradient
+    of `size` fitted values in `mode` (`"auto"`: forward up to
+    `FORWARD_MODE_MAX`)."""
+    if mode not in GRADIENT_MODES:
+        raise InputError(f"mode must be one of {GRADIENT_MODES}; got {mode!r}.")
+    if mode == "auto":
+        return "forward" if size <= FORWARD_MODE_MAX else "reverse"
+    return mode
 
 
 def value_and_gradient(objective: Callable, u, mode: str = "auto") -> Callable:
@@ -698,8 +716,7 @@ def value_and_gradient(objective: Callable, u, mode: str = "auto") -> Callable:
 
     from jaxpile.engine.compile import jit_derivative
 
-    size = ravel_pytree(u)[0].size
-    if mode == "reverse" or (mode == "auto" and size > FORWARD_MODE_MAX):
+    if gradient_mode(ravel_pytree(u)[0].size, mode) == "reverse":
         return jit_derivative(jax.value_and_grad(objective))
 
     def forward(u, *args):
@@ -751,7 +768,7 @@ def fit(loss_fn: Callable[[Any], Array], params, names: str | Sequence[str], *,
         `"forward"` (one `jax.jvp` per fitted value, batched: no stored
         trajectory, so no memory that grows with the rollout), or `"auto"`:
         forward for up to `FORWARD_MODE_MAX` fitted values, where it is the
-        cheaper (benchmarks/gradient_cost.py), else reverse.
+        cheaper (benchmarks/forward_mode_threshold.py), else reverse.
 
     Returns:
       `FitResult` with the best params found.
@@ -1008,6 +1025,7 @@ __all__ = [
     "fit",
     "fit_figure",
     "force_unit",
+    "gradient_mode",
     "load_profile_csv",
     "normalise",
     "profile_loss",
