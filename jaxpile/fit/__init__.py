@@ -697,12 +697,16 @@ about where the two cost the same without the fusion and the most that forward
 mode wins at 465 disks with it (at 55 disks with it, up to 6-8)."""
 
 
+def _check_mode(mode: str) -> None:
+    if mode not in GRADIENT_MODES:
+        raise InputError(f"mode must be one of {GRADIENT_MODES}; got {mode!r}.")
+
+
 def gradient_mode(size: int, mode: str = "auto") -> str:
     """`"forward"` or `"reverse"`: how `value_and_gradient` takes the gradient
     of `size` fitted values in `mode` (`"auto"`: forward up to
     `FORWARD_MODE_MAX`)."""
-    if mode not in GRADIENT_MODES:
-        raise InputError(f"mode must be one of {GRADIENT_MODES}; got {mode!r}.")
+    _check_mode(mode)
     if mode == "auto":
         return "forward" if size <= FORWARD_MODE_MAX else "reverse"
     return mode
@@ -785,8 +789,7 @@ def fit(loss_fn: Callable[[Any], Array], params, names: str | Sequence[str], *,
         raise InputError(f"patience must be a whole number >= 1; got {patience!r}.")
     if not rtol >= 0:
         raise InputError(f"rtol must be >= 0; got {rtol!r}.")
-    if mode not in GRADIENT_MODES:
-        raise InputError(f"mode must be one of {GRADIENT_MODES}; got {mode!r}.")
+    _check_mode(mode)  # before any work
     transform = Transform.of(params, names)
     unconstrained = transform.to_unconstrained(params)
     optimizer = optax.adam(0.05) if optimizer is None else optimizer
