@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO   ?= demo
 
-.PHONY: demo test bench papers clean
+.PHONY: demo test soak bench papers clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -32,6 +32,12 @@ JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope --no-loadscope-reorder
 
+# The long correctness checks `make test` leaves out (tests marked soak): a pour killed and
+# resumed against the uninterrupted one (tests/test_soak.py), every protocol with every law
+# (tests/test_protocol_law_matrix.py).
+soak: $(STAMP)
+	$(BIN)/python -m pytest -q -m soak
+
 # Benchmarks (about 10 minutes on 2 CPU cores; LAMMPS `lmp` is raced when installed):
 # JSON in benchmarks/results/<backend>/, README table regenerated. BENCH=--full for full sizes.
 bench: $(STAMP)
@@ -40,7 +46,7 @@ bench: $(STAMP)
 # The papers' numbers as ensembles (hours on 2 CPU cores; resumable: rerun to continue), then
 # README's papers table from benchmarks/results/. PAPERS=--only=lattice,tilt picks studies.
 papers: $(STAMP)
-	$(BIN)/python benchmarks/papers.py --run $(PAPERS)
+	$(BIN)/python benchmarks/studies/papers/papers.py --run $(PAPERS)
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache

@@ -29,7 +29,8 @@ import jax.numpy as jnp
 from jax import lax
 
 import jaxpile  # noqa: F401  (float64)
-from jaxpile import ensemble, io
+from jaxpile import io
+from jaxpile.engine import ensemble
 from jaxpile.protocols import box
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
@@ -65,7 +66,7 @@ def main(argv=None) -> dict:
     sim = box.make_simulator(LAW, chunk_steps=args.steps)
     ens = ensemble.Ensemble(sim)
     state = ens.init(params, protocols)
-    pb = ens._as_batch(params, args.members)
+    pb = ens.as_batch(params, args.members)
     n = jnp.int32(args.steps)
     frozen = jnp.zeros(args.members, bool)
 

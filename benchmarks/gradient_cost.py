@@ -42,10 +42,10 @@ import numpy as np
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
 from jaxpile import fit
-from jaxpile.boundaries import GROUND
+from jaxpile.engine.boundaries import GROUND
+from jaxpile.engine.simulate import Simulator
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 # the programs as `jaxpile fit` compiles them: XLA:CPU's multi-output fusion on
@@ -331,7 +331,7 @@ def main(argv=None) -> dict:
         vw, gw = win(params)
         rel, rel_w = relative_gradient(g, params, v), relative_gradient(gw, params, vw)
         batch = jax.jit(jax.vmap(lambda s: jax.value_and_grad(loss_fn(sim, s, steps, True))(params)))
-        from jaxpile.ensemble import stack
+        from jaxpile.engine.ensemble import stack
 
         vs, gs = batch(stack(starts))
         per = np.array([[float(getattr(gs, k)[i]) * float(getattr(params, k)) / float(vs[i]) for k in NAMES]

@@ -7,7 +7,7 @@ How a jaxpile set-up maps onto LAMMPS (2D, `units lj`, `atom_style sphere`):
 * `hooke` law: `pair_style gran/hooke/history kn kt gamma_n gamma_t mu 1`; the
   ground and side walls: `fix wall/gran hooke/history` with the `wall_*` values
   (`yplane` for the ground, `xplane` for the side walls: jaxpile's walls are the
-  half-planes normal . x >= offset of `jaxpile.boundaries`);
+  half-planes normal . x >= offset of `jaxpile.engine.boundaries`);
 * velocity Verlet: `fix nve/sphere disc` (I = m r^2 / 2) with rotation, plain
   `fix nve` without (spins are never integrated and stay 0), and `fix enforce2d`;
 * fixed disks: integrated with the rest but frozen with `fix freeze`, which

@@ -32,9 +32,9 @@ from jax import lax
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
-from jaxpile.simulate import Simulator, gravity_ramp
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 # the step as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (see

@@ -30,10 +30,10 @@ import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
-from jaxpile.boundaries import make_boundaries
+from jaxpile.engine.boundaries import make_boundaries
+from jaxpile.engine.simulate import RunInfo, Simulator
+from jaxpile.engine.state import make_particles
 from jaxpile.laws import hooke
-from jaxpile.simulate import RunInfo, Simulator
-from jaxpile.state import make_particles
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 # as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see

@@ -49,7 +49,7 @@ LAMMPS inputs. Three cases (`--cases`, default all):
    steps: LAMMPS carries only the disks created so far (its step-weighted mean
    count is reported), jaxpile runs each chunk of 2000 steps on the smallest
    power-of-two block of leading disks holding those poured by its end
-   (`jaxpile.blocks`; parked disks past it cost nothing).
+   (`jaxpile.engine.blocks`; parked disks past it cost nothing).
 3. `ensemble`: B = 1, 8, 64, 256 lattice piles of 15 layers (120 disks) in one
    vmapped jaxpile call (`Ensemble`), members differing in ground friction
    (wall_mu from 1.0 down to 0.6) and ground tangential stiffness (wall_kt from
@@ -83,11 +83,13 @@ import jax
 import numpy as np
 
 import jaxpile  # noqa: F401  (float64)
-from jaxpile import analysis, ensemble, io
+from jaxpile import analysis, io
+from jaxpile.engine import ensemble
+from jaxpile.engine.simulate import RunInfo, Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
 from jaxpile.protocols.base import Protocol
-from jaxpile.simulate import RunInfo, Simulator, gravity_ramp
+from jaxpile.measure import heap
 
 try:
     from benchmarks import lammps_peer as peer
@@ -319,13 +321,13 @@ def heap_text(h: dict) -> str:
 
 POUR_CHUNK = 2000
 """Steps per chunk of the pour (the protocol's own default): each chunk runs on
-the disks poured by its end (`jaxpile.blocks`), so shorter chunks follow the
+the disks poured by its end (`jaxpile.engine.blocks`), so shorter chunks follow the
 growing heap more closely; the host's work between chunks is timed with them."""
 
 
 def pour_setup(n: int, interval: float, seed: int):
     # disks appear just above the steepest heap at the speed of a fall from 100 sigma
-    return pour.pour(n, insert_height=pour.steepest_heap_height(n) + 4.0, interval=interval, dt=DT, seed=seed)
+    return pour.pour(n, insert_height=heap.steepest_heap_height(n) + 4.0, interval=interval, dt=DT, seed=seed)
 
 
 def jax_pour(law: str, protocol, settle: int, integrator: str | None, chunk: int):

@@ -86,10 +86,6 @@ if _os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION") == "1":
 _ONE_THREAD_BY_DEFAULT = "PJRT_NPROC" not in _os.environ
 _os.environ.setdefault("PJRT_NPROC", "1")
 
-from jaxpile import _compat  # noqa: E402  (old module paths such as jaxpile.simulate keep working)
-
-_compat.install()
-
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
@@ -113,14 +109,6 @@ from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed  # 
 from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState, make_particles  # noqa: E402
 
 from jaxpile._version import __version__  # noqa: E402
-
-def __getattr__(name):  # jaxpile.blocks, jaxpile.checkpoint, ...: the old flat paths as attributes too
-    if f"jaxpile.{name}" in _compat.MOVED:
-        import importlib
-
-        return importlib.import_module(_compat.MOVED[f"jaxpile.{name}"])
-    raise AttributeError(f"module 'jaxpile' has no attribute {name!r}")
-
 
 __all__ = [
     "Boundaries",

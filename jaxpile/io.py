@@ -6,10 +6,12 @@ import json
 import os
 import tempfile
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from jaxpile.engine.state import SimState
+if TYPE_CHECKING:  # io sits below the engine: the state's type for annotations only
+    from jaxpile.engine.state import SimState
 
 
 def state_arrays(state: SimState) -> dict:
@@ -93,3 +95,20 @@ def atomic_write(path, write, text: bool = False) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def plain(value):
+    """Measurements as JSON: arrays to lists, named tuples to dicts."""
+    if isinstance(value, dict):
+        return {str(k): plain(v) for k, v in value.items()}
+    if hasattr(value, "_asdict"):
+        return {k: plain(v) for k, v in value._asdict().items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if hasattr(value, "shape") and hasattr(value, "tolist"):
+        return np.asarray(value).tolist()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)

@@ -22,7 +22,7 @@ flow rate, Beverloo's law).
 
 from __future__ import annotations
 
-import dataclasses
+import functools
 import itertools
 import math
 import numbers
@@ -32,145 +32,25 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-
 from jaxpile import budget as memory
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
 from jaxpile import ranges
 from jaxpile.ranges import COUNT, SEED
 from jaxpile.engine.simulate import RunInfo
-
-
-@dataclass(frozen=True)
-class Stage:
-    """A later stage of a protocol (the tilt after the box): it starts from
-    each member's state at the end of the stage before it.
-
-    Attributes:
-      simulator: `(law, dt, sim_options, options) -> Simulator` for this stage.
-      start: `(law, dt, options, state, protocol) -> (state, protocol)`, on the
-        host, per member: the stage's start state (contact history kept) and
-        its protocol. Structure only (it also builds a resume's template).
-      finished: `(protocol info, options) -> (state -> bool)`, traceable.
-      max_steps: `(protocol info, options) -> int`, this stage's budget.
-      describe: optional `(state, protocol) -> dict` of plain numbers measured
-        on the previous stage's end state (`protocol`: this stage's set-up on
-        it), merged into the protocol's `info` (and
-        saved with each checkpoint of this stage, for the measurement after a
-        resume).
-    """
-
-    simulator: Callable
-    start: Callable
-    finished: Callable
-    max_steps: Callable
-    describe: Callable | None = None
-
-
-@dataclass(frozen=True)
-class Adapter:
-    """What a sweep needs from a protocol.
-
-    Attributes:
-      setup: `(law, seed, dt, options) -> Protocol` for one member.
-      simulator: `(law, dt, options) -> Simulator` shared by the batch.
-      finished: `(protocol info, options) -> (state -> bool)`, traceable, per member.
-      max_steps: `(protocol info, options) -> int`, the step budget.
-      measure: `(sim, params, state, protocol) -> dict` of plain numbers.
-      law_and_params: the protocol module's `law_and_params`.
-      default_dt: `(law) -> float`.
-      angles: the angle columns to summarise and plot (the first is the headline).
-      options: the set-up options a sweep accepts.
-      theory: optional `(name, values) -> (label, degrees)` to overlay on angles.
-      unit: of the `angles` columns, for the printed summary.
-      default_law: the protocol paper's law.
-      extent: optional `(protocol) -> (base, x_left, x_right)`: where the base
-        profile of a member is read for fitting (`ensemble_fit`); the same
-        for every member of a protocol's set-up, so profiles average.
-      fit_statistics: what an ensemble fit compares by default:
-        `{"columns": (...), "bins": b}` (`ensemble_fit.Statistics`).
-      deterministic: every seed builds the same pile (the 1992 lattice and
-        sloped piles): one seed is an ensemble.
-      stages: later `Stage`s (stage-synchronous: every member of a batch
-        finishes a stage before the next starts); `measure` then gets the
-        last stage's simulator, state and protocol.
-      simulator_options: the set-up options the simulator depends on (None:
-        all of them); members whose set-ups differ only in other options share
-        one compiled batch (the hopper's orifice).
-      columns: the columns of a member's row, where they are known before a
-        pile is measured (a protocol that declares its row as names); None
-        where the row is computed. An ensemble fit refuses a column outside
-        them before it runs.
-    """
-
-    setup: Callable
-    simulator: Callable
-    finished: Callable
-    max_steps: Callable
-    measure: Callable
-    law_and_params: Callable
-    default_dt: Callable
-    angles: tuple
-    options: frozenset
-    theory: Callable | None = None
-    unit: str = "deg"
-    default_law: str = "lee-herrmann"
-    extent: Callable | None = None
-    fit_statistics: dict = dataclasses.field(default_factory=dict)
-    stages: tuple = ()
-    deterministic: bool = False
-    simulator_options: frozenset | None = None
-    columns: frozenset | None = None
+from jaxpile.protocols import PROTOCOLS
+from jaxpile.protocols.adapter import Adapter
+from jaxpile.protocols.definition import Definition, adapter as definition_adapter
 
 
 MEMBER_COLUMNS = ("member", "seed", "steps")
 """What `sweep` adds to every row besides the protocol's measurement and the member's point."""
 
 
-def heap_extent(base: str, centre_key: str, count_key: str):
-    """A random heap's profile range: its axis +- 1.6 sqrt(n) diameters, wider
-    than a heap of n unit disks at 20 degrees (base 2.9 sqrt(n) at packing 0.82)."""
-    def extent(protocol):
-        half = 1.6 * math.sqrt(float(protocol.info[count_key]))
-        centre = float(protocol.info[centre_key])
-        return base, centre - half, centre + half
-    return extent
-
-
-def bottom_row_extent(protocol):
-    """A deterministic pile on the ground: the bottom row's outer edges."""
-    p = protocol.particles
-    y, x, r = np.asarray(p.position[:, 1]), np.asarray(p.position[:, 0]), np.asarray(p.radius)
-    row = np.abs(y - y.min()) < 0.25 * r.min()
-    return "ground", float((x - r)[row].min()), float((x + r)[row].max())
-
-
-def marginal_stability(name, values):
-    """The sweep figure's overlay against mu: theta_MS = arctan(3 mu) (1993 eq. 3)."""
-    from jaxpile.measure import theory
-
-    if name != "mu":
-        return None
-    return "theta_MS = arctan(3 mu) (1993 eq. 3)", np.degrees(theory.marginal_stability_angle(np.asarray(values)))
-
-
-def option_names(setup, *extra) -> frozenset:
-    """The options a sweep of this set-up accepts: its arguments, and `extra` run options."""
-    import inspect
-
-    names = set(inspect.signature(setup).parameters) - {"law", "seed", "dt", "dtype"}
-    return frozenset(names | set(extra))
-
-
 def adapters() -> dict[str, Callable[[], Adapter]]:
     """Every protocol a sweep (and an ensemble fit) runs: each registered
     protocol whose module declares a `DEFINITION` (`definition.adapter` of it)
     or has its own `sweep_adapter() -> Adapter`."""
-    import functools
-
-    from jaxpile.protocols import PROTOCOLS
-    from jaxpile.protocols.definition import Definition, adapter as definition_adapter
-
     found = {}
     for name, module in PROTOCOLS.items():
         if callable(getattr(module, "sweep_adapter", None)):
@@ -178,12 +58,6 @@ def adapters() -> dict[str, Callable[[], Adapter]]:
         elif isinstance(getattr(module, "DEFINITION", None), Definition):
             found[name] = functools.partial(definition_adapter, module.DEFINITION)
     return found
-
-
-def __getattr__(name):  # ADAPTERS, read from the registry when asked for (as before: name -> adapter factory)
-    if name == "ADAPTERS":
-        return adapters()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def adapter(protocol: str) -> Adapter:
@@ -423,7 +297,7 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         state = ens.init(prms, protocols)
         resuming = resume is not None and start == first
         at_stage = int(saved.get("stage", 0)) if resuming else 0
-        saved_params = ens._as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
+        saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
         if at_stage == 0:
             if resuming:
                 state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
@@ -577,5 +451,5 @@ def figure(result: SweepResult, by: str | None = None, path=None):
                              ylabel=ylabel, path=path)
 
 
-__all__ = ["ADAPTERS", "Adapter", "Plan", "SweepResult", "adapter", "figure", "grid", "plan", "read", "summarise",
+__all__ = ["Plan", "SweepResult", "adapter", "adapters", "figure", "grid", "plan", "read", "summarise",
            "sweep", "write_csv"]

@@ -40,7 +40,7 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs",
 import jaxpile  # noqa: F401,E402  (float64 on)
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator, gravity_ramp
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 
 
 LATTICE_LAYERS = 12

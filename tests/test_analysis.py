@@ -11,9 +11,9 @@ import pytest
 
 import jaxpile
 from jaxpile import analysis
-from jaxpile.boundaries import GROUND, RIGHT_WALL
+from jaxpile.engine.boundaries import GROUND, RIGHT_WALL
 from jaxpile.errors import InputError
-from jaxpile.interactions import ContactForces
+from jaxpile.engine.interactions import ContactForces
 from jaxpile.laws.base import PairForce
 
 HEX_FRACTION = math.pi / (2 * math.sqrt(3))  # 0.9069

@@ -1,6 +1,7 @@
 """The benchmark harness: its LAMMPS twin is the same problem as jaxpile's (run
 against LAMMPS when `lmp` is installed), and `make bench` rebuilds the README
-table from the results. No timings here: figures live in benchmarks/."""
+table from the results. No timings here: figures live in benchmarks/ (the
+suite) and benchmarks/studies/ (the papers' ensembles, the fits' recoveries)."""
 
 import json
 import pathlib
@@ -12,9 +13,11 @@ import pytest
 from jaxpile import analysis
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator, gravity_ramp
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "benchmarks"))
+BENCHMARKS = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
+# the suite (benchmarks/) and the studies (benchmarks/studies/papers, benchmarks/studies/fitting)
+sys.path[:0] = [str(BENCHMARKS), str(BENCHMARKS / "studies" / "papers"), str(BENCHMARKS / "studies" / "fitting")]
 import lammps_peer as peer  # noqa: E402
 import run_all  # noqa: E402
 import vs_lammps  # noqa: E402
@@ -88,7 +91,7 @@ def test_baxter_study_measures_the_m_without_selection_bias_and_averages_flanks(
     """The 1997 study's M depth (Baxter et al. 1997, sec. III: flank maxima
     20-30% above the centre) in fixed windows: an M profile reads above 1, a
     humped one below, and a flat noisy one near 1 where the largest-bin ratio
-    of `pour.m_shape` reads above 1. Mean +- standard error over heaps."""
+    of `heap.m_shape` reads above 1. Mean +- standard error over heaps."""
     import baxter_readings as br
 
     x = list(np.linspace(0.025, 0.975, 20))
@@ -124,29 +127,29 @@ def test_baxter_angle_bands_read_the_saved_heaps_as_the_study_measured_them():
 
 
 def test_readme_papers_table_is_the_one_the_results_give():
-    """benchmarks/papers.py writes README's papers-side-by-side table from the
+    """benchmarks/studies/papers/papers.py writes README's papers-side-by-side table from the
     committed results JSON (issue 16): README must hold exactly that table."""
     import papers
 
-    assert papers.rewrite_readme(check=True), "run `python benchmarks/papers.py` and commit README.md"
+    assert papers.rewrite_readme(check=True), "run `python benchmarks/studies/papers/papers.py` and commit README.md"
     assert "| 1993 | θ_T against" in papers.table()
 
 
 def test_readme_recovery_table_is_the_one_the_results_give():
-    """benchmarks/fit_recovery.py writes README's recovery table (issue 17)
+    """benchmarks/studies/fitting/fit_recovery.py writes README's recovery table (issue 17)
     from the committed results JSON: README must hold exactly that table."""
     import fit_recovery
 
-    assert fit_recovery.rewrite_readme(check=True), "run `python benchmarks/fit_recovery.py --table`"
+    assert fit_recovery.rewrite_readme(check=True), "run `python benchmarks/studies/fitting/fit_recovery.py --table`"
 
 
 def test_readme_estimator_study_table_is_the_one_the_results_give():
-    """benchmarks/estimator_study.py writes README's estimator-study table
+    """benchmarks/studies/fitting/estimator_study.py writes README's estimator-study table
     (issue 17, item 3) from the committed results JSON: README must hold
     exactly that table, one row per (estimator, B, parameter) of each study."""
     import estimator_study
 
-    assert estimator_study.rewrite_readme(check=True), "run `python benchmarks/estimator_study.py --table`"
+    assert estimator_study.rewrite_readme(check=True), "run `python benchmarks/studies/fitting/estimator_study.py --table`"
     rows = estimator_study.table().splitlines()[2:]
     assert any("| box, 102 disks (mu = 0.25) | central differences, h = 0.1 | 32 | mu | 346, 199 |" in r for r in rows)
 

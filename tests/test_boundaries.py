@@ -6,10 +6,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxpile
-from jaxpile.boundaries import RIGHT_WALL, set_wall
+from jaxpile.engine.boundaries import RIGHT_WALL, set_wall
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 PARAMS = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3)
 
@@ -37,7 +37,7 @@ def test_gravity_tilted_at_run_time_moves_a_frictionless_disk_downhill():
     state = sim.init(params, particles, jaxpile.make_boundaries())
     state = sim.run(params, state, 200, progress=False)
     assert abs(float(state.particles.position[0, 0]) - 5.0) < 1e-12
-    tilted = state.set(boundaries=state.boundaries.set(gravity=jaxpile.boundaries.gravity_vector(1.0, -10.0)))
+    tilted = state.set(boundaries=state.boundaries.set(gravity=jaxpile.engine.boundaries.gravity_vector(1.0, -10.0)))
     tilted = sim.run(params, tilted, 2000, progress=False)
     assert float(tilted.particles.velocity[0, 0]) < -0.1  # tilted the other way: rolls left
 
@@ -54,7 +54,7 @@ def test_float32_states_stay_float32():
 
 
 def test_ground_alone_has_one_wall_and_refuses_side_walls():
-    from jaxpile.boundaries import make_boundaries
+    from jaxpile.engine.boundaries import make_boundaries
     from jaxpile.errors import InputError
 
     ground = make_boundaries(sides=False, ground=0.5)

@@ -13,12 +13,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxpile import checkpoint
-from jaxpile.boundaries import make_boundaries
+from jaxpile.engine import checkpoint
+from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.laws import hooke
-from jaxpile.simulate import RunInfo, Simulator
-from jaxpile.state import make_particles
+from jaxpile.engine.simulate import RunInfo, Simulator
+from jaxpile.engine.state import make_particles
 
 CHUNK = 250
 # the resumed run: its slots grow between steps 200 and 250 (K 1 -> 6: sized by the neighbours its
@@ -180,11 +180,11 @@ def test_checkpoints_from_elsewhere_get_one_line_in_jaxpiles_words(setting, tmp_
 WRITER = r"""
 import sys
 import jaxpile
-from jaxpile import checkpoint
+from jaxpile.engine import checkpoint
 from jaxpile.laws import hooke
 sys.path.insert(0, sys.argv[2])
 from test_checkpoint import falling_disks
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 params = hooke.make_params(kn=1e4, gamma_n=20.0, mu=0.4)
 sim = Simulator(hooke.law(rotation=True), 5e-4)
 state = sim.init(params, *falling_disks(n=1500))

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 import pytest
 
-from jaxpile import checkpoint
+from jaxpile.engine import checkpoint
 from jaxpile.protocols import drop, flux, sloped, tilt
 
 

@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from jaxpile import checkpoint, export
+from jaxpile import export
+from jaxpile.engine import checkpoint
 from jaxpile.cli import main
 from jaxpile.io import load_arrays, read_csv, write_csv
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxpile  # noqa: F401  (float64 on)
-from jaxpile.collisions import CollisionResult, check_collision_inputs, collide, needs_soft_contact
+from jaxpile.engine.collisions import CollisionResult, check_collision_inputs, collide, needs_soft_contact
 from jaxpile.errors import InputError
 
 collide_jit = jax.jit(collide)
@@ -314,9 +314,9 @@ def test_good_inputs_pass_check():
 
 
 # ---------------------------------------------------------------- in the stepper
-from jaxpile.collisions import HardCollisions  # noqa: E402
+from jaxpile.engine.collisions import HardCollisions  # noqa: E402
 from jaxpile.laws import liffman  # noqa: E402
-from jaxpile.simulate import Simulator  # noqa: E402
+from jaxpile.engine.simulate import Simulator  # noqa: E402
 
 SOFT = liffman.make_params(ks=1e4, kd=20.0, k_slip=50.0, mu_roll=0.1)
 

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 import jaxpile
-from jaxpile import interactions
+from jaxpile.engine import interactions
 from jaxpile.laws import hooke
-from jaxpile import neighbors as nb
+from jaxpile.engine import neighbors as nb
 from jaxpile.engine import host_lists
-from jaxpile.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
+from jaxpile.engine.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 
 PARAMS = hooke.make_params(kn=2000.0, gamma_n=20.0, mu=0.4)
@@ -404,7 +404,7 @@ def test_setting_up_a_pile_of_a_new_size_compiles_no_small_programs():
     (benchmarks/eager_compiles.py). Making the particles and walls of a new pile
     size, its lists and contacts, and reading its flags and movable disks on the
     host compile nothing; the values are those jnp would have made."""
-    from jaxpile.boundaries import LEFT_WALL, set_wall
+    from jaxpile.engine.boundaries import LEFT_WALL, set_wall
     from jaxpile.engine import transfer
 
     compiled = []

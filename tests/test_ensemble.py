@@ -1,4 +1,4 @@
-"""Batched ensembles (jaxpile.ensemble, jaxpile.sweep): a batch run gives each
+"""Batched ensembles (jaxpile.engine.ensemble, jaxpile.sweep): a batch run gives each
 member exactly what it gets alone, across a neighbour re-allocation and with
 members frozen when they finish; the rebuild decision stays a real branch under
 vmap; the batch shards over two CPU devices; `jaxpile sweep` writes its table
@@ -20,7 +20,7 @@ import jaxpile
 from jaxpile import ensemble, sweep
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, lattice
-from jaxpile.simulate import RunInfo, Simulator
+from jaxpile.engine.simulate import RunInfo, Simulator
 
 LAW = "lee-herrmann"
 BOX = {"width": 1.2, "height": 1.2}
@@ -71,7 +71,7 @@ def test_batch_wide_rebuild_decision_keeps_a_real_branch_under_vmap(batch):
     rebuild every step); the batched step keeps the rebuild, with the history
     carried onto the new pairs inside it, as one real cond."""
     sim, ens, protocols, params, state = batch
-    pb = ens._as_batch(params, 3)
+    pb = ens.as_batch(params, 3)
     ours = str(jax.make_jaxpr(jax.vmap(ens.step, axis_name=ensemble.AXIS))(pb, state))
     naive = str(jax.make_jaxpr(jax.vmap(sim.step))(pb, state))
     assert ours.count(" cond[") == 1  # neighbour rebuild and history carry, one branch
@@ -106,7 +106,7 @@ SHARDED = textwrap.dedent("""
     from jaxpile.laws import hooke
     from jaxpile.protocols import lattice
     from jaxpile.protocols.base import Protocol
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
     assert len(jax.devices()) == 2
     particles, boundaries = lattice.equilateral_pile(3)
     sim = Simulator(hooke.law(rotation=False), 5e-4, chunk_steps=100, skin=0.02)
@@ -173,7 +173,7 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
     `in_play`, every chunk runs on the block of leading disks that holds each
     member's poured disks (here 64 of 145 for two chunks, then all), the
     same arithmetic as carrying every parked disk, so the same batch bit for bit."""
-    from jaxpile.ensemble import Ensemble
+    from jaxpile.engine.ensemble import Ensemble
     from jaxpile.protocols import pour
 
     protocols = [pour.pour(100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5)]

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from jaxpile import ensemble_fit as ef
+from jaxpile.fit import ensemble_fit as ef
 from jaxpile.errors import InputError
 
 

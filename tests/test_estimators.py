@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpile.errors import InputError
-from jaxpile.estimators import antithetic_smoothing, central_differences, pathwise, smoothing_directions
+from jaxpile.fit.estimators import antithetic_smoothing, central_differences, pathwise, smoothing_directions
 
 B, K_STATS = 16, 3
 _rng = np.random.default_rng(7)
@@ -148,7 +148,7 @@ def _start():
 
 
 def _truncated(steps, window, a=A_MAP, objective_fn=None, combine="sum"):
-    from jaxpile.estimators import truncated_pathwise
+    from jaxpile.fit.estimators import truncated_pathwise
 
     return truncated_pathwise(lambda t, s, n: _advance(t, s, n, a), _statistics,
                               objective_fn or (lambda m: jnp.sum((m - jnp.asarray([0.3, -0.2])) ** 2)),
@@ -165,7 +165,7 @@ def _closed_form(windows, a, combine="sum"):
 
 
 def test_truncated_pathwise_over_one_window_is_the_pathwise_gradient():
-    from jaxpile.estimators import pathwise
+    from jaxpile.fit.estimators import pathwise
 
     objective_fn = lambda m: jnp.sum((m - jnp.asarray([0.3, -0.2])) ** 2)
     full = pathwise(lambda t: _statistics(t, _advance(t, _start(), 12)), objective_fn, THETA)
@@ -206,7 +206,7 @@ def test_truncated_pathwise_compiles_the_windows_of_one_advance_function_once():
     """A fit hands the same `advance` at every iterate (`construction._pieces`):
     its windows are traced and compiled at the first call only, and the second
     call's gradient is the same function's. A new function compiles afresh."""
-    from jaxpile.estimators import truncated_pathwise
+    from jaxpile.fit.estimators import truncated_pathwise
 
     traces = []
 

@@ -10,7 +10,7 @@ from jaxpile import analysis, export, io
 from jaxpile.errors import InputError
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator, gravity_ramp
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 
 
 @pytest.fixture(scope="module")

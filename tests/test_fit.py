@@ -13,12 +13,13 @@ import pytest
 
 import jaxpile  # noqa: F401  (float64 on)
 from jaxpile import analysis, fit, theory
-from jaxpile.boundaries import make_boundaries
+from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.laws import baxter, hooke
 from jaxpile.protocols import lattice, pour
-from jaxpile.simulate import Simulator
-from jaxpile.state import make_particles
+from jaxpile.engine.simulate import Simulator
+from jaxpile.engine.state import make_particles
+from jaxpile.measure import heap
 
 ROLLOUT_STEPS = 100
 HEAP_RADIUS = 0.45
@@ -131,7 +132,7 @@ def test_smooth_profile_with_a_tiny_bandwidth_is_pour_base_profile_binning():
     cells = rng.integers(0, bins, 60)
     x = 2.0 + 5.0 * (cells + rng.uniform(0.1, 0.9, 60)) / bins  # base [2, 7], away from bin edges
     normal = rng.uniform(0.1, 3.0, 60)
-    hard = pour.base_profile(analysis.BaseForces(x=x, normal=normal, horizontal=0 * x, particle=0 * x),
+    hard = heap.base_profile(analysis.BaseForces(x=x, normal=normal, horizontal=0 * x, particle=0 * x),
                              extent=(2.0, 7.0), bins=bins)
     u, smooth = fit.smooth_profile(x, normal, np.ones(60), x_left=2.0, x_right=7.0, bins=bins, bandwidth=1e-3)
     np.testing.assert_allclose(u, hard.x_over_b, rtol=1e-12)

@@ -21,7 +21,7 @@ from jaxpile import fit
 from jaxpile.engine.compile import one_off_options
 from jaxpile.laws import baxter, hooke, lee_herrmann, liffman
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 STEPS = 120
 
@@ -109,9 +109,9 @@ def test_checkpointed_gradient_memory_grows_sublinearly_with_steps():
 def test_gradient_stays_finite_for_a_disk_behind_a_wall_that_is_off():
     """A disk far behind a removed wall, with a steep law (baxter n = 60): its
     masked-out wall force once overflowed to inf, and inf * 0 made the gradient NaN."""
-    from jaxpile.boundaries import make_boundaries, set_wall, LEFT_WALL
-    from jaxpile.interactions import evaluate
-    from jaxpile.state import Contacts, make_particles
+    from jaxpile.engine.boundaries import make_boundaries, set_wall, LEFT_WALL
+    from jaxpile.engine.interactions import evaluate
+    from jaxpile.engine.state import Contacts, make_particles
 
     particles = make_particles(np.array([[-3.0, 0.5], [5.0, 0.5]]), 0.5)
     boundaries = set_wall(make_boundaries(left=0.0, right=10.0), LEFT_WALL, active=False)

@@ -95,7 +95,7 @@ import jax.numpy as jnp, numpy as np
 import jaxpile
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 particles, boundaries = lattice.equilateral_pile(6)
 rng = np.random.default_rng(0)  # sliding and spinning contacts while it settles

@@ -12,7 +12,7 @@ from jaxpile.cli import main
 from jaxpile.errors import InputError
 from jaxpile.laws import baxter, get_law_module, hooke
 from jaxpile.protocols import box, pour
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 ONE = [[1.0, 0.5]]
 GROUND = jaxpile.make_boundaries()

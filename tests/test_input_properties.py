@@ -314,7 +314,7 @@ def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_pa
     from jaxpile import export, io
     from jaxpile.laws import hooke
     from jaxpile.protocols import lattice
-    from jaxpile.simulate import Simulator
+    from jaxpile.engine.simulate import Simulator
 
     particles, boundaries = lattice.equilateral_pile(2)
     params = hooke.make_params(kn=1e4)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import jaxpile
-from jaxpile import integrators
+from jaxpile.engine import integrators
 from jaxpile.errors import InputError
 from jaxpile.laws import hooke, liffman
 from jaxpile.laws.base import PairGeometry
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 KN = 25.0  # a soft ground spring: omega = 5 for the unit disk
 

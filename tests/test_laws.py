@@ -13,7 +13,7 @@ from jaxpile.errors import InputError
 from jaxpile.laws import baxter, hooke, lee_herrmann, liffman
 from jaxpile.laws.base import PairGeometry
 from jaxpile.protocols import lattice
-from jaxpile.simulate import Simulator, gravity_ramp
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 
 NO_WALLS = jnp.array([False, False, False])
 
@@ -361,7 +361,7 @@ def test_lattice_pile_rests_with_base_force_equal_to_weight(name):
     state = sim.run(params, state, 4000, progress=False)
     state, info = sim.run_until_rest(params, state, speed_tolerance=1e-8, max_steps=200_000, progress=False)
     assert info.at_rest
-    base = jaxpile.analysis.base_forces(sim, params, state)
+    base = jaxpile.measure.analysis.base_forces(sim, params, state)
     assert len(base.x) == 5
     assert base.normal.sum() == pytest.approx(15.0, rel=1e-6)
 
@@ -423,7 +423,7 @@ def test_shear_history_survives_neighbor_rebuilds(name):
         state = sim.run(params, state, 2000, progress=False)
         rebuilt = not np.array_equal(np.asarray(state.neighbors.reference_position), reference)
         assert rebuilt == (skin < 1.0)
-        entry = jaxpile.neighbors.pair_entry(state.contacts.pairs, 0, 1)
+        entry = jaxpile.engine.neighbors.pair_entry(state.contacts.pairs, 0, 1)
         histories.append(float(state.contacts.history[entry, 0]))
     assert abs(histories[0]) > 0.02
     assert histories[1] == pytest.approx(histories[0], rel=1e-10)

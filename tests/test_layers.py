@@ -1,70 +1,120 @@
-"""The package layout (issue 18): each layer imports only the layers below it,
-and the old flat module paths are the same modules as the new ones."""
+"""The package's layers: `[tool.importlinter]` in pyproject.toml names them, top
+to bottom (cli > fit > sweep > protocols | export > measure > engine > laws >
+the ground modules > errors), and import-linter checks that each imports only
+what lies below it. Two rules its layers cannot see are checked here too: no
+two modules import each other (by any chain, inside one package included), and
+no module reaches into another's private names."""
 
 import ast
-import importlib
 import pathlib
+import sys
 
+import grimp
 import pytest
+from importlinter.cli import lint_imports
 
-ROOT = pathlib.Path(__file__).resolve().parents[1] / "jaxpile"
-
-# a layer may import itself and what is listed for it (the modules at the package's top are the base)
-BASE = {"errors", "ranges", "budget", "io", "_compat", "_version"}
-ALLOWED = {
-    "engine": {"engine", "laws"},
-    "laws": {"laws", "engine"},  # laws read the engine's pair geometry and state types
-    "measure": {"measure", "engine", "laws"},
-    "protocols": {"protocols", "engine", "laws", "measure", "runner", "sweep", "fit", "plot"},
-    "runner": {"runner", "engine", "protocols"},
-}
+REPO = pathlib.Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "jaxpile"
 
 
-def _imports(path: pathlib.Path) -> set[str]:
-    """Every `jaxpile.X` module a file imports when it runs, at its top or inside
-    functions (not under `if TYPE_CHECKING:`, which is for annotations only)."""
-    tree = ast.parse(path.read_text())
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING":
-            node.body = []
-    found = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "jaxpile":
-            parts = node.module.split(".")
-            if len(parts) == 1:
-                found |= {f"jaxpile.{a.name}" for a in node.names}
-            else:
-                found.add(node.module)
-        elif isinstance(node, ast.Import):
-            found |= {a.name for a in node.names if a.name.split(".")[0] == "jaxpile"}
+@pytest.fixture(scope="module")
+def graph():
+    """Every import between jaxpile's modules, those inside functions included
+    (annotations under `if TYPE_CHECKING:` left out: they never run)."""
+    return grimp.build_graph("jaxpile", include_external_packages=False, exclude_type_checking_imports=True,
+                             cache_dir=None)
+
+
+def test_the_import_linter_layers_contract_holds(monkeypatch):
+    monkeypatch.chdir(REPO)
+    assert lint_imports(config_filename=str(REPO / "pyproject.toml"), no_cache=True) == 0, (
+        "a layer imports one above it: run `lint-imports` for the chain")
+
+
+def _cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan)."""
+    index, low, on_stack, stack, found, counter = {}, {}, set(), [], [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on_stack.add(v)
+        for w in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * len(edges) + 100))
+    try:
+        for v in sorted(edges):
+            if v not in index:
+                visit(v)
+    finally:
+        sys.setrecursionlimit(limit)
     return found
 
 
-def _layer(module: str) -> str:
-    from jaxpile._compat import MOVED
-
-    module = MOVED.get(module, module)
-    parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
 
 
-@pytest.mark.parametrize("layer", sorted(ALLOWED))
-def test_a_layer_imports_only_the_layers_below_it(layer):
-    files = sorted((ROOT / layer).rglob("*.py")) if (ROOT / layer).is_dir() else [ROOT / f"{layer}.py"]
-    wrong = {}
-    for path in files:
-        bad = {m for m in _imports(path) if _layer(m) not in ALLOWED[layer] | BASE | {""}}
-        if bad:
-            wrong[str(path.relative_to(ROOT))] = sorted(bad)
-    assert not wrong, wrong
+def test_no_two_modules_import_each_other(graph):
+    edges = {m: set(graph.find_modules_directly_imported_by(m)) for m in graph.modules}
+    assert _cycles(edges) == [], "import circles (a function-local import does not hide one)"
 
 
-def test_the_old_module_paths_are_the_new_modules():
-    from jaxpile._compat import MOVED
+def _is_private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
 
-    for old, new in MOVED.items():
-        assert importlib.import_module(old) is importlib.import_module(new), old
-    import jaxpile
 
-    assert jaxpile.simulate is importlib.import_module("jaxpile.engine.simulate")
-    assert jaxpile.blocks is importlib.import_module("jaxpile.engine.blocks")  # as an attribute, not imported
+def _private_uses(path: pathlib.Path, modules: set[str], root: pathlib.Path = REPO) -> list[str]:
+    """`from jaxpile.x import _name` and `x._name` where x is another jaxpile
+    module bound in `path`, as `file:line module.name`. A private module
+    (`jaxpile.engine._jax_md`) is its package's to import, like any module."""
+    tree = ast.parse(path.read_text())
+    here = ".".join(path.relative_to(root).with_suffix("").parts).removesuffix(".__init__")
+    aliases, found = {}, []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "jaxpile":
+            for a in node.names:
+                if f"{node.module}.{a.name}" in modules:
+                    aliases[a.asname or a.name] = f"{node.module}.{a.name}"
+                elif _is_private(a.name) and node.module != here:
+                    found.append(f"{path.name}:{node.lineno} {node.module}.{a.name}")
+        elif isinstance(node, ast.Import):
+            aliases.update({a.asname: a.name for a in node.names if a.name in modules and a.asname})
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and _is_private(node.attr)
+                and aliases.get(node.value.id, here) != here):
+            found.append(f"{path.name}:{node.lineno} {aliases[node.value.id]}.{node.attr}")
+    return found
+
+
+def test_no_module_uses_another_modules_private_names(graph):
+    modules = set(graph.modules)
+    assert [use for path in sorted(PACKAGE.rglob("*.py")) for use in _private_uses(path, modules)] == []
+
+
+def test_the_private_name_check_sees_both_forms(tmp_path, graph):
+    (tmp_path / "jaxpile").mkdir()
+    module = tmp_path / "jaxpile" / "a.py"
+    module.write_text("from jaxpile.engine.neighbors import _build, rebuild\n"
+                      "from jaxpile.engine import simulate, _jax_md\n"
+                      "x = simulate._is_concrete, simulate.Simulator, _jax_md.register\n")
+    assert _private_uses(module, set(graph.modules), tmp_path) == [
+        "a.py:1 jaxpile.engine.neighbors._build", "a.py:3 jaxpile.engine.simulate._is_concrete"]

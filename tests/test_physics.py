@@ -9,7 +9,7 @@ import pytest
 
 import jaxpile
 from jaxpile.laws import hooke
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 from conftest import random_disks
 

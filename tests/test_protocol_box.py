@@ -11,9 +11,12 @@ import numpy as np
 import pytest
 
 from jaxpile import theory
-from jaxpile.boundaries import LEFT_WALL, RIGHT_WALL
+from jaxpile.engine.boundaries import LEFT_WALL, RIGHT_WALL
 from jaxpile.errors import InputError
 from jaxpile.protocols import box
+from jaxpile.protocols import paper1993
+from jaxpile.protocols import geometry
+from jaxpile.protocols import drivers
 
 WIDTH, HEIGHT = 2.0, 1.4  # the paper's units (cm); about 72 disks
 
@@ -56,7 +59,7 @@ def _check_settled_pile(state, n, width):
 def test_lee_herrmann_box_fills_loses_its_right_wall_and_settles_into_a_slope(lh_box):
     state, m = lh_box
     n = m["info"]["n"]
-    assert n == box.fill_count(WIDTH, HEIGHT) and 30 <= n <= 80
+    assert n == paper1993.fill_count(WIDTH, HEIGHT) and 30 <= n <= 80
     assert m["at_rest"] and 0 < m["wall_removed_step"] < m["settled_step"] <= m["steps"]
     assert not bool(state.boundaries.wall_active[RIGHT_WALL]) and bool(state.boundaries.wall_active[LEFT_WALL])
     _check_settled_pile(state, n, m["info"]["width"])
@@ -64,7 +67,7 @@ def test_lee_herrmann_box_fills_loses_its_right_wall_and_settles_into_a_slope(lh
     assert 0.9 * HEIGHT < m["fill_height"] < 1.35 * HEIGHT
     # part of the pile ran out, part of it stays leaning on the left wall
     assert 0.2 * n < m["n_left"] < 0.8 * n
-    assert float(box.rms_speed(state)) < m["info"]["rest_speed"]
+    assert float(drivers.rms_speed(state)) < m["info"]["rest_speed"]
     # a finite slope by each of the three methods, below vertical stacking
     for key in ("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola"):
         assert 5.0 < m[key] < 45.0, (key, m[key])
@@ -102,24 +105,24 @@ def test_hooke_box_does_everything_inside_one_compiled_chunk(hooke_box_one_chunk
 
 
 def test_gaussian_radii_follow_the_1993_distribution():
-    r = box.gaussian_radii(50_000, np.random.default_rng(0))
+    r = paper1993.gaussian_radii(50_000, np.random.default_rng(0))
     assert r.min() >= 0.07 and r.max() <= 0.13
     assert np.mean(r) == pytest.approx(0.1, abs=1e-3)
-    assert np.mean(r**2) == pytest.approx(box.mean_square_radius(), rel=2e-3)
+    assert np.mean(r**2) == pytest.approx(paper1993.mean_square_radius(), rel=2e-3)
     assert np.std(r) < 0.02  # the cut-offs narrow it
     # the paper's "400 particle system" fills its 4 x 4 box
-    assert 380 <= box.fill_count(4.0, 4.0) <= 420
+    assert 380 <= paper1993.fill_count(4.0, 4.0) <= 420
 
 
 def test_random_start_has_no_overlap_and_stays_in_the_box():
     rng = np.random.default_rng(3)
-    r = box.gaussian_radii(120, rng)
-    pos = box.random_positions(r, 2.0, 4.0, rng)
+    r = paper1993.gaussian_radii(120, rng)
+    pos = geometry.random_positions(r, 2.0, 4.0, rng)
     d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(r)) * 10
     assert np.all(d >= (r[:, None] + r[None]) * 1.0)
     assert np.all(pos - r[:, None] >= 0) and np.all(pos[:, 0] + r <= 2.0) and np.all(pos[:, 1] + r <= 4.0)
     with pytest.raises(InputError, match="could not place"):
-        box.random_positions(box.gaussian_radii(200, rng), 1.0, 1.0, rng, attempts=200)
+        geometry.random_positions(paper1993.gaussian_radii(200, rng), 1.0, 1.0, rng, attempts=200)
 
 
 def test_protocol_is_a_pure_function_of_its_seed():
@@ -157,6 +160,6 @@ def test_params_of_the_wrong_law_raise_input_error():
 
 
 def test_theory_reference_matches_eq_3():
-    assert box.friction_coefficient(box.law_and_params("lee-herrmann")[2]) == pytest.approx(0.2)
-    assert box.friction_coefficient(box.law_and_params("liffman")[2]) is None
+    assert paper1993.friction_coefficient(box.law_and_params("lee-herrmann")[2]) == pytest.approx(0.2)
+    assert paper1993.friction_coefficient(box.law_and_params("liffman")[2]) is None
     assert float(theory.marginal_stability_angle(0.2)) == pytest.approx(math.atan(0.6))

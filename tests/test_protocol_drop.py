@@ -15,7 +15,8 @@ from jaxpile import analysis
 from jaxpile.errors import InputError
 from jaxpile.protocols import drop
 from jaxpile.protocols.sloped import law_and_params
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
+from jaxpile.measure import heap
 
 N = 20
 RUN = dict(speed_tolerance=1e-6, relax_steps=200_000)
@@ -66,7 +67,7 @@ def test_bad_inputs_raise_input_error():
     empty = analysis.BaseForces(x=np.array([]), normal=np.array([]), horizontal=np.array([]),
                                 particle=np.array([], int))
     with pytest.raises(InputError):
-        drop.normal_profile(empty)
+        heap.normal_profile(empty)
 
 
 # ------------------------------------------------------------ the driver rule
@@ -170,7 +171,7 @@ def test_drops_with_different_seeds_build_different_piles():
 def test_a_drop_run_on_blocks_of_its_dropped_disks_is_bit_identical_to_the_full_run():
     """With `in_play=drop.make_in_play(quiet_steps)` each chunk runs on the
     block of leading disks that holds every disk droppable by its end
-    (`jaxpile.blocks`): here 64 of 128 disks throughout. Same arithmetic in the
+    (`jaxpile.engine.blocks`): here 64 of 128 disks throughout. Same arithmetic in the
     same order, so the same state bit for bit as carrying every parked disk."""
     p = drop.protocol(128, seed=2, dt=1e-3, quiet_time=0.05, max_interval=0.5)
     _, law, params = law_and_params("hooke", {"mu": 0.5}, setting=drop.SETTING)
@@ -181,7 +182,7 @@ def test_a_drop_run_on_blocks_of_its_dropped_disks_is_bit_identical_to_the_full_
                         in_play=in_play if blocked else None)
         state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
         if blocked:
-            assert jaxpile.blocks.block_size(in_play(state, 250), state.particles.count) == 64
+            assert jaxpile.engine.blocks.block_size(in_play(state, 250), state.particles.count) == 64
         states[blocked] = sim.run(params, state, 2000, progress=False)
     a, b = states[True], states[False]
     assert int(a.protocol_state.inserted) >= 3

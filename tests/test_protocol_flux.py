@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpile import analysis
-from jaxpile.boundaries import RIGHT_WALL
+from jaxpile.engine.boundaries import RIGHT_WALL
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, flux
 

@@ -1,11 +1,14 @@
 """Every protocol with every contact law, through the command line, at a small size.
 
-Prints one row per (protocol, law): whether it ran, ended at rest, how many
-disks, its headline measurement and the wall time. The unit tests cover each
-protocol with the laws its paper uses; this script is the check that the
-others run too (too slow for the suite: 28 runs, a compile each).
+The unit tests cover each protocol with the laws its paper uses; this is the
+check that the others run too (too slow for the default suite: 28 runs, a
+compile each), marked `soak`: `make soak` (or `pytest -m soak`) runs it. Each
+(protocol, law) is one test: its `jaxpile pile` must exit 0.
 
-    python benchmarks/protocol_law_matrix.py [--out DIR] [--protocols box,tilt] [--laws hooke,baxter]
+Run by hand, it prints one row per (protocol, law): whether it ran, ended at
+rest, how many disks, its headline measurement and the wall time.
+
+    python tests/test_protocol_law_matrix.py [--out DIR] [--protocols box,tilt] [--laws hooke,baxter]
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import json
 import os
 import tempfile
 import time
+
+import pytest
 
 from jaxpile.cli import main
 
@@ -43,6 +48,33 @@ def at_rest(summary: dict):
     return (summary.get("run") or {}).get("at_rest")
 
 
+def run_one(protocol: str, law: str, out: str) -> tuple[int, dict, str, float]:
+    """`jaxpile pile` of one (protocol, law) into `out`: its exit status, its
+    summary (empty unless it ran), what it printed and its wall time."""
+    t0 = time.perf_counter()
+    captured = io.StringIO()
+    with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured):
+        try:
+            rc = main(["pile", "--protocol", protocol, "--law", law, *SMALL[protocol], "--no-progress",
+                       "--out", out])
+        except Exception as error:  # report and go on: this is a survey
+            rc, captured = 99, io.StringIO(f"{type(error).__name__}: {error}")
+    seconds = time.perf_counter() - t0
+    summary = {}
+    if rc == 0:
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+    return rc, summary, captured.getvalue(), seconds
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize("law", LAWS)
+@pytest.mark.parametrize("protocol", list(SMALL))
+def test_protocol_runs_with_law(protocol, law, tmp_path):
+    rc, _, printed, _ = run_one(protocol, law, str(tmp_path / f"{protocol}_{law}"))
+    assert rc == 0, (printed.strip().splitlines() or [""])[-1][:300]
+
+
 def main_matrix(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default=None, help="keep each run's files here (default: a temporary folder)")
@@ -54,20 +86,7 @@ def main_matrix(argv=None) -> int:
     failures = 0
     for protocol in args.protocols.split(","):
         for law in args.laws.split(","):
-            out = os.path.join(root, f"{protocol}_{law}")
-            t0 = time.perf_counter()
-            captured = io.StringIO()
-            with contextlib.redirect_stdout(captured), contextlib.redirect_stderr(captured):
-                try:
-                    rc = main(["pile", "--protocol", protocol, "--law", law, *SMALL[protocol], "--no-progress",
-                               "--out", out])
-                except Exception as error:  # report and go on: this is a survey
-                    rc, captured = 99, io.StringIO(f"{type(error).__name__}: {error}")
-            seconds = time.perf_counter() - t0
-            summary = {}
-            if rc == 0:
-                with open(os.path.join(out, "summary.json")) as f:
-                    summary = json.load(f)
+            rc, summary, printed, seconds = run_one(protocol, law, os.path.join(root, f"{protocol}_{law}"))
             key = HEADLINE[protocol]
             value = summary.get(key)
             headline = f"{key} = {value:.4g}" if isinstance(value, float) else (f"{key} = {value}" if value is not None else "")
@@ -75,7 +94,7 @@ def main_matrix(argv=None) -> int:
             print(f"{protocol:9s} {law:13s} {rc:3d} {str(at_rest(summary)):>8s} {summary.get('n_particles', 0):6d} "
                   f"{headline:>28s} {seconds:8.1f}", flush=True)
             if rc != 0:
-                print("    " + captured.getvalue().strip().splitlines()[-1][:300], flush=True)
+                print("    " + printed.strip().splitlines()[-1][:300], flush=True)
     print(f"files under {root}; {failures} failed")
     return 1 if failures else 0
 

@@ -11,6 +11,8 @@ import pytest
 import jaxpile
 from jaxpile.errors import InputError
 from jaxpile.protocols import pour
+from jaxpile.measure import poured_heap
+from jaxpile.measure import heap
 
 N = 48  # disks per test heap (the paper: 1334)
 RELEASE = 14.0  # sigma above the substrate (the paper: 100; the smallest allowed for N is 10.4)
@@ -23,7 +25,7 @@ def _heap(law, polydispersity, seed):
     protocol = pour.pour(N, release_height=RELEASE, polydispersity=polydispersity, seed=seed)
     state, info = pour.execute(sim, params, protocol, speed_tolerance=TOLERANCE, max_settle_steps=150_000,
                                progress=False)
-    return sim, params, protocol, state, info, pour.measure(sim, params, state)
+    return sim, params, protocol, state, info, poured_heap.measure(sim, params, state)
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +167,7 @@ def _check_heap(heap, angle_range):
 def test_baxter_heap_stands_at_rest_on_the_substrate(baxter_heap):
     """The paper's law: the paper's angle is 35 +- 5 deg; a 48-disk heap lies near it."""
     m = _check_heap(baxter_heap, (20.0, 45.0))
-    s = pour.summary(m)
+    s = poured_heap.summary(m)
     assert s["counts"]["in_play"] == N and isinstance(s["m_shape"]["m_shaped"], bool)
 
 
@@ -226,7 +228,7 @@ def test_a_disk_that_leaves_the_row_is_counted_lost(baxter_heap):
     p = state.particles
     state = state.set(particles=p.set(position=p.position.at[top].set(jnp.array([-20.0, -5.0]))))
     state = sim.run(params, state, 1, progress=False)
-    m = pour.measure(sim, params, state)
+    m = poured_heap.measure(sim, params, state)
     assert m["counts"]["lost"] == 1 and m["counts"]["in_play"] == N - 1 and m["counts"]["poured"] == N
     assert not bool(state.particles.active[top]) and bool(state.protocol_state.lost[top])
     np.testing.assert_allclose(state.particles.position[top], protocol.particles.position[top])
@@ -236,25 +238,25 @@ def test_m_shape_and_base_profile_on_synthetic_forces():
     """The M-shape ratio is flank maximum over the central bin."""
     x = np.linspace(0.05, 9.95, 100)
     m_profile = 1.0 + 0.25 * np.sin(np.pi * x / 10) ** 2 - 0.25 * np.exp(-((x - 5) / 1.0) ** 2) * 2
-    forces = pour.SubstrateForces(x=x, normal=m_profile, horizontal=0 * x, particle=0 * x, substrate=0 * x)
-    prof = pour.base_profile(forces, extent=(0.0, 10.0), bins=11)
+    forces = poured_heap.SubstrateForces(x=x, normal=m_profile, horizontal=0 * x, particle=0 * x, substrate=0 * x)
+    prof = heap.base_profile(forces, extent=(0.0, 10.0), bins=11)
     assert prof.width == 10.0 and len(prof.force) == 11
     np.testing.assert_allclose(prof.x_over_b, (np.arange(11) + 0.5) / 11)
-    shape = pour.m_shape(prof)
+    shape = heap.m_shape(prof)
     assert shape.m_shaped and shape.left_ratio > 1.2 and shape.right_ratio > 1.2
-    flat = pour.base_profile(forces._replace(normal=np.ones_like(x)), extent=(0.0, 10.0), bins=10)
+    flat = heap.base_profile(forces._replace(normal=np.ones_like(x)), extent=(0.0, 10.0), bins=10)
     assert len(flat.force) == 11  # made odd
-    assert not pour.m_shape(flat).m_shaped
-    tent = pour.base_profile(forces._replace(normal=5 - np.abs(x - 5)), extent=(0.0, 10.0), bins=11)
-    assert pour.m_shape(tent).ratio < 1.0
+    assert not heap.m_shape(flat).m_shaped
+    tent = heap.base_profile(forces._replace(normal=5 - np.abs(x - 5)), extent=(0.0, 10.0), bins=11)
+    assert heap.m_shape(tent).ratio < 1.0
     # the window ratio (flanks x/B 0.2-0.4, 0.6-0.8 over the centre 0.4-0.6): an M above 1, flat 1, a tent below
-    assert pour.flank_over_centre(prof) > 1.1 and pour.flank_over_centre(tent) < 0.9
+    assert heap.flank_over_centre(prof) > 1.1 and heap.flank_over_centre(tent) < 0.9
     # by hand on 5 bins at x/B 0.1 ... 0.9: flank windows hold 0.3 and 0.7, the centre 0.5
     def five(values):
-        return pour.BaseProfile(np.arange(5) / 5 + 0.1, None, np.asarray(values, float), 0.0, 1.0)
+        return heap.BaseProfile(np.arange(5) / 5 + 0.1, None, np.asarray(values, float), 0.0, 1.0)
 
-    assert pour.flank_over_centre(five([0.2, 1.0, 0.5, 0.8, 0.1])) == pytest.approx(0.5 * (1.0 + 0.8) / 0.5)
-    assert pour.flank_over_centre(five(np.ones(5))) == 1.0
+    assert heap.flank_over_centre(five([0.2, 1.0, 0.5, 0.8, 0.1])) == pytest.approx(0.5 * (1.0 + 0.8) / 0.5)
+    assert heap.flank_over_centre(five(np.ones(5))) == 1.0
 
 
 @pytest.mark.parametrize("law", ["lee-herrmann", "liffman"])
@@ -268,7 +270,7 @@ def test_pours_with_every_law(law):
     state = sim.run(params, state, protocol.info["pour_steps"], progress=False)
     state, info = sim.run_until_rest(params, state, speed_tolerance=1e-2, max_steps=30_000, progress=False)
     assert info.at_rest
-    m = pour.measure(sim, params, state)
+    m = poured_heap.measure(sim, params, state)
     assert m["counts"]["poured"] == 4 and m["counts"]["in_play"] == 4 and m["counts"]["lost"] == 0
     y = np.asarray(state.particles.position)[protocol.info["n_substrate"]:, 1]
     assert np.all(np.isfinite(y)) and y.max() < 4.0 and y.min() > 0.5  # landed, none through the row
@@ -281,7 +283,7 @@ def test_pours_with_every_law(law):
 
 def test_a_pour_run_on_blocks_of_its_poured_disks_is_bit_identical_to_the_full_run():
     """`Simulator(in_play=pour.in_play)` runs each chunk on the smallest block of
-    leading disks holding those poured by its end (`jaxpile.blocks`): here 64 of
+    leading disks holding those poured by its end (`jaxpile.engine.blocks`): here 64 of
     145 disks for two chunks, then all. Same arithmetic in the same order, so the
     same state bit for bit as carrying every parked disk from the start."""
     protocol = pour.pour(100, insert_height=14.0, interval=0.15, seed=4)
@@ -291,7 +293,7 @@ def test_a_pour_run_on_blocks_of_its_poured_disks_is_bit_identical_to_the_full_r
         sim = pour.make_simulator("hooke", chunk_steps=1000, **({} if blocked else {"in_play": None}))
         state = sim.init(params, protocol.particles, protocol.boundaries, protocol_state=protocol.protocol_state)
         if blocked:
-            assert jaxpile.blocks.block_size(pour.in_play(state, 1000), state.particles.count) == 64
+            assert jaxpile.engine.blocks.block_size(pour.in_play(state, 1000), state.particles.count) == 64
         states[blocked] = sim.run(params, state, 4000, progress=False)
     a, b = states[True], states[False]
     assert int(a.protocol_state.poured) == 27 and a.particles.count == 145
@@ -306,7 +308,7 @@ def test_block_sizes_step_by_two_then_finer_and_each_must_save_enough():
     """`blocks.block_size`: powers of two below FINE_BLOCK (a block leaving
     out half the disks), then 1.5x / 4/3x steps (leaving out an eighth): the
     1000-disk race's 1121 disks run on 768 with 513-768 in play, not on all."""
-    size = jaxpile.blocks.block_size
+    size = jaxpile.engine.blocks.block_size
     assert [size(k, 1121) for k in (1, 65, 200, 300, 513, 768, 769)] == [64, 128, 256, 512, 768, 768, None]
     assert [size(k, 10**6) for k in (513, 769, 1025, 1537, 2049, 3073)] == [768, 1024, 1536, 2048, 3072, 4096]
     assert size(48, 83) is None and size(100, 145) is None  # 64 and 128 would save too little

@@ -20,7 +20,7 @@ import pytest
 from jaxpile import analysis, theory
 from jaxpile.errors import InputError
 from jaxpile.protocols import lattice, sloped
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 RELAX = dict(ramp_steps=5_000, speed_tolerance=1e-7, max_steps=200_000)
 

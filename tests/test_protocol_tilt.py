@@ -13,6 +13,7 @@ import pytest
 from jaxpile import theory
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, tilt
+from jaxpile.protocols import drivers
 
 RATE = 0.02  # degrees per step
 
@@ -55,7 +56,7 @@ def test_a_frictional_pile_holds_for_a_finite_tilt_then_moves(pile, frictional):
     assert m["theta_t"] == pytest.approx(RATE * m["onset_step"])
     assert 0 <= m["onset_step"] < m["moved_step"]
     # the motion that made it fail: well above the rest level at the end
-    assert float(box.rms_speed(state)) > m["info"]["rest_speed"]
+    assert float(drivers.rms_speed(state)) > m["info"]["rest_speed"]
     # its own angle of repose and the theory of sec. 6
     assert m["theta_r"] == pytest.approx(pile[1]["repose_cumulative_parabola"])
     assert m["theta_ms_theory"] == pytest.approx(math.degrees(math.atan(0.6)))
@@ -85,7 +86,7 @@ def test_a_pile_tilted_less_than_its_tilting_angle_stays_put():
     g = np.asarray(s2.boundaries.gravity)
     assert math.degrees(math.atan2(g[0], -g[1])) == pytest.approx(0.2, abs=1e-9)
     np.testing.assert_array_equal(np.asarray(s2.particles.active), np.asarray(state.particles.active))
-    assert float(box.rms_speed(s2)) < t["info"]["move_speed"]
+    assert float(drivers.rms_speed(s2)) < t["info"]["move_speed"]
     moved = np.linalg.norm(np.asarray(s2.particles.position - state.particles.position), axis=1)
     assert np.quantile(moved, 0.9) < 1e-3 and moved.max() < 0.1  # in mean diameters
 

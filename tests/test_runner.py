@@ -7,7 +7,7 @@ import pytest
 
 import jaxpile
 from jaxpile.laws import hooke
-from jaxpile.simulate import Simulator, gravity_ramp
+from jaxpile.engine.simulate import Simulator, gravity_ramp
 
 PARAMS = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3)
 NO_WALLS = jnp.array([False, False, False])
@@ -34,8 +34,8 @@ def test_reallocation_grows_from_an_almost_empty_list_within_one_chunk():
     # same answer as a list that was big enough from the start
     ample = Simulator(hooke.law(), dt=5e-4, chunk_steps=2000, capacity_multiplier=1.0)
     ref = ample.init(PARAMS, particles, boundaries)
-    big = jaxpile.neighbors.allocate(ref.neighbor_settings, ref.particles.position, extra_capacity=15)
-    pairs = jaxpile.neighbors.half_pairs(big.idx)
+    big = jaxpile.engine.neighbors.allocate(ref.neighbor_settings, ref.particles.position, extra_capacity=15)
+    pairs = jaxpile.engine.neighbors.half_pairs(big.idx)
     ref = ref.set(neighbors=big, contacts=ref.contacts.set(
         pairs=pairs, history=jnp.zeros((pairs.shape[0], 2), ref.particles.position.dtype)))
     ref = ample.run(PARAMS, ref, 2000, progress=False)
@@ -125,13 +125,13 @@ def test_driver_pours_disks_and_removes_a_wall_inside_one_compiled_chunk():
         return drivers.activate(state, index, drop, when=due)
 
     sim = Simulator(hooke.law(), dt=5e-4, chunk_steps=1000,
-                    driver=drivers.compose(pour, drivers.switch_wall_at(500, jaxpile.boundaries.RIGHT_WALL)))
+                    driver=drivers.compose(pour, drivers.switch_wall_at(500, jaxpile.engine.boundaries.RIGHT_WALL)))
     state = sim.init(PARAMS, particles, boundaries, box=(40.0, 40.0))
     state = sim.run(PARAMS, state, 1000, progress=False)
     p = state.particles
     assert np.asarray(p.active).tolist() == [True, True, True, True]
-    assert not bool(state.boundaries.wall_active[jaxpile.boundaries.RIGHT_WALL])
-    assert bool(state.boundaries.wall_active[jaxpile.boundaries.LEFT_WALL])
+    assert not bool(state.boundaries.wall_active[jaxpile.engine.boundaries.RIGHT_WALL])
+    assert bool(state.boundaries.wall_active[jaxpile.engine.boundaries.LEFT_WALL])
     y = np.asarray(p.position)[:, 1]
     assert np.all(np.diff(y[:3]) < 1.3)  # the first three landed on one another
     assert float(p.velocity[3, 1]) < -0.1  # the last one, poured at step 600, is falling

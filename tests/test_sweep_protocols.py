@@ -70,7 +70,8 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     theta_T, theta_R and last step are those of `tilt.run` with its seed.
     Resumed from a save in the middle of the tilt, the sweep ends with the
     same rows (the tilt's start steps and the pile's theta_R come from the file)."""
-    from jaxpile import checkpoint, sweep
+    from jaxpile import sweep
+    from jaxpile.engine import checkpoint
     from jaxpile.protocols import tilt
 
     options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.01}
@@ -95,5 +96,5 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
 def test_the_command_line_offers_every_sweepable_protocol():
     from jaxpile import cli, sweep
 
-    assert set(sweep.ADAPTERS) <= set(cli.SWEEP_PROTOCOLS)  # the papers' seven, and those that bring an adapter
+    assert set(sweep.adapters()) <= set(cli.SWEEP_PROTOCOLS)  # the papers' seven, and those that bring an adapter
     assert sorted(cli.SWEEP_PROTOCOLS) == sorted(sweep.adapters())

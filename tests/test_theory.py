@@ -1,4 +1,4 @@
-"""The papers' analytic models (jaxpile.theory) against hand-computed values and limits:
+"""The papers' analytic models (jaxpile.measure.theory) against hand-computed values and limits:
 Liffman, Chan & Hughes 1992 eqs. 40-44, 49-59 and Figs. 18-19; Lee & Herrmann 1993 eqs. 3-4."""
 
 import math

@@ -10,7 +10,7 @@ import jaxpile
 from jaxpile import InputError
 from jaxpile.cli import main
 from jaxpile.laws import hooke
-from jaxpile.simulate import Simulator
+from jaxpile.engine.simulate import Simulator
 
 
 def _pair(**kw):
@@ -120,7 +120,7 @@ def test_walls_in_the_wrong_order_and_bad_ramp():
     with pytest.raises(InputError, match="left wall"):
         jaxpile.make_boundaries(left=5.0, right=0.0)
     with pytest.raises(InputError, match="gravity ramp"):
-        jaxpile.simulate.gravity_ramp(0)
+        jaxpile.engine.simulate.gravity_ramp(0)
 
 
 def test_overlapping_fixed_disks_are_allowed():

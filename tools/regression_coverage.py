@@ -8,7 +8,7 @@ of log mu: no protocol runs, seconds in all):
   smooth protocol: the box, the lattice);
 - "chaotic": noise drawn afresh for each (mu, seed) (a discharge, a pour).
 
-    python benchmarks/regression_coverage.py [--fits 40] [--out benchmarks/results/regression_coverage.json]
+    python tools/regression_coverage.py [--fits 40] [--out benchmarks/results/regression_coverage.json]
 """
 
 from __future__ import annotations
@@ -20,24 +20,24 @@ import sys
 
 import numpy as np
 
-HERE = pathlib.Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
-sys.path.insert(0, str(HERE.parent))
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
 
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fits", type=int, default=40)
-    parser.add_argument("--out", default=str(HERE / "results" / "regression_coverage.json"))
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "regression_coverage.json"))
     args = parser.parse_args(argv)
 
     from test_ensemble_fit import ChaoticToyRunner, ToyRunner, _target
 
-    from jaxpile import ensemble_fit as ef
+    from jaxpile.fit import ensemble_fit as ef
 
     truth, stats = 0.3137, ef.Statistics(columns=("angle", "feature"))
     out = {"truth": truth, "fits": args.fits, "seeds_a_side": 32, "start": 0.2, "step": 0.2, "iterations": 6,
-           "command": "python benchmarks/regression_coverage.py " + " ".join(argv or sys.argv[1:])}
+           "command": "python tools/regression_coverage.py " + " ".join(argv or sys.argv[1:])}
     for label, make in (("chaotic", lambda: ChaoticToyRunner(noise=1.0)),
                         ("common random numbers", lambda: ToyRunner())):
         inside = {"gauss_newton": 0, "line": 0}

@@ -2,8 +2,8 @@
 compile time, JAX's tracing and lowering time, and how many distinct programs
 it compiled.
 
-    python benchmarks/suite_profile.py                 # the whole suite, as `make test` runs it
-    python benchmarks/suite_profile.py tests/test_protocol_tilt.py -n 0
+    python tools/suite_profile.py                 # the whole suite, as `make test` runs it
+    python tools/suite_profile.py tests/test_protocol_tilt.py -n 0
 
 runs pytest with this file as a plugin (each worker records its own tests) on a
 fresh, empty compile cache, as CI's clean clone does, then prints the slowest
@@ -173,7 +173,9 @@ def main(argv: list[str]) -> int:
     args = argv or ["-n", str(jobs), "--dist", "loadscope", "--no-loadscope-reorder"]  # as `make test`
     with tempfile.TemporaryDirectory() as records, tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, **{_RECORD_DIR: records, "JAX_COMPILATION_CACHE_DIR": cache})
-        env["PYTHONPATH"] = os.pathsep.join([str(root / "benchmarks"), str(root), env.get("PYTHONPATH", "")])
+        # tools/ for this plugin (`-p suite_profile`); benchmarks/ and the root as before the move
+        env["PYTHONPATH"] = os.pathsep.join([str(root / "tools"), str(root / "benchmarks"), str(root),
+                                             env.get("PYTHONPATH", "")])
         t0 = time.perf_counter()
         rc = subprocess.call([sys.executable, "-m", "pytest", "-q", "-p", "suite_profile", "-p", "no:cacheprovider",
                               *args], cwd=root, env=env)
@@ -189,6 +191,7 @@ def main(argv: list[str]) -> int:
     import jax
 
     from jaxpile.io import write_json
+    sys.path.insert(0, str(root / "benchmarks"))
     from machine import details  # benchmarks/machine.py
 
     summary["machine"] = details()

@@ -37,23 +37,8 @@ import time
 
 import numpy as np
 
-
-def _parse_set(items, known) -> dict:
-    from jaxpile.errors import InputError
-
-    values = {}
-    for item in items or []:
-        if "=" not in item:
-            raise InputError(f"--set takes NAME=VALUE; got {item!r}.")
-        name, value = item.split("=", 1)
-        name = name.strip()
-        if name not in known:
-            raise InputError(f"unknown parameter {name!r} in --set; known: {', '.join(known)}.")
-        try:
-            values[name] = float(value)
-        except ValueError:
-            raise InputError(f"--set {name}= needs a number; got {value!r}.") from None
-    return values
+from jaxpile.cli.parsing import parse_options, parse_set
+from jaxpile.io import plain
 
 
 def _on_off(text: str) -> bool:
@@ -91,28 +76,6 @@ def _protocol_names() -> list[str]:
     from jaxpile.protocols import PROTOCOLS
 
     return list(PROTOCOLS)
-
-
-def _parse_options(items) -> dict:
-    """`--option NAME=VALUE`: ints, floats, on/off, or text."""
-    from jaxpile.errors import InputError
-
-    options = {}
-    for item in items or []:
-        if "=" not in item:
-            raise InputError(f"--option takes NAME=VALUE; got {item!r}.")
-        name, text = (part.strip() for part in item.split("=", 1))
-        for convert in (int, float):
-            try:
-                value = convert(text)
-                break
-            except ValueError:
-                continue
-        else:
-            lowered = text.lower()
-            value = {"on": True, "true": True, "off": False, "false": False}.get(lowered, text)
-        options[name.replace("-", "_")] = value
-    return options
 
 
 DEFAULT_PROTOCOL = {"pile": "lattice", "sweep": "box", "fit": "lattice"}
@@ -181,7 +144,7 @@ def _merge_protocol_flags(args) -> None:
              if k.startswith("protocol_option__") and v is not None}
     if not given:
         return
-    twice = sorted(set(_parse_options(args.option)) & set(given))
+    twice = sorted(set(parse_options(args.option)) & set(given))
     if twice:
         raise InputError(f"{', '.join(twice)} given both as a flag and as --option: give it once.")
     text = {True: "on", False: "off"}
@@ -766,7 +729,7 @@ def run_protocol(args) -> dict:
         raise InputError(f"--slope is for the sloped protocol, not {name}.")
     lawmod = get_law_module(args.law or _entry(name).default_law)
     dtype = jnp.float64 if args.precision == "float64" else jnp.float32
-    overrides = _parse_set(args.set, lawmod.PARAM_NAMES)
+    overrides = parse_set(args.set, lawmod.PARAM_NAMES)
     _, contact_law, params = module.law_and_params(lawmod.NAME, overrides, args.rotation, dtype=dtype)
 
     kwargs = dict(params=params, rotation=args.rotation, integrator=args.integrator, dtype=dtype,
@@ -791,7 +754,7 @@ def run_protocol(args) -> dict:
             kwargs.setdefault(keyword, {})[key] = value
         else:
             kwargs[keyword] = value
-    options = _parse_options(args.option)
+    options = parse_options(args.option)
     known = protocol_options.accepted(module)
     unknown = set(options) - known
     if unknown:
@@ -838,7 +801,7 @@ def run_protocol(args) -> dict:
         "cli_total_seconds": total,
         "resumed_from_step": resumed_from,
         # a protocol may give its own plain-number summary (pour: the rest are maps and arrays)
-        **(_plain(m) if entry.summary is None else entry.summary(m)),
+        **(plain(m) if entry.summary is None else entry.summary(m)),
     }
     summary["protocol"], summary["law"] = name, contact_law.name
     out = args.out
@@ -965,8 +928,8 @@ def run_sweep(args) -> dict:
     if args.seeds < 1:
         raise InputError(f"--seeds must be >= 1; got {args.seeds}.")
     lawmod = get_law_module(law)
-    fixed = _parse_set(args.set, lawmod.PARAM_NAMES)
-    options = _parse_options(args.option)
+    fixed = parse_set(args.set, lawmod.PARAM_NAMES)
+    options = parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
     dtype = jnp.float64 if args.precision == "float64" else jnp.float32
@@ -1000,7 +963,7 @@ def run_sweep(args) -> dict:
     sw.write_csv(os.path.join(out, "sweep.csv"), result)
     by = next(iter(vary))
     summaries = {name: sw.summarise(result, by, name) for name in result.info["angles"]}
-    io.write_json(os.path.join(out, "sweep.json"), _plain({**result.info, "precision": args.precision,
+    io.write_json(os.path.join(out, "sweep.json"), plain({**result.info, "precision": args.precision,
                                                           "summary_by": by, "summaries": summaries}))
     sw.figure(result, by, path=os.path.join(out, "sweep.png"))
     main_angle = result.info["angles"][0]
@@ -1068,7 +1031,7 @@ def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     module = _pathwise(args.protocol)
     size = args.layers if _entry(args.protocol).size == "layers" else args.n
     what, particles, params, build, per_step = module.pathwise_dry_run(law, start, size=size, seed=args.seed,
-                                                                       options=_parse_options(args.option),
+                                                                       options=parse_options(args.option),
                                                                        window=args.window)
     values = ", ".join(f"{n} = {float(getattr(params, n)):g}" for n in names)
     print(f"jaxpile: dry run of a fit of {values} ({law} law) on {what}: {args.steps} optimiser steps, each "
@@ -1090,7 +1053,7 @@ def run_fit(args) -> dict:
     ensemble_target = _ensemble_target(args)
     estimator = fit_estimator(args)
     if estimator != "pathwise":
-        from jaxpile.fit.command import run_ensemble_fit
+        from jaxpile.cli.ensemble_fit import run_ensemble_fit
 
         return run_ensemble_fit(args, estimator)
     if ensemble_target:
@@ -1126,12 +1089,12 @@ def run_fit(args) -> dict:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0
     optimizer = _optimizer(args.optimizer, args.lr)
-    start = _parse_set(args.set, lawmod.PARAM_NAMES)
+    start = parse_set(args.set, lawmod.PARAM_NAMES)
     progress = False if args.no_progress else None
     if args.dry_run:
         return _dry_run_fit(args, law, names, start)
     sim, params, state, steps, setting, window, described = fit_problem(
-        args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=_parse_options(args.option),
+        args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=parse_options(args.option),
         bins=args.bins, window=args.window, progress=progress)
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
           flush=True)
@@ -1194,7 +1157,7 @@ def run_fit(args) -> dict:
     }
     out = args.out
     os.makedirs(out, exist_ok=True)
-    io.write_json(os.path.join(out, "fit.json"), _plain(record))
+    io.write_json(os.path.join(out, "fit.json"), plain(record))
     fit.fit_figure(result, target, before, after, path=os.path.join(out, "fit.png"))
     print("jaxpile: " + ", ".join(f"{k}: {record['initial'][k]:.4g} -> {v:.4g}" for k, v in
                                   record["fitted_values"].items())
@@ -1212,23 +1175,6 @@ def _protocol_dt(module, m) -> float:
         return float(info["dt"])
     setting = getattr(module, "SETTING", None) or module.PAPER_SETTING
     return float(setting["dt"])
-
-
-def _plain(value):
-    """Measurements as JSON: arrays to lists, named tuples to dicts."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if hasattr(value, "_asdict"):
-        return {k: _plain(v) for k, v in value._asdict().items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    if hasattr(value, "shape") and hasattr(value, "tolist"):
-        return np.asarray(value).tolist()
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return str(value)
 
 
 def _headline(name: str, summary: dict) -> str:

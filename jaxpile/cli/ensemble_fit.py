@@ -1,5 +1,5 @@
 """`jaxpile fit` with an ensemble target (`--truth` or a target.json): the
-command-line side of `jaxpile.fit.ensemble_fit` (issue 17)."""
+command-line side of `jaxpile.fit.ensemble_fit`."""
 
 from __future__ import annotations
 
@@ -7,7 +7,9 @@ import os
 
 import numpy as np
 
+from jaxpile.cli.parsing import parse_options, parse_set
 from jaxpile.errors import InputError
+from jaxpile.io import plain
 from jaxpile.ranges import COUNT, POSITIVE
 
 
@@ -24,10 +26,8 @@ def _statistics(args, adapter):
 
 
 def _values(items, known, flag) -> dict:
-    from jaxpile.cli import _parse_set
-
     try:
-        return _parse_set(items, known)
+        return parse_set(items, known)
     except InputError as err:
         raise InputError(str(err).replace("--set", flag)) from None
 
@@ -40,7 +40,6 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     import jaxpile  # noqa: F401  (turns on float64)
     from jaxpile import io, sweep
     from jaxpile.fit import ensemble_fit
-    from jaxpile.cli import _parse_options, _plain
     from jaxpile.laws import get_law_module
 
     a = sweep.adapter(args.protocol)
@@ -56,7 +55,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     _, _, defaults = a.law_and_params(law, None)
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
     fixed = {k: v for k, v in given.items() if k not in names}
-    options = _parse_options(args.option)
+    options = parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
     if "layers" in a.options and "layers" not in options:  # the protocols built in layers (the lattice)
@@ -130,7 +129,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                                                        else record, args.target)
     else:
         raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
-    io.write_json(os.path.join(args.out, "target.json"), _plain(target.to_json()))
+    io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
           f"({estimator}, {optimizer}) to {target.source}", flush=True)
@@ -143,7 +142,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if target.truth:
         record["truth_inside_interval"] = {n: bool(lo <= target.truth[n] <= hi)
                                            for n, (lo, hi) in result.interval.items() if n in target.truth}
-    io.write_json(os.path.join(args.out, "fit.json"), _plain(record))
+    io.write_json(os.path.join(args.out, "fit.json"), plain(record))
     ensemble_fit.figure(result, path=os.path.join(args.out, "fit.png"))
     for n in names:
         lo, hi = result.interval[n]

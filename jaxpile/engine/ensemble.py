@@ -162,7 +162,7 @@ class Ensemble:
             return [member(params, i) for i in range(count)]
         return [params] * count
 
-    def _as_batch(self, params, count: int):
+    def as_batch(self, params, count: int):
         """`params` (a list, a batched pytree, or one shared pytree) as a batched
         pytree matching a (possibly padded) batch of `count`, on the devices."""
         if isinstance(params, (list, tuple)):
@@ -294,17 +294,17 @@ class Ensemble:
         if int(n_steps) != n_steps or n_steps < 0:
             raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
         count = batch_size(state)
-        params = self._as_batch(params, count)
+        params = self.as_batch(params, count)
         self.sim.check_params(member(params, 0), member(jax.device_get(state.particles), 0))
         _check_batch_finite(state, last_good=None)
         info = RunInfo() if info is None else info
-        info._n = count * state.particles.position.shape[1]
+        info.particles = count * state.particles.position.shape[1]
         finished = jax.jit(jax.vmap(until)) if until is not None else None
         if progress is None:
             progress = sys.stderr.isatty()
         from tqdm.auto import tqdm
 
-        save = self.sim._checkpointer(params, checkpoint)
+        save = self.sim.checkpointer(params, checkpoint)
         bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
         done = 0
         finished_now = finished(state) if finished is not None else jnp.zeros(count, bool)

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import transfer
+from jaxpile.engine.cells import cell_index
 
 Array = Any
 
@@ -36,10 +37,8 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
     n = position.shape[0]
     if n == 0:
         return np.zeros((0, slots), np.int32), 0, False
-    from jaxpile.engine.neighbors import _cells  # imported here: neighbors imports this module
-
     nx, ny = grid[0], grid[1]
-    cx, cy = (c.astype(np.int64) for c in _cells(position, grid, xp=np))
+    cx, cy = (c.astype(np.int64) for c in cell_index(position, grid, xp=np))
     key = cy * nx + cx
     order = np.argsort(key, kind="stable").astype(np.int32)  # ties by index, as the traced sort of key n + index
     sorted_key = key[order]

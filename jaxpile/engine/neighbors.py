@@ -58,6 +58,7 @@ from jax import lax
 from jax_md import partition
 
 from jaxpile.engine import host_lists, transfer
+from jaxpile.engine.cells import cell_grid, cell_index
 
 Array = Any
 
@@ -71,8 +72,9 @@ class NeighborSettings(NamedTuple):
     capacity_multiplier: float
 
 
-MAX_CELLS = 1 << 30
-"""Most cells a grid may have (cell keys are int32): a larger box gets larger cells."""
+def _grid(settings: NeighborSettings) -> tuple[int, int, float, float]:
+    """The settings' cell grid (`cells.cell_grid` of its box and reach)."""
+    return cell_grid(settings.box, settings.cutoff + settings.skin)
 
 
 WINDOW_HEADROOM = 2.0
@@ -80,32 +82,6 @@ WINDOW_HEADROOM = 2.0
 allocation (at most the capacity multiplier): a packed heap of equal disks
 holds ~5 in a run where the substrate row holds 4, and every window entry
 is a candidate each rebuild checks."""
-
-
-def _grid(settings: NeighborSettings) -> tuple[int, int, float, float]:
-    """`(nx, ny, wx, wy)`: the cells over the settings' box, each at least the
-    reach (cutoff + skin) wide, so a disk's neighbours lie in its own cell or
-    the eight around it."""
-    reach = settings.cutoff + settings.skin
-    nx = max(1, int(settings.box[0] // reach))
-    ny = max(1, int(settings.box[1] // reach))
-    while nx * ny > MAX_CELLS:
-        nx, ny = max(1, nx // 2), max(1, ny // 2)
-    return nx, ny, settings.box[0] / nx, settings.box[1] / ny
-
-
-def _cells(position: Array, grid, xp=jnp) -> tuple[Array, Array]:
-    """Each disk's cell `(cx, cy)`. Disks outside the box are clamped into the
-    border cells: clamping keeps two disks within the reach in the same or
-    adjacent cells, so they are still found (a crowded border cell only needs a
-    larger window). Non-finite positions go to cell (0, 0) (the runner stops on
-    them after the chunk)."""
-    nx, ny, wx, wy = grid
-    x, y = position[:, 0], position[:, 1]
-    ok = xp.isfinite(x) & xp.isfinite(y)
-    cx = xp.where(ok, xp.clip(xp.floor(x / wx), 0, nx - 1), 0).astype(xp.int32)
-    cy = xp.where(ok, xp.clip(xp.floor(y / wy), 0, ny - 1), 0).astype(xp.int32)
-    return cx, cy
 
 
 CELL_TABLE_PER_DISK = 64
@@ -165,7 +141,7 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     """
     n = position.shape[0]
     nx, ny = grid[0], grid[1]
-    cx, cy = _cells(position, grid)
+    cx, cy = cell_index(position, grid)
     key = cy * nx + cx
     order, sorted_key = _sorted_by_cell(key, n, nx * ny)
     beyond = jnp.int32(nx * ny)  # past every key: reads past the end stop there
@@ -312,7 +288,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     position = transfer.to_device(position)
     n = int(position.shape[0])
     grid = _grid(settings)
-    cx, cy = (a.astype(np.int64) for a in _cells(host, grid, xp=np))
+    cx, cy = (a.astype(np.int64) for a in cell_index(host, grid, xp=np))
     cells, counts = np.unique(cy * grid[0] + cx, return_counts=True)  # occupied cells only: O(n)
 
     def count(key, ok):

@@ -160,7 +160,7 @@ def load_then_settle(sim, params, state, *, load_steps: int, max_settle_steps: i
     rest.wall_seconds += info.wall_seconds
     rest.compile_seconds += info.compile_seconds
     rest.reallocations += info.reallocations
-    rest._n = state.particles.count
+    rest.particles = state.particles.count
     return state, rest
 
 
@@ -176,11 +176,12 @@ class RunInfo:
     max_speed: float = float("nan")
     speed_history: list = field(default_factory=list)
 
+    particles: int = 0
+    """Disks advanced each step (every member's, for a batch): the rate's numerator."""
+
     @property
     def particle_steps_per_second(self) -> float:
-        return self._n * self.steps / self.wall_seconds if self.wall_seconds > 0 else float("nan")
-
-    _n: int = 0
+        return self.particles * self.steps / self.wall_seconds if self.wall_seconds > 0 else float("nan")
 
 
 @jax.jit  # one program per shape: the runners ask for it on the host after every chunk
@@ -567,12 +568,12 @@ class Simulator:
         self.check_params(params, state.particles)
         _check_finite(state.particles, step=int(state.step))
         info = RunInfo() if info is None else info
-        info._n = state.particles.count
+        info.particles = state.particles.count
         if progress is None:
             progress = sys.stderr.isatty()
         from tqdm.auto import tqdm
 
-        save = self._checkpointer(params, checkpoint)
+        save = self.checkpointer(params, checkpoint)
         if resumed and until is not None and until(state):
             return state
         _observe(state, self.dt)
@@ -597,7 +598,7 @@ class Simulator:
             bar.close()
         return state
 
-    def _checkpointer(self, params, checkpoint) -> "_Checkpointer | None":
+    def checkpointer(self, params, checkpoint) -> "Checkpointer | None":
         """The saver for `run(checkpoint=(path, every[, extra]))`, or None."""
         if checkpoint is None:
             return None
@@ -606,7 +607,7 @@ class Simulator:
         path, every, extra = (*checkpoint, {})[:3]
         if int(every) != every or every < 1:
             raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
-        return _Checkpointer(str(path), int(every), dict(extra), self.law, params)
+        return Checkpointer(str(path), int(every), dict(extra), self.law, params)
 
     def run_until_rest(
         self,
@@ -660,7 +661,7 @@ def _scan_steps(step, params, state: SimState, n: int) -> SimState:
     return state
 
 
-class _Checkpointer:
+class Checkpointer:
     """Saves a run's state at chunk boundaries, every `every` steps of the
     absolute step count (so a resumed run saves where the uninterrupted one
     did), at the run's end, and the last good state when NaN/inf appears."""

@@ -48,6 +48,7 @@ import numpy as np
 import optax
 
 from jaxpile.measure import analysis, theory
+from jaxpile.measure.heap import ProfileSetting
 from jaxpile.errors import InputError
 from jaxpile.engine.state import SimState
 
@@ -937,23 +938,6 @@ def fit_figure(result: FitResult, target: ProfileTarget, before, after, path=Non
 
 
 # ------------------------------------------------------ simulated piles
-class ProfileSetting(NamedTuple):
-    """How a pile's base profile is read for fitting.
-
-    Attributes:
-      base: `"ground"` (a pile on the floor) or `"substrate"` (a heap on fixed disks).
-      x_left, x_right: the feet of the pile (the profile's x/B = 0 and 1).
-      bins: number of bins.
-      bandwidth: the smoothing kernel's width (default one bin).
-    """
-
-    base: str
-    x_left: float
-    x_right: float
-    bins: int
-    bandwidth: float | None = None
-
-
 def simulated_profile(sim, params, state: SimState, steps: int, setting: ProfileSetting, *,
                       window: int | None = None, checkpoint: bool | int = True) -> Profile:
     """The smooth base profile after `steps` steps from `state` with `params`:

@@ -61,6 +61,7 @@ import numpy as np
 
 from jaxpile import budget
 from jaxpile.fit import estimators
+from jaxpile.fit.stats import t_quantile, weights
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, POSITIVE
 
@@ -298,32 +299,6 @@ def smid_novosad_target() -> EnsembleTarget:
                           "1992, Introduction)")
 
 
-def _groups(labels) -> list[np.ndarray]:
-    """Indices of the statistics that share a unit: each column alone, the
-    normal profile's bins, the horizontal profile's bins."""
-    labels = list(labels)
-    groups = {}
-    for i, label in enumerate(labels):
-        key = label.split("[")[0] if label.endswith("]") else label
-        groups.setdefault(key, []).append(i)
-    return [np.asarray(g) for g in groups.values()]
-
-
-def weights(target: EnsembleTarget, floor: float = 0.01) -> np.ndarray:
-    """`[k]` 1 / spread^2 of each statistic, in its own units. Within a group
-    of one unit (the bins of a profile) the spread is held at least
-    sqrt(floor) x the group's largest: a bin outside every pile has no spread
-    and must not weigh infinitely. A statistic with no spread at all (one
-    pile, or a deterministic protocol) weighs 1."""
-    spread2 = np.nan_to_num(np.asarray(target.spread, float) ** 2, nan=0.0)
-    w = np.ones_like(spread2)
-    for g in _groups(target.labels):
-        top = spread2[g].max()
-        if top > 0:
-            w[g] = 1.0 / np.maximum(spread2[g], floor * top)
-    return w
-
-
 def objective_for(target: EnsembleTarget, w: np.ndarray) -> Callable:
     t, w = jnp.asarray(target.mean), jnp.asarray(w)
     return lambda mean: jnp.mean(w * (mean - t) ** 2)
@@ -417,13 +392,6 @@ def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target:
         return float(np.sum(w * r ** 2)) / dof * inv, float(dof)
     sizes = [len(p) for p in (members, target.members) if spread(p)]
     return inv @ (projected(members) + projected(target.members)) @ inv, float(min(sizes) - 1)
-
-
-def _quantile(dof: float) -> float:
-    """The two-sided 95 % Student-t quantile (1.96 for many degrees of freedom)."""
-    from scipy import stats
-
-    return float(stats.t.ppf(0.975, dof)) if math.isfinite(dof) and dof > 0 else float("nan")
 
 
 def _optimiser(name: str, lr: float):
@@ -647,7 +615,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     else:
         jac, cov, dof = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan), float("nan")
     se = np.sqrt(np.clip(np.diag(cov), 0, None)) if np.all(np.isfinite(cov)) else np.full(d, np.nan)
-    z = _quantile(dof)
+    z = t_quantile(dof)
     values = params_of(theta)
     interval = {n: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
                 for i, n in enumerate(names)}

@@ -40,6 +40,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxpile.fit.stats import t_quantile, weights
+
 
 class Regression(NamedTuple):
     """`values`, `interval` (95 %) and `stderr_log` as in a fit's result;
@@ -97,8 +99,6 @@ def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression |
     fit ran too few ensembles (N < d + 2) or the line does not move with the
     parameters. `w`: the fit's weights (default `ensemble_fit.weights` of its
     target)."""
-    from jaxpile.fit.ensemble_fit import _quantile, weights
-
     target = result.target
     w = weights(target) if w is None else np.asarray(w, float)
     thetas, means = ensembles_of(result, skip)
@@ -127,7 +127,7 @@ def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression |
     jw = jac.T * w
     cov = inv @ jw @ c @ jw.T @ inv
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    z = _quantile(dof)
+    z = t_quantile(dof)
     names = list(result.names)
     return Regression({k: float(np.exp(theta[i])) for i, k in enumerate(names)},
                       {k: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))

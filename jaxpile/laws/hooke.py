@@ -32,8 +32,7 @@ from jax_md import dataclasses
 
 from jaxpile.errors import InputError
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
-                               validate_ranges, cross2, dot2,
-                               normal_and_distance, perp, safe_norm)
+                               validate_ranges)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any

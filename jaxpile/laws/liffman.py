@@ -43,7 +43,6 @@ from typing import Any
 import jax.numpy as jnp
 from jax_md import dataclasses
 
-from jaxpile.errors import InputError
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, dot2,
                                normal_and_distance, perp)

@@ -187,3 +187,20 @@ def steepest_heap_height(n: int) -> float:
     """Height of a 45-degree heap of n disks (packing fraction 0.8), the
     steepest these laws build: insertion must start above it."""
     return math.sqrt(n * (math.pi / 4.0) / 0.8)
+
+
+class ProfileSetting(NamedTuple):
+    """How a pile's base profile is read for fitting.
+
+    Attributes:
+      base: `"ground"` (a pile on the floor) or `"substrate"` (a heap on fixed disks).
+      x_left, x_right: the feet of the pile (the profile's x/B = 0 and 1).
+      bins: number of bins.
+      bandwidth: the smoothing kernel's width (default one bin).
+    """
+
+    base: str
+    x_left: float
+    x_right: float
+    bins: int
+    bandwidth: float | None = None

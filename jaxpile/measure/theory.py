@@ -271,3 +271,10 @@ def tilting_angle(theta_r: float, mu: float) -> float:
                          f"= {theta_r + theta_t!r} reaches pi/3, where eq. 4b's lines no longer meet the "
                          "slope; use mu < 1/sqrt(3) or a smaller theta_r.")
     return theta_t
+
+
+def marginal_stability_overlay(name, values):
+    """The sweep figure's overlay against mu: theta_MS = arctan(3 mu) (1993 eq. 3)."""
+    if name != "mu":
+        return None
+    return "theta_MS = arctan(3 mu) (1993 eq. 3)", np.degrees(marginal_stability_angle(np.asarray(values)))

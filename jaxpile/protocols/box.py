@@ -80,15 +80,14 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
-from jaxpile.protocols.drivers import motion, rest_detector, rms_speed  # noqa: F401  (box.X as before)
-from jaxpile.protocols.geometry import (PARK_SPACING, _check_positive, neighbor_box, parking_grid,  # noqa: F401
+from jaxpile.protocols.drivers import motion, rest_detector
+from jaxpile.protocols.geometry import (PARK_SPACING, check_positive, neighbor_box, parking_grid,
                                         random_positions, take_out)
-from jaxpile.protocols.paper1993 import (PAPER_G, PAPER_SETTING, Units, _measure_flag, _radius_law,  # noqa: F401
+from jaxpile.protocols.paper1993 import (PAPER_SETTING, measure_flag, radius_law,
                                          fill_count, friction_coefficient, gaussian_radii, law_and_params, law_name,
-                                         law_setting, mean_square_radius, units)
-from jaxpile.runner import check_dt, restore_sampled, run_record, run_sampled, run_to_finish, start  # noqa: F401
+                                         law_setting, units)
 from jaxpile.engine.state import SimState, make_particles
-from jaxpile.sweep import marginal_stability
+from jaxpile.measure.theory import marginal_stability_overlay
 
 Array = Any
 
@@ -216,10 +215,10 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
     """
     ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     u = units(law)
-    dt = float(law_setting(law)["dt"]) if dt is None else _check_positive("dt", dt)
-    width, height = _check_positive("width", width), _check_positive("height", height)
-    rest_speed, hold_time = _check_positive("rest_speed", rest_speed), _check_positive("hold_time", hold_time)
-    mean, spread, low, high = _radius_law(radius)
+    dt = float(law_setting(law)["dt"]) if dt is None else check_positive("dt", dt)
+    width, height = check_positive("width", width), check_positive("height", height)
+    rest_speed, hold_time = check_positive("rest_speed", rest_speed), check_positive("hold_time", hold_time)
+    mean, spread, low, high = radius_law(radius)
     if not 0 < placement_fraction <= 0.5:
         raise InputError(f"placement_fraction must be in (0, 0.5] (random placement jams near 0.55); "
                          f"got {placement_fraction!r}.")
@@ -252,7 +251,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
         park=jnp.asarray(park, dtype),
         rest_speed=jnp.asarray(rest_speed * u.speed, dtype),
         hold=jnp.asarray(hold, jnp.int32),
-        use_max=jnp.asarray(_measure_flag(rest_measure)),
+        use_max=jnp.asarray(measure_flag(rest_measure)),
         phase=jnp.asarray(0, jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(False),
@@ -320,7 +319,7 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
 
 def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -> int:
     """`max_time` (paper seconds) in steps of dt."""
-    return ranges.steps_of("max_time", _check_positive("max_time", max_time) * units(law).time, dt)
+    return ranges.steps_of("max_time", check_positive("max_time", max_time) * units(law).time, dt)
 
 
 def count_check(state: SimState) -> dict:
@@ -369,7 +368,7 @@ DEFINITION = definition.Definition(
          "settled_step", "n_left", "fill_height"),
     run_options={"max_time": PAPER_SETTING["max_time"]},
     sweep=dict(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
-               theory=marginal_stability, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
+               theory=marginal_stability_overlay, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
                fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")}))
 
 
@@ -411,36 +410,5 @@ def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool
                           run_options={"max_time": max_time}, **options)
 
 
-__all__ = [
-    "PAPER_SETTING",
-    "BoxState",
-    "Units",
-    "count_check",
-    "driver",
-    "check_dt",
-    "execute",
-    "fill_count",
-    "friction_coefficient",
-    "gaussian_radii",
-    "law_and_params",
-    "law_setting",
-    "make_simulator",
-    "max_steps_for",
-    "max_time_steps",
-    "mean_square_radius",
-    "neighbor_box",
-    "parking_grid",
-    "protocol",
-    "random_positions",
-    "repose",
-    "rest_detector",
-    "restore_sampled",
-    "rms_speed",
-    "motion",
-    "run",
-    "run_sampled",
-    "settled",
-    "start",
-    "take_out",
-    "units",
-]
+__all__ = ["PAPER_SETTING", "BoxState", "count_check", "driver", "execute", "law_and_params", "make_simulator",
+    "max_steps_for", "max_time_steps", "protocol", "repose", "run", "settled"]

@@ -19,8 +19,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
+from jaxpile.protocols.adapter import Adapter, Stage
 from jaxpile.protocols.base import Protocol
-from jaxpile.runner import run_record, run_to_finish
+from jaxpile.protocols.options import option_names
+from jaxpile.protocols.runner import run_record, run_to_finish
 
 
 @dataclass(frozen=True)
@@ -247,7 +249,7 @@ def continue_pile(d: Definition, sim, params, p: Protocol, pile=None, *, run_opt
     Returns:
       `(state, RunInfo, samples)` as `run_sampled`.
     """
-    from jaxpile import runner
+    from jaxpile.protocols import runner
     from jaxpile.engine import checkpoint as ckpt
     from jaxpile.errors import InputError
 
@@ -300,8 +302,6 @@ def continued_stages(d: Definition, resume) -> tuple[str | None, str | None]:
 def adapter(definition: Definition):
     """The sweep's `Adapter` of `definition`: the same set-up, simulator,
     predicate, budget and measurements as `run`, per member of a batch."""
-    from jaxpile.sweep import Adapter, option_names
-
     d = definition
     if d.starts_from is not None:
         return _continued_adapter(d)
@@ -346,8 +346,6 @@ def adapter(definition: Definition):
 def _continued_adapter(d: Definition):
     """A batch of a continued protocol: the pile's protocol (stage 0, as its
     own adapter), then this one from each member's end state (a `Stage`)."""
-    from jaxpile.sweep import Adapter, Stage, option_names
-
     base = adapter(d.starts_from)
     names = option_names(d.setup, *d.run_options) - {"pile", "edge"}  # the stage's; its pile is the member's state
 

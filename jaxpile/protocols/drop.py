@@ -71,14 +71,13 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.heap import NormalProfile, central_dip, normal_profile  # noqa: F401  (drop.X as before)
-from jaxpile.measure.dropped_pile import measure  # noqa: F401  (the pile's measurements; drop.measure as before)
+from jaxpile.measure.dropped_pile import measure
 from jaxpile.protocols import definition, lattice
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.engine.state import SimState, make_particles
-from jaxpile.sweep import heap_extent
+from jaxpile.protocols.geometry import heap_extent
 
 Array = Any
 SQRT3 = math.sqrt(3.0)
@@ -337,7 +336,7 @@ def _execute(sim, params, p: Protocol, options: dict, *, progress=None, checkpoi
         state = ckpt.restore(resume, state, sim.law, params)
         fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
     fill = RunInfo()
-    fill._n = state.particles.count
+    fill.particles = state.particles.count
     if fill_steps is None:
         budget = p.info["n_particles"] * p.info["max_interval_steps"] + sim.chunk_steps
         state = sim.run(params, state, max(budget - int(state.step), 0), progress=progress, info=fill,
@@ -458,5 +457,4 @@ def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rot
         max_interval=max_interval)
 
 
-__all__ = ["DropState", "NormalProfile", "PARK_SPACING", "SETTING", "central_dip", "law_and_params", "layout",
-           "make_driver", "measure", "normal_profile", "protocol", "run"]
+__all__ = ["DropState", "PARK_SPACING", "SETTING", "law_and_params", "layout", "make_driver", "protocol", "run"]

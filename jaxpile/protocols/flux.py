@@ -61,7 +61,9 @@ from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.engine.state import SimState, make_particles
-from jaxpile.sweep import marginal_stability
+from jaxpile.measure.theory import marginal_stability_overlay
+from jaxpile.protocols import paper1993
+from jaxpile.protocols import geometry
 
 Array = Any
 
@@ -100,11 +102,11 @@ class FluxState(NamedTuple):
 
     Attributes:
       edge, park: the floor's end (W) and the `[n, 2]` parking places.
-      v_cut: insertion threshold on the speed (`box.motion`).
-      use_max: the speed is `max_speed` (True, the paper's) or `box.rms_speed`.
+      v_cut: insertion threshold on the speed (`drivers.motion`).
+      use_max: the speed is `max_speed` (True, the paper's) or `drivers.rms_speed`.
       hold: steps the speed must stay below `v_cut` (at least 1).
       fallback: steps after which a pile that never reached `v_cut` counts as at rest.
-      quiet, armed: the rest detector (`box.rest_detector`).
+      quiet, armed: the rest detector (`drivers.rest_detector`).
       gap: height of the new disk's bottom above the disk below it.
       x_min, column_width: the surface columns (`[x_min, x_min + W]`).
       total: insertions to make (int).
@@ -156,8 +158,8 @@ def column_heights(state: SimState, x_min, column_width, columns: int) -> Array:
 def _watch(state: SimState) -> SimState:
     """Outflow, the rest detector, and whether to insert now / whether the run is over."""
     ps: FluxState = state.protocol_state
-    state, gone = boxes.take_out(state, ps.edge, ps.park)
-    quiet, armed, rested = boxes.rest_detector(boxes.motion(state, ps.use_max), ps.v_cut, ps.quiet, ps.armed,
+    state, gone = geometry.take_out(state, ps.edge, ps.park)
+    quiet, armed, rested = drivers.rest_detector(drivers.motion(state, ps.use_max), ps.v_cut, ps.quiet, ps.armed,
                                                ps.hold, ps.fallback)
     _, available = drivers.next_inactive(state)
     want = rested & (ps.inserted < ps.total)
@@ -210,11 +212,11 @@ def pool_size(width: float, *, slope_degrees: float = SETTING["steepest_slope_de
     """Disks enough for a pile of slope `slope_degrees` on a floor of width W
     leaning on the left wall (triangle W^2 tan / 2 at `packing_fraction`), plus half
     again for disks rolling down and out (the paper's units)."""
-    width = boxes._check_positive("width", width)
+    width = boxes.check_positive("width", width)
     if not 0 < slope_degrees < 90:
         raise InputError(f"slope_degrees must be in (0, 90); got {slope_degrees!r}.")
     area = 0.5 * width**2 * math.tan(math.radians(slope_degrees))
-    disk = math.pi * boxes.mean_square_radius(*boxes._radius_law(radius))
+    disk = math.pi * paper1993.mean_square_radius(*boxes.radius_law(radius))
     return int(math.ceil(1.5 * packing_fraction * area / disk)) + 10
 
 
@@ -239,7 +241,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     """The constant-flux pile of Lee & Herrmann 1993, Fig. 5, ready to run with `driver`.
 
     Lengths, speeds and times in the paper's units (cm, cm/s, s), converted with
-    `box.units(law)`.
+    `paper1993.units(law)`.
 
     Args:
       insertions: how many disks to insert.
@@ -248,9 +250,9 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
       pool: disks that take turns (default `min(insertions, pool_size(width))`);
         disks that leave return to it.
       fixed_base: the bottom layer is fixed (default) or free.
-      radius: overrides of the radius distribution (see `box.gaussian_radii`).
+      radius: overrides of the radius distribution (see `paper1993.gaussian_radii`).
       v_cut: insert when the speed is below this (0.1 cm/s in the paper).
-      rest_measure: `"max"` (`max_speed`, the paper's) or `"rms"` (`box.rms_speed`).
+      rest_measure: `"max"` (`max_speed`, the paper's) or `"rms"` (`drivers.rms_speed`).
       hold_time: how long the speed must stay below v_cut (0: one step).
       gap: drop height of the new disk above the disk under it.
       dt: the run's time step (default the law's).
@@ -269,14 +271,14 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     if int(insertions) != insertions or insertions < 1:
         raise InputError(f"insertions must be a positive whole number; got {insertions!r}.")
     insertions = int(insertions)
-    u = boxes.units(law)
-    dt = float(boxes.law_setting(law)["dt"]) if dt is None else boxes._check_positive("dt", dt)
-    width = boxes._check_positive("width", width)
-    v_cut = boxes._check_positive("v_cut", v_cut)
-    gap = boxes._check_positive("gap", gap)
+    u = paper1993.units(law)
+    dt = float(paper1993.law_setting(law)["dt"]) if dt is None else boxes.check_positive("dt", dt)
+    width = boxes.check_positive("width", width)
+    v_cut = boxes.check_positive("v_cut", v_cut)
+    gap = boxes.check_positive("gap", gap)
     if not (hold_time >= 0 and math.isfinite(hold_time)):
         raise InputError(f"hold_time must be >= 0 and finite; got {hold_time!r}.")
-    mean, spread, low, high = boxes._radius_law(radius)
+    mean, spread, low, high = boxes.radius_law(radius)
     if 2 * high > width:
         raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
     base_count = int(width / (2 * low)) + 2  # the fixed floor's disks, drawn before the row is laid
@@ -292,16 +294,16 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
     pool = int(pool)
 
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
-    base_radius = boxes.gaussian_radii(base_count, rng, mean=mean, width=spread, low=low, high=high)
+    base_radius = paper1993.gaussian_radii(base_count, rng, mean=mean, width=spread, low=low, high=high)
     base_x = base_layer(base_radius, width)
     base_radius = base_radius[: base_x.size]
-    pool_radius = boxes.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
+    pool_radius = paper1993.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
 
     s = u.scale
     radius_all = np.concatenate([base_radius, pool_radius]) * s
     base = np.stack([base_x, base_radius], axis=1) * s
     spacing = boxes.PARK_SPACING * 2.0 * high * s
-    park = np.concatenate([base, boxes.parking_grid(pool, spacing, (2.0 * width + 4.0 * high) * s, spacing)])
+    park = np.concatenate([base, geometry.parking_grid(pool, spacing, (2.0 * width + 4.0 * high) * s, spacing)])
     m = base_x.size
     fixed = np.arange(m + pool) < m if fixed_base else np.zeros(m + pool, bool)
     active = np.arange(m + pool) < m
@@ -319,7 +321,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         edge=jnp.asarray(width * s, dtype),
         park=jnp.asarray(park, dtype),
         v_cut=jnp.asarray(v_cut * u.speed, dtype),
-        use_max=jnp.asarray(boxes._measure_flag(rest_measure)),
+        use_max=jnp.asarray(boxes.measure_flag(rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
         # saturates at the step counter's limit: no run is longer, so "never" is the same there
         fallback=jnp.asarray(min(max(4 * hold, 10 * fall_steps), ranges.MAX_STEPS), jnp.int32),
@@ -364,7 +366,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         "seed": int(seed),
     }
     return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
-                    box=boxes.neighbor_box(park, radius_all), info=info)
+                    box=geometry.neighbor_box(park, radius_all), info=info)
 
 
 angles = analysis.recorded_repose_angles  # the angles of each recorded surface (sec. 3's three methods)
@@ -394,7 +396,7 @@ def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
     record = angles(float(ps.x_min), float(ps.column_width), np.asarray(ps.profile)[:done])
     late = np.asarray(record["cumulative_parabola"], dtype=float)[done // 2:]
     late = late[np.isfinite(late)]
-    mu = boxes.friction_coefficient(params)
+    mu = paper1993.friction_coefficient(params)
     nan = float("nan")
     return {
         "law": p.info["law"],
@@ -417,11 +419,11 @@ def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
 
 
 DEFINITION = definition.Definition(
-    "flux", protocol, make_simulator, law_and_params, lambda law: float(boxes.law_setting(law)["dt"]),
+    "flux", protocol, make_simulator, law_and_params, lambda law: float(paper1993.law_setting(law)["dt"]),
     boxes.settled, boxes.max_time_steps(SETTING["max_time"]), measure,
     row=("inserted", "steady_mean", "steady_std", "repose_cumulative_parabola", "at_rest", "settled_step", "n_left"),
     run_options={"max_time": SETTING["max_time"]}, size="insertions",
-    sweep=dict(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability,
+    sweep=dict(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
                fit_statistics={"columns": ("steady_mean",)}))
 
 

@@ -19,7 +19,7 @@ PARK_SPACING = 2.5
 """Distance between parked disks, in largest diameters: beyond every law's reach plus skin."""
 
 
-def _check_positive(name: str, value) -> float:
+def check_positive(name: str, value) -> float:
     try:
         value = float(value)
     except (TypeError, ValueError):
@@ -44,7 +44,7 @@ def random_positions(radius, width: float, height: float, rng: np.random.Generat
     n = radius.size
     if n == 0:
         return np.zeros((0, 2))
-    width, height = _check_positive("width", width), _check_positive("height", height)
+    width, height = check_positive("width", width), check_positive("height", height)
     r_max = float(radius.max())
     if 2 * r_max > min(width, height):
         raise InputError(f"a disk of diameter {2 * r_max:g} does not fit in a {width:g} x {height:g} box.")
@@ -126,3 +126,21 @@ def park_where(state: SimState, out, park) -> SimState:
         force=jnp.where(out[:, None], 0.0, p.force),
         torque=jnp.where(out, 0.0, p.torque),
     ))
+
+
+def heap_extent(base: str, centre_key: str, count_key: str):
+    """A random heap's profile range: its axis +- 1.6 sqrt(n) diameters, wider
+    than a heap of n unit disks at 20 degrees (base 2.9 sqrt(n) at packing 0.82)."""
+    def extent(protocol):
+        half = 1.6 * math.sqrt(float(protocol.info[count_key]))
+        centre = float(protocol.info[centre_key])
+        return base, centre - half, centre + half
+    return extent
+
+
+def bottom_row_extent(protocol):
+    """A deterministic pile on the ground: the bottom row's outer edges."""
+    p = protocol.particles
+    y, x, r = np.asarray(p.position[:, 1]), np.asarray(p.position[:, 0]), np.asarray(p.radius)
+    row = np.abs(y - y.min()) < 0.25 * r.min()
+    return "ground", float((x - r)[row].min()), float((x + r)[row].max())

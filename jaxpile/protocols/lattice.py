@@ -19,6 +19,7 @@ from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.protocols import definition, loaded_pile
 from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.measure.heap import ProfileSetting
 
 
 OPTION_RANGES = {
@@ -246,7 +247,6 @@ def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None
     """What `jaxpile fit --estimator pathwise` differentiates: the `size`-layer
     pile loaded by a gravity ramp and settled, the whole quasi-static loading
     (2 x ramp steps). Returns `(sim, params, state, steps, setting, window, description)`."""
-    from jaxpile import fit
     from jaxpile.engine.simulate import Simulator, gravity_ramp
 
     _, contact_law, params = law_and_params(law, start)
@@ -254,7 +254,7 @@ def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None
     particles, boundaries = equilateral_pile(size)
     sim = Simulator(contact_law, PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
     state = sim.init(params, particles, boundaries)
-    setting = fit.ProfileSetting("ground", 0.5, size + 0.5, bins or size, 0.3)
+    setting = ProfileSetting("ground", 0.5, size + 0.5, bins or size, 0.3)
     return sim, params, state, 2 * ramp, setting, None, (
         f"{size}-layer lattice pile, gravity ramped over {ramp} steps and settled for {ramp}: "
         "the whole loading differentiated")

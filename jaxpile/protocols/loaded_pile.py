@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 
 from jaxpile.protocols import definition
+from jaxpile.protocols.geometry import bottom_row_extent
 
 RUN_OPTIONS = ("ramp_steps", "speed_tolerance", "max_steps")
 
@@ -78,7 +79,6 @@ def definition_of(name: str, setup: Callable, law_and_params: Callable, setting:
       size: the set-up's size keyword (`layers` for the lattice).
       options: the options a sweep takes (default: the set-up's and the run options).
     """
-    from jaxpile.sweep import bottom_row_extent
 
     def simulator(law, *, dt, rotation=None, integrator="velocity_verlet", chunk_steps=None, run_options,
                   hard_collisions=None):

@@ -108,3 +108,9 @@ def declared(module, names=None) -> dict[str, Option]:
             range_ = module.OPTION_RANGES.get(name)
             out[name] = Option(name, _kind(default, range_), default, helps.get(name, ""), range_)
     return out
+
+
+def option_names(setup, *extra) -> frozenset:
+    """The options a sweep of this set-up accepts: its arguments, and `extra` run options."""
+    names = set(inspect.signature(setup).parameters) - {"law", "seed", "dt", "dtype"}
+    return frozenset(names | set(extra))

@@ -50,7 +50,7 @@ def heap_profile_figure(measured: dict, title: str, out: str) -> list[str]:
     """heap_profile.png: the binned base normal force over x / B (Baxter et al. 1997)."""
     from jaxpile import plot
 
-    prof = measured.get("base_profile")  # pour.BaseProfile, or its summary.json form
+    prof = measured.get("base_profile")  # heap.BaseProfile, or its summary.json form
     if prof is None:
         return []
     x, f = (prof["x_over_b"], prof["normalised"]) if isinstance(prof, dict) else (prof.x_over_b, prof.normalised)

@@ -16,7 +16,7 @@ import numpy as np
 
 from jaxpile.errors import InputError
 from jaxpile.protocols.base import law_and_params as base_law_and_params
-from jaxpile.protocols.geometry import _check_positive
+from jaxpile.protocols.geometry import check_positive
 
 
 PAPER_G = 981.0
@@ -117,7 +117,7 @@ def friction_coefficient(params) -> float | None:
     return None if mu is None else float(mu)
 
 
-def _radius_law(radius: dict | None) -> tuple[float, float, float, float]:
+def radius_law(radius: dict | None) -> tuple[float, float, float, float]:
     r = {**PAPER_SETTING["radius"], **(radius or {})}
     unknown = set(r) - {"mean", "width", "low", "high"}
     if unknown:
@@ -135,7 +135,7 @@ def gaussian_radii(n: int, rng: np.random.Generator, *, mean: float = 0.1, width
     are drawn again. In the paper's units: multiply by `Units.scale`."""
     if int(n) != n or n < 0:
         raise InputError(f"n must be a whole number >= 0; got {n!r}.")
-    mean, width, low, high = _radius_law({"mean": mean, "width": width, "low": low, "high": high})
+    mean, width, low, high = radius_law({"mean": mean, "width": width, "low": low, "high": high})
     out = np.empty(0)
     while out.size < n:
         draw = rng.normal(mean, width, max(16, 2 * (int(n) - out.size)))
@@ -162,14 +162,14 @@ def fill_count(width: float = 4.0, height: float = 4.0, *, packing_fraction: flo
     """N disks that fill a W x H box (the paper's units) at `packing_fraction`:
     round(phi W H / (pi E[a^2])); 409 for the paper's 4 x 4 box (its
     "400 particle system", sec. 3)."""
-    width, height = _check_positive("width", width), _check_positive("height", height)
+    width, height = check_positive("width", width), check_positive("height", height)
     if not 0 < packing_fraction < 0.91:
         raise InputError(f"packing_fraction must be in (0, 0.91); got {packing_fraction!r}.")
-    area = math.pi * mean_square_radius(*_radius_law(radius))
+    area = math.pi * mean_square_radius(*radius_law(radius))
     return max(1, int(round(packing_fraction * width * height / area)))
 
 
-def _measure_flag(rest_measure: str) -> bool:
+def measure_flag(rest_measure: str) -> bool:
     if rest_measure not in ("rms", "max"):
         raise InputError(f"rest_measure must be 'rms' (mass-weighted rms speed) or 'max' (largest speed); "
                          f"got {rest_measure!r}.")

@@ -60,17 +60,20 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.heap import (  # noqa: F401  (pour.X as before)
-    BaseProfile, MShape, base_profile, central_dip, flank_over_centre, m_shape, steepest_heap_height, substrate_size)
+from jaxpile.measure.heap import (
+    steepest_heap_height, substrate_size)
 # the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
-from jaxpile.measure.poured_heap import (  # noqa: F401  (pour.X as before)
-    SubstrateForces, check_options, heap_mask, measure, report, substrate_forces, summary, sweep_row)
+from jaxpile.measure.poured_heap import (
+    check_options, measure, report, sweep_row)
 from jaxpile.protocols import definition, drivers, geometry
 from jaxpile.protocols import outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import SimState, make_particles
-from jaxpile.sweep import heap_extent, marginal_stability, option_names
+from jaxpile.protocols.geometry import heap_extent
+from jaxpile.protocols.options import option_names
+from jaxpile.measure.theory import marginal_stability_overlay
+from jaxpile.measure.heap import ProfileSetting
 
 Array = Any
 
@@ -403,7 +406,7 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
       (state, RunInfo): the run's steps and timings over both phases, `at_rest`
       and the final `max_speed` from the settling phase.
     """
-    from jaxpile import runner
+    from jaxpile.protocols import runner
     from jaxpile.engine import checkpoint as ckpt
     from jaxpile.engine.simulate import load_then_settle
 
@@ -443,7 +446,7 @@ DEFINITION = definition.Definition(
     row=sweep_row, execute=_execute, report=report, check=check_options,
     run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
                  "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
-    sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability, default_law="baxter",
+    sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay, default_law="baxter",
                extent=heap_extent("substrate", "centre_x", "n_poured"),
                fit_statistics={"columns": ("repose_mean",), "bins": 9},
                options=option_names(pour, "speed_tolerance", "max_settle_steps")))
@@ -497,7 +500,6 @@ def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options
     differentiated: the fit sees how the settled heap's base forces respond to
     the parameters, with its geometry fixed. Returns `(sim, params, state,
     steps, setting, window, description)`."""
-    from jaxpile import fit
 
     p = pour(size, seed=seed, **dict(options or {}))
     _, _, params = law_and_params(law, start)
@@ -507,7 +509,7 @@ def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options
     if "extent" not in m:
         raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
     x_left, x_right = m["extent"]
-    setting = fit.ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
+    setting = ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
     return sim, params, state, int(window), setting, int(window), (
         f"{size}-disk heap poured (seed {seed}) and relaxed with the starting parameters ({info.steps} steps, "
         f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
@@ -526,8 +528,5 @@ def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options
     return f"a {size}-disk poured heap (seed {seed})", p.particles, params, build, window
 
 
-__all__ = [
-    "MIN_RELEASE_GAP", "PAPER_SETTING", "BaseProfile", "MShape", "PourState", "SubstrateForces", "base_profile",
-    "driver", "execute", "heap_mask", "in_play", "law_and_params", "law_params", "m_shape", "make_simulator",
-    "measure", "pour", "protocol", "run", "substrate_forces", "steepest_heap_height", "substrate_size", "summary"
-]
+__all__ = ["MIN_RELEASE_GAP", "PAPER_SETTING", "PourState", "driver", "execute", "in_play", "law_and_params",
+    "law_params", "make_simulator", "pour", "protocol", "run"]

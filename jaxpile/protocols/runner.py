@@ -84,7 +84,7 @@ def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progr
     if not resumed:
         sample(state)
     info = RunInfo()
-    info._n = state.particles.count
+    info.particles = state.particles.count
     if not (resumed and finished(state)):
         # the samples dict is written as it stands at each save: always up to date
         state = sim.run(params, state, int(max_steps), progress=progress, info=info, until=stop,

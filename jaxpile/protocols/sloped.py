@@ -39,8 +39,8 @@ from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 # the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), under its names here as before
-from jaxpile.measure.sloped_pile import check_alpha as _check_alpha, check_base as _check_base  # noqa: F401
-from jaxpile.measure.sloped_pile import compare_with_theory  # noqa: F401
+from jaxpile.measure.sloped_pile import check_alpha, check_base
+from jaxpile.measure.sloped_pile import compare_with_theory
 
 SQRT3 = math.sqrt(3.0)
 
@@ -84,8 +84,8 @@ def row_lengths(base: float, alpha_degrees: float) -> list[int]:
     (ties rounded down) whose parity differs from row j - 1's, and at most one
     fewer than row j - 1. Rows stop at the first that would be empty.
     """
-    alpha = math.radians(_check_alpha(alpha_degrees))
-    base = _check_base(base)
+    alpha = math.radians(check_alpha(alpha_degrees))
+    base = check_base(base)
     per_row = SQRT3 / math.tan(alpha)  # width lost per row (both ends together)
     rows: list[int] = []
     j = 0
@@ -118,7 +118,7 @@ def base_for_count(n: int, alpha_degrees: float) -> float:
     """
     if int(n) != n or n < 1:
         raise InputError(f"the disk count must be a positive whole number; got {n!r}.")
-    alpha = math.radians(_check_alpha(alpha_degrees))
+    alpha = math.radians(check_alpha(alpha_degrees))
     estimate = math.sqrt(2.0 * SQRT3 * n / math.tan(alpha))
     best = None
     for spread in (0.02, 0.2):  # the estimate is good to ~1%; widen only if no exact hit
@@ -179,14 +179,14 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
     from jaxpile.measure import theory
     from jaxpile.engine.simulate import gravity_ramp
 
-    alpha = _check_alpha(alpha_degrees)
+    alpha = check_alpha(alpha_degrees)
     if base is None:
         if n is None:
             raise InputError("give either n (a target disk count) or base (in diameters).")
         if int(n) == n and n >= 1:  # the search for B is slow for a count far too big: refuse it first
             budget.check(n, dtype or "float64", what="a sloped pile")
         base = base_for_count(n, alpha)
-    base = _check_base(base)
+    base = check_base(base)
     # counting the rows takes time and memory in B: refuse a base far too big from the
     # continuum count first (within ~1% of the lattice's), then check the exact count
     budget.check(math.ceil(base * base * math.tan(math.radians(alpha)) / (2.0 * SQRT3)), dtype or "float64",
@@ -271,5 +271,5 @@ DEFINITION = loaded_pile.definition_of(
     ("central_normal_rel_dev", "central_slope_horizontal"))
 
 
-__all__ = ["PAPER_PILES", "SETTING", "base_for_count", "compare_with_theory", "law_and_params", "pile_count",
-           "protocol", "row_lengths", "run", "sloped_pile", "sloped_positions"]
+__all__ = ["PAPER_PILES", "SETTING", "base_for_count", "law_and_params", "pile_count", "protocol",
+    "row_lengths", "run", "sloped_pile", "sloped_positions"]

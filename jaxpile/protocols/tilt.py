@@ -10,7 +10,7 @@ the floor and its end at x = W stay put, and gravity gains a component along
 
 Everything happens in the compiled loop: the `driver` sets gravity to
 g (sin a, -cos a) with a = rate x (steps since the start) before every step,
-and watches the pile's speed (`box.motion`: the mass-weighted rms speed by
+and watches the pile's speed (`drivers.motion`: the mass-weighted rms speed by
 default, the kinetic energy per disk of Fig. 1(b) as a speed):
 
 * "starts to move", made precise: the speed exceeds `move_speed` (1 cm/s in
@@ -23,7 +23,7 @@ default, the kinetic energy per disk of Fig. 1(b) as a speed):
 * The run ends there (the paper's stopping rule); with `settle` the tilt is
   held where it is and the pile is run until it is at rest again.
 * Disks that leave past the floor's end are taken out of play as in the box
-  protocol (`box.take_out`).
+  protocol (`geometry.take_out`).
 
 The measurements are compared with the paper's theory (sec. 6):
 theta_MS = arctan(3 mu) (eq. 3, `theory.marginal_stability_angle`), the
@@ -47,7 +47,10 @@ from jaxpile.protocols import box as boxes
 from jaxpile.protocols import definition, outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.engine.state import SimState
-from jaxpile.sweep import marginal_stability
+from jaxpile.measure.theory import marginal_stability_overlay
+from jaxpile.protocols import paper1993
+from jaxpile.protocols import geometry
+from jaxpile.protocols import drivers
 
 Array = Any
 
@@ -98,8 +101,8 @@ class TiltState(NamedTuple):
       max_tilt: the largest tilt (radians).
       move_speed: the pile moves when its speed exceeds this.
       rest_speed: ...and is at rest below this.
-      use_max: the speed is `max_speed` (True) or `box.rms_speed` (False).
-      hold, quiet, armed: the final rest detector (`box.rest_detector`).
+      use_max: the speed is `max_speed` (True) or `drivers.rms_speed` (False).
+      hold, quiet, armed: the final rest detector (`drivers.rest_detector`).
       phase: 0 tilting, 1 moved (tilt held), 2 at rest again (int).
       onset: last step at which the speed rose above `rest_speed` (-1 while below).
       tilt: the tilt in force (radians).
@@ -139,8 +142,8 @@ def tilt_at(ps: TiltState, step) -> Array:
 def driver(state: SimState) -> SimState:
     """The tilt driver (before every step, inside the compiled loop)."""
     ps: TiltState = state.protocol_state
-    state, gone = boxes.take_out(state, ps.edge, ps.park)
-    speed = boxes.motion(state, ps.use_max)
+    state, gone = geometry.take_out(state, ps.edge, ps.park)
+    speed = drivers.motion(state, ps.use_max)
     step = state.step
     tilting = ps.phase == 0
     above_rest = speed >= ps.rest_speed
@@ -149,7 +152,7 @@ def driver(state: SimState) -> SimState:
     moved = tilting & (speed > ps.move_speed)
     tilt = jnp.where(tilting, tilt_at(ps, step), ps.tilt)
     theta_t = jnp.where(moved, tilt_at(ps, onset), ps.theta_t)
-    quiet, armed, rested = boxes.rest_detector(speed, ps.rest_speed, ps.quiet, ps.armed, ps.hold, 4 * ps.hold)
+    quiet, armed, rested = drivers.rest_detector(speed, ps.rest_speed, ps.quiet, ps.armed, ps.hold, 4 * ps.hold)
     settle = (ps.phase == 1) & rested
     phase = ps.phase + moved.astype(ps.phase.dtype) + settle.astype(ps.phase.dtype)
     reset = moved  # the rest detector starts afresh once the pile moved
@@ -178,14 +181,14 @@ def check_options(*, rate_degrees: float = SETTING["rate_degrees"], move_speed: 
     ranges.check_all(OPTION_RANGES, locals(), check_options)  # types, finiteness and ranges first: one message format
     for name, value in (("rate_degrees", rate_degrees), ("move_speed", move_speed), ("rest_speed", rest_speed),
                         ("hold_time", hold_time)) + ((("dt", dt),) if dt is not None else ()):
-        boxes._check_positive(name, value)
+        boxes.check_positive(name, value)
     if not rest_speed < move_speed:
         raise InputError(f"rest_speed ({rest_speed:g}) must be below move_speed ({move_speed:g}).")
     if not 0 < max_tilt_degrees < 90:
         raise InputError(f"max_tilt_degrees must be in (0, 90); got {max_tilt_degrees!r}.")
-    boxes._measure_flag(rest_measure)
+    boxes.measure_flag(rest_measure)
     if edge is not None:
-        boxes._check_positive("edge", edge)
+        boxes.check_positive("edge", edge)
 
 
 def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTING["rate_degrees"],
@@ -196,7 +199,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
     """Tilting of a settled pile (Lee & Herrmann 1993, Fig. 4), ready to run with `driver`.
 
     Speeds and times are in the paper's units (cm/s, s), converted with
-    `box.units(law)`; the tilt rate is per step, as in the paper.
+    `paper1993.units(law)`; the tilt rate is per step, as in the paper.
 
     Args:
       pile: the settled pile, e.g. the state `box.run` returns. Its particles,
@@ -207,7 +210,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
       rate_degrees: tilt per step (1e-3 in the paper).
       move_speed: the pile moves when its speed exceeds this.
       rest_speed: the pile is at rest below this (also the onset threshold).
-      rest_measure: `"rms"` (`box.rms_speed`) or `"max"` (`max_speed`).
+      rest_measure: `"rms"` (`drivers.rms_speed`) or `"max"` (`max_speed`).
       hold_time: how long the speed must stay below `rest_speed` at the end.
       max_tilt_degrees: tilting stops here if the pile has not moved.
       edge: x where the floor ends; default: the box pile's (`BoxState.edge`).
@@ -221,8 +224,8 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
                   hold_time=hold_time, max_tilt_degrees=max_tilt_degrees, edge=edge, dt=dt)
     if not isinstance(pile, SimState):
         raise InputError("pile must be a SimState (a settled pile, e.g. from box.run).")
-    u = boxes.units(law)
-    dt = float(boxes.law_setting(law)["dt"]) if dt is None else float(dt)
+    u = paper1993.units(law)
+    dt = float(paper1993.law_setting(law)["dt"]) if dt is None else float(dt)
     rate, move_speed, rest_speed, hold_time = (float(x) for x in (rate_degrees, move_speed, rest_speed, hold_time))
     gravity = np.asarray(pile.boundaries.gravity, dtype=np.float64)
     g = float(np.linalg.norm(gravity))
@@ -235,14 +238,14 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         if not hasattr(before, "edge"):
             raise InputError("give edge (the x where the floor ends) for a pile that is not a box pile.")
         edge = float(before.edge)
-    edge = boxes._check_positive("edge", edge)
+    edge = boxes.check_positive("edge", edge)
     if hasattr(before, "park"):
         park = np.asarray(before.park)
     else:
         r = np.asarray(p.radius)
         spacing = boxes.PARK_SPACING * 2.0 * float(r.max())
         top = float(np.max(np.asarray(p.position)[:, 1] + r))
-        park = boxes.parking_grid(p.count, spacing, top + 2 * spacing, spacing)
+        park = geometry.parking_grid(p.count, spacing, top + 2 * spacing, spacing)
     left = int(before.left) if hasattr(before, "left") else 0
     hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
     state = TiltState(
@@ -254,7 +257,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         max_tilt=jnp.asarray(math.radians(max_tilt_degrees), dtype),
         move_speed=jnp.asarray(move_speed * u.speed, dtype),
         rest_speed=jnp.asarray(rest_speed * u.speed, dtype),
-        use_max=jnp.asarray(boxes._measure_flag(rest_measure)),
+        use_max=jnp.asarray(boxes.measure_flag(rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(False),
@@ -332,8 +335,8 @@ def _settle_steps(info, options) -> int:
     """With `settle`: `settle_time` paper seconds in steps (0 without)."""
     if not options["settle"]:
         return 0
-    u = boxes.units(info["law"])
-    return int(round(boxes._check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
+    u = paper1993.units(info["law"])
+    return int(round(boxes.check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
 
 
 def finished(info, options):
@@ -369,7 +372,7 @@ def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
     moved = int(ps.phase) >= 1
     theta_t = math.degrees(float(ps.theta_t)) if moved else float("nan")
     theta_r = p.info["pile_repose"]["repose_cumulative_parabola"]
-    mu = boxes.friction_coefficient(params)
+    mu = paper1993.friction_coefficient(params)
     start = p.info["start_step"]
     out = {
         "law": p.info["law"],
@@ -399,7 +402,7 @@ DEFINITION = definition.Definition(
     row=("theta_t", "theta_r", "moved", "theta_r_plus_theta_t", "theta_ms_theory", "theta_t_theory", "box_settled",
          "tilt_held", "n_left"),
     run_options={"settle": False, "settle_time": SETTING["settle_time"]},
-    sweep=dict(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability,
+    sweep=dict(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability_overlay,
                fit_statistics={"columns": ("theta_t", "theta_r")}),
     starts_from=boxes.DEFINITION, pile_facts=pile_facts, check_options=check_options)
 

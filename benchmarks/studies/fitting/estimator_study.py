@@ -11,7 +11,7 @@ theta = log(parameters), at a point some way from where the loss is least:
   log n and log mu (the paper calls the heap insensitive to mu in 0.2-0.6:
   the mu component measures how much of an estimate is noise).
 
-For each estimator (`jaxpile.estimators`) and ensemble size B, `--repeats`
+For each estimator (`jaxpile.fit.estimators`) and ensemble size B, `--repeats`
 independent ensembles (disjoint seeds) give the estimate's spread; the bias
 is measured against a reference: central differences over every seed of the
 central-difference rows together (their members, reused: no second run).
@@ -19,13 +19,13 @@ The cost is counted in particle-steps per gradient. Every ensemble of a
 given theta is one batched `jaxpile.sweep` (through `ensemble_fit.Runner`;
 the same seeds at every theta: common random numbers).
 
-    python benchmarks/estimator_study.py [--case box|pour] [--B 8,32] [--repeats 4]
+    python benchmarks/studies/fitting/estimator_study.py [--case box|pour] [--B 8,32] [--repeats 4]
         [--estimators fd,smoothing,truncated:W] [--step H] [--sigma S] [--pairs 4] [--resume] [--checkpoint-every STEPS]
         [--out benchmarks/results/estimator_study.json] [--figure docs/estimator_study.png]
       box:  [--mu 0.25] [--target 20] [--n 409] [--option width=2 ...]
       pour: [--n 40] (point n = 33, mu = 0.5; target 32 heaps at n = 41.3, seeds 10000+)
-    python benchmarks/estimator_study.py --table   # README's table from the results JSON
-    python benchmarks/estimator_study.py ... --resume --summarise-only   # the rows so far, summarised
+    python benchmarks/studies/fitting/estimator_study.py --table   # README's table from the results JSON
+    python benchmarks/studies/fitting/estimator_study.py ... --resume --summarise-only   # the rows so far, summarised
 
 Each finished row is written to `--out` at once; `--resume` skips the rows
 already there (a study at B = 128 outlasts a session on 2 cores), and with
@@ -58,8 +58,10 @@ import time
 
 import numpy as np
 
-HERE = pathlib.Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))  # jaxpile from this checkout where it is not installed (a GPU call)
+HERE = pathlib.Path(__file__).resolve().parent  # benchmarks/studies/fitting
+BENCHMARKS = HERE.parents[1]
+sys.path.insert(0, str(BENCHMARKS.parent))  # jaxpile from this checkout where it is not installed (a GPU call)
+sys.path.insert(1, str(BENCHMARKS))  # readme_block
 
 CASES = {
     "box": dict(protocol="box", law="lee-herrmann", options={"n": 409}, point={"mu": 0.25},
@@ -171,7 +173,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--checkpoint-every", type=int, default=0, metavar="STEPS",
                         help="save a row's batch every STEPS steps beside --out (OUT.ROW.ckpt) and, with --resume, "
                              "continue it from there")
-    parser.add_argument("--out", default=str(HERE / "results" / "estimator_study.json"))
+    parser.add_argument("--out", default=str(BENCHMARKS / "results" / "estimator_study.json"))
     parser.add_argument("--figure", default=None)
     parser.add_argument("--table", action="store_true", help="rewrite README's table from the results and stop")
     parser.add_argument("--summarise-only", action="store_true",
@@ -186,7 +188,8 @@ def main(argv=None) -> dict:
     import jax
 
     import jaxpile  # noqa: F401  (float64)
-    from jaxpile import cli, estimators
+    from jaxpile import cli
+    from jaxpile.fit import estimators
     from jaxpile.fit import construction
     from jaxpile.fit import ensemble_fit as ef
 
@@ -217,7 +220,7 @@ def main(argv=None) -> dict:
     theta = np.log([point[n] for n in names])
     runner = ef.Runner(c["protocol"], c["law"], options=options)
     statistics = ef.Statistics(**c["statistics"])
-    command = "python benchmarks/estimator_study.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python benchmarks/studies/fitting/estimator_study.py " + " ".join(argv if argv is not None else sys.argv[1:])
     setting = {"case": args.case, "protocol": c["protocol"], "law": c["law"], "names": names, "point": point,
                "options": options, "statistics": statistics.labels(), "step": step, "sigma": sigma,
                "pairs": args.pairs, "target": args.target if args.case == "box" else c.get("truth")}
@@ -319,7 +322,7 @@ def summarise(out: dict, objective, profile_idx=None, profile_objective=None) ->
     mean, spread and bias of the estimates. The truncated rows differentiate
     the base-profile terms of the loss alone: their reference
     (`reference_profile`) is taken from the same members, those terms only."""
-    from jaxpile import estimators
+    from jaxpile.fit import estimators
 
     fd = [r for r in out["rows"] if r["estimator"] == "fd"]
     if not fd:
@@ -384,7 +387,7 @@ def _cost(x: float) -> str:
     return f"{x:.2g}".replace("e+0", "e").replace("e+", "e")
 
 
-def table(folder: pathlib.Path = HERE / "results") -> str:
+def table(folder: pathlib.Path = BENCHMARKS / "results") -> str:
     """README's estimator-study table: one block of rows per study in
     `STUDIES`, its reference first; each gradient component is a column group
     (d loss / d log p)."""

@@ -2,18 +2,18 @@
 
 Each case makes a target with jaxpile itself at parameters that are not round
 numbers, from seeds the fit never sees (10000 + b), then fits from a start at
-least 30 % away with `jaxpile.ensemble_fit` (central differences with common
+least 30 % away with `jaxpile.fit.ensemble_fit` (central differences with common
 random numbers, Gauss-Newton), and reports the recovered value, its 95 %
 interval and whether the truth is inside. Sizes are chosen to run in under an
 hour on 2 CPU cores each.
 
-    python benchmarks/fit_recovery.py box          # Lee-Herrmann box piles: mu
-    python benchmarks/fit_recovery.py lattice      # Liffman lattice: K_s and mu_roll together
-    python benchmarks/fit_recovery.py lattice-ks   # Liffman lattice: K_s alone
-    python benchmarks/fit_recovery.py pour         # Baxter heap: n
-    python benchmarks/fit_recovery.py hopper       # a silo's flow rate: mu
-    python benchmarks/fit_recovery.py drop         # Liffman dropped pile (1992 Fig. 20): mu_roll
-    python benchmarks/fit_recovery.py --table      # README's recovery table from the JSON
+    python benchmarks/studies/fitting/fit_recovery.py box          # Lee-Herrmann box piles: mu
+    python benchmarks/studies/fitting/fit_recovery.py lattice      # Liffman lattice: K_s and mu_roll together
+    python benchmarks/studies/fitting/fit_recovery.py lattice-ks   # Liffman lattice: K_s alone
+    python benchmarks/studies/fitting/fit_recovery.py pour         # Baxter heap: n
+    python benchmarks/studies/fitting/fit_recovery.py hopper       # a silo's flow rate: mu
+    python benchmarks/studies/fitting/fit_recovery.py drop         # Liffman dropped pile (1992 Fig. 20): mu_roll
+    python benchmarks/studies/fitting/fit_recovery.py --table      # README's recovery table from the JSON
 
 Writes benchmarks/results/fit_recovery/CASE.json (with the command), the
 fit's history as CASE_checkpoint.json while it runs (a rerun resumes), and
@@ -28,8 +28,11 @@ import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.dirname(HERE))
+HERE = os.path.dirname(os.path.abspath(__file__))  # benchmarks/studies/fitting
+BENCHMARKS = os.path.dirname(os.path.dirname(HERE))
+ROOT = os.path.dirname(BENCHMARKS)
+sys.path.insert(0, ROOT)
+sys.path.insert(1, BENCHMARKS)  # readme_block, machine
 
 CASES = {
     # 102-disk boxes (W = H = 2 cm): theta_R moves by ~30 deg per unit log mu, one pile scatters by ~5 deg
@@ -77,7 +80,7 @@ MORE_RUNS = ("gpu_h200/box-paper", "gpu_h200/pour-64", "hopper_32/hopper")
 after the cases: FOLDER/CASE.json is named by its folder, any other by its file."""
 
 
-def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
+def table(folder: str = os.path.join(BENCHMARKS, "results", "fit_recovery")) -> str:
     """README's recovery table, from the cases' result JSON (a case not run yet is left out)."""
     lines = ["| case | fitted | truth | start | recovered | 95 % interval | truth inside | piles a side | "
              "sensitivity | cost | through all ensembles (95 %) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -89,7 +92,7 @@ def table(folder: str = os.path.join(HERE, "results", "fit_recovery")) -> str:
             continue
         with open(path) as fh:
             r = json.load(fh)
-        case = r["command"].split()[2]  # python benchmarks/fit_recovery.py CASE ...
+        case = r["command"].split()[2]  # python benchmarks/studies/fitting/fit_recovery.py CASE ...
         what = CASES[case]
         options = r.get("options", what["options"])
         setting = f"{name}: {what['protocol']}, {what['law']}, " + ", ".join(f"{k} {v}" for k, v in options.items())
@@ -160,7 +163,7 @@ def _options(pairs) -> dict:
 
 def _machine() -> str:
     """The processor and JAX device the fit ran on (for the table)."""
-    sys.path.insert(0, HERE)
+    sys.path.insert(0, BENCHMARKS)
     from machine import describe
 
     return describe()
@@ -177,7 +180,7 @@ def main(argv=None) -> dict:
     parser.add_argument("case", choices=sorted(CASES))
     parser.add_argument("--ensemble", type=int, default=None, help="piles per ensemble (default: the case's, 32)")
     parser.add_argument("--steps", type=int, default=6, help="Gauss-Newton iterations at most")
-    parser.add_argument("--out", default=os.path.join(HERE, "results", "fit_recovery"))
+    parser.add_argument("--out", default=os.path.join(BENCHMARKS, "results", "fit_recovery"))
     parser.add_argument("--figure", default=None, help="default docs/fit_recovery_CASE.png")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="override one of the case's protocol options (e.g. width=4 for the paper's box; "
@@ -190,7 +193,7 @@ def main(argv=None) -> dict:
     from jaxpile import cli
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
-    from jaxpile import ensemble_fit as ef
+    from jaxpile.fit import ensemble_fit as ef
 
     case = CASES[args.case]
     b = args.ensemble or case.get("seeds", 32)
@@ -224,7 +227,7 @@ def main(argv=None) -> dict:
     record["ensemble"] = b
     record["options"] = options
     record["machine"] = _machine()
-    record["command"] = "python benchmarks/fit_recovery.py " + " ".join(argv)
+    record["command"] = "python benchmarks/studies/fitting/fit_recovery.py " + " ".join(argv)
     record["wall_seconds"] = time.perf_counter() - t0
     record["earlier_runs_seconds"] = earlier
     try:  # the code that made it
@@ -236,7 +239,7 @@ def main(argv=None) -> dict:
         record["revision"] = None
     with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
         json.dump(record, fh, indent=1)
-    figure = args.figure or os.path.join(os.path.dirname(HERE), "docs", f"fit_recovery_{args.case}.png")
+    figure = args.figure or os.path.join(ROOT, "docs", f"fit_recovery_{args.case}.png")
     ef.figure(result, path=figure)
     for n in result.names:
         lo, hi = result.interval[n]
@@ -245,7 +248,7 @@ def main(argv=None) -> dict:
               f"{record['truth_inside_interval'][n]}")
         print(f"{args.case}: {n} through all ensembles: {_through_all(record.get('regression'), n, case['truth'][n])}")
     print(f"wrote {args.out}/{args.case}.json and {figure} ({record['wall_seconds']:.0f} s)")
-    if args.out == os.path.join(HERE, "results", "fit_recovery"):
+    if args.out == os.path.join(BENCHMARKS, "results", "fit_recovery"):
         rewrite_readme()
     return record
 

@@ -5,7 +5,7 @@
 # as it finishes (--resume skips it) and its batch every CHECKPOINT steps (--checkpoint-every),
 # so a call cut off by its time limit loses at most that much.
 #
-#   bash benchmarks/gpu_estimator_study.sh OUT CASE SECONDS [CHECKPOINT]
+#   bash benchmarks/studies/fitting/gpu_estimator_study.sh OUT CASE SECONDS [CHECKPOINT]
 #
 # CASE: box or pour; PYTHON (default python3) runs it. Leaves OUT/study.tgz (the study's
 # JSON, figure and the running row's batch checkpoint, *.ckpt, which git ignores) and
@@ -37,8 +37,8 @@ case "$case" in
     *) echo "CASE must be box or pour" >&2; exit 2 ;;
 esac
 t0=$SECONDS
-echo "== python benchmarks/estimator_study.py ${args[*]} --resume --checkpoint-every $every (limit $seconds s)" | tee -a "$log"
-timeout "$seconds" "${PYTHON:-python3}" benchmarks/estimator_study.py "${args[@]}" --resume --checkpoint-every "$every" 2>&1 \
+echo "== python benchmarks/studies/fitting/estimator_study.py ${args[*]} --resume --checkpoint-every $every (limit $seconds s)" | tee -a "$log"
+timeout "$seconds" "${PYTHON:-python3}" benchmarks/studies/fitting/estimator_study.py "${args[@]}" --resume --checkpoint-every "$every" 2>&1 \
     | grep --line-buffered -v "Warning" | tee -a "$log"
 echo "== exit ${PIPESTATUS[0]} after $((SECONDS - t0)) s" | tee -a "$log"
 tar czf "$out/study.tgz" benchmarks/results/estimator_study_*b128.json* docs/estimator_study_*b128.png 2>/dev/null

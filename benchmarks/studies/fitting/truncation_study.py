@@ -14,7 +14,7 @@ the estimate never sees. At theta0 = log `--at` it compares:
 each with its jackknife standard error over members and its cost (seconds,
 and forward particle-steps). Prints a table and writes JSON (and a figure).
 
-    python benchmarks/truncation_study.py [--n 12] [--members 8] [--at 36] [--truth 30]
+    python benchmarks/studies/fitting/truncation_study.py [--n 12] [--members 8] [--at 36] [--truth 30]
         [--windows 1000,250,60] [--steps-h 0.1,0.3] [--settle 1500]
         [--out benchmarks/results/truncation_study.json] [--figure docs/truncation_study.png]
 """
@@ -30,7 +30,8 @@ import time
 
 import numpy as np
 
-HERE = pathlib.Path(__file__).resolve().parent
+HERE = pathlib.Path(__file__).resolve().parent  # benchmarks/studies/fitting
+RESULTS = HERE.parents[1] / "results"  # benchmarks/results
 
 
 def problem(n: int, seeds: list[int], interval: float, insert_height: float, settle: int, bins: int):
@@ -39,9 +40,10 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     import jax
 
     import jaxpile  # noqa: F401  (float64)
-    from jaxpile import analysis, ensemble, fit, sweep
-    from jaxpile import neighbors as nb
-    from jaxpile.neighbors import overflowed
+    from jaxpile import analysis, fit, sweep
+    from jaxpile.engine import ensemble
+    from jaxpile.engine import neighbors as nb
+    from jaxpile.engine.neighbors import overflowed
     from jaxpile.protocols import pour
 
     sim = pour.make_simulator("baxter", in_play=None)  # rollouts carry every disk (no host blocks inside)
@@ -93,14 +95,14 @@ def main(argv=None) -> dict:
     parser.add_argument("--insert-height", type=float, default=8.0)
     parser.add_argument("--settle", type=int, default=1500, help="steps after the last release")
     parser.add_argument("--bins", type=int, default=5)
-    parser.add_argument("--out", default=str(HERE / "results" / "truncation_study.json"))
+    parser.add_argument("--out", default=str(RESULTS / "truncation_study.json"))
     parser.add_argument("--figure", default=None)
     args = parser.parse_args(argv)
 
     import jax
     import jax.numpy as jnp
 
-    from jaxpile.estimators import central_differences, pathwise, truncated_pathwise
+    from jaxpile.fit.estimators import central_differences, pathwise, truncated_pathwise
 
     seeds = list(range(args.members))
     t0 = time.perf_counter()
@@ -145,7 +147,7 @@ def main(argv=None) -> dict:
         knob = r.get("h", r.get("window"))
         se = "—" if r["stderr"] is None else f"{r['stderr']:.3g}"
         print(f"{r['estimator']:22s} {knob:>8g} {r['gradient']:>12.4g} {se:>10s} {r['seconds']:>8.1f}")
-    record = {"command": "python benchmarks/truncation_study.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+    record = {"command": "python benchmarks/studies/fitting/truncation_study.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "n": args.n, "members": args.members, "at": args.at, "truth": args.truth, "steps": steps,
               "particles": particles, "loss": value, "rows": rows,
               "device": f"{jax.devices()[0].platform}, jax {jax.__version__}"}

@@ -10,7 +10,7 @@ the steeper and the shallower flank of each heap apart: whether any reasonable
 way of reading the angle off our heaps reaches 35 +- 5 deg. No simulation;
 seconds.
 
-    python benchmarks/baxter_angle_bands.py [--folder benchmarks/results/baxter_readings/n1334]
+    python benchmarks/studies/papers/baxter_angle_bands.py [--folder benchmarks/results/baxter_readings/n1334]
         [--setting contact-point_hold] [--out FILE]
 """
 

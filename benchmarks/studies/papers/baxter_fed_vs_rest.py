@@ -3,7 +3,7 @@ shows the 1334-disk heap "at near rest after 2.15e3 time units", which is the
 moment the last disk is released at their rate. This pours heaps and measures
 each one twice: at the last release, and after it comes to rest.
 
-    python benchmarks/baxter_fed_vs_rest.py [--n 300] [--seeds 10,11] [--out FILE]
+    python benchmarks/studies/papers/baxter_fed_vs_rest.py [--n 300] [--seeds 10,11] [--out FILE]
 
 Prints one JSON row per seed. It holds the mean least-squares flank angle, the
 mid-flank angles and atan(2h/B), both fed and at rest.
@@ -16,6 +16,8 @@ import json
 
 import jaxpile  # noqa: F401  (float64)
 from jaxpile.protocols import pour
+from jaxpile.measure import poured_heap
+from jaxpile.measure import heap
 
 
 def angles(summary: dict) -> dict:
@@ -33,16 +35,16 @@ def main(argv=None) -> list[dict]:
     args = parser.parse_args(argv)
     rows = []
     for seed in (int(s) for s in args.seeds.split(",")):
-        setup = pour.pour(args.n, seed=seed, insert_height=pour.steepest_heap_height(args.n) + 6.0)
+        setup = pour.pour(args.n, seed=seed, insert_height=heap.steepest_heap_height(args.n) + 6.0)
         _, _, params = pour.law_and_params("baxter")
         sim = pour.make_simulator("baxter")
         state = sim.init(params, setup.particles, setup.boundaries, box=setup.box,
                          protocol_state=setup.protocol_state)
         state = sim.run(params, state, setup.info["pour_steps"], progress=False)
-        fed = angles(pour.summary(pour.measure(sim, params, state)))
+        fed = angles(poured_heap.summary(poured_heap.measure(sim, params, state)))
         state, _ = sim.run_until_rest(params, state, speed_tolerance=pour.PAPER_SETTING["speed_tolerance"],
                                       max_steps=pour.PAPER_SETTING["max_settle_steps"], progress=False)
-        rest = angles(pour.summary(pour.measure(sim, params, state)))
+        rest = angles(poured_heap.summary(poured_heap.measure(sim, params, state)))
         rows.append({"n": args.n, "seed": seed, "fed": fed, "rest": rest})
         print(json.dumps(rows[-1]), flush=True)
     if args.out:

@@ -34,7 +34,7 @@ the H100, before ensembles ran on the poured disks only (commit 74df37c), a
 batch of 16 such heaps did not reach 100,000 steps in 7 minutes: measure it
 again before relying on it.
 
-    python benchmarks/baxter_readings.py [--n 300] [--seeds 4] [--settings contact-point/hold,centre-distance/hold]
+    python benchmarks/studies/papers/baxter_readings.py [--n 300] [--seeds 4] [--settings contact-point/hold,centre-distance/hold]
         [--workers 2] [--checkpoint-every 200000] [--out benchmarks/results/baxter_readings]
 
 The angle of each heap is the mean of its two flanks, by five measures:
@@ -94,18 +94,19 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
              checkpoint_every: int = 200_000) -> dict:
     """Pours one heap in `setting` and writes its measurements to `out`."""
     import jaxpile  # noqa: F401  (float64)
+    from jaxpile.measure import heap
     from jaxpile.protocols import pour
 
     spec = setting_of(setting)
     if insert_height is None:
-        insert_height = pour.steepest_heap_height(n) + 6.0
+        insert_height = heap.steepest_heap_height(n) + 6.0
     state_file = out.replace(".json", ".npz")  # checkpoints during the run, the final state after it
     resume = state_file if os.path.exists(state_file) else None
     t0 = time.perf_counter()
     dt = {} if spec["dt"] is None else {"dt": spec["dt"]}
     if spec["row_angle"] is not None:
         spacing = spec["pour"].get("spacing", pour.PAPER_SETTING["spacing"])
-        spec["pour"] = {**spec["pour"], "substrate_disks": pour.substrate_size(n, spacing, spec["row_angle"], margin=0.0)}
+        spec["pour"] = {**spec["pour"], "substrate_disks": heap.substrate_size(n, spacing, spec["row_angle"], margin=0.0)}
     _, result = pour.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None, **dt,
                          law_options=spec["law_options"], progress=False,
                          checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
@@ -143,8 +144,9 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     runs until the whole batch is poured and at rest (a heap at rest stays so)."""
     import jaxpile  # noqa: F401  (float64)
     from jaxpile import sweep
+    from jaxpile.measure import heap, poured_heap
     from jaxpile.protocols import pour
-    from jaxpile.simulate import max_speed
+    from jaxpile.engine.simulate import max_speed
 
     specs = [setting_of(name) for name in settings]
     if len(groups(settings)) != 1:
@@ -155,7 +157,7 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     if specs[0]["row_angle"] is not None:
         raise ValueError(f"{settings}: a batch pours on the default row; run the row settings with --workers")
     if insert_height is None:
-        insert_height = pour.steepest_heap_height(n) + 6.0
+        insert_height = heap.steepest_heap_height(n) + 6.0
     tolerance = pour.PAPER_SETTING["speed_tolerance"]
     stem = os.path.join(folder, f"batch_{'+'.join(s.replace('/', '_') for s in settings)}_seeds"
                                 f"{'-'.join(map(str, seeds))}")
@@ -163,7 +165,7 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     resume = state_file if os.path.exists(state_file) else None
 
     def extra(sim, params, state, protocol):
-        return {"summary": pour.summary(pour.measure(sim, params, state)), "max_speed": float(max_speed(state)),
+        return {"summary": poured_heap.summary(poured_heap.measure(sim, params, state)), "max_speed": float(max_speed(state)),
                 "setup": dict(protocol.info)}
 
     t0 = time.perf_counter()
@@ -223,7 +225,7 @@ def flank_over_centre(row: dict) -> float | None:
     """The M depth without selection bias (`jaxpile.measure.heap.flank_over_centre`):
     the mean normalised base force in fixed flank windows (x/B in 0.2-0.4 and
     0.6-0.8) over its mean in the centre window (0.4-0.6). The M ratio of
-    `pour.m_shape` divides the largest of ~10 noisy flank bins by one central
+    `heap.m_shape` divides the largest of ~10 noisy flank bins by one central
     bin, which noise alone pushes above 1."""
     from jaxpile.measure import heap
 
@@ -339,7 +341,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--insert-height", type=float, default=None,
                         help="where disks appear, moving at their free-fall speed from 100 sigma (default: "
                              "6 sigma above a 45-degree heap; the paper's 100 sigma costs 14000 steps a disk)")
-    parser.add_argument("--out", default=str(pathlib.Path(__file__).parent / "results" / "baxter_readings"))
+    parser.add_argument("--out", default=str(pathlib.Path(__file__).resolve().parents[2] / "results" / "baxter_readings"))
     parser.add_argument("--figure", default=None, help="also draw the profiles and angles to this PNG")
     args = parser.parse_args(argv)
     settings = args.settings.split(",")
@@ -386,7 +388,7 @@ def main(argv=None) -> dict:
         print(f"{reading:28s} {t['heaps']:5d} " + " ".join(f"{fmt(t['angle'][m]):>12s}" for m in ANGLE_METHODS)
               + f" {fmt(t['angle_height_base']):>12s} {fmt2(t['m_ratio']):>12s} {fmt2(t['flank_over_centre']):>12s}"
               + f" {fmt2(t['central_dip']):>12s}")
-    command = "python benchmarks/baxter_readings.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python benchmarks/studies/papers/baxter_readings.py " + " ".join(argv if argv is not None else sys.argv[1:])
     for entry in table.values():
         entry["command"] = command
     # one summary per heap size, each setting's entry from the last command that covered it

@@ -8,7 +8,7 @@ soon as it ends, so a rerun skips the silos already done. A silo that clogged
 flow before the arch, kept when at least `MIN_OUT` disks came out. C and k are
 fitted on the mean rates, and their spread is the jackknife over seeds.
 
-    python benchmarks/hopper_beverloo.py [--orifices 4,5,6,7,8,10] [--seeds 4] [--n 800] [--width 30]
+    python benchmarks/studies/papers/hopper_beverloo.py [--orifices 4,5,6,7,8,10] [--seeds 4] [--n 800] [--width 30]
         [--mu 0.5] [--out benchmarks/results/hopper/beverloo.json] [--figure docs/hopper_beverloo.png]
 """
 
@@ -25,7 +25,7 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from baxter_readings import mean_stderr  # noqa: E402  (one definition of mean +- s.e.)
 
-ROOT = pathlib.Path(__file__).parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[3]  # the repository
 MIN_OUT = 100
 """Disks out for a silo's rate to count (the 10-60 % window then holds 50)."""
 KEYS = ("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "number_density", "opened_step",
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     orifices = [float(x) for x in args.orifices.split(",")]
     seeds = list(range(args.seeds))
     setting = {"n": args.n, "width": args.width, "mu": args.mu, "orifices": orifices, "seeds": seeds,
-               "law": "hooke", "command": "python benchmarks/hopper_beverloo.py " + " ".join(argv or sys.argv[1:])}
+               "law": "hooke", "command": "python benchmarks/studies/papers/hopper_beverloo.py " + " ".join(argv or sys.argv[1:])}
     old = json.loads(pathlib.Path(args.out).read_text()) if os.path.exists(args.out) else {}
     same = {k: v for k, v in old.get("setting", {}).items() if k != "command"} == \
         {k: v for k, v in setting.items() if k != "command"}

@@ -5,7 +5,7 @@ left in the dead zones and the dead zones' angle (`hopper.dead_zone_angles`),
 and each statistic's sensitivity: its change per unit log mu over one silo's
 spread, between neighbouring mu (what a fit of mu can use).
 
-    python benchmarks/hopper_mu.py [--mu 0.05,0.1,0.2,0.41,0.8] [--seeds 8] [--n 200] [--width 16]
+    python benchmarks/studies/papers/hopper_mu.py [--mu 0.05,0.1,0.2,0.41,0.8] [--seeds 8] [--n 200] [--width 16]
         [--orifice 6] [--out benchmarks/results/hopper/mu_sensitivity.json] [--figure docs/hopper_mu.png]
 """
 
@@ -21,7 +21,7 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from baxter_readings import mean_stderr  # noqa: E402  (one definition of mean +- s.e.)
 
-ROOT = pathlib.Path(__file__).parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[3]  # the repository
 STATISTICS = ("flow_rate", "remaining", "dead_zone_angle")
 
 
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
         at = [r for r in rows if math.isclose(r["mu"], mu)]
         table.append({"mu": mu, **{k: stats([r[k] for r in at]) for k in STATISTICS}})
     setting = {"n": args.n, "width": args.width, "orifice": args.orifice, "law": "hooke", "seeds": seeds,
-               "command": "python benchmarks/hopper_mu.py " + " ".join(sys.argv[1:] if argv is None else argv)}
+               "command": "python benchmarks/studies/papers/hopper_mu.py " + " ".join(sys.argv[1:] if argv is None else argv)}
     result = {"setting": setting, "table": table,
               "sensitivity": {k: sensitivity(table, k) for k in STATISTICS},
               "rows": [{k: r[k] for k in ("mu", "seed", *STATISTICS)} for r in rows],

@@ -13,8 +13,8 @@ Each pile's result is written to `<out>/<job>.json` when it ends and its state
 is saved beside it (`.npz`) every `--checkpoint-every` steps while it runs; a
 rerun skips the finished piles and resumes the one in progress.
 
-    python benchmarks/paper_ensembles.py tilt [--mu 0.1,0.2,0.3,0.4,0.5] [--seeds 8] [--n 409]
-    python benchmarks/paper_ensembles.py drop [--seeds 8] [--n 968]
+    python benchmarks/studies/papers/paper_ensembles.py tilt [--mu 0.1,0.2,0.3,0.4,0.5] [--seeds 8] [--n 409]
+    python benchmarks/studies/papers/paper_ensembles.py drop [--seeds 8] [--n 968]
         [--workers 1] [--checkpoint-every 20000] [--out benchmarks/results/...] [--figure PNG]
 """
 
@@ -32,7 +32,7 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).parent))
 from baxter_readings import mean_stderr  # noqa: E402  (one definition of mean +- s.e.)
 
-RESULTS = pathlib.Path(__file__).parent / "results"
+RESULTS = pathlib.Path(__file__).resolve().parents[2] / "results"  # benchmarks/results
 
 
 def _plain(value):
@@ -205,7 +205,7 @@ def main(argv=None) -> dict:
                   flush=True)
     rows = [json.loads(pathlib.Path(p).read_text()) for _, p in jobs]
     table = summarise_tilt(rows) if args.study == "tilt" else summarise_drop(rows)
-    command = "python benchmarks/paper_ensembles.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = "python benchmarks/studies/papers/paper_ensembles.py " + " ".join(argv if argv is not None else sys.argv[1:])
     out = {"study": args.study, "n": n, "command": command, "summary": table}
     (folder / "summary.json").write_text(json.dumps(out, indent=1))
     print(json.dumps(table, indent=1))

@@ -1,8 +1,8 @@
 """The papers side by side (issue 16, item 4): one script for README's table.
 
-    python benchmarks/papers.py             # rewrite README's table and the docs/ figures from the results JSON
-    python benchmarks/papers.py --check     # exit 1 when README's table is not the one the JSON gives
-    python benchmarks/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
+    python benchmarks/studies/papers/papers.py             # rewrite README's table and the docs/ figures from the results JSON
+    python benchmarks/studies/papers/papers.py --check     # exit 1 when README's table is not the one the JSON gives
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -26,12 +26,13 @@ import subprocess
 import sys
 import tempfile
 
-HERE = pathlib.Path(__file__).resolve().parent
-ROOT = HERE.parent
-RESULTS = HERE / "results"
+HERE = pathlib.Path(__file__).resolve().parent  # benchmarks/studies/papers
+ROOT = HERE.parents[2]
+RESULTS = ROOT / "benchmarks" / "results"
 README = ROOT / "README.md"
 START, END = "<!-- papers-table:start -->\n", "<!-- papers-table:end -->"
-sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE))  # its sibling studies (paper_ensembles, baxter_readings)
+sys.path.insert(1, str(ROOT / "benchmarks"))  # readme_block
 
 PILES = 8  # the ensembles' target size (issue 16)
 
@@ -50,7 +51,7 @@ def _load(path: pathlib.Path) -> dict | None:
 
 
 def _missing(study: str) -> str:
-    return f"not run yet (`python benchmarks/papers.py --run --only {study}`)"
+    return f"not run yet (`python benchmarks/studies/papers/papers.py --run --only {study}`)"
 
 
 # ----------------------------------------------------------------- 1992
@@ -308,7 +309,7 @@ def main(argv=None) -> int:
         run(chosen)
     if args.check:
         ok = rewrite_readme(check=True)
-        print("README's papers table is " + ("up to date" if ok else "out of date: run python benchmarks/papers.py"))
+        print("README's papers table is " + ("up to date" if ok else "out of date: run python benchmarks/studies/papers/papers.py"))
         return 0 if ok else 1
     same = rewrite_readme()
     print("README's papers table " + ("was already up to date" if same else "rewritten") + f":\n{table()}")

@@ -1,0 +1,43 @@
+"""The `NAME=VALUE` arguments every subcommand shares (`--set`, `--option`)."""
+
+from __future__ import annotations
+
+from jaxpile.errors import InputError
+
+
+def parse_set(items, known) -> dict:
+    """`--set NAME=VALUE` (repeated): law parameters by name, each a number; a
+    name outside `known` is refused."""
+    values = {}
+    for item in items or []:
+        if "=" not in item:
+            raise InputError(f"--set takes NAME=VALUE; got {item!r}.")
+        name, value = item.split("=", 1)
+        name = name.strip()
+        if name not in known:
+            raise InputError(f"unknown parameter {name!r} in --set; known: {', '.join(known)}.")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise InputError(f"--set {name}= needs a number; got {value!r}.") from None
+    return values
+
+
+def parse_options(items) -> dict:
+    """`--option NAME=VALUE`: ints, floats, on/off, or text."""
+    options = {}
+    for item in items or []:
+        if "=" not in item:
+            raise InputError(f"--option takes NAME=VALUE; got {item!r}.")
+        name, text = (part.strip() for part in item.split("=", 1))
+        for convert in (int, float):
+            try:
+                value = convert(text)
+                break
+            except ValueError:
+                continue
+        else:
+            lowered = text.lower()
+            value = {"on": True, "true": True, "off": False, "false": False}.get(lowered, text)
+        options[name.replace("-", "_")] = value
+    return options
