@@ -97,10 +97,10 @@ def main(argv=None) -> dict:
 
     singles = ensemble.members(state)
     single = jax.jit(sim._advance)
-    jax.block_until_ready(single(params[0], singles[0], n))
+    jax.block_until_ready(single(params[0], singles[0], None, n))
     t0 = time.perf_counter()
     for p, s in zip(params, singles):
-        jax.block_until_ready(single(p, s, n))
+        jax.block_until_ready(single(p, s, None, n))
     t_serial = time.perf_counter() - t0
 
     out = {

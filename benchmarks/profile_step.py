@@ -106,9 +106,9 @@ def pour_at_half_way(n: int, steps: int):
                      protocol_state=protocol.protocol_state)
     state = sim.run(params, state, protocol.info["pour_steps"] // 2, progress=False)
     total = state.particles.count
-    size = sim._block_for(state, steps)
-    if size is not None:
-        state = blocks.take_jit(state, size, blocks.pair_room(state, size, 0))
+    block = sim._block_for(state, steps, {})
+    if block is not None:
+        state = blocks.take_jit(state, *block)
     in_play = int(jnp.sum(state.particles.active))
     return sim, params, state, (f"pour of {n} disks (hooke) half-way: {in_play} disks in play, "
                                 f"block of {state.particles.count} of {total}")

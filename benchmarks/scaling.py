@@ -77,7 +77,7 @@ def measure(n: int, precision: str, steps: int) -> dict:
 
     warm = RunInfo()
     state = sim.run(params, state, sim.chunk_steps, progress=False, info=warm)  # compile + one chunk
-    compiled = sim._compiled_advance(params, state, RunInfo())  # the cached executable of the chunk
+    compiled = sim._compiled_advance(params, state, None, RunInfo())  # the cached executable of the chunk
     temp = compiled.memory_analysis().temp_size_in_bytes if hasattr(compiled, "memory_analysis") else None
 
     info = RunInfo()

@@ -183,7 +183,7 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
         ens = Ensemble(pour.make_simulator("hooke", chunk_steps=1000, **({} if blocked else {"in_play": None})))
         state = ens.init(params, protocols)
         if blocked:
-            assert ens._block_for(state, 1000)[0] == 64
+            assert ens._block_for(state, 1000, {})[0] == 64
         states[blocked] = ens.run(params, state, 4000, progress=False)
     a, b = states[True], states[False]
     assert a.particles.position.shape == (2, 145, 2) and np.all(np.asarray(a.protocol_state.poured) == 27)

@@ -36,8 +36,6 @@ protocol are one compiled loop. What makes that work for DEM:
 
 from __future__ import annotations
 
-import sys
-import time
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import jax
@@ -51,7 +49,8 @@ from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.engine.simulate import RunInfo, Simulator, checked, compiled_for, make_step, max_speed, non_finite_disks
+from jaxpile.engine.loop import Advance, compiled_for, run_chunks
+from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed, non_finite_disks
 from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
@@ -105,6 +104,11 @@ class Ensemble:
                                  static_argnums=(1, 2))
         self._put_jit = jax.jit(jax.vmap(blocks.put))
         self._block_pairs: dict[int, int] = {}  # pair entries each block size has needed
+        self._loop = Advance(self._compiled_advance, self._reallocate, self._block_for,
+                             lambda s, size, room: self.shard(self._take_jit(s, size, room)),
+                             lambda s, new: self.shard(self._put_jit(s, new)),
+                             lambda new, good: _check_batch_finite(new, last_good=good),
+                             "the batch's neighbour list")
 
     # --------------------------------------------------------------- set-up
     def init(self, params, protocols: Sequence[Protocol]) -> SimState:
@@ -222,11 +226,13 @@ class Ensemble:
         members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))
 
-    def _block_for(self, state: SimState, n: int) -> tuple[int, list] | None:
+    def _block_for(self, state: SimState, n: int, known: dict) -> tuple[int, int] | None:
         """The block of leading disks that every member's next n steps can run
         on (`Simulator._block_for` with the largest `in_play` of the batch, and
-        every member must `blocks.fits` it), with the members on the host; or
-        None (the chunk runs on every disk)."""
+        every member must `blocks.fits` it) and its pair entries, the most any
+        member needs; or None (the chunk runs on every disk). A pour pays for
+        the disks poured, as one pile does: the same arithmetic, so the same
+        result bit for bit."""
         if self.sim.in_play is None:
             return None
         host = jax.device_get(state)
@@ -235,33 +241,7 @@ class Ensemble:
         size = blocks.block_size(max(int(self.sim.in_play(m, n)) for m in each), count)
         if size is None or not all(blocks.fits(m, size) for m in each):
             return None
-        return size, each
-
-    def _chunk(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
-        """n steps of every member, on the leading block of disks the simulator's
-        `in_play` allows (a pour pays for the disks poured, as one pile does in
-        `Simulator._chunk`; the same arithmetic, so the same result bit for bit)."""
-        block = self._block_for(state, n)
-        if block is None:
-            return self._chunk_on(params, state, frozen, n, info)
-        size, each = block
-        room = max(blocks.pair_room(m, size, self._block_pairs.get(size, 0)) for m in each)
-        new = self._chunk_on(params, self.shard(self._take_jit(state, size, room)), frozen, n, info)
-        self._block_pairs[size] = max(room, int(new.contacts.pairs.shape[1]))
-        return self.shard(self._put_jit(state, new))
-
-    def _chunk_on(self, params, state: SimState, frozen, n: int, info: RunInfo) -> SimState:
-        for _ in range(20):
-            fn = self._compiled_advance(params, state, frozen, info)
-            t0 = time.perf_counter()
-            new = fn(params, state, frozen, jnp.int32(n))
-            jax.block_until_ready(new)
-            info.wall_seconds += time.perf_counter() - t0
-            if not bool(np.any(nb.overflowed(new))):
-                return new
-            info.reallocations += 1
-            state = self._reallocate(state, new)
-        raise SimulationError("the batch's neighbour list kept overflowing after 20 re-allocations.", state)
+        return size, max(blocks.pair_room(m, size, known.get(size, 0)) for m in each)
 
     def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,
             progress: bool | None = None, info: RunInfo | None = None, checkpoint: tuple | None = None) -> SimState:
@@ -300,35 +280,21 @@ class Ensemble:
         info = RunInfo() if info is None else info
         info.particles = count * state.particles.position.shape[1]
         finished = jax.jit(jax.vmap(until)) if until is not None else None
-        if progress is None:
-            progress = sys.stderr.isatty()
-        from tqdm.auto import tqdm
+        last = [finished(state) if finished is not None else jnp.zeros(count, bool)]
 
-        save = self.sim.checkpointer(params, checkpoint)
-        bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
-        done = 0
-        finished_now = finished(state) if finished is not None else jnp.zeros(count, bool)
-        try:
-            while done < n_steps:
-                frozen = self.shard(finished_now)
-                if bool(jnp.all(frozen)):
-                    break
-                n = min(self.sim.chunk_steps, int(n_steps) - done)
-                new = self._chunk(params, state, frozen, n, info)
-                checked(lambda: _check_batch_finite(new, last_good=state), state, new, save)
-                state = new
-                done += n
-                info.steps += n
-                bar.update(n)
-                if finished is not None:
-                    finished_now = finished(state)
-                    bar.set_postfix(finished=f"{int(jnp.sum(finished_now))}/{count}")
-                if save is not None:
-                    save(state, done, final=done >= n_steps or bool(jnp.all(finished_now)))
-        finally:
-            bar.close()
+        def status(s: SimState):
+            if finished is not None:
+                last[0] = finished(s)
+            return self.shard(last[0]), bool(jnp.all(last[0]))
+
+        state = run_chunks(self._loop, params, state, int(n_steps), chunk_steps=self.sim.chunk_steps, info=info,
+                           status=status, start=(self.shard(last[0]), bool(jnp.all(last[0]))),
+                           save=self.sim.checkpointer(params, checkpoint), progress=progress,
+                           postfix=None if finished is None else
+                           lambda frozen: {"finished": f"{int(jnp.sum(frozen))}/{count}"},
+                           known_pairs=self._block_pairs)
         if finished is not None:
-            info.at_rest = bool(jnp.all(finished_now))
+            info.at_rest = bool(jnp.all(last[0]))
         info.max_speed = float(_batch_max_speed(state))
         return state
 

@@ -15,8 +15,6 @@ import contextlib
 import contextvars
 import math
 import os
-import sys
-import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -33,6 +31,7 @@ from jaxpile.engine.checkpoint import step_of
 from jaxpile.engine.collisions import HardCollisions, hard_collision_velocities
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.integrators import Integrator, get_integrator
+from jaxpile.engine.loop import Advance, compiled_for, run_chunks
 from jaxpile.engine.interactions import ContactForces, evaluate, external_force, in_slots
 from jaxpile.laws.base import ContactLaw
 from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState
@@ -288,6 +287,9 @@ class Simulator:
         self._refresh_jit = jax.jit(self.refresh_forces)
         self._start_jit = jit_one_off(self.start)  # run once per pile: see engine.compile
         self._compiled: dict = {}
+        self._loop = Advance(self._compiled_advance, self._reallocate, self._block_for, blocks.take_jit,
+                             blocks.put_jit, lambda new, good: _check_finite(new.particles, step=int(new.step),
+                                                                              last_good=good))
 
     # ------------------------------------------------------------------ set-up
     def check_params(self, params, particles: Particles) -> None:
@@ -471,11 +473,12 @@ class Simulator:
         state, _ = lax.scan(lambda s, _: (run_block(params, s), None), state, None, length=blocks)
         return _scan_steps(self.step, params, state, rest)
 
-    def _advance(self, params, state: SimState, n_steps) -> SimState:
+    def _advance(self, params, state: SimState, frozen, n_steps) -> SimState:
+        """`n_steps` steps (`frozen`: None, one pile has no members to hold still)."""
         return lax.fori_loop(0, n_steps, lambda _, s: self.step(params, s), state)
 
-    def _compiled_advance(self, params, state: SimState, info: RunInfo):
-        return compiled_for(self._compiled, self._advance_jit, (params, state), info)
+    def _compiled_advance(self, params, state: SimState, frozen, info: RunInfo):
+        return compiled_for(self._compiled, self._advance_jit, (params, state, frozen), info)
 
     # ------------------------------------------------------------ host runs
     def _reallocate(self, state: SimState, overflowed) -> SimState:
@@ -490,36 +493,15 @@ class Simulator:
         contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
-    def _block_for(self, state: SimState, n: int) -> int | None:
-        """The block of leading disks the next n steps can run on, or None (all)."""
+    def _block_for(self, state: SimState, n: int, known: dict) -> tuple[int, int] | None:
+        """The block of leading disks the next n steps can run on and its pair
+        entries (`known`: those each block size has needed), or None (all disks)."""
         if self.in_play is None:
             return None
         size = blocks.block_size(int(self.in_play(state, n)), state.particles.count)
-        return size if size is not None and blocks.fits(state, size) else None
-
-    def _chunk(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
-        """n steps from `state` (on a block of its leading disks when `in_play`
-        allows); on overflow, re-allocate and re-run from `state`."""
-        size = self._block_for(state, n)
-        if size is None:
-            return self._chunk_on(params, state, n, info)
-        room = blocks.pair_room(state, size, self._block_pairs.get(size, 0))
-        new = self._chunk_on(params, blocks.take_jit(state, size, room), n, info)
-        self._block_pairs[size] = max(room, int(new.contacts.pairs.shape[0]))
-        return blocks.put_jit(state, new)
-
-    def _chunk_on(self, params, state: SimState, n: int, info: RunInfo) -> SimState:
-        for _ in range(20):
-            fn = self._compiled_advance(params, state, info)
-            t0 = time.perf_counter()
-            new = fn(params, state, jnp.int32(n))
-            jax.block_until_ready(new)
-            info.wall_seconds += time.perf_counter() - t0
-            if not bool(nb.overflowed(new)):
-                return new
-            info.reallocations += 1
-            state = self._reallocate(state, new)
-        raise SimulationError("the neighbour list kept overflowing after 20 re-allocations.", state)
+        if size is None or not blocks.fits(state, size):
+            return None
+        return size, blocks.pair_room(state, size, known.get(size, 0))
 
     def run(
         self,
@@ -569,34 +551,12 @@ class Simulator:
         _check_finite(state.particles, step=int(state.step))
         info = RunInfo() if info is None else info
         info.particles = state.particles.count
-        if progress is None:
-            progress = sys.stderr.isatty()
-        from tqdm.auto import tqdm
-
         save = self.checkpointer(params, checkpoint)
-        if resumed and until is not None and until(state):
-            return state
-        _observe(state, self.dt)
-        bar = tqdm(total=n_steps, disable=not progress, unit="step", leave=False, dynamic_ncols=True)
-        done = 0
-        try:
-            while done < n_steps:
-                n = min(self.chunk_steps, n_steps - done)
-                new = self._chunk(params, state, n, info)
-                checked(lambda: _check_finite(new.particles, step=int(new.step), last_good=state), state, new, save)
-                state = new
-                done += n
-                info.steps += n
-                bar.update(n)
-                _observe(state, self.dt)
-                stop = until is not None and until(state)
-                if save is not None:
-                    save(state, done, final=stop or done >= n_steps)
-                if stop:
-                    break
-        finally:
-            bar.close()
-        return state
+        stop = resumed and until is not None and until(state)
+        return run_chunks(self._loop, params, state, n_steps, chunk_steps=self.chunk_steps, info=info,
+                          status=lambda s: (None, until is not None and until(s)), start=(None, stop),
+                          save=save, progress=progress,
+                          observe=lambda s: _observe(s, self.dt), known_pairs=self._block_pairs)
 
     def checkpointer(self, params, checkpoint) -> "Checkpointer | None":
         """The saver for `run(checkpoint=(path, every[, extra]))`, or None."""
@@ -639,21 +599,6 @@ class Simulator:
         return state, info
 
 
-def compiled_for(cache: dict, jitted, args: tuple, info: RunInfo):
-    """The compiled `jitted` for the shapes and structure of `args` (followed by
-    an int32 step count), from `cache` or compiled now, with the compile time
-    added to `info`: chunks of a run, and runs of the same shapes, share it."""
-    leaves, treedef = jax.tree.flatten(args)
-    key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
-    fn = cache.get(key)
-    if fn is None:
-        t0 = time.perf_counter()
-        fn = jitted.lower(*args, jnp.int32(1)).compile()
-        info.compile_seconds += time.perf_counter() - t0
-        cache[key] = fn
-    return fn
-
-
 def _scan_steps(step, params, state: SimState, n: int) -> SimState:
     if n == 0:
         return state
@@ -691,19 +636,6 @@ class Checkpointer:
         """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
         stem, suffix = os.path.splitext(self._path(state))
         return self._save(f"{stem}.last-good{suffix or '.npz'}", state, failed_at=failed_at)
-
-
-def checked(check, state: SimState, new: SimState, save) -> None:
-    """Runs `check()` on a chunk's end `new`; when it raises `SimulationError`
-    and the run saves checkpoints, the last good `state` is saved beside them
-    first (`<path stem>.last-good.npz`) and the message says where."""
-    try:
-        check()
-    except SimulationError as error:
-        if save is not None:
-            error.saved_to = save.last_good(state, failed_at=step_of(new))
-            error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
-        raise
 
 
 @jax.jit

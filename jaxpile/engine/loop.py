@@ -1,0 +1,173 @@
+"""The one host run loop: chunks of a compiled advance, with neighbour-list
+overflow and re-allocation, NaN checks, blocks of leading disks, checkpoints
+and progress. One pile (`Simulator.run`) and a batch of piles (`Ensemble.run`)
+drive it with a different `Advance`: the loop never looks inside a step.
+
+Between chunks the host checks what a compiled step cannot act on (jax-md's
+habit: allocate outside jit, update inside, check overflow between chunks):
+a list that overflowed is re-allocated and the chunk run again from its start,
+so no contact is ever dropped, and a non-finite disk stops the run with the
+last good state saved. Everything inside a chunk is the compiled step; a
+chunk's arithmetic does not depend on where it is cut, so results are the
+same bit for bit whatever the chunk length, checkpoints or resumes.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile.engine import neighbors as nb
+from jaxpile.engine.checkpoint import step_of
+from jaxpile.engine.state import SimState
+from jaxpile.errors import SimulationError
+
+MAX_REALLOCATIONS = 20
+"""Re-allocations one chunk may need before the run gives up (each grows the
+list to what the chunk found, so a second is rare and twenty means a bug)."""
+
+
+class Advance(NamedTuple):
+    """What the loop drives: a compiled advance and the host steps around it.
+
+    Attributes:
+      compiled: `(params, state, frozen, info) -> fn`, the compiled advance for
+        these shapes (`compiled_for`); `fn(params, state, frozen, n)` takes `n`
+        steps (int32) of every member not `frozen` (None for one pile).
+      reallocate: `(state, overflowed) -> state`: `state` (a chunk's start)
+        with lists that have room for what the chunk ending in `overflowed` found.
+      block: `(state, n, known) -> (size, room) | None`: the block of leading
+        disks the next `n` steps can run on and its pair entries (`known`: the
+        entries each block size has needed so far), or None for every disk.
+      take: `(state, size, room) -> state`, the block of leading disks.
+      put: `(state, block) -> state`, the block's end written back.
+      check_finite: `(new, last_good) -> None`, raises `SimulationError` on a
+        non-finite disk in a chunk's end `new`.
+      name: what overflowed, for the message ("the neighbour list").
+    """
+
+    compiled: Callable
+    reallocate: Callable
+    block: Callable
+    take: Callable
+    put: Callable
+    check_finite: Callable
+    name: str = "the neighbour list"
+
+
+def chunk(advance: Advance, params, state: SimState, frozen, n: int, info, known_pairs: dict) -> SimState:
+    """`n` steps from `state`, on a block of its leading disks where
+    `advance.block` allows (a pour pays for the disks poured so far)."""
+    block = advance.block(state, n, known_pairs)
+    if block is None:
+        return _chunk_on(advance, params, state, frozen, n, info)
+    size, room = block
+    new = _chunk_on(advance, params, advance.take(state, size, room), frozen, n, info)
+    known_pairs[size] = max(room, int(new.contacts.pairs.shape[-2]))
+    return advance.put(state, new)
+
+
+def _chunk_on(advance: Advance, params, state: SimState, frozen, n: int, info) -> SimState:
+    """`n` steps; on overflow, re-allocate and run them again from `state`."""
+    for _ in range(MAX_REALLOCATIONS):
+        fn = advance.compiled(params, state, frozen, info)
+        t0 = time.perf_counter()
+        new = fn(params, state, frozen, jnp.int32(n))
+        jax.block_until_ready(new)
+        info.wall_seconds += time.perf_counter() - t0
+        if not bool(np.any(nb.overflowed(new))):
+            return new
+        info.reallocations += 1
+        state = advance.reallocate(state, new)
+    raise SimulationError(f"{advance.name} kept overflowing after {MAX_REALLOCATIONS} re-allocations.", state)
+
+
+def run_chunks(advance: Advance, params, state: SimState, n_steps: int, *, chunk_steps: int, info,
+               status: Callable[[SimState], tuple[Any, bool]], start: tuple[Any, bool] = (None, False),
+               save=None, progress: bool | None = None, observe: Callable[[SimState], None] | None = None,
+               postfix: Callable[[Any], dict] | None = None, known_pairs: dict | None = None) -> SimState:
+    """Runs `state` up to `n_steps` in chunks of `chunk_steps`.
+
+    Args:
+      advance: the compiled advance and its host steps.
+      info: a `RunInfo` that accumulates steps, wall and compile time, re-allocations.
+      status: `state -> (frozen, stop)` after each chunk: the members to hold
+        still in the next chunk (None for one pile) and whether the run ends.
+      start: `(frozen, stop)` before the first chunk (`stop`: run nothing).
+      save: a `Checkpointer` (or None): called at each chunk's end, and given
+        the last good state when a chunk ends non-finite.
+      progress: a progress bar (default: when stderr is a terminal).
+      observe: called on the start state and after each chunk.
+      postfix: `frozen -> dict` shown on the progress bar after each chunk.
+      known_pairs: the pair entries each block size has needed (kept by the
+        caller across runs).
+    """
+    frozen, stop = start
+    if stop:
+        return state
+    if observe is not None:
+        observe(state)
+    if progress is None:
+        progress = sys.stderr.isatty()
+    from tqdm.auto import tqdm
+
+    known_pairs = {} if known_pairs is None else known_pairs
+    bar = tqdm(total=int(n_steps), disable=not progress, unit="step", leave=False, dynamic_ncols=True)
+    done = 0
+    try:
+        while done < n_steps:
+            n = min(chunk_steps, int(n_steps) - done)
+            new = chunk(advance, params, state, frozen, n, info, known_pairs)
+            checked(lambda: advance.check_finite(new, state), state, new, save)
+            state = new
+            done += n
+            info.steps += n
+            bar.update(n)
+            if observe is not None:
+                observe(state)
+            frozen, stop = status(state)
+            if postfix is not None:
+                bar.set_postfix(**postfix(frozen))
+            if save is not None:
+                save(state, done, final=stop or done >= n_steps)
+            if stop:
+                break
+    finally:
+        bar.close()
+    return state
+
+
+def checked(check, state: SimState, new: SimState, save) -> None:
+    """Runs `check()` on a chunk's end `new`; when it raises `SimulationError`
+    and the run saves checkpoints, the last good `state` is saved beside them
+    first (`<path stem>.last-good.npz`) and the message says where."""
+    try:
+        check()
+    except SimulationError as error:
+        if save is not None:
+            error.saved_to = save.last_good(state, failed_at=step_of(new))
+            error.args = (f"{error.args[0]} Saved to {error.saved_to}.",)
+        raise
+
+
+def compiled_for(cache: dict, jitted, args: tuple, info):
+    """The compiled `jitted` for the shapes and structure of `args` (followed by
+    an int32 step count), from `cache` or compiled now, with the compile time
+    added to `info`: chunks of a run, and runs of the same shapes, share it."""
+    leaves, treedef = jax.tree.flatten(args)
+    key = (treedef, tuple((np.shape(x), getattr(x, "dtype", type(x))) for x in leaves))
+    fn = cache.get(key)
+    if fn is None:
+        t0 = time.perf_counter()
+        fn = jitted.lower(*args, jnp.int32(1)).compile()
+        info.compile_seconds += time.perf_counter() - t0
+        cache[key] = fn
+    return fn
+
+
+__all__ = ["MAX_REALLOCATIONS", "Advance", "checked", "chunk", "compiled_for", "run_chunks"]
