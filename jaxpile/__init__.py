@@ -7,21 +7,18 @@ float32 stay float32, so large dynamic runs can still use single precision.
 On a CPU, one pile runs on one core: jaxpile sets `PJRT_NPROC=1` (unless the
 environment sets it), which gives XLA's CPU client one thread for the work
 inside a step. The step's kernels are small (a few microseconds each), and
-splitting them over threads costs more than it saves: on 2 cores the 45-layer
-lattice pile (1035 disks) runs a step in 88 us with one thread against 119 us
-with two (benchmarks/vs_lammps.py: 1.27x LAMMPS serial against 0.91x).
+splitting them over threads costs more than it saves (measured:
+docs/performance.md#why-one-thread-per-pile-on-a-cpu).
 
 A batch uses the cores another way: `JAXPILE_HOST_DEVICES=N` in the
 environment splits the host into N JAX devices before anything runs
 (`jax_num_cpu_devices`), and `Ensemble` and `jaxpile sweep` shard a batch over
-them, one core each (a single pile in such a process is slower: 129 us
-against 88 us above). Without it, `jaxpile sweep` and `jaxpile fit`, which run
-batches, give XLA back its own thread count: a batch's kernels are large enough
-to split (B = 256 piles of 120 disks: 9.8e6 particle-steps/s with two threads,
-6.4e6 with one). So are one large pile's: from about 2000 disks two threads
-win (10000 disks: 8.9e6 against 6.1e6), and `jaxpile pile --n N` gives XLA its
-threads for N >= 2000 (`cli.THREADED_PILE_DISKS`); from Python, set
-`PJRT_NPROC` to the core count before `import jaxpile` for such a pile.
+them, one core each (a single pile in such a process is slower). Without it,
+`jaxpile sweep` and `jaxpile fit`, which run batches, give XLA back its own
+thread count: a batch's kernels are large enough to split. So are one large
+pile's from about 2000 disks, and `jaxpile pile --n N` gives XLA its threads
+for N >= 2000 (`cli.THREADED_PILE_DISKS`); from Python, set `PJRT_NPROC` to
+the core count before `import jaxpile` for such a pile.
 Threads never change results (the same rows bit for bit); the device count
 does, at round-off, so it is the user's choice.
 """
@@ -30,11 +27,11 @@ import os as _os
 import warnings as _warnings
 
 # XLA on a CPU vectorises at 256 bits by default even where the CPU has 512-bit
-# registers (AVX-512). The step's kernels are elementwise over pairs and disks,
-# so wider vectors pay: 137 -> 125 us per step on the 45-layer lattice (2-core
-# AMD EPYC, benchmarks/vs_lammps.py). Same arithmetic, same results bit for bit;
-# CPUs without AVX-512 ignore it. Read when JAX first compiles, so a flag the
-# user set wins and a JAX already compiling before `import jaxpile` keeps its own.
+# registers (AVX-512); the step's kernels are elementwise over pairs and disks,
+# so wider vectors pay (measured: docs/performance.md#vector-width). Same
+# arithmetic, same results bit for bit; CPUs without AVX-512 ignore it. Read
+# when JAX first compiles, so a flag the user set wins and a JAX already
+# compiling before `import jaxpile` keeps its own.
 if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
     _os.environ["XLA_FLAGS"] = (_os.environ.get("XLA_FLAGS", "") + " --xla_cpu_prefer_vector_width=512").strip()
 
@@ -42,17 +39,16 @@ if "xla_cpu_prefer_vector_width" not in _os.environ.get("XLA_FLAGS", ""):
 # multi-output fusion is on: then one fusion computes a shared chain once and
 # writes every output it feeds. A contact law's arithmetic feeds the force, its
 # two scatters and the new history, so without it the law runs three to five
-# times a step (benchmarks/profile_step.py: 5.4e6 -> 3.8e6 flops a step on the
-# 45-layer lattice; 176-195 -> 118-149 us a step, benchmarks/fusion_ab.py).
-# It is not on by default in Python: in jax 0.10.2 XLA's newer fusion emitters
-# abort the process ("Check failed: GetNumDims() == other.GetNumResults()") on
-# a multi-output fusion of some scatter-adds, such as the two that the
+# times a step (measured: docs/performance.md#multi-output-fusion).
+# It is not on by default in Python: XLA's newer fusion emitters abort the
+# process ("Check failed: GetNumDims() == other.GetNumResults()") on a
+# multi-output fusion of some scatter-adds, such as the two that the
 # derivative of `jnp.interp` makes, and a user's own loss may hold one. jaxpile's
 # own losses hold none (`fit.profile_loss` reads a profile by a select, not
 # `jnp.interp`), so the commands turn it on: `jaxpile pile`, `sweep` and `fit`
 # (`use_multi_output_fusion`), and a derivative program then compiles with the
-# newer emitters too (`engine.compile`; with the older ones the fusion makes a
-# reverse gradient 20x slower). JAXPILE_MULTI_OUTPUT_FUSION=1 turns it on for a
+# newer emitters too (`engine.compile`: with the older ones the fusion makes a
+# reverse gradient far slower). JAXPILE_MULTI_OUTPUT_FUSION=1 turns it on for a
 # whole process, =0 keeps it off, commands included. A user's own
 # xla_backend_extra_options wins.
 _MULTI_OUTPUT_FUSION_FLAG = "--xla_backend_extra_options=xla_cpu_use_multi_output_fusion"
@@ -86,6 +82,21 @@ if _os.environ.get("JAXPILE_MULTI_OUTPUT_FUSION") == "1":
 _ONE_THREAD_BY_DEFAULT = "PJRT_NPROC" not in _os.environ
 _os.environ.setdefault("PJRT_NPROC", "1")
 
+
+def use_xla_threads() -> bool:
+    """Gives XLA's CPU client its own thread count where `import jaxpile` set
+    one thread (the user had not set PJRT_NPROC): a batch's kernels, or one
+    large pile's, are large enough to split. Read when JAX makes its CPU client,
+    so it only acts before JAX has run anything; threads do not change results.
+    Returns whether it acted."""
+    global _ONE_THREAD_BY_DEFAULT
+    if not _ONE_THREAD_BY_DEFAULT or _os.environ.get("PJRT_NPROC") != "1":
+        return False
+    del _os.environ["PJRT_NPROC"]
+    _ONE_THREAD_BY_DEFAULT = False
+    return True
+
+
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
@@ -98,7 +109,7 @@ if _os.environ.get("JAXPILE_HOST_DEVICES"):
 
 from jaxpile.engine import _jax_md  # noqa: E402
 
-_jax_md.register()  # jax-md's neighbour lists without the rest of jax-md's import (10 s -> 1 s)
+_jax_md.register()  # jax-md's neighbour lists without the rest of jax-md's slow import (see _jax_md)
 
 from jaxpile import fit, laws, protocols, sweep  # noqa: E402
 from jaxpile.measure import analysis, theory

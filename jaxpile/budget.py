@@ -3,9 +3,9 @@ is allocated, so that a run too big is refused at once, with both numbers.
 
 The estimate is per disk and linear in the disk count: the state (positions,
 velocities, the contact history, the neighbour list) plus XLA's temporaries of
-the compiled step, as `benchmarks/scaling.py` measures them (`make bench`,
-settling box, 1e3-1e5 disks; `compiled.memory_analysis()`): float64 258 B state
-+ 969-995 B temporaries, float32 154 B + 877 B, flat in N. We add a quarter for
+the compiled step, as `benchmarks/scaling.py` measures them (`make bench`;
+`compiled.memory_analysis()`), flat in N (measured:
+docs/performance.md#memory-per-disk). We add a quarter for
 what the measurement does not see (the neighbour list re-allocated larger, the
 host-side set-up and measurement arrays) and a fixed allowance for JAX itself.
 """
@@ -19,7 +19,8 @@ import os
 from jaxpile.errors import InputError
 
 MEASURED_BYTES_PER_DISK = {"float64": 258 + 995, "float32": 154 + 879}
-"""State + XLA temporaries per disk, the largest of `make bench`'s scaling rows."""
+"""State + XLA temporaries per disk, the largest of `make bench`'s scaling rows
+(docs/performance.md#memory-per-disk)."""
 
 HEADROOM = 1.25
 """Factor on the measured figure for what it does not see (a larger re-allocated

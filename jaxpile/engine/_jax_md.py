@@ -2,17 +2,17 @@
 
 `import jax_md` runs the package's `__init__`, which imports every module it
 has: `energy` with its neural-network potentials (flax, e3nn, sympy, scipy) and
-`rigid_body`, which computes at import. Measured on 2 busy cores: 10.3 s,
-against 0.9 s for the four modules jaxpile uses (`partition`, `space`, `util`,
-`dataclasses`). That was most of every `jaxpile` command's start-up, and of the
-time to refuse a run too big for the machine (issue 19).
+`rigid_body`, which computes at import: ten times as long as the four modules
+jaxpile uses (`partition`, `space`, `util`, `dataclasses`), and it would be most
+of every `jaxpile` command's start-up and of the time to refuse a run too big
+for the machine (measured: docs/performance.md#importing-jax-md).
 
 `register()` puts the package in `sys.modules` without running its `__init__`,
 so `from jax_md import partition` loads that module and what it imports. A
 module-level `__getattr__` (PEP 562) keeps the rest of jax-md one attribute
 away: a submodule is imported on first use, and any other name runs jax-md's
 own `__init__` once, so `import jax_md; jax_md.energy.soft_sphere(...)` after
-`import jaxpile` works as it always has. If jax-md was imported first, nothing
+`import jaxpile` works as it does without jaxpile. If jax-md was imported first, nothing
 changes.
 """
 

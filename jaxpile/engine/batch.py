@@ -2,8 +2,8 @@
 
 The tree helpers that both the batched runner (`jaxpile.engine.ensemble`) and the
 checkpoints (`jaxpile.engine.checkpoint`, which restores a batch) need, in a module
-of their own so that neither imports the other (issue 18: the circle
-checkpoint -> ensemble -> simulate -> checkpoint is gone). `jaxpile.engine.ensemble`
+of their own so that neither imports the other (no import cycle
+checkpoint -> ensemble -> simulate -> checkpoint). `jaxpile.engine.ensemble`
 re-exports every name here.
 """
 
@@ -39,8 +39,8 @@ def stack(trees: Sequence[Any]) -> Any:
     """Stacks pytrees of the same structure along a new leading axis.
 
     Concrete leaves are stacked by numpy on the host: `jnp.stack` run op by
-    op compiles a program for every leaf shape and member count (~1 s of a
-    tiny ensemble's set-up on 2 CPU cores)."""
+    op would compile a program for every leaf shape and member count (see
+    docs/performance.md#eager-compiles)."""
     if not trees:
         raise InputError("an ensemble needs at least one member.")
 
@@ -59,8 +59,8 @@ def member(tree: Any, i: int) -> Any:
     """Member i of a batched pytree (its leaves indexed on the leading axis).
 
     A batch of jax arrays on one device is cut by one compiled program per
-    batch shape, the index an argument: indexed op by op, every leaf compiled
-    a slice for every member (a sweep's results, B x ~50 compiles)."""
+    batch shape, the index an argument: indexed op by op, every leaf would
+    compile a slice for every member (docs/performance.md#eager-compiles)."""
     leaves = jax.tree.leaves(tree)
     if leaves and all(isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer) and _one_device(x)
                       for x in leaves):

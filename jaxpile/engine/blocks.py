@@ -44,16 +44,14 @@ MIN_BLOCK = 64
 
 FINE_BLOCK = 512
 """From this size up the blocks step by 1.5x and 4/3x (512, 768, 1024, 1536,
-2048, ...), below it by 2x. A 1000-disk pour (1121 disks with its row) spends
-the second half of its pour with 512-1121 disks in play; on the full array
-then, its run took 20.9 s, with a 768 block 19.0 s (2.0 s more compile).
-Blocks of 1.5x from 128 up saved 0.65 s more for 3.2 s more compile: below
-~512 disks a step costs its kernel launches more than its disks."""
+2048, ...), below it by 2x: below ~512 disks a step costs its kernel launches
+more than its disks, so finer blocks there save less than their compiles cost
+(measured: docs/performance.md#pour-blocks)."""
 
 FINE_SAVING = 1 / 8
 """A block from `FINE_BLOCK` up is used when it leaves out at least this
 share of the disks (a smaller block, at least half of them): each size costs
-a compile (~1 s on 2 CPU cores)."""
+a compile (docs/performance.md#pour-blocks)."""
 
 
 def block_size(needed: int, count: int) -> int | None:
@@ -147,8 +145,8 @@ def put(full: SimState, block: SimState) -> SimState:
                      neighbors=neighbors, protocol_state=protocol_state)
 
 
-# Compiled once per block size: run op by op, take and put were ~50 eager
-# primitives each, every one compiled for each new shape (1.7 s of a 1000-disk
-# pour's 28, outside both its compile and its run time).
+# Compiled once per block size: run op by op, take and put are ~50 eager
+# primitives each, every one compiled for each new shape
+# (docs/performance.md#eager-compiles).
 take_jit = jax.jit(take, static_argnums=(1, 2))
 put_jit = jax.jit(put)

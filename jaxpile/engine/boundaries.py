@@ -91,7 +91,7 @@ def set_wall(boundaries: Boundaries, wall: int, *, active: bool | None = None, p
 
 def _set_entry(array, index: int, value):
     """`array.at[index].set(value)`; on the host when nothing is traced (an
-    eager scatter compiled a program per shape)."""
+    eager scatter would compile a program per shape)."""
     if any(isinstance(x, jax.core.Tracer) for x in (array, value)):
         return array.at[index].set(value)
     host = np.array(array)

@@ -289,7 +289,7 @@ def restore(path, template: SimState, law, params) -> SimState:
                          f"{template.particles.count}. Build the same set-up it was written from.")
 
     # every setting but the capacity multiplier, which only sizes new lists (the run resumes at its
-    # saved capacities): pours saved when their simulators asked for 4.0 resume with 1.5
+    # saved capacities): a save resumes whatever multiplier the resuming simulator asks for
     compared = [i for i, name in enumerate(nb.NeighborSettings._fields) if name != "capacity_multiplier"]
     saved, wanted = meta["neighbor_settings"], json.loads(json.dumps(list(template.neighbor_settings)))
     if [saved[i] for i in compared] != [wanted[i] for i in compared]:

@@ -6,16 +6,13 @@ compile time is then most of their cost.
 
 Derivative programs (a gradient or Jacobian through a rollout) compile with
 XLA:CPU's older fusion emitters, where a forward run keeps XLA's default:
-the newer emitters make the forward step faster and its derivatives slower
-(measured, 55-disk frictional pile, 1000 steps, one CPU thread: forward 9.5
-against 13.0 ms; checkpointed reverse 72 against 61 ms; forward mode over
-three parameters 80 against 47 ms; `benchmarks/gradient_cost.py`). With
-XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`, as
+the newer emitters make the forward step faster and its derivatives slower.
+With XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`, as
 `jaxpile pile`, `sweep` and `fit` run) the newer emitters are the faster for
-derivatives too (reverse 54 ms, forward mode 34 ms; `benchmarks/fusion_ab.py`)
-and the older ones make a reverse gradient ~20x slower, so derivatives keep
-XLA's default there. The option exists on the CPU backend only, and a flag
-the user set in XLA_FLAGS wins.
+derivatives too and the older ones make a reverse gradient many times slower,
+so derivatives keep XLA's default there (measured:
+docs/performance.md#fusion-emitters-for-derivatives). The option exists on the
+CPU backend only, and a flag the user set in XLA_FLAGS wins.
 """
 
 from __future__ import annotations
@@ -47,19 +44,16 @@ def jit_derivative(fn, **kwargs):
 ONE_OFF_MAX_DISKS = 2_000
 """Programs a pile runs once (its start: the forces at t = 0 and the
 integrator's preparation; the contact forces a measurement reads) compile at
-LLVM optimisation level 0 for piles of up to this many disks. Measured on 2
-CPU cores (box piles of ~50 disks, three laws; 1035- and 45150-disk lattices):
-compile 1.0-2.1 -> 0.4-0.8 s (start) and 2.4-3.0 -> 0.7-1.1 s (contact
-forces); run time per call 14x (start) and 35x (contact forces) XLA's
-default's, about 6 and 75 us per disk: at 2000 disks 12 and 150 ms a call,
-below the compile time saved. Level 0 can round differently from the
-default in the last bit (the 36-disk agitated pile's start forces: up to
-6e-15 relative, `tests/test_engine.py`); a pile and an
-ensemble member of the same size start at the same level (`Ensemble.init`
+LLVM optimisation level 0 for piles of up to this many disks: up to here a
+call's slower run costs less than the compile time it saves (measured:
+docs/performance.md#one-off-programs-at-optimisation-level-0). Level 0 can
+round differently from the default in the last bit (the 36-disk agitated
+pile's start forces: up to 6e-15 relative, `tests/test_engine.py`); a pile and
+an ensemble member of the same size start at the same level (`Ensemble.init`
 picks by the member's disks), so a member still starts exactly as it does
-alone; a batch's start then runs at level 0 over all its members' disks
-(256 members of 1000 disks: ~2 s once, against ~0.15 s, for ~0.6 s of
-compile saved: estimated from the figures above)."""
+alone; a batch's start then runs at level 0 over all its members' disks,
+which for a large batch costs more than the compile it saves (estimated on
+the same page)."""
 
 _LEVEL = "xla_backend_optimization_level"
 

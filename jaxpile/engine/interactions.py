@@ -59,15 +59,13 @@ def _kernel_over(law: ContactLaw):
     one contiguous row, so the law's component-by-component arithmetic fuses
     without transposes in its forward pass and without pads in its reverse pass
     (measured: benchmarks/gradient_cost.py). Under `jax.checkpoint` the
-    reverse pass recomputes the law instead of storing its residuals; with
-    XLA:CPU's multi-output fusion, dropping it left the derivatives' times
-    within this host's noise and the forward program the same HLO, and took
-    a checkpointed reverse's XLA temporaries from 1.4 to 3.2 MB (55 disks,
-    1000 steps; 5.7 -> 12.8 MB at 465 disks, 250 steps; 2026-11-27). It also
-    keeps the fusion's emitter abort away (see `engine.compile`): the walls'
-    kernel without it and outside its `cond` (as a batched predicate makes it
-    under `vmap`) aborted the 55-disk pile's checkpointed reverse with the
-    fusion on; with it, the same program ran (2026-11-27)."""
+    reverse pass recomputes the law instead of storing its residuals: with
+    XLA:CPU's multi-output fusion that costs no measurable time and keeps a
+    checkpointed reverse's XLA temporaries under half of what they are
+    without it. It also keeps the fusion's emitter abort (see
+    `engine.compile`) away from the walls' kernel where it runs outside its
+    `cond`, as a batched predicate makes it under `vmap` (measured:
+    docs/performance.md#checkpointing-the-law-kernel)."""
     return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
 
 
@@ -94,8 +92,8 @@ def pair_sums(at_i, at_j, i: Array, j: Array, n: int) -> tuple:
 def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positions=None):
     """The geometry of every half pair, component-major (vectors `[2, P]`; masked
     pairs put `FAR` apart), and the pair ends i, j. (One gather per field: packing
-    the fields into one `[n, m]` table gathered by rows was measured 1.35x slower
-    on CPU.)"""
+    the fields into one `[n, m]` table gathered by rows is slower on a CPU,
+    docs/performance.md#pair-gathers.)"""
     p = particles
     n = p.count
     valid = pairs[:, 0] < n

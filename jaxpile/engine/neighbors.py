@@ -8,13 +8,12 @@ order). It is built by sorting the disks by cell: the three cells of a row next
 to a disk are then one contiguous run of the sorted keys, whose start is read
 from a table of each cell's first disk (or found by binary search in a box far
 larger than its disks), read through a window of W entries (`_build`).
-jax-md's own cell list (a dense grid of cells, shifted nine times) cost about
-1 us per disk per rebuild on 2 CPU cores (a 260-disk pour: 270 us with K = 3,
-480 us with the pour's K = 8), and a pour rebuilds every ~8 steps while disks
-fall; this build with its half pair list and history carry takes ~70 us for
-that heap on one core (135 us with three binary searches, a stable argsort and
-cumsums, each a chain of small XLA kernels on a CPU) and a third of jax-md's
-temporary memory. The list keeps
+jax-md's own cell list (a dense grid of cells, shifted nine times) costs
+several times as much per rebuild on a CPU, and a pour rebuilds every ~8 steps
+while disks fall; this build, its half pair list and history carry included,
+avoids chains of small XLA kernels (binary searches, argsorts, long cumsums)
+and takes a third of jax-md's temporary memory (measured:
+docs/performance.md#neighbour-lists). The list keeps
 jax-md's `NeighborList` type and its overflow flags: `max_occupancy` is K,
 `cell_list_capacity` is W.
 
@@ -31,10 +30,10 @@ pairs per disk (a close-packed 2D pile of equal disks, the most any packing of
 them has) or 10% over the pairs at allocation, whichever is more, and never
 more than ceil(n K / 2), which holds every pair of the full list. The full
 list's K carries head-room for its densest row; P only for the mean, so padding
-costs far less (the lattice: 2970 pairs in 3328 entries instead of 4658; a pour
-sized for its whole heap from the start, where sizing it for the pairs at
-allocation cost three re-allocations, each re-running a chunk). A rebuild
-that finds more pairs than P keeps the first P, records the demand in
+costs far less (the lattice: 2970 pairs in 3328 entries instead of 4658). A
+pour's list is sized for its whole heap from the start: one sized for the pairs
+at allocation re-allocates as the heap grows, each time re-running a chunk. A
+rebuild that finds more pairs than P keeps the first P, records the demand in
 `Contacts.demand` and raises the list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
 as for an overflow of the full list (no contact is ever dropped); so does a
 window too small for a crowded run of cells. Every rebuild also records the
@@ -99,7 +98,8 @@ SELECT_SLOTS = 16
 def _sorted_by_cell(key: Array, n: int, cells: int) -> tuple[Array, Array]:
     """`(order, sorted_key)`: the disks sorted by cell key, ties by index (a
     stable sort). One sort of the code `key n + index`, not an argsort with an
-    index payload: 25 -> 5 us for 260 disks on one CPU core. The code is int32
+    index payload, which is several times slower on a CPU
+    (docs/performance.md#neighbour-lists). The code is int32
     where `cells n` fits in it (jaxpile runs with 64-bit integers enabled)."""
     wide = jnp.int32 if cells * n < 2**31 else jnp.int64
     code = jnp.sort(key.astype(wide) * n + jnp.arange(n, dtype=wide))
@@ -112,7 +112,8 @@ def _run_starts(sorted_key: Array, lo: Array, hi: Array, cells: int) -> Array:
     lo)` wherever the run holds a disk (elsewhere a position whose key is >
     hi, or n). With a table of each cell's first position (one scatter) this is
     three gathers; a binary search is a loop of ~log2(n) rounds of small
-    kernels (3 searches: ~40 of a 100 us rebuild of 260 disks)."""
+    kernels, a large share of a small pile's rebuild
+    (docs/performance.md#neighbour-lists)."""
     n = sorted_key.shape[0]
     if cells > CELL_TABLE_PER_DISK * n + CELL_TABLE_MIN:
         return jnp.searchsorted(sorted_key, lo, side="left").astype(jnp.int32)
@@ -186,10 +187,9 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
 
 HOST_BUILD_MAX = 200_000
 """Lists of up to this many disks are allocated and rebuilt to a capacity on
-the host (`host_lists.build`, numpy: nothing to compile, ~0.6 s saved per new
-pile size on 2 CPU cores); larger ones by the compiled `_build` (1e6 disks,
-2 CPU cores: numpy 4.0 s, XLA 1.9 s after a 1 s compile; on a GPU XLA's takes
-milliseconds)."""
+the host (`host_lists.build`, numpy: nothing to compile per new pile size);
+larger ones by the compiled `_build`, the faster there even with its compile
+(measured: docs/performance.md#host-built-lists)."""
 
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
 
@@ -221,7 +221,7 @@ slot by slot) and at most twice this window: a pile with disks far smaller than
 its largest gets these, and is re-allocated if it packs denser."""
 
 
-@functools.lru_cache(maxsize=256)  # ~3 ms a call, and an ensemble asks once per member with the same values
+@functools.lru_cache(maxsize=256)  # milliseconds a call, and an ensemble asks once per member with the same values
 def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int]:
     """`(slots, window)` for a close-packed pile of disks of `radius` (the
     smallest disks: the densest pile of them), from a triangular packing of
@@ -282,8 +282,8 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     occupancy and the list: its rows are in increasing index order, so their
     first K columns are what a build with K slots gives. Up to
     `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
-    traced `_build`'s list up to rounding at the reach): compiled, it was an
-    XLA program for every new pile size (~0.6 s each on 2 CPU cores)."""
+    traced `_build`'s list up to rounding at the reach): compiled, it would
+    be an XLA program for every new pile size (docs/performance.md#host-built-lists)."""
     host = np.asarray(position)
     position = transfer.to_device(position)
     n = int(position.shape[0])
@@ -401,10 +401,8 @@ PAIR_HEADROOM = 1.1
 coordination of a pile moves little; the densest row, which sizes K, more)."""
 
 PAIR_ALIGN = 64
-"""Pair capacities are rounded up to a multiple of this. Measured on 2 CPU
-cores (45-layer lattice): 4455 entries ran at 246 us per step, 4658 at 178 and
-4480 (4455 rounded up) at the figure in the commit; on one core all alike. XLA
-splits a loop of an odd length across threads badly."""
+"""Pair capacities are rounded up to a multiple of this: XLA splits a loop of an
+odd length across threads badly (measured: docs/performance.md#neighbour-lists)."""
 
 
 def aligned(entries: int) -> int:
@@ -430,9 +428,8 @@ def pairs_needed(state, overflowed) -> int:
     chunk found more pairs than that, the more of `PAIR_GROWTH` times it and
     `PAIR_HEADROOM` times the demand (a chunk that starts with few contacts
     may end with more; a growth too small re-allocates again, at a compile and
-    a chunk's re-run each). It doubled once: a 409-disk 1993 box (radii
-    0.07-0.13) that found 1290 pairs in 1280 then ran on 2560, 217 us a step
-    against 150-168 us on the 1600 this rule gives (benchmarks/packed_lists_ab.py)."""
+    a chunk's re-run each, and one too large, such as doubling, makes every
+    step pay for the empty entries: docs/performance.md#neighbour-lists)."""
     capacity = int(state.contacts.pairs.shape[-2])
     demand = int(np.max(np.asarray(overflowed.contacts.demand)))
     if demand <= capacity:
@@ -443,20 +440,19 @@ def pairs_needed(state, overflowed) -> int:
 SLOT_HEADROOM, SLOT_EXTRA = 1.25, 4
 """A re-allocation after the slots overflowed gives this many times the most
 neighbours any disk had in the chunk (`Contacts.slot_demand`; `slots_needed`),
-and at least this many more: a growth of one or two slots in a small list
-re-allocated three times in a chunk of 36 falling disks, a compile each."""
+and at least this many more: a growth of one or two slots can re-allocate a
+small list several times in one chunk, a compile each
+(docs/performance.md#neighbour-lists)."""
 
 
 def slots_needed(state, overflowed) -> int:
     """Host-side: the slots a re-allocation of `state` must give at least,
     after the chunk that ended in `overflowed`: the old K, or, if some rebuild
     of the chunk found a disk with more neighbours than that,
-    `SLOT_HEADROOM` times the most it found (at least `SLOT_EXTRA` more). It
-    added the old K on any overflow (the pair room's too) to the slots the
-    chunk's start needs, blind to how the chunk packed: a 409-disk 1993 box
-    whose pair room overflowed went from 16 slots to 29, and a rebuild of it
-    costs 520-604 us on 16 slots against 765-990 us on 29
-    (`benchmarks/packed_lists_ab.py --rebuild-slots`)."""
+    `SLOT_HEADROOM` times the most it found (at least `SLOT_EXTRA` more). The
+    slots follow what the chunk found, not a fixed step on any overflow (the
+    pair room's included): every slot beyond the pile's need makes each
+    rebuild dearer (docs/performance.md#neighbour-lists)."""
     slots = int(state.neighbors.max_occupancy)
     demand = int(np.max(np.asarray(overflowed.contacts.slot_demand)))
     if demand > slots:
@@ -465,7 +461,7 @@ def slots_needed(state, overflowed) -> int:
     pairs_short = np.asarray(overflowed.contacts.demand) > overflowed.contacts.pairs.shape[-2]
     if np.any(flagged & ~pairs_short):
         # flagged by no rebuild of the chunk (a list rebuilt to a given capacity outside it,
-        # as a batch's or a checkpoint's): grow as re-allocations always did
+        # as a batch's or a checkpoint's): no demand to size by, so grow by the old slots (at least 4)
         return slots + max(4, slots)
     return slots
 
@@ -474,7 +470,8 @@ def window_needed(state, overflowed) -> int:
     """Host-side: the window W a re-allocation of `state` must give at least:
     the old one, or, if some rebuild of the chunk that ended in `overflowed`
     (any member of a batch) found more disks in a run of three cells than it
-    holds, the old one plus the old slots (at least 4), the growth it always had."""
+    holds, the old one plus the old slots (at least 4): a fixed step, as no
+    rebuild records how many disks a crowded run held."""
     window = int(state.neighbors.cell_list_capacity or 0)
     code = np.asarray(overflowed.neighbors.error.code)
     if not np.any(code & int(partition.PEC.CELL_LIST_OVERFLOW)):
@@ -510,8 +507,8 @@ def half_slots(idx: Array) -> tuple[Array, Array]:
     A slot's entry is the kept slots of the rows above plus the kept slots to
     its left in its row: a cumulative sum over the n rows and a K x K triangle
     within each, not a cumulative sum over all n K slots (on a CPU XLA writes a
-    cumsum as a reduce-window whose cost grows with its length: the rebuild of
-    a 260-disk pour spent 18 us in it)."""
+    cumsum as a reduce-window whose cost grows with its length:
+    docs/performance.md#neighbour-lists)."""
     n, k = idx.shape
     keep = (idx < n) & (idx > jnp.arange(n, dtype=idx.dtype)[:, None])
     count = jnp.sum(keep, axis=1, dtype=jnp.int32)
@@ -638,7 +635,7 @@ def overflowed(state) -> Array:
     rebuild (or the laying of the pairs itself) found more half pairs than the
     pair list holds. Traceable; for a batch, per member. A concrete state is
     read on the host (numpy: the runner asks after every chunk, and the three
-    eager ops compiled a program each per pile size)."""
+    eager ops would compile a program each per pile size)."""
     code, demand = state.neighbors.error.code, state.contacts.demand
     if isinstance(code, jax.core.Tracer) or isinstance(demand, jax.core.Tracer):
         return state.neighbors.did_buffer_overflow | (demand > state.contacts.pairs.shape[-2])

@@ -64,7 +64,7 @@ class Particles:
     @property
     def movable(self) -> Array:
         """`[n]` bool: disks the integrator moves (on the host for concrete
-        arrays: two eager ops compiled a program each per pile size)."""
+        arrays: two eager ops would compile a program each per pile size)."""
         if isinstance(self.active, jax.core.Tracer) or isinstance(self.fixed, jax.core.Tracer):
             return self.active & ~self.fixed
         return transfer.to_device(np.asarray(self.active) & ~np.asarray(self.fixed))

@@ -1,11 +1,10 @@
 """Host values onto the device without compiling anything.
 
-In this JAX (0.10), `jnp.asarray` of a numpy array compiles a small copy
-program (`stage`) for every new shape and dtype, and `jnp.zeros` a
-`broadcast_in_dim` and a `convert_element_type`: each ~10-40 ms with its
-tracing on 2 CPU cores, and setting up a pile of a new size ran dozens of
-them (make_particles alone 20; `benchmarks/eager_compiles.py` counts them).
-`jax.device_put` of a numpy array compiles nothing. On a CPU it may alias the
+`jnp.asarray` of a numpy array compiles a small copy program (`stage`) for
+every new shape and dtype, and `jnp.zeros` a `broadcast_in_dim` and a
+`convert_element_type`: each costs milliseconds with its tracing, and setting
+up a pile of a new size would run dozens of them
+(docs/performance.md#eager-compiles). `jax.device_put` of a numpy array compiles nothing. On a CPU it may alias the
 numpy buffer, so `to_device` hands it a private copy: a caller's array edited
 later never reaches the pile.
 """

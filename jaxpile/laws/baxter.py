@@ -21,7 +21,7 @@ n = (x_i - x_j) / r and t = z x n:
 
 Readings of the printed equations. Where the text admits two, both are options
 of `law(...)` (named after what they mean), measured against the paper's heap in
-`benchmarks/baxter_readings.py`:
+`benchmarks/studies/papers/baxter_readings.py`:
 - The exponent's sign. The text's form would give a force that grows with r. It
   must fall with r and equal mg at r = sigma, so that two disks stacked under
   gravity rest at exactly r = sigma. (One reading only.)
@@ -46,7 +46,7 @@ of `law(...)` (named after what they mean), measured against the paper's heap in
   the same on both sides of a pair, and 2 m_i against a wall or a fixed disk
   (the substrate). `"disk"` is the printed m against a fixed partner too: the
   moving disk's own m_i there (its substrate contacts damped sqrt(2) less), and
-  2 m_i m_j / (m_i + m_j) between free disks as before.
+  2 m_i m_j / (m_i + m_j) between free disks, as `"pair"` does.
 
 Walls act as partners of zero radius: sigma_ij = a_i, so a disk rests on the
 ground with its centre exactly a_i above it.

@@ -21,7 +21,7 @@ def _registered() -> dict:
     return dict(sorted(found.items(), key=lambda item: item[1].CLI.order))
 
 
-PROTOCOLS = _registered()  # importing a submodule also binds it here: `protocols.pour` as before
+PROTOCOLS = _registered()  # importing a submodule also binds it here: `protocols.pour` works without its own import
 
 
 def entry(name) -> CommandLine | None:

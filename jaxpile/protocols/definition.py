@@ -1,4 +1,4 @@
-"""A protocol declared once (issue 18): `Definition` holds its set-up,
+"""A protocol declared once: `Definition` holds its set-up,
 simulator, law and parameters, finish, step budget and measurements; `run`
 takes one pile from set-up to its end (`runner.run_to_finish`: samples,
 checkpoints, bit-identical resume) and `adapter` gives a sweep and an ensemble
@@ -27,7 +27,7 @@ from jaxpile.protocols.runner import run_record, run_to_finish
 
 @dataclass(frozen=True)
 class Definition:
-    """A protocol as data plus functions (issue 18): what one pile's `run`,
+    """A protocol as data plus functions: what one pile's `run`,
     a sweep's batch (`adapter`) and an ensemble fit all need, declared once.
     A protocol declares one and gets both from `run` and `adapter`.
 

@@ -1,8 +1,8 @@
 """A flat-bottomed silo emptied through an orifice, against Beverloo's law.
 
-None of the three papers has it; it is what DEM users ask for next, and it is
-the proof of issue 18 that a new protocol is one module: this file and its
-test, with nothing to edit elsewhere (the registry finds `CLI`, the sweep and
+None of the three papers has it; it is what DEM users ask for next, and it
+shows that a new protocol is one module: this file and its test, with
+nothing to edit elsewhere (the registry finds `CLI`, the sweep and
 the ensemble fit its `DEFINITION`).
 
 The set-up, in units of the mean diameter d = 1, g = 1, a disk of diameter 1

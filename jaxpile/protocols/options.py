@@ -1,4 +1,4 @@
-"""Each protocol's options as its own code declares them (issue 18).
+"""Each protocol's options as its own code declares them.
 
 An option is a keyword argument of the protocol's `run` or of its set-up
 function. Its type and default come from the signature, its help from the

@@ -62,7 +62,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.heap import (
     steepest_heap_height, substrate_size)
-# the heap's measurements (`jaxpile.measure.poured_heap`), under their names here as before
+# the heap's measurements (`jaxpile.measure.poured_heap`), also under their names here (`pour.measure`)
 from jaxpile.measure.poured_heap import (
     check_options, measure, report, sweep_row)
 from jaxpile.protocols import definition, drivers, geometry
@@ -199,7 +199,7 @@ def driver(state: SimState) -> SimState:
                                                                  lost=ps.lost | fell))
 
     # most steps neither release nor lose a disk: skip the writes over every disk
-    # (a cond; under vmap a select, as before). Both branches agree bit for bit then.
+    # (a cond; under vmap a select, which costs what the writes alone do). Both branches agree bit for bit then.
     return lax.cond(due | jnp.any(fell), act, lambda s: s, state)
 
 

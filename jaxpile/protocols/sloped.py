@@ -38,7 +38,7 @@ from jaxpile.protocols import definition, lattice, loaded_pile, outputs
 from jaxpile.protocols.base import CommandLine, Protocol
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import Boundaries, Particles, make_particles
-# the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), under its names here as before
+# the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its names here (`sloped.compare_with_theory`)
 from jaxpile.measure.sloped_pile import check_alpha, check_base
 from jaxpile.measure.sloped_pile import compare_with_theory
 
