@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpile.fit import ensemble_fit as ef
+from jaxpile.fit import ensemble_runs
 from jaxpile.errors import InputError
 
 
@@ -246,13 +247,13 @@ def test_missing_statistics_weights_and_resume_guards(tmp_path):
     spread; a resume of another fit, or a target of other statistics, is refused."""
     s = np.array([[[1.0, 10.0], [3.0, 30.0], [5.0, 50.0]],
                   [[2.0, 20.0], [np.nan, 40.0], [6.0, 60.0]]])  # [points, piles, k]
-    filled, missing = ef._fill_missing(s)
+    filled, missing = ensemble_runs.fill_missing(s)
     assert missing == 1
     # pile 1 is out of statistic 0 at both points: each point's mean is that of piles 0 and 2
     assert filled[0, :, 0].mean() == pytest.approx(3.0) and filled[1, :, 0].mean() == pytest.approx(4.0)
     np.testing.assert_array_equal(filled[:, :, 1], s[:, :, 1])
     with pytest.raises(InputError, match="every pile"):
-        ef._fill_missing(np.full((1, 2, 1), np.nan))
+        ensemble_runs.fill_missing(np.full((1, 2, 1), np.nan))
 
     target = ef.EnsembleTarget(["angle", "normal[0]", "normal[1]"], np.zeros(3), np.array([5.0, 0.2, 0.0]), None, "t")
     w = ef.weights(target)

@@ -16,9 +16,10 @@ from jaxpile import analysis, fit, theory
 from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.laws import baxter, hooke
-from jaxpile.protocols import lattice, pour
+from jaxpile.protocols import lattice
 from jaxpile.engine.simulate import Simulator
 from jaxpile.engine.state import make_particles
+from jaxpile.fit import profiles
 from jaxpile.measure import heap
 
 ROLLOUT_STEPS = 100
@@ -296,14 +297,14 @@ def test_profile_interpolation_is_jnp_interp_and_its_gradient_has_no_scatter():
     xp = np.concatenate([[0.0, 0.0], np.sort(rng.uniform(0, 1, 7)), [1.0]])  # a repeated point, as at a foot
     fp = rng.normal(size=xp.size)
     x = np.concatenate([rng.uniform(-0.2, 1.2, 40), xp])  # outside, inside and on the points
-    got = fit._interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), jnp.asarray(fp))
+    got = profiles.interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), jnp.asarray(fp))
     np.testing.assert_allclose(np.asarray(got), np.asarray(jnp.interp(x, xp, fp)), rtol=1e-14, atol=1e-15)
-    assert float(fit._interp_without_scatter(jnp.asarray(0.3), jnp.asarray(xp), jnp.asarray(fp))) == pytest.approx(
+    assert float(profiles.interp_without_scatter(jnp.asarray(0.3), jnp.asarray(xp), jnp.asarray(fp))) == pytest.approx(
         float(jnp.interp(0.3, xp, fp)), rel=1e-14)
 
     def both(values):  # two reads of traced values: the pattern whose scatters XLA fused and aborted on
-        return (fit._interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), values) ** 2).sum() + (
-            fit._interp_without_scatter(jnp.asarray(x[::-1]), jnp.asarray(xp), 2 * values) ** 3).sum()
+        return (profiles.interp_without_scatter(jnp.asarray(x), jnp.asarray(xp), values) ** 2).sum() + (
+            profiles.interp_without_scatter(jnp.asarray(x[::-1]), jnp.asarray(xp), 2 * values) ** 3).sum()
 
     grad = jax.jit(jax.grad(both))
     assert "scatter" not in grad.lower(jnp.asarray(fp)).as_text()

@@ -1,7 +1,7 @@
 """A protocol's construction as fixed-length rollouts of its B piles, for the
 truncated pathwise estimator (`estimators.truncated_pathwise`: `advance`,
 `statistics`, `start`, `steps`) in `ensemble_fit.fit(estimator="truncated")`
-and `benchmarks/estimator_study.py`.
+and `benchmarks/studies/fitting/estimator_study.py`.
 
 Only the pour is built this way: its construction is one stage whose every
 step a rollout can carry (the release schedule is read from the state), and
@@ -14,9 +14,17 @@ from __future__ import annotations
 import json
 from typing import Callable, NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import sweep
+from jaxpile.engine import batch, ensemble
+from jaxpile.engine import neighbors as nb
 from jaxpile.errors import InputError
+from jaxpile.fit.profiles import smooth_base_profile
+from jaxpile.measure import analysis
+from jaxpile.protocols import pour
 
 PROTOCOLS = ("pour",)
 
@@ -55,13 +63,6 @@ class Construction:
     """
 
     def __init__(self, runner, seeds, statistics, names, theta):
-        import jax.numpy as jnp
-
-        from jaxpile import sweep
-        from jaxpile.engine import batch, ensemble
-        from jaxpile.engine import neighbors as nb
-        from jaxpile.protocols import pour
-
         check(runner, statistics)
         names, seeds = list(names), [int(s) for s in seeds]
         law = runner.law_name()
@@ -118,14 +119,6 @@ def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent
     iterate, and with the same functions its host run, its checking rollout
     and the estimator's windows (`estimators.truncated_pathwise`, keyed by
     `advance`) compile once for the whole fit."""
-    import jax
-    import jax.numpy as jnp
-
-    from jaxpile.engine import ensemble
-    from jaxpile.fit import smooth_base_profile
-    from jaxpile.measure import analysis
-    from jaxpile.protocols import pour
-
     bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
     key = (law, float(dt), str(dtype), json.dumps(fixed or {}, sort_keys=True, default=repr), names, extent,
            bins, bandwidth, horizontal)

@@ -1,4 +1,4 @@
-"""Fitting law parameters to the ensemble a protocol builds (issue 17).
+"""Fitting law parameters to the ensemble a protocol builds.
 
 A pile built at random (a box emptied by an avalanche, a poured heap, a
 dropped pile) is one draw from the distribution that a protocol makes at
@@ -14,8 +14,9 @@ Every ensemble is run with the same seeds at every theta (common random
 numbers): a difference between two thetas is then not buried under the
 difference between two packings.
 
-The gradient through a chaotic construction explodes (issue 17's measurements),
-so the estimators here use the construction as a black box, batched:
+The gradient through a chaotic construction explodes (README, "Gradients:
+what works", long horizons), so the estimators here use the construction as a
+black box, batched:
 
 - `"central"`: central differences of the ensemble means at theta +- h e_i
   (`estimators.central_from_members`); all 2d + 1 ensembles in one batched
@@ -45,6 +46,11 @@ tests/test_ensemble_fit.py checks each on a toy whose answer is known.
 A fit checkpoints its history to JSON after every iteration; `resume` replays
 it (optax states are rebuilt by replaying the recorded gradients, which makes
 the resumed fit step for step the uninterrupted one).
+
+How the ensembles are built and what each pile contributes are in
+`ensemble_runs` (`Runner`, `Statistics`), the targets in `ensemble_targets`
+(`EnsembleTarget`, `make_target`, `smid_novosad_target`); their names are
+re-exported here, where callers have always found them.
 """
 
 from __future__ import annotations
@@ -58,248 +64,25 @@ from typing import Callable, NamedTuple, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
-from jaxpile import budget
-from jaxpile.fit import estimators
-from jaxpile.fit.stats import t_quantile, weights
+import jaxpile.fit.construction as construction
+import jaxpile.fit.estimators as estimators
+import jaxpile.fit.regression as regression
+from jaxpile import io
 from jaxpile.errors import InputError
+from jaxpile.fit.ensemble_runs import Runner, Statistics
+from jaxpile.fit.ensemble_runs import fill_missing
+from jaxpile.fit.ensemble_targets import EnsembleTarget, make_target, smid_novosad_target
+from jaxpile.fit.stats import t_quantile, weights
 from jaxpile.ranges import COUNT, POSITIVE
 
 ESTIMATORS = ("central", "smoothing", "truncated")
 
 
-class Statistics(NamedTuple):
-    """What each pile contributes to the fit.
-
-    Attributes:
-      columns: scalar columns of the protocol's sweep row (`sweep.adapter(P)`'s
-        measurement), e.g. `("repose_least_squares",)` or `("central_dip",)`.
-      bins: > 0: the pile's base-force profile on this many bins across the
-        protocol's fixed extent (`Adapter.extent`), normal force over its peak
-        (`fit.smooth_base_profile`); 0: no profile.
-      horizontal: the horizontal profile as well (on the same scale).
-      bandwidth: the profile's smoothing width (default one bin).
-    """
-
-    columns: tuple = ()
-    bins: int = 0
-    horizontal: bool = True
-    bandwidth: float | None = None
-
-    def labels(self) -> list[str]:
-        labels = list(self.columns)
-        if self.bins:
-            labels += [f"normal[{i}]" for i in range(self.bins)]
-            if self.horizontal:
-                labels += [f"horizontal[{i}]" for i in range(self.bins)]
-        return labels
-
-
-def _check_statistics(statistics: Statistics, adapter) -> Statistics:
-    if not isinstance(statistics, Statistics):
-        raise InputError(f"statistics must be an ensemble_fit.Statistics; got {type(statistics).__name__}.")
-    statistics = statistics._replace(columns=tuple(statistics.columns))
-    if int(statistics.bins) != statistics.bins or statistics.bins < 0:
-        raise InputError(f"bins must be a whole number >= 0; got {statistics.bins!r}.")
-    if not statistics.columns and not statistics.bins:
-        raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
-    if statistics.bins and adapter.extent is None:
-        raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
-    if adapter.columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
-        from jaxpile.sweep import MEMBER_COLUMNS
-
-        known = adapter.columns | set(MEMBER_COLUMNS)
-        unknown = [c for c in statistics.columns if c not in known]
-        if unknown:
-            raise InputError(f"the protocol's measurement has no column {unknown[0]!r}; it has {sorted(known)}.")
-    return statistics
-
-
-def _profile_hook(adapter, statistics: Statistics) -> Callable | None:
-    if not statistics.bins:
-        return None
-    from jaxpile import fit
-
-    def measure(sim, params, state, protocol):
-        base, x_left, x_right = adapter.extent(protocol)
-        load = fit.base_load(sim, params, state, base=base)
-        profile = fit.smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=int(statistics.bins),
-                                          bandwidth=statistics.bandwidth)
-        out = {"_profile_normal": np.asarray(profile.normal)}
-        if statistics.horizontal:
-            out["_profile_horizontal"] = np.asarray(profile.horizontal)
-        return out
-
-    return measure
-
-
-def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
-    values = []
-    for column in statistics.columns:
-        if column not in row:
-            raise InputError(f"the protocol's measurement has no column {column!r}; it has "
-                             f"{sorted(k for k in row if not k.startswith('_'))}.")
-        v = row[column]
-        if v is not None and not isinstance(v, (int, float, np.number)):
-            raise InputError(f"the column {column!r} is not a number per pile ({type(v).__name__}); fit a numeric one.")
-        values.append(float(v) if v is not None else math.nan)
-    if statistics.bins:
-        values += list(row["_profile_normal"])
-        if statistics.horizontal:
-            values += list(row["_profile_horizontal"])
-    return np.asarray(values, dtype=float)
-
-
-class Runner(NamedTuple):
-    """How the ensembles of a fit are built: everything `sweep.sweep` takes
-    except the parameter points and seeds."""
-
-    protocol: str
-    law: str | None = None
-    params: dict | None = None
-    options: dict | None = None
-    dt: float | None = None
-    max_steps: int | None = None
-    batch_size: int | None = None
-    dtype: object = None
-
-    def adapter(self):
-        from jaxpile import sweep
-
-        return sweep.adapter(self.protocol)
-
-    def check(self, statistics: Statistics) -> Statistics:
-        """The statistics, checked against what the protocol can measure."""
-        return _check_statistics(statistics, self.adapter())
-
-    def law_name(self) -> str:
-        return self.law or self.adapter().default_law
-
-    def setting(self) -> dict:
-        """What a target made with this runner was made with (fixed law
-        parameters other than the fitted ones are compared by name)."""
-        return {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
-
-    def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None, checkpoint=None,
-            resume=None) -> tuple[np.ndarray, dict]:
-        """`[len(points), B, k]` statistics (the B seeds at every point, one
-        batched run) and the sweep's record (`n_particles`, `batch_steps`,
-        `total_seconds` are used). `checkpoint`, `resume`: as `sweep.sweep`'s
-        (a long batch saved as it runs, and continued)."""
-        from jaxpile import sweep
-
-        a = self.adapter()
-        statistics = _check_statistics(statistics, a)
-        seeds = [int(s) for s in seeds]
-        if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
-            law = self.law_name()
-            p = a.setup(law, seeds[0], self.dt or a.default_dt(law), {**(self.options or {}), "dtype": self.dtype})
-            budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
-                              f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
-                              "pile", "Give fewer --bins.")
-        result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
-                             options=self.options, dt=self.dt, max_steps=self.max_steps,
-                             batch_size=self.batch_size, progress=progress, dtype=self.dtype,
-                             extra_measure=_profile_hook(a, statistics), checkpoint=checkpoint, resume=resume)
-        rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
-        s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
-        # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)
-        return s, {**result.info, "particle_steps": result.info["n_particles"] * sum(int(r["steps"]) for r in rows)}
-
-
-def _fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:
-    """`[m, B, k]` statistics with the piles that could not give one (NaN: e.g.
-    no surface to fit an angle to, a tilted pile that never moved) left out of
-    that statistic at *every* point, so a difference between two points
-    compares the same piles (common random numbers). They are left out by
-    taking, at each point, the mean of the piles that gave the statistic at all
-    points, which moves no mean (it narrows the spread a little: the count of
-    such (pile, statistic) pairs is returned, to report)."""
-    s = np.array(s, dtype=float)
-    bad = np.isnan(s).any(axis=0)  # [B, k]: missing at some point
-    missing = int(bad.sum())
-    if missing:
-        if bad.all(axis=0).any():
-            raise InputError("a statistic is missing from every pile at some point (e.g. no pile had a surface "
-                             "to measure, or none moved); choose other statistics or a larger pile.")
-        good = np.where(bad[None], np.nan, s)
-        fill = np.nanmean(good, axis=1, keepdims=True)  # [m, 1, k]: the mean of the complete piles
-        s = np.where(bad[None], np.broadcast_to(fill, s.shape), s)
-    return s, missing
-
-
-class EnsembleTarget(NamedTuple):
-    """The target of a fit: ensemble means of `Statistics` with the spread of
-    one pile about them.
-
-    Attributes:
-      labels: `[k]` what each statistic is.
-      mean: `[k]` the target values.
-      spread: `[k]` the standard deviation of one pile's statistic (weights).
-      members: `[B_t, k]` the target's own piles (its sampling error enters
-        the confidence interval), or None.
-      source: where it came from.
-      truth: the law parameters it was made with (a synthetic target), or None.
-      seeds: the seeds of its piles (a fit must use others), or None.
-      setting: the protocol, law, options and fixed parameters it was made
-        with (a fit of another set-up is refused), or None (from data).
-    """
-
-    labels: list
-    mean: np.ndarray
-    spread: np.ndarray
-    members: np.ndarray | None
-    source: str
-    truth: dict | None = None
-    seeds: list | None = None
-    setting: dict | None = None
-
-    def to_json(self) -> dict:
-        return {"labels": list(self.labels), "mean": self.mean.tolist(), "spread": self.spread.tolist(),
-                "members": None if self.members is None else self.members.tolist(), "source": self.source,
-                "truth": self.truth, "seeds": self.seeds, "setting": self.setting}
-
-    @classmethod
-    def from_json(cls, record: dict, where: str = "the record") -> "EnsembleTarget":
-        need = ("labels", "mean", "spread")
-        if not isinstance(record, dict) or any(k not in record for k in need):
-            raise InputError(f"{where} is not an ensemble target: a target holds {', '.join(need)} (the "
-                             "target.json a fit writes, or its fit.json).")
-        members = record.get("members")
-        return cls(list(record["labels"]), np.asarray(record["mean"], float), np.asarray(record["spread"], float),
-                   None if members is None else np.asarray(members, float), record.get("source", ""),
-                   record.get("truth"), record.get("seeds"), record.get("setting"))
-
-
-def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None) -> EnsembleTarget:
-    """A synthetic target: the ensemble of `seeds` at the law parameters
-    `truth` (use seeds the fit never sees)."""
-    s, _ = runner.run([truth], seeds, statistics, progress=progress)
-    s, _ = _fill_missing(s)
-    members = s[0]
-    spread = members.std(axis=0, ddof=1) if members.shape[0] > 1 else np.ones(members.shape[1])
-    return EnsembleTarget(statistics.labels(), members.mean(axis=0), spread, members,
-                          f"{runner.protocol} ensemble of {len(members)} at {truth}", dict(truth),
-                          [int(x) for x in seeds], runner.setting())
-
-
-def smid_novosad_target() -> EnsembleTarget:
-    """Smid & Novosad's central dip as an ensemble target (issue 17, item 5): the
-    per-pile column `central_dip` (1 - the central bin over the lower flank
-    maximum, `jaxpile.measure.heap.central_dip`; the drop and the pour measure it)
-    at 0.25, the middle of the reported 0.20-0.30 (`fit.SMID_NOVOSAD_DIP_RANGE`),
-    with half that range, 0.05, as its spread. A declared value, not piles: no
-    members, no seeds, no setting (any protocol that measures the column may be
-    fitted to it). With one statistic the spread only scales the loss."""
-    from jaxpile.fit import SMID_NOVOSAD_DIP_RANGE
-
-    low, high = SMID_NOVOSAD_DIP_RANGE
-    return EnsembleTarget(["central_dip"], np.asarray([0.5 * (low + high)]), np.asarray([0.5 * (high - low)]), None,
-                          f"Smid & Novosad's central dip, {low:.2f}-{high:.2f} below the maximum (Liffman et al. "
-                          "1992, Introduction)")
-
-
 def objective_for(target: EnsembleTarget, w: np.ndarray) -> Callable:
+    """`[k] ensemble mean -> loss`: F of the module docstring, the mean of the
+    weighted squared misses of the target's statistics."""
     t, w = jnp.asarray(target.mean), jnp.asarray(w)
     return lambda mean: jnp.mean(w * (mean - t) ** 2)
 
@@ -395,8 +178,6 @@ def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target:
 
 
 def _optimiser(name: str, lr: float):
-    import optax
-
     if not hasattr(optax, name) or not callable(getattr(optax, name)):
         raise InputError(f"unknown optimiser {name!r}: use gauss-newton or an optax optimiser (adam, sgd, ...).")
     return getattr(optax, name)(lr)
@@ -431,12 +212,13 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
       tolerance: stop when a Gauss-Newton step is below this (log units).
       noise_stop: also stop when every component of a Gauss-Newton step is
         below its own standard error (the sandwich at that iterate: the spread
-        of the fitted and the target piles). Off by default: on the 40-disk
-        pour recovery (16 heaps a side) it stopped at the 4th iterate, n =
-        34.8 against the truth 41.3, its interval missing the truth; the
-        iterates there wander by 1.5-3.5 of these standard errors (the
-        finite-difference Jacobian's own noise is not in them). Every entry
-        records `step_stderr` either way, to compare the steps with.
+        of the fitted and the target piles). Off by default: the iterates
+        wander by more than these standard errors, which leave out the
+        finite-difference Jacobian's own noise, so on the pour recovery it
+        stopped early with an interval that missed the truth (README,
+        "Fitting built piles"; docs/performance.md, "Stopping an ensemble fit
+        on its noise"). Every entry records `step_stderr` either way, to
+        compare the steps with.
       progress: print a line per iteration (True), or a callable given each
         history entry.
       checkpoint: a JSON path to write the history to after every iteration.
@@ -448,6 +230,56 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
       `EnsembleFitResult` (the interval from a final central-difference
       Jacobian at the fitted values).
     """
+    statistics, names, seeds, steps = _checked(runner, names, start, target, seeds, statistics, estimator,
+                                               optimizer, steps, window)
+    w = weights(target)
+    theta = np.log(np.array([float(start[n]) for n in names]))
+    opt = None if optimizer == "gauss-newton" else _optimiser(optimizer, lr)
+    opt_state = None if opt is None else opt.init(jnp.asarray(theta))
+    history: list = []
+    record = {"protocol": runner.protocol, "law": runner.law_name(), "names": names, "start": dict(start),
+              "estimator": estimator, "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(),
+              "steps": steps, "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key,
+              **({"window": int(window)} if estimator == "truncated" else {}),
+              "max_step": max_step, "tolerance": tolerance, "noise_stop": noise_stop,
+              "options": dict(runner.options or {}),
+              "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
+    if resume is not None:
+        theta, opt_state, history = _replay(resume, record, theta, opt, opt_state)
+    t0 = time.perf_counter()
+    fitting = _Fitting(runner, names, seeds, statistics, target, w, objective_for(target, w), estimator, opt,
+                       step, sigma, pairs, key, window, max_step, tolerance, noise_stop)
+    message = ""
+    done = bool(history) and history[-1].get("converged", False)
+    for it in range(len(history), steps):
+        if done:
+            break
+        entry, delta, opt_state, message = fitting.iteration(theta, it, opt_state)
+        history.append(entry)
+        theta = theta + delta
+        if progress is True:
+            vals = ", ".join(f"{n} = {v:.5g}" for n, v in entry["values"].items())
+            loss = ("" if not math.isfinite(entry["loss"])
+                    else f"loss {entry['loss']:.4g} +- {entry['loss_stderr']:.2g}, ")
+            print(f"fit {it + 1}/{steps}: {vals}: {loss}step {np.round(delta, 4).tolist()} "
+                  f"({entry['seconds']:.0f} s)", flush=True)
+        elif callable(progress):
+            progress(entry)
+        if checkpoint is not None:
+            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+        if entry["converged"] or message:
+            break
+    result = fitting.finish(theta, start, history, record, message, interval, steps, t0)
+    # the same answer from a line through every ensemble run (`regression`): the honest one in chaos
+    estimate = regression.estimate(result, w)
+    record["regression"] = None if estimate is None else estimate.to_json()
+    return result
+
+
+def _checked(runner: Runner, names, start: dict, target: EnsembleTarget, seeds, statistics: Statistics,
+             estimator: str, optimizer: str, steps, window) -> tuple[Statistics, list, list, int]:
+    """`fit`'s settings checked (before any pile runs): the statistics as the
+    runner reads them, the names, the seeds and the steps."""
     statistics = runner.check(statistics)
     names = list(names)
     if not names or len(set(names)) != len(names):
@@ -460,15 +292,12 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator must be one of {ESTIMATORS}; got {estimator!r}.")
     if estimator == "truncated":
-        from jaxpile.fit import construction
-
         construction.check(runner, statistics)
         COUNT.check("window", window, scalar=True)
     if optimizer == "gauss-newton" and estimator != "central":
         raise InputError("Gauss-Newton needs the Jacobian of the means: use --estimator central, or an optax optimiser.")
     if isinstance(steps, bool) or int(steps) != steps or steps < 0:
         raise InputError(f"steps must be a whole number >= 0; got {steps!r}.")
-    steps = int(steps)
     seeds = [int(s) for s in seeds]
     if not seeds:
         raise InputError("a fit needs at least one seed (2 or more for standard errors and an interval; one for "
@@ -483,166 +312,201 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     if target.setting is not None and here is not None and target.setting != here:
         raise InputError(f"the target was made with {target.setting}, this fit builds {here}: the piles must be "
                          "built the same way (only the fitted parameters may differ).")
-    w = weights(target)
-    objective = objective_for(target, w)
-    theta = np.log(np.array([float(start[n]) for n in names]))
-    opt = None if optimizer == "gauss-newton" else _optimiser(optimizer, lr)
-    opt_state = None if opt is None else opt.init(jnp.asarray(theta))
-    history: list = []
-    record = {"protocol": runner.protocol, "law": runner.law_name(), "names": names, "start": dict(start),
-              "estimator": estimator, "optimizer": optimizer, "seeds": seeds, "statistics": statistics.labels(),
-              "steps": steps, "lr": lr, "step": step, "sigma": sigma, "pairs": pairs, "key": key,
-              **({"window": int(window)} if estimator == "truncated" else {}),
-              "max_step": max_step, "tolerance": tolerance, "noise_stop": noise_stop,
-              "options": dict(runner.options or {}),
-              "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
-    if resume is not None:
-        from jaxpile import io
+    return statistics, names, seeds, int(steps)
 
-        saved = io.read_json(resume, "an ensemble fit's checkpoint")
-        if not isinstance(saved, dict) or not isinstance(saved.get("history"), list):
-            raise InputError(f"{resume} is not an ensemble fit's checkpoint (no history in it).")
-        same = [k for k in record if k not in ("steps", "noise_stop")]  # when to stop may change on resume
-        differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
-        if differ:
-            raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
-                             "with the command that made it.")
-        for entry in saved["history"]:  # replay: the optax state is a function of the gradients seen
-            theta = np.asarray(entry["next_theta"], float)
-            if opt is not None:
-                _, opt_state = opt.update(jnp.asarray(entry["gradient"]), opt_state, jnp.asarray(entry["theta"]))
-            history.append(entry)
-    t0 = time.perf_counter()
-    d = len(names)
 
-    def params_of(t):
-        return {n: float(v) for n, v in zip(names, np.exp(t))}
+def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
+    """`(theta, opt_state, history)` after the iterations of the checkpoint
+    `resume`, which this fit (`record`) must have written: the optax state is
+    a function of the gradients seen, so it is rebuilt by replaying them."""
+    saved = io.read_json(resume, "an ensemble fit's checkpoint")
+    if not isinstance(saved, dict) or not isinstance(saved.get("history"), list):
+        raise InputError(f"{resume} is not an ensemble fit's checkpoint (no history in it).")
+    same = [k for k in record if k not in ("steps", "noise_stop")]  # when to stop may change on resume
+    differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
+    if differ:
+        raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
+                         "with the command that made it.")
+    history = []
+    for entry in saved["history"]:
+        theta = np.asarray(entry["next_theta"], float)
+        if opt is not None:
+            _, opt_state = opt.update(jnp.asarray(entry["gradient"]), opt_state, jnp.asarray(entry["theta"]))
+        history.append(entry)
+    return theta, opt_state, history
 
-    def run(thetas):
-        s, info = runner.run([params_of(t) for t in thetas], seeds, statistics, progress=False)
-        s, missing = _fill_missing(s)
+
+def _central_jacobian(s: np.ndarray, step: float) -> np.ndarray:
+    """`[k, d]` the Jacobian of the ensemble means from the statistics `s`
+    `[2d + 1, B, k]` at `estimators.central_points(theta, step)`."""
+    d = (s.shape[0] - 1) // 2
+    return (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
+
+
+def _gauss_newton_step(jac: np.ndarray, w: np.ndarray, r: np.ndarray, max_step: float) -> tuple[np.ndarray, str]:
+    """`(delta, message)`: the Gauss-Newton step for the residual `r` (the mean
+    minus the target) with Levenberg-Marquardt damping, each component clipped
+    to `max_step` on its own (a poorly determined parameter must not take a
+    huge step nor shrink the others'); a zero step and why when the statistics
+    do not move with the parameters."""
+    d = jac.shape[1]
+    hessian = (jac.T * w) @ jac
+    if not np.any(hessian):
+        return np.zeros(d), "the statistics do not move with the parameters (a zero Jacobian): nothing to fit"
+    damped = hessian + 1e-3 * np.diag(np.diag(hessian)) + 1e-12 * np.trace(hessian) * np.eye(d)
+    return np.clip(-np.linalg.solve(damped, (jac.T * w) @ r), -max_step, max_step), ""
+
+
+class _Iterate(NamedTuple):
+    """An iteration's ensembles: the gradient estimate, the statistics `[m,
+    B, k]` of the m thetas run (None for the truncated estimator's rollouts),
+    the piles left out of a statistic (`fill_missing`), the runs' `info`
+    (`particle_steps`, `total_seconds`); with central differences also the
+    thetas run, the Jacobian of the means and their value at theta."""
+
+    estimate: estimators.Estimate
+    s: np.ndarray | None
+    missing: int
+    info: dict
+    points: np.ndarray | None = None
+    jac: np.ndarray | None = None
+    mean: np.ndarray | None = None
+
+
+class _Fitting(NamedTuple):
+    """What stays fixed over a fit's iterations (`fit`'s arguments, checked,
+    the weights `w` and the `objective` of the ensemble mean)."""
+
+    runner: Runner
+    names: list
+    seeds: list
+    statistics: Statistics
+    target: EnsembleTarget
+    w: np.ndarray
+    objective: Callable
+    estimator: str
+    opt: object
+    step: float
+    sigma: float
+    pairs: int
+    key: int
+    window: int
+    max_step: float
+    tolerance: float
+    noise_stop: bool
+
+    def params_of(self, theta) -> dict:
+        return {n: float(v) for n, v in zip(self.names, np.exp(theta))}
+
+    def run(self, thetas):
+        """`(s, missing, info)`: the statistics `[m, B, k]` of the seeds at
+        each of the m `thetas` (one batched run), missing ones filled."""
+        s, info = self.runner.run([self.params_of(t) for t in thetas], self.seeds, self.statistics, progress=False)
+        s, missing = fill_missing(s)
         return s, missing, info
 
-    def jacobian_of(s):  # [k, d] from the means at theta +- h e_i
-        return (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
-
-    message = ""
-    done = bool(history) and history[-1].get("converged", False)
-    for it in range(len(history), steps):
-        if done:
-            break
-        mean = None
-        points = None
-        if estimator == "central":
-            points = estimators.central_points(theta, step)
-            s, missing, info = run(points)
-            est = estimators.central_from_members(s, objective, step)
-            jac, base = jacobian_of(s), s[0]
-            mean = base.mean(axis=0)
-        elif estimator == "truncated":  # one host run at theta sizes the rollouts, then the windows
+    def ensembles(self, theta: np.ndarray, it: int) -> _Iterate:
+        """Iteration `it`'s ensembles around `theta` and the gradient estimate from them."""
+        if self.estimator == "central":
+            points = estimators.central_points(theta, self.step)
+            s, missing, info = self.run(points)
+            est = estimators.central_from_members(s, self.objective, self.step)
+            return _Iterate(est, s, missing, info, points, _central_jacobian(s, self.step), s[0].mean(axis=0))
+        if self.estimator == "truncated":  # one host run at theta sizes the rollouts, then the windows
             t1 = time.perf_counter()
-            c = construction.Construction(runner, seeds, statistics, names, theta)
-            est = estimators.truncated_pathwise(c.advance, c.statistics, objective, theta, c.start, c.steps,
-                                                int(window), combine="mean")
+            c = construction.Construction(self.runner, self.seeds, self.statistics, self.names, theta)
+            est = estimators.truncated_pathwise(c.advance, c.statistics, self.objective, theta, c.start, c.steps,
+                                                int(self.window), combine="mean")
             info = {"particle_steps": c.particle_steps(), "total_seconds": time.perf_counter() - t1}
-            s, missing, base, jac = None, 0, None, None
-        else:
-            cache = {}
+            return _Iterate(est, None, 0, info)
+        cache = {}
 
-            def batch(ts):
-                cache["s"], cache["missing"], cache["info"] = run(np.asarray(ts))
-                return cache["s"]
+        def batch(ts):
+            cache["s"], cache["missing"], cache["info"] = self.run(np.asarray(ts))
+            return cache["s"]
 
-            est = estimators.antithetic_smoothing(batch, objective, theta, jax.random.PRNGKey(int(key) + it),
-                                                  sigma=sigma, pairs=pairs)
-            s, missing, info = cache["s"], cache["missing"], cache["info"]
-            base, jac = None, None  # the smoothing does not run theta itself
-        gradient = np.asarray(est.gradient, float)
-        if opt is None:
-            r = mean - target.mean
-            hessian = (jac.T * w) @ jac
-            if not np.any(hessian):
-                message = "the statistics do not move with the parameters (a zero Jacobian): nothing to fit"
-                delta = np.zeros(d)
-            else:
-                # Levenberg-Marquardt damping, and each component clipped on its own: a poorly
-                # determined parameter must not take a huge step nor shrink the others'
-                damped = hessian + 1e-3 * np.diag(np.diag(hessian)) + 1e-12 * np.trace(hessian) * np.eye(d)
-                delta = np.clip(-np.linalg.solve(damped, (jac.T * w) @ r), -max_step, max_step)
+        est = estimators.antithetic_smoothing(batch, self.objective, theta, jax.random.PRNGKey(int(self.key) + it),
+                                              sigma=self.sigma, pairs=self.pairs)
+        return _Iterate(est, cache["s"], cache["missing"], cache["info"])  # the smoothing does not run theta itself
+
+    def iteration(self, theta: np.ndarray, it: int, opt_state):
+        """`(entry, delta, opt_state, message)`: iteration `it` from `theta`,
+        its history entry and step, and why the fit must stop ("" to go on)."""
+        ens = self.ensembles(theta, it)
+        gradient = np.asarray(ens.estimate.gradient, float)
+        message = ""
+        if self.opt is None:
+            delta, message = _gauss_newton_step(ens.jac, self.w, ens.mean - self.target.mean, self.max_step)
         elif not np.all(np.isfinite(gradient)):  # a pile's NaN would spoil the optimiser's state for good
-            message = f"the {estimator} gradient is not finite ({gradient.tolist()}): stopped before stepping"
-            delta = np.zeros(d)
+            message = f"the {self.estimator} gradient is not finite ({gradient.tolist()}): stopped before stepping"
+            delta = np.zeros(len(self.names))
         else:
-            updates, opt_state = opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
+            updates, opt_state = self.opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
             delta = np.asarray(updates, float)
-        converged = bool(opt is None and not message and np.max(np.abs(delta)) < tolerance)
-        step_stderr, why = [float("nan")] * d, "tolerance" if converged else ""
-        if opt is None and not message:
-            cov, _ = confidence(jac, w, s[0], target)
+        converged, why, step_stderr = self.stop(ens, delta, message)
+        base = ens.s[0] if ens.jac is not None else None  # the piles at theta itself (central differences)
+        loss_se = estimators.loss_stderr(base, self.objective) if base is not None else float("nan")
+        entry = {"iteration": it, "theta": theta.tolist(), "values": self.params_of(theta),
+                 "loss": float(ens.estimate.value), "loss_stderr": loss_se, "gradient": gradient.tolist(),
+                 "gradient_stderr": np.asarray(ens.estimate.stderr, float).tolist(),
+                 "ensembles": int(ens.estimate.evaluations), "particle_steps": int(ens.info["particle_steps"]),
+                 "missing": ens.missing, "mean": None if ens.mean is None else ens.mean.tolist(),
+                 "next_theta": (theta + delta).tolist(),
+                 **({} if ens.points is None else {"points": ens.points.tolist(),
+                                                   "point_means": ens.s.mean(axis=1).tolist()}),
+                 "converged": converged, "stopped_by": why, "step_stderr": step_stderr,
+                 "seconds": ens.info["total_seconds"]}
+        return entry, delta, opt_state, message
+
+    def stop(self, ens: _Iterate, delta: np.ndarray, message: str) -> tuple[bool, str, list]:
+        """`(converged, stopped_by, step_stderr)`: a Gauss-Newton step below
+        the tolerance, or (`noise_stop`) below its own standard error in every
+        component; the standard errors (NaN but for Gauss-Newton)."""
+        gauss_newton = self.opt is None and not message
+        converged = bool(gauss_newton and np.max(np.abs(delta)) < self.tolerance)
+        step_stderr, why = [float("nan")] * len(self.names), "tolerance" if converged else ""
+        if gauss_newton:
+            cov, _ = confidence(ens.jac, self.w, ens.s[0], self.target)
             if np.all(np.isfinite(cov)):
                 step_stderr = np.sqrt(np.clip(np.diag(cov), 0, None)).tolist()
-                if noise_stop and not converged and np.all(np.abs(delta) < np.asarray(step_stderr)):
+                if self.noise_stop and not converged and np.all(np.abs(delta) < np.asarray(step_stderr)):
                     converged, why = True, "noise"
-        loss_se = estimators.loss_stderr(base, objective) if base is not None else float("nan")
-        entry = {"iteration": it, "theta": theta.tolist(), "values": params_of(theta),
-                 "loss": float(est.value), "loss_stderr": loss_se, "gradient": gradient.tolist(),
-                 "gradient_stderr": np.asarray(est.stderr, float).tolist(), "ensembles": int(est.evaluations),
-                 "particle_steps": int(info["particle_steps"]), "missing": missing,
-                 "mean": None if mean is None else mean.tolist(), "next_theta": (theta + delta).tolist(),
-                 **({} if points is None else {"points": points.tolist(), "point_means": s.mean(axis=1).tolist()}),
-                 "converged": converged, "stopped_by": why, "step_stderr": step_stderr,
-                 "seconds": info["total_seconds"]}
-        history.append(entry)
-        theta = theta + delta
-        if progress is True:
-            vals = ", ".join(f"{n} = {v:.5g}" for n, v in entry["values"].items())
-            loss = "" if not math.isfinite(entry["loss"]) else f"loss {entry['loss']:.4g} +- {loss_se:.2g}, "
-            print(f"fit {it + 1}/{steps}: {vals}: {loss}step {np.round(delta, 4).tolist()} "
-                  f"({entry['seconds']:.0f} s)", flush=True)
-        elif callable(progress):
-            progress(entry)
-        if checkpoint is not None:
-            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
-        if converged or message:
-            break
+        return converged, why, step_stderr
 
-    # the interval: a central-difference Jacobian at the fitted values
-    final_points = estimators.central_points(theta, step) if interval else theta[None]
-    s, _, info = run(final_points)
-    if interval:
-        jac = jacobian_of(s)
-        cov, dof = confidence(jac, w, s[0], target)
-    else:
-        jac, cov, dof = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan), float("nan")
-    se = np.sqrt(np.clip(np.diag(cov), 0, None)) if np.all(np.isfinite(cov)) else np.full(d, np.nan)
-    z = t_quantile(dof)
-    values = params_of(theta)
-    interval = {n: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
-                for i, n in enumerate(names)}
-    final_loss = float(objective(jnp.asarray(s[0].mean(axis=0))))
-    # how strongly each parameter moves the weighted statistics (per unit log value): one that barely
-    # moves them is not determined by this target, whatever its interval says
-    sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
-    converged = bool(history) and bool(history[-1]["converged"])
-    record.update({"final_points": final_points.tolist(), "final_point_means": s.mean(axis=1).tolist(),
-                   "final_loss": final_loss, "final_loss_stderr": estimators.loss_stderr(s[0], objective),
-                   "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
-                   "interval_dof": dof, "interval_quantile": z, "converged": converged,
-                   "message": message or ("" if converged or opt is not None else
-                                          f"not converged in {steps} iterations: the interval is at the last one"),
-                   "fit_seconds": time.perf_counter() - t0,
-                   "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"])})
-    first = history[0]["mean"] if history and history[0].get("mean") is not None else None
-    start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
-    result = EnsembleFitResult(names, values, {n: float(start[n]) for n in names}, interval,
-                               {n: float(se[i]) for i, n in enumerate(names)}, history, target, s[0].mean(axis=0),
-                               start_mean, s[0], record)
-    # the same answer from a line through every ensemble run (jaxpile.fit.regression): the honest one in chaos
-    from jaxpile.fit import regression
-
-    estimate = regression.estimate(result, w)
-    record["regression"] = None if estimate is None else estimate.to_json()
-    return result
+    def finish(self, theta: np.ndarray, start: dict, history: list, record: dict, message: str, interval: bool,
+               steps: int, t0: float) -> EnsembleFitResult:
+        """The result at `theta`, its interval from a central-difference
+        Jacobian there (`interval`; else NaN), and `record` completed."""
+        names, d, target, w = self.names, len(self.names), self.target, self.w
+        final_points = estimators.central_points(theta, self.step) if interval else theta[None]
+        s, _, info = self.run(final_points)
+        if interval:
+            jac = _central_jacobian(s, self.step)
+            cov, dof = confidence(jac, w, s[0], target)
+        else:
+            jac, cov, dof = np.full((s.shape[-1], d), np.nan), np.full((d, d), np.nan), float("nan")
+        se = np.sqrt(np.clip(np.diag(cov), 0, None)) if np.all(np.isfinite(cov)) else np.full(d, np.nan)
+        z = t_quantile(dof)
+        bounds = {n: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
+                  for i, n in enumerate(names)}
+        # how strongly each parameter moves the weighted statistics (per unit log value): one that barely
+        # moves them is not determined by this target, whatever its interval says
+        sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
+        converged = bool(history) and bool(history[-1]["converged"])
+        record.update({"final_points": final_points.tolist(), "final_point_means": s.mean(axis=1).tolist(),
+                       "final_loss": float(self.objective(jnp.asarray(s[0].mean(axis=0)))),
+                       "final_loss_stderr": estimators.loss_stderr(s[0], self.objective),
+                       "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
+                       "interval_dof": dof, "interval_quantile": z, "converged": converged,
+                       "message": message or ("" if converged or self.opt is not None else
+                                              f"not converged in {steps} iterations: the interval is at the last one"),
+                       "fit_seconds": time.perf_counter() - t0,
+                       "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"])})
+        first = history[0]["mean"] if history and history[0].get("mean") is not None else None
+        start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
+        return EnsembleFitResult(names, self.params_of(theta), {n: float(start[n]) for n in names}, bounds,
+                                 {n: float(se[i]) for i, n in enumerate(names)}, history, target,
+                                 s[0].mean(axis=0), start_mean, s[0], record)
 
 
 def _write_json(path: str, record: dict) -> None:
@@ -719,4 +583,4 @@ def figure(result: EnsembleFitResult, path=None):
 
 
 __all__ = ["ESTIMATORS", "EnsembleFitResult", "EnsembleTarget", "Runner", "Statistics", "confidence", "figure",
-           "fit", "make_target", "objective_for", "weights"]
+           "fit", "make_target", "objective_for", "smid_novosad_target", "weights"]

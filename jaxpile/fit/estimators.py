@@ -1,4 +1,4 @@
-"""Gradient estimators of an ensemble-mean loss (issue 17).
+"""Gradient estimators of an ensemble-mean loss.
 
 A pile built at random is one draw from the distribution a protocol makes at
 given parameters; what a fit can match is a property of that distribution. So
@@ -11,7 +11,7 @@ member b from the same seed at every theta, so that the difference between
 two thetas is not buried under the difference between two packings.
 
 - `pathwise`: jax.grad through the whole construction (the baseline; through a
-  chaotic pour it explodes, issue 17's measurements).
+  chaotic pour it explodes: README, "Gradients: what works", long horizons).
 - `central_differences`: (F(theta + h e_i) - F(theta - h e_i)) / 2h, 2d runs of
   the ensemble; the reference, and a usable estimator for one or two parameters.
 - `truncated_pathwise`: the construction cut into windows of W steps; each
@@ -48,6 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile.engine.compile import jit_derivative
 from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, POSITIVE
 
@@ -254,8 +255,6 @@ def _window_run(advance: Callable):
     window length, at most two) and kept on it: a fit that hands the same
     `advance` at every iterate (`construction.Construction`) compiles its
     windows once."""
-    from jaxpile.engine.compile import jit_derivative
-
     kept = getattr(advance, "_window_run", None)
     if kept is not None:
         return kept
@@ -286,11 +285,11 @@ def truncated_pathwise(advance: Callable, statistics: Callable, objective: Calla
     and the statistics' Jacobian is d statistics / d theta + d statistics /
     d state . v, with v:
 
-    - `combine="sum"` (the issue's reading): v = sum_j v_j, each window's
-      perturbation carried to the end unchanged. Exact where later steps pass a
-      perturbation on as it is (a disk that lands shifted stays shifted); where
-      they damp it, a pile's elastic response to theta is derived afresh in
-      every window and counted once per window.
+    - `combine="sum"`: v = sum_j v_j, each window's perturbation carried to
+      the end unchanged. Exact where later steps pass a perturbation on as it
+      is (a disk that lands shifted stays shifted); where they damp it, a
+      pile's elastic response to theta is derived afresh in every window and
+      counted once per window.
     - `combine="mean"`: v = the windows' mean (weighted by their lengths):
       exact where the state relaxes to its new equilibrium within a window (a
       settled pile), and it dilutes a once-only shift by the number of windows.

@@ -1,4 +1,4 @@
-"""The fitted parameters from a regression over every ensemble a fit ran (issue 17).
+"""The fitted parameters from a regression over every ensemble a fit ran.
 
 Gauss-Newton answers with its last iterate and a Jacobian from the last
 central difference. In a chaotic protocol (a silo's discharge, a pour) the

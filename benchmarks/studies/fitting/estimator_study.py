@@ -104,13 +104,13 @@ class Members:
                                resume=self.checkpoint if os.path.exists(self.checkpoint) else None)
 
     def __call__(self, thetas):
-        from jaxpile.fit.ensemble_fit import _fill_missing
+        from jaxpile.fit.ensemble_runs import fill_missing
 
         thetas = np.asarray(thetas, dtype=float)
         points = [{n: float(math.exp(t)) for n, t in zip(self.names, row)} for row in thetas]
         s, info = self._run(points)
         self.particle_steps += float(info["particle_steps"])
-        s, filled = _fill_missing(s)
+        s, filled = fill_missing(s)
         self.left_out += filled
         self.last = s
         return s

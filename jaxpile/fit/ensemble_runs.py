@@ -1,0 +1,168 @@
+"""How the ensembles of an ensemble fit are built (`Runner`: the protocol,
+law and set-up, run through `sweep.sweep`) and what each pile contributes to
+it (`Statistics`: columns of the sweep's row, the base profile)."""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, NamedTuple, Sequence
+
+import numpy as np
+
+from jaxpile import budget, sweep
+from jaxpile.errors import InputError
+from jaxpile.fit.profiles import base_load, smooth_base_profile
+from jaxpile.sweep import MEMBER_COLUMNS
+
+
+class Statistics(NamedTuple):
+    """What each pile contributes to the fit.
+
+    Attributes:
+      columns: scalar columns of the protocol's sweep row (`sweep.adapter(P)`'s
+        measurement), e.g. `("repose_least_squares",)` or `("central_dip",)`.
+      bins: > 0: the pile's base-force profile on this many bins across the
+        protocol's fixed extent (`Adapter.extent`), normal force over its peak
+        (`fit.smooth_base_profile`); 0: no profile.
+      horizontal: the horizontal profile as well (on the same scale).
+      bandwidth: the profile's smoothing width (default one bin).
+    """
+
+    columns: tuple = ()
+    bins: int = 0
+    horizontal: bool = True
+    bandwidth: float | None = None
+
+    def labels(self) -> list[str]:
+        labels = list(self.columns)
+        if self.bins:
+            labels += [f"normal[{i}]" for i in range(self.bins)]
+            if self.horizontal:
+                labels += [f"horizontal[{i}]" for i in range(self.bins)]
+        return labels
+def _check_statistics(statistics: Statistics, adapter) -> Statistics:
+    if not isinstance(statistics, Statistics):
+        raise InputError(f"statistics must be an ensemble_fit.Statistics; got {type(statistics).__name__}.")
+    statistics = statistics._replace(columns=tuple(statistics.columns))
+    if int(statistics.bins) != statistics.bins or statistics.bins < 0:
+        raise InputError(f"bins must be a whole number >= 0; got {statistics.bins!r}.")
+    if not statistics.columns and not statistics.bins:
+        raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
+    if statistics.bins and adapter.extent is None:
+        raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
+    if adapter.columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
+        known = adapter.columns | set(MEMBER_COLUMNS)
+        unknown = [c for c in statistics.columns if c not in known]
+        if unknown:
+            raise InputError(f"the protocol's measurement has no column {unknown[0]!r}; it has {sorted(known)}.")
+    return statistics
+
+
+def _profile_hook(adapter, statistics: Statistics) -> Callable | None:
+    if not statistics.bins:
+        return None
+
+    def measure(sim, params, state, protocol):
+        base, x_left, x_right = adapter.extent(protocol)
+        load = base_load(sim, params, state, base=base)
+        profile = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=int(statistics.bins),
+                                      bandwidth=statistics.bandwidth)
+        out = {"_profile_normal": np.asarray(profile.normal)}
+        if statistics.horizontal:
+            out["_profile_horizontal"] = np.asarray(profile.horizontal)
+        return out
+
+    return measure
+
+
+def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
+    values = []
+    for column in statistics.columns:
+        if column not in row:
+            raise InputError(f"the protocol's measurement has no column {column!r}; it has "
+                             f"{sorted(k for k in row if not k.startswith('_'))}.")
+        v = row[column]
+        if v is not None and not isinstance(v, (int, float, np.number)):
+            raise InputError(f"the column {column!r} is not a number per pile ({type(v).__name__}); fit a numeric one.")
+        values.append(float(v) if v is not None else math.nan)
+    if statistics.bins:
+        values += list(row["_profile_normal"])
+        if statistics.horizontal:
+            values += list(row["_profile_horizontal"])
+    return np.asarray(values, dtype=float)
+
+
+class Runner(NamedTuple):
+    """How the ensembles of a fit are built: everything `sweep.sweep` takes
+    except the parameter points and seeds."""
+
+    protocol: str
+    law: str | None = None
+    params: dict | None = None
+    options: dict | None = None
+    dt: float | None = None
+    max_steps: int | None = None
+    batch_size: int | None = None
+    dtype: object = None
+
+    def adapter(self):
+        return sweep.adapter(self.protocol)
+
+    def check(self, statistics: Statistics) -> Statistics:
+        """The statistics, checked against what the protocol can measure."""
+        return _check_statistics(statistics, self.adapter())
+
+    def law_name(self) -> str:
+        return self.law or self.adapter().default_law
+
+    def setting(self) -> dict:
+        """What a target made with this runner was made with (fixed law
+        parameters other than the fitted ones are compared by name)."""
+        return {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
+
+    def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None, checkpoint=None,
+            resume=None) -> tuple[np.ndarray, dict]:
+        """`[len(points), B, k]` statistics (the B seeds at every point, one
+        batched run) and the sweep's record (`n_particles`, `batch_steps`,
+        `total_seconds` are used). `checkpoint`, `resume`: as `sweep.sweep`'s
+        (a long batch saved as it runs, and continued)."""
+        a = self.adapter()
+        statistics = _check_statistics(statistics, a)
+        seeds = [int(s) for s in seeds]
+        if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
+            law = self.law_name()
+            p = a.setup(law, seeds[0], self.dt or a.default_dt(law), {**(self.options or {}), "dtype": self.dtype})
+            budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
+                              f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
+                              "pile", "Give fewer --bins.")
+        result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
+                             options=self.options, dt=self.dt, max_steps=self.max_steps,
+                             batch_size=self.batch_size, progress=progress, dtype=self.dtype,
+                             extra_measure=_profile_hook(a, statistics), checkpoint=checkpoint, resume=resume)
+        rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
+        s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
+        # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)
+        return s, {**result.info, "particle_steps": result.info["n_particles"] * sum(int(r["steps"]) for r in rows)}
+
+
+def fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:
+    """`[m, B, k]` statistics with the piles that could not give one (NaN: e.g.
+    no surface to fit an angle to, a tilted pile that never moved) left out of
+    that statistic at *every* point, so a difference between two points
+    compares the same piles (common random numbers). They are left out by
+    taking, at each point, the mean of the piles that gave the statistic at all
+    points, which moves no mean (it narrows the spread a little: the count of
+    such (pile, statistic) pairs is returned, to report)."""
+    s = np.array(s, dtype=float)
+    bad = np.isnan(s).any(axis=0)  # [B, k]: missing at some point
+    missing = int(bad.sum())
+    if missing:
+        if bad.all(axis=0).any():
+            raise InputError("a statistic is missing from every pile at some point (e.g. no pile had a surface "
+                             "to measure, or none moved); choose other statistics or a larger pile.")
+        good = np.where(bad[None], np.nan, s)
+        fill = np.nanmean(good, axis=1, keepdims=True)  # [m, 1, k]: the mean of the complete piles
+        s = np.where(bad[None], np.broadcast_to(fill, s.shape), s)
+    return s, missing
+
+
