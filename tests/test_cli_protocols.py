@@ -103,13 +103,13 @@ def test_a_base_force_table_with_no_contacts_reads_back_as_empty_columns(tmp_pat
 def test_every_option_of_every_protocol_is_a_flag_of_pile_sweep_and_fit_with_its_help_and_range(capsys):
     """Issue 18: a protocol's options appear as `--NAME` flags, read from its
     own signatures, docstrings and OPTION_RANGES (no table beside them)."""
-    from jaxpile.cli import _merge_protocol_flags, _protocol_flags, build_parser
+    from jaxpile.cli import build_parser, merge_protocol_flags, protocol_flags
     from jaxpile.protocols import PROTOCOLS
 
     for command in ("pile", "sweep", "fit"):
         for protocol in PROTOCOLS:
             argv = [command, "--protocol", protocol]
-            flags = _protocol_flags(command, protocol)
+            flags = protocol_flags(command, protocol)
             # the lattice's run options are all generic flags of `pile` (--ramp-steps, --max-steps, --speed-tol)
             assert bool(flags) == (protocol != "lattice" or command != "pile"), (command, protocol)
             subparser = build_parser(argv)._subparsers._group_actions[0].choices[command]
@@ -123,7 +123,7 @@ def test_every_option_of_every_protocol_is_a_flag_of_pile_sweep_and_fit_with_its
     assert "--polydispersity X delta (a fraction, 0.05 for the paper's 5%)" in text and "[>= 0 and < 0.5]" in text
     argv = ["pile", "--protocol", "tilt", "--settle", "on", "--rate-degrees", "0.05", "--out", "x"]
     args = build_parser(argv).parse_args(argv)
-    _merge_protocol_flags(args)
+    merge_protocol_flags(args)
     assert args.option == ["settle=on", "rate_degrees=0.05"]
 
 
@@ -197,7 +197,7 @@ def test_a_new_protocol_module_appears_in_pile_sweep_and_fit_by_declaring_itself
     hopper.CLI = CommandLine(order=7, help="a silo emptied through an orifice", default_law="hooke")
     hopper.sweep_adapter = lambda: "the hopper's adapter"
     monkeypatch.setitem(PROTOCOLS, "hopper", hopper)
-    assert cli.SWEEP_PROTOCOLS[-1] == "hopper" and sweep.adapter("hopper") == "the hopper's adapter"
+    assert cli.sweep_protocols()[-1] == "hopper" and sweep.adapter("hopper") == "the hopper's adapter"
     for command in ("pile", "sweep", "fit"):
         argv = [command, "--protocol", "hopper", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
         assert cli.build_parser(argv).parse_args(argv).protocol == "hopper"

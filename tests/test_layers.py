@@ -96,8 +96,9 @@ def _private_uses(path: pathlib.Path, modules: set[str], root: pathlib.Path = RE
                     aliases[a.asname or a.name] = f"{node.module}.{a.name}"
                 elif _is_private(a.name) and node.module != here:
                     found.append(f"{path.name}:{node.lineno} {node.module}.{a.name}")
-        elif isinstance(node, ast.Import):
-            aliases.update({a.asname: a.name for a in node.names if a.name in modules and a.asname})
+        elif isinstance(node, ast.Import):  # `import jaxpile.x as y` binds y; `import jaxpile.x` binds jaxpile
+            aliases.update({a.asname or a.name.split(".")[0]: a.name if a.asname else a.name.split(".")[0]
+                            for a in node.names if a.name in modules})
     for node in ast.walk(tree):
         if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and _is_private(node.attr)
                 and aliases.get(node.value.id, here) != here):
@@ -113,8 +114,10 @@ def test_no_module_uses_another_modules_private_names(graph):
 def test_the_private_name_check_sees_both_forms(tmp_path, graph):
     (tmp_path / "jaxpile").mkdir()
     module = tmp_path / "jaxpile" / "a.py"
-    module.write_text("from jaxpile.engine.neighbors import _build, rebuild\n"
+    module.write_text("import jaxpile\n"
+                      "from jaxpile.engine.neighbors import _build, rebuild\n"
                       "from jaxpile.engine import simulate, _jax_md\n"
-                      "x = simulate._is_concrete, simulate.Simulator, _jax_md.register\n")
-    assert _private_uses(module, set(graph.modules), tmp_path) == [
-        "a.py:1 jaxpile.engine.neighbors._build", "a.py:3 jaxpile.engine.simulate._is_concrete"]
+                      "x = simulate._is_concrete, simulate.Simulator, _jax_md.register, jaxpile._ONE_THREAD_BY_DEFAULT\n")
+    assert sorted(_private_uses(module, set(graph.modules), tmp_path)) == [
+        "a.py:2 jaxpile.engine.neighbors._build", "a.py:4 jaxpile._ONE_THREAD_BY_DEFAULT",
+        "a.py:4 jaxpile.engine.simulate._is_concrete"]

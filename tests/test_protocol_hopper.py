@@ -22,7 +22,7 @@ def test_the_hopper_registers_itself_for_every_command():
     assert PROTOCOLS["hopper"] is hopper
     from jaxpile import cli, sweep
 
-    assert "hopper" in cli.SWEEP_PROTOCOLS and sweep.adapter("hopper").default_law == "hooke"
+    assert "hopper" in cli.sweep_protocols() and sweep.adapter("hopper").default_law == "hooke"
 
 
 @pytest.mark.parametrize("orifice", [1.0, 2.5, 4.0, 5.3, 7.9])

@@ -96,5 +96,5 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
 def test_the_command_line_offers_every_sweepable_protocol():
     from jaxpile import cli, sweep
 
-    assert set(sweep.adapters()) <= set(cli.SWEEP_PROTOCOLS)  # the papers' seven, and those that bring an adapter
-    assert sorted(cli.SWEEP_PROTOCOLS) == sorted(sweep.adapters())
+    assert set(sweep.adapters()) <= set(cli.sweep_protocols())  # the papers' seven, and those that bring an adapter
+    assert sorted(cli.sweep_protocols()) == sorted(sweep.adapters())

@@ -25,6 +25,20 @@ def _statistics(args, adapter):
     return Statistics(columns=columns, bins=int(bins))
 
 
+def _chosen_statistics(args, adapter, estimator: str, declared: bool):
+    """The statistics the fit compares: the central dip for the declared
+    Smid-Novosad target, the base profile alone for the truncated estimator (what
+    it can differentiate), else `--statistics`/`--bins` or the protocol's."""
+    from jaxpile.fit import ensemble_fit
+
+    if declared and args.statistics is None and args.bins is None:
+        return ensemble_fit.Statistics(columns=("central_dip",))
+    if estimator == "truncated" and args.statistics is None:
+        return ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
+                                                else adapter.fit_statistics.get("bins") or 9))
+    return _statistics(args, adapter)
+
+
 def _values(items, known, flag) -> dict:
     try:
         return parse_set(items, known)
@@ -32,18 +46,13 @@ def _values(items, known, flag) -> dict:
         raise InputError(str(err).replace("--set", flag)) from None
 
 
-def run_ensemble_fit(args, estimator: str) -> dict:
-    """Builds the runner, the target (made here from `--truth`, or read from a
-    target.json), fits, and writes fit.json, target.json and fit.png to OUT;
-    the history goes to OUT/fit_checkpoint.json after every iteration, and
-    `--resume` continues from it."""
-    import jaxpile  # noqa: F401  (turns on float64)
-    from jaxpile import io, sweep
-    from jaxpile.fit import ensemble_fit
+def _fit_inputs(args, adapter) -> tuple:
+    """`(law, names, start, fixed, options)`: the law, the parameters fitted and
+    their starting values (`--set`, else the law's defaults), the law values
+    held fixed, and the protocol's options, each checked."""
     from jaxpile.laws import get_law_module
 
-    a = sweep.adapter(args.protocol)
-    law = get_law_module(args.law or a.default_law).NAME
+    law = get_law_module(args.law or adapter.default_law).NAME
     lawmod = get_law_module(law)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     unknown = set(names) - set(lawmod.PARAM_NAMES)
@@ -52,33 +61,41 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if len(set(names)) != len(names):
         raise InputError(f"--params names a parameter twice; got {args.params!r}.")
     given = _values(args.set, lawmod.PARAM_NAMES, "--set")
-    _, _, defaults = a.law_and_params(law, None)
+    _, _, defaults = adapter.law_and_params(law, None)
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
     fixed = {k: v for k, v in given.items() if k not in names}
     options = parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
-    if "layers" in a.options and "layers" not in options:  # the protocols built in layers (the lattice)
+    if "layers" in adapter.options and "layers" not in options:  # the protocols built in layers (the lattice)
         options["layers"] = args.layers
-    unknown = set(options) - a.options
+    unknown = set(options) - adapter.options
     if unknown:
         raise InputError(f"unknown option(s) {sorted(unknown)} for the {args.protocol} protocol; known: "
-                         f"{sorted(a.options)}.")
+                         f"{sorted(adapter.options)}.")
+    return law, names, start, fixed, options
+
+
+def run_ensemble_fit(args, estimator: str) -> dict:
+    """Builds the runner, the target (made here from `--truth`, or read from a
+    target.json), fits, and writes fit.json, target.json and fit.png to OUT;
+    the history goes to OUT/fit_checkpoint.json after every iteration, and
+    `--resume` continues from it."""
+    from jaxpile import io, sweep
+    from jaxpile.fit import ensemble_fit
+    from jaxpile.laws import get_law_module
+
+    a = sweep.adapter(args.protocol)
+    law, names, start, fixed, options = _fit_inputs(args, a)
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
     declared = args.target == "smid-novosad" and not args.resume
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
-    if declared and args.statistics is None and args.bins is None:
-        statistics = ensemble_fit.Statistics(columns=("central_dip",))  # what the declared target holds
-    elif estimator == "truncated" and args.statistics is None:  # what it can differentiate: the profile alone
-        statistics = ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
-                                                      else a.fit_statistics.get("bins") or 9))
-    else:
-        statistics = _statistics(args, a)
+    statistics = _chosen_statistics(args, a, estimator, declared)
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
-    truth = _values(args.truth, lawmod.PARAM_NAMES, "--truth") if args.truth else None
+    truth = _values(args.truth, get_law_module(law).PARAM_NAMES, "--truth") if args.truth else None
     if truth is not None and set(truth) - set(names):
         raise InputError(f"--truth gives {sorted(set(truth) - set(names))}, which this fit does not fit "
                          f"({', '.join(names)}): the target and the fit would differ in them. Fix them with --set.")
@@ -108,27 +125,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         return {"start": start, "statistics": statistics.labels(), "piles_per_iteration": per_iteration * b}
     os.makedirs(args.out, exist_ok=True)
     checkpoint = os.path.join(args.out, "fit_checkpoint.json")
-    if args.resume:
-        if not os.path.exists(checkpoint):
-            raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
-        saved = io.read_json(checkpoint, "an ensemble fit's checkpoint")
-        target = ensemble_fit.EnsembleTarget.from_json(saved.get("target") if isinstance(saved, dict) else None,
-                                                       f"the target in {checkpoint}")
-    elif truth is not None:
-        print(f"jaxpile: making the target: {b} {args.protocol} piles at {truth} (seeds {target_seeds[0]}.."
-              f"{target_seeds[-1]})", flush=True)
-        target = ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
-                                          target_seeds, statistics, progress=False)
-    elif declared:
-        target = ensemble_fit.smid_novosad_target()
-    elif args.target and args.target.endswith(".json"):
-        if not os.path.exists(args.target):
-            raise InputError(f"--target {args.target}: no such file.")
-        record = io.read_json(args.target, "a target (target.json or fit.json of an ensemble fit)")
-        target = ensemble_fit.EnsembleTarget.from_json(record.get("target", record) if isinstance(record, dict)
-                                                       else record, args.target)
-    else:
-        raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
+    target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint)
     io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
@@ -138,6 +135,44 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None)
+    return _write_results(args, names, target, result)
+
+
+def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool, checkpoint: str):
+    """The `EnsembleTarget`: the one saved in OUT/fit_checkpoint.json (`--resume`),
+    made here at `--truth` from `target_seeds`, the declared Smid-Novosad one,
+    or read from `--target target.json`."""
+    from jaxpile import io
+    from jaxpile.fit import ensemble_fit
+
+    if args.resume:
+        if not os.path.exists(checkpoint):
+            raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
+        saved = io.read_json(checkpoint, "an ensemble fit's checkpoint")
+        return ensemble_fit.EnsembleTarget.from_json(saved.get("target") if isinstance(saved, dict) else None,
+                                                     f"the target in {checkpoint}")
+    if truth is not None:
+        print(f"jaxpile: making the target: {len(target_seeds)} {args.protocol} piles at {truth} (seeds "
+              f"{target_seeds[0]}..{target_seeds[-1]})", flush=True)
+        return ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
+                                        target_seeds, statistics, progress=False)
+    if declared:
+        return ensemble_fit.smid_novosad_target()
+    if args.target and args.target.endswith(".json"):
+        if not os.path.exists(args.target):
+            raise InputError(f"--target {args.target}: no such file.")
+        record = io.read_json(args.target, "a target (target.json or fit.json of an ensemble fit)")
+        return ensemble_fit.EnsembleTarget.from_json(record.get("target", record) if isinstance(record, dict)
+                                                     else record, args.target)
+    raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
+
+
+def _write_results(args, names: list, target, result) -> dict:
+    """Writes fit.json and fit.png to OUT and prints each fitted value with its
+    95 % interval (and the regression through every ensemble, where there is one)."""
+    from jaxpile import io
+    from jaxpile.fit import ensemble_fit
+
     record = result.to_json()
     if target.truth:
         record["truth_inside_interval"] = {n: bool(lo <= target.truth[n] <= hi)

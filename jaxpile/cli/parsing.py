@@ -1,8 +1,20 @@
-"""The `NAME=VALUE` arguments every subcommand shares (`--set`, `--option`)."""
+"""Flag text into values: the `NAME=VALUE` arguments every subcommand shares
+(`--set`, `--option`) and the on/off switches."""
 
 from __future__ import annotations
 
+import argparse
+
 from jaxpile.errors import InputError
+
+
+def on_off(text: str) -> bool:
+    """An on/off flag's value (on, true, yes, 1 / off, false, no, 0), as an argparse `type`."""
+    if text.lower() in ("on", "true", "yes", "1"):
+        return True
+    if text.lower() in ("off", "false", "no", "0"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected on or off, got {text!r}")
 
 
 def parse_set(items, known) -> dict:

@@ -50,7 +50,7 @@ def _finished(folder: str, out: str) -> list[str]:
     n_theory = h_theory = None
     from jaxpile.protocols import entry as registered
 
-    entry = registered(summary.get("protocol", "lattice"))  # summaries from before the protocol was recorded
+    entry = registered(summary.get("protocol", "lattice"))  # a summary without a protocol is a lattice run's
     if entry is not None and entry.profile_theory is not None and len(base["x"]):
         n_theory, h_theory, label = entry.profile_theory(summary, SimpleNamespace(**base)) or (None, None, "")
     plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,
@@ -129,8 +129,6 @@ def _sweep(folder: str, out: str) -> list[str]:
 
 
 def _fit(folder: str, out: str) -> list[str]:
-    from types import SimpleNamespace
-
     from jaxpile import fit
 
     record = json.loads(open(os.path.join(folder, "fit.json")).read())

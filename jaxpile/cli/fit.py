@@ -1,0 +1,244 @@
+"""`jaxpile fit`: which gradient a fit takes (`fit_estimator`), and the
+pathwise fit, the gradient through one pile to a base-force profile (a CSV or
+the Smid-Novosad features); writes fit.json and fit.png. The ensemble
+estimators are `ensemble_fit`'s."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from jaxpile.cli.dry_run import dry_run_report
+from jaxpile.cli.parsing import parse_options, parse_set
+from jaxpile.errors import InputError, SimulationError
+from jaxpile.io import plain
+from jaxpile.protocols import PROTOCOLS, entry
+
+
+def _ensemble_target(args) -> bool:
+    """Whether a `fit` aims at an ensemble target (--truth, a target.json, --resume)."""
+    return bool(args.truth or (args.target or "").endswith(".json") or args.resume)
+
+
+def fit_estimator(args) -> str:
+    """The gradient a `fit` uses: `--estimator`, else central differences for an
+    ensemble target and the pathwise gradient through one pile otherwise."""
+    return args.estimator or ("central" if _ensemble_target(args) else "pathwise")
+
+
+def fit_runs_batches(args) -> bool:
+    """Whether a `fit` runs batches (an ensemble estimator), not the pathwise
+    gradient through one pile, which is faster on one XLA thread
+    (docs/performance.md, "The command line")."""
+    return fit_estimator(args) != "pathwise"
+
+
+def run_fit(args) -> dict:
+    """`jaxpile fit`: gradient-based fit of law parameters to a base-force
+    profile (one pile, pathwise) or to an ensemble target (`ensemble_fit`)."""
+    estimator = fit_estimator(args)
+    if estimator != "pathwise":
+        from jaxpile.cli.ensemble_fit import run_ensemble_fit
+
+        return run_ensemble_fit(args, estimator)
+    if _ensemble_target(args):
+        raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
+                         "smoothing.")
+    _pathwise(args.protocol)  # refused here when the protocol offers no pathwise fit
+    if args.target is None:
+        raise InputError("a pathwise fit needs --target FILE|smid-novosad.")
+    args.optimizer = args.optimizer or "adam"
+    args.n = 60 if args.n is None else args.n
+    args.steps = 40 if args.steps is None else args.steps
+    law, names, target, optimizer, start = _pathwise_inputs(args)
+    if args.dry_run:
+        return _dry_run_fit(args, law, names, start)
+    return _fit_one_pile(args, law, names, target, optimizer, start)
+
+
+def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int = 60, seed: int = 0,
+                options: dict | None = None, bins: int | None = None, window: int = 2000, progress=None):
+    """The pile a pathwise fit differentiates: `(sim, params, state, steps, setting, window, description)`,
+    from the protocol module's `pathwise_problem` (the lattice: the whole
+    quasi-static loading; the pour: `window` steps of relaxation of a heap
+    poured with the starting parameters). A protocol without one is refused."""
+    module = _pathwise(protocol)
+    return module.pathwise_problem(law, start, size=layers if entry(protocol).size == "layers" else n, seed=seed,
+                                   options=options, bins=bins, window=window, progress=progress)
+
+
+def _pathwise(protocol: str):
+    """The protocol module, when it offers a pathwise fit (`pathwise_problem`)."""
+    module = PROTOCOLS.get(protocol)
+    if module is None or not callable(getattr(module, "pathwise_problem", None)):
+        offered = [p for p, m in PROTOCOLS.items() if callable(getattr(m, "pathwise_problem", None))]
+        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
+                         "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
+    return module
+
+
+def _pathwise_inputs(args) -> tuple:
+    """`(law, names, target, optimizer, start)` of a pathwise fit, each checked."""
+    from jaxpile import fit
+    from jaxpile.laws import get_law_module
+
+    law = get_law_module(args.law or entry(args.protocol).default_law).NAME
+    lawmod = get_law_module(law)
+    names = [n.strip() for n in args.params.split(",") if n.strip()]
+    if not names:
+        raise InputError("--params needs at least one law parameter name (e.g. mu,kt).")
+    unknown = set(names) - set(lawmod.PARAM_NAMES)
+    if unknown:
+        raise InputError(f"cannot fit {sorted(unknown)}: not {law} parameters ({', '.join(lawmod.PARAM_NAMES)}).")
+    if args.steps < 0:
+        raise InputError(f"--steps must be >= 0; got {args.steps}.")
+    if args.target == "smid-novosad":
+        target = fit.smid_novosad_target()
+    elif os.path.exists(args.target):
+        target = fit.load_profile_csv(args.target)  # a folder or unreadable file: one line from there
+    else:
+        raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
+    optimizer = _optimizer(args.optimizer, args.lr)
+    start = parse_set(args.set, lawmod.PARAM_NAMES)
+    return law, names, target, optimizer, start
+
+
+def _optimizer(name: str, lr: float):
+    """The optax optimiser `--optimizer` names, at learning rate `lr`."""
+    import optax
+
+    if not lr > 0:
+        raise InputError(f"--lr must be positive; got {lr}.")
+    if name == "lbfgs":
+        return optax.lbfgs()
+    make = getattr(optax, name, None)
+    if not callable(make) or name.startswith("_"):
+        raise InputError(f"--optimizer {name!r} is not an optax optimiser; try adam, sgd, adamw, rmsprop or lbfgs.")
+    try:
+        return make(lr)
+    except TypeError:
+        raise InputError(f"optax.{name} does not take a learning rate; try adam, sgd, adamw, rmsprop or lbfgs.") from None
+
+
+def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
+    """`fit --dry-run`: the pile the fit builds (set up, not run), the parameters
+    it fits from their starting values, the memory estimate and the steps."""
+    module = _pathwise(args.protocol)
+    size = args.layers if entry(args.protocol).size == "layers" else args.n
+    what, particles, params, build, per_step = module.pathwise_dry_run(law, start, size=size, seed=args.seed,
+                                                                       options=parse_options(args.option),
+                                                                       window=args.window)
+    values = ", ".join(f"{n} = {float(getattr(params, n)):g}" for n in names)
+    print(f"jaxpile: dry run of a fit of {values} ({law} law) on {what}: {args.steps} optimiser steps, each "
+          f"differentiating {per_step:,} steps (a forward and a reverse pass)")
+    report = dry_run_report(what, particles, {}, "float64", build)
+    total = args.steps * per_step * int(particles.count)
+    print(f"jaxpile: the fit: {args.steps} x {per_step:,} steps = {total:.3g} particle-steps forward "
+          "(a gradient costs ~7x its forward pass on a CPU: benchmarks/gradient_cost.py)")
+    return {**report, "fit_particle_steps": total}
+
+
+def _fit_one_pile(args, law: str, names: list, target, optimizer, start: dict) -> dict:
+    """Builds the pile, fits `names` from `start` through it, checks that no
+    contact was dropped, and writes fit.json and fit.png."""
+    import warnings
+
+    import jax
+    import jax.numpy as jnp
+
+    from jaxpile import fit
+
+    progress = False if args.no_progress else None
+    sim, params, state, steps, setting, window, described = fit_problem(
+        args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=parse_options(args.option),
+        bins=args.bins, window=args.window, progress=progress)
+    print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
+          flush=True)
+    horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0
+    loss = fit.profile_objective(sim, state, steps, setting, target, window=window,
+                                 horizontal_weight=horizontal_weight, dip_weight=args.dip_weight)
+    profile = jax.jit(lambda p: fit.simulated_profile(sim, p, state, steps, setting, window=window))
+    stopped = []
+
+    def stable(record) -> bool:
+        """Stops the fit before it steps where dt is above the law's stability limit
+        (the rollout would blow up and its gradient turn NaN)."""
+        try:
+            sim.check_params(params.set(**{n: jnp.asarray(record[n]) for n in names}), state.particles)
+        except InputError as err:
+            stopped.append(f"stopped at step {record['step']}: {err}")
+            return True
+        return False
+
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # its message is in the result and printed below
+        result = fit.fit(loss, params, names, optimizer=optimizer, steps=args.steps, progress=progress is None,
+                         callback=stable)
+    seconds = time.perf_counter() - t0
+    if stopped:
+        result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
+    before, after = profile(params), profile(result.params)
+    _check_contacts_kept(sim, state, steps, params, result.params)
+    record = _fit_record(args, law, names, described, target, params, result, seconds, before, after)
+    _write_fit(args.out, record, result, target, before, after)
+    return record
+
+
+def _check_contacts_kept(sim, state, steps, start, fitted) -> None:
+    """The rollouts are pure (no re-allocation inside): refuses the fit when the
+    neighbour list overflowed with the starting or the fitted parameters."""
+    import jax
+
+    from jaxpile.engine.neighbors import overflowed as lost_contacts
+
+    overflowed = jax.jit(lambda p: lost_contacts(sim.rollout(p, state, steps)))
+    for label, p in (("starting", start), ("fitted", fitted)):
+        if bool(overflowed(p)):
+            raise SimulationError(f"the neighbour list overflowed in the rollout with the {label} parameters, so "
+                                  "contacts were missing from it; the fit is not valid. Give the pile more neighbour "
+                                  "head-room (a larger capacity_multiplier) and fit again.")
+
+
+def _fit_record(args, law, names, described, target, params, result, seconds, before, after) -> dict:
+    """fit.json's record: the set-up, the values before and after, the history
+    and the profiles (target, before, after)."""
+    from jaxpile import fit
+
+    def values(p):
+        return {n: float(getattr(p, n)) for n in names}
+
+    def plain_profile(pr):
+        return {"x_over_b": np.asarray(pr.x_over_b).tolist(), "normal": np.asarray(pr.normal).tolist(),
+                "horizontal": np.asarray(pr.horizontal).tolist(), "central_dip": float(fit.central_dip(pr))}
+
+    return {
+        "target": target.source or args.target, "protocol": args.protocol, "law": law, "fitted": names,
+        "pile": described, "initial": values(params), "fitted_values": values(result.params),
+        "initial_loss": result.history[0]["loss"] if result.history else None, "loss": result.loss,
+        "best_step": result.best_step, "steps": result.steps, "converged": result.converged,
+        "message": result.message, "optimizer": args.optimizer, "lr": args.lr, "fit_seconds": seconds,
+        "target_central_dip": target.central_dip,
+        "target_profile": {"x_over_b": np.asarray(target.x_over_b).tolist(), "normal": np.asarray(target.normal).tolist(),
+                           "horizontal": None if target.horizontal is None else np.asarray(target.horizontal).tolist()},
+        "profile_before": plain_profile(before),
+        "profile_after": plain_profile(after), "history": result.history,
+    }
+
+
+def _write_fit(out: str, record: dict, result, target, before, after) -> None:
+    """Writes fit.json and fit.png to `out` and prints the fitted values, the loss and the central dip."""
+    from jaxpile import fit, io
+
+    os.makedirs(out, exist_ok=True)
+    io.write_json(os.path.join(out, "fit.json"), plain(record))
+    fit.fit_figure(result, target, before, after, path=os.path.join(out, "fit.png"))
+    print("jaxpile: " + ", ".join(f"{k}: {record['initial'][k]:.4g} -> {v:.4g}" for k, v in
+                                  record["fitted_values"].items())
+          + f"; loss {record['initial_loss']:.3g} -> {result.loss:.3g} ({result.message})")
+    print(f"jaxpile: central dip {record['profile_before']['central_dip']:.3f} -> "
+          f"{record['profile_after']['central_dip']:.3f}"
+          + (f" (target {target.central_dip:.3f})" if target.central_dip is not None else ""))
+    print(f"jaxpile: wrote {out}/fit.json, fit.png")

@@ -1,0 +1,116 @@
+"""A run's output folder: refused before anything runs when it cannot be one,
+and the checkpoints `pile` and `sweep` keep there: what they record, resuming
+from them, and an earlier run's removed when a new one starts."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+from jaxpile.engine import checkpoint
+from jaxpile.errors import InputError
+
+
+def check_out_folder(out: str, flag: str = "--out") -> None:
+    """Refuses, before anything runs, an output folder that cannot be one: a
+    path that is a file, lies inside a file, or is not writable. Creates and
+    touches nothing: a refused command leaves no folder behind, and the run
+    makes its folder when it first writes."""
+    path = os.path.abspath(out)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise InputError(f"{flag} {out} is a file, not a folder; give a folder (it is created if missing).")
+    parent = path
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise InputError(f"{flag} {out} lies inside {parent}, which is a file; give a folder.")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{flag} {out}: {parent} is not writable; give a folder you can write to.")
+
+
+def recorded_command(argv: list[str]) -> list[str]:
+    """What a checkpoint records to resume from: the command without --resume DIR
+    and --no-progress."""
+    out, skip = [], False
+    for a in argv:
+        if skip or a == "--no-progress":
+            skip = False
+            continue
+        if a == "--resume":
+            skip = True
+            continue
+        out.append(a)
+    return out
+
+
+def resume_argv(argv: list[str]) -> list[str]:
+    """`pile|sweep --resume DIR [--no-progress]` -> the saved run's own command line
+    plus `--resume DIR`: a resumed run takes every setting from its checkpoint."""
+    rest = [a for a in argv[1:] if a != "--no-progress"]
+    if len(rest) != 2 or rest[0] != "--resume":
+        raise InputError(f"resume a run with `jaxpile {argv[0]} --resume DIR` alone (its settings come from the "
+                         f"checkpoint; --no-progress may be added); got {' '.join(argv)!r}.")
+    folder = rest[1]
+    path = checkpoint.in_folder(folder)
+    if path is None:
+        raise InputError(f"no checkpoint to resume in {folder} (expected {os.path.join(folder, 'checkpoint.npz')}; "
+                         "runs write it with --checkpoint-every STEPS).")
+    saved = checkpoint.read_metadata(path)["extra"].get("argv")
+    if not saved:
+        raise InputError(f"{path} does not record the command that made it: it cannot be resumed from the CLI.")
+    if saved[0] != argv[0]:
+        raise InputError(f"{folder} holds a `jaxpile {saved[0]}` run: resume it with `jaxpile {saved[0]} --resume "
+                         f"{folder}`.")
+    return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
+
+
+def resume_point(args) -> tuple[str | None, int]:
+    """For --resume DIR: the checkpoint file to hand to the run (DIR/checkpoint.npz;
+    a tilt finds its box stage beside it) and the step it resumes at, announced.
+    `(None, 0)` for a new run."""
+    if args.resume is None:
+        return None, 0
+    saved = checkpoint.in_folder(args.resume)
+    if saved is None:
+        raise InputError(f"no checkpoint to resume in {args.resume}.")
+    meta = checkpoint.read_metadata(saved)
+    rows = meta["extra"].get("rows")
+    print(f"jaxpile: resuming {args.resume} at step {meta['step']}"
+          + ("" if rows is None else f" ({len(rows)} members measured)"), flush=True)
+    return os.path.join(args.resume, "checkpoint.npz"), int(meta["step"])
+
+
+def checkpoint_spec(args):
+    """`(path, every, extra)` for `Simulator.run(checkpoint=...)`, or None. A new
+    run notes the checkpoints of an earlier run in OUT (`args.stale_checkpoints`)
+    for `replacing_earlier` to remove: they must not be taken for its own."""
+    if args.checkpoint_every is None:
+        return None
+    if args.checkpoint_every < 1:
+        raise InputError(f"--checkpoint-every must be >= 1 step; got {args.checkpoint_every}.")
+    path = os.path.join(args.out, "checkpoint.npz")
+    if args.resume is None:
+        args.stale_checkpoints = [stale for stale in [path, *checkpoint.stage_files(path)] if os.path.exists(stale)]
+    return path, args.checkpoint_every, {"argv": args.argv}
+
+
+@contextlib.contextmanager
+def replacing_earlier(args):
+    """Removes an earlier run's checkpoints in OUT (found by `checkpoint_spec`)
+    when this run starts stepping (its first observed state), not before it: a
+    command that fails while setting up leaves the earlier run as it was. A
+    batched run is not observed; its end removes them."""
+    from jaxpile.engine.simulate import observing
+
+    stale = list(getattr(args, "stale_checkpoints", []))
+
+    def drop(*_):
+        while stale:
+            path = stale.pop(0)
+            if os.path.exists(path):
+                print(f"jaxpile: removing {path} of an earlier run in {args.out}", flush=True)
+                os.remove(path)
+
+    with observing(drop):
+        yield
+    drop()
