@@ -1,0 +1,195 @@
+"""Forces on a pile's base: the ground's (Liffman, Chan & Hughes 1992, Figs. 8-9)
+and the fixed substrate disks' (Baxter et al. 1997); `base_load` traceable (for
+`jax.grad` and `vmap`), `base_forces` and `substrate_forces` on the host."""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxpile.engine.boundaries import GROUND
+from jaxpile.engine.simulate import Simulator
+from jaxpile.engine.state import SimState
+from jaxpile.errors import InputError
+
+Array = Any
+
+BASES = ("ground", "substrate")
+"""What `base_load` can measure: a flat wall (the ground), or the fixed base disks."""
+
+
+class BaseLoad(NamedTuple):
+    """Every possible base contact with its force, as fixed-shape arrays.
+
+    Entries that are not a contact (disks off the ground, empty neighbour slots,
+    pairs not involving a fixed disk) are padding: weight 0 and zero x and forces.
+
+    Attributes:
+      x: `[c]` contact x: the disk centre's x on the ground; for a base disk, the
+        point on the centre line that divides it in the ratio of the radii.
+      normal: `[c]` force of the base on the pile normal to the base (the
+        ground's normal; along -g for base disks), in mg.
+      horizontal: `[c]` force the pile exerts on the base along it (+x for the
+        ground), in mg: the sign convention of `analysis.base_forces` (Liffman
+        et al. 1992, eq. 43: negative = leftwards).
+      weight: `[c]` 1.0 for a contact, 0.0 for padding.
+    """
+
+    x: Array
+    normal: Array
+    horizontal: Array
+    weight: Array
+
+
+@jax.jit  # one program, not ~12 eager ops on a concrete state (a compile each per pile size)
+def traced_force_unit(state: SimState):
+    """mg as a traceable scalar: the mean mass of the active movable disks times
+    |g| (mass 1 when no disk moves, g taken as 1 when gravity is off)."""
+    p = state.particles
+    movable = p.movable
+    count = jnp.sum(movable)
+    total = jnp.sum(jnp.where(movable, p.mass, 0.0))
+    mass = jnp.where(count > 0, total / jnp.maximum(count, 1), 1.0)
+    g2 = jnp.sum(state.boundaries.gravity**2)
+    g = jnp.where(g2 > 0, jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), 1.0)
+    return mass * g
+
+
+def base_load(sim, params, state: SimState, *, base: str = "ground", wall: int = GROUND) -> BaseLoad:
+    """The forces at every contact between the pile and its base, traceable.
+
+    Masks instead of boolean indexing, so the shapes do not depend on the
+    contacts: usable under `jax.jit` and `jax.grad` (e.g. on the state a
+    `Simulator.rollout` returns; `fit` does). Entries are not sorted;
+    `base_forces` and `substrate_forces` are the contacts alone, sorted by x.
+
+    Args:
+      sim: the `Simulator` (its law evaluates the forces).
+      params: the law's params pytree.
+      state: the state to measure.
+      base: `"ground"`: a wall (`wall`, default the ground), one entry per disk,
+        x the disk centre's x. `"substrate"`: the fixed base disks (the poured heap
+        of Baxter et al. 1997), one entry per neighbour slot `[n * k]`, "normal"
+        along -g (+y when gravity is off).
+
+    Returns:
+      `BaseLoad` of `[n]` (ground) or `[n * k]` (substrate) arrays, forces in mg
+      (`traced_force_unit`).
+
+    Raises:
+      InputError: on an unknown `base`.
+    """
+    if base not in BASES:
+        raise InputError(f"base must be one of {list(BASES)}; got {base!r}.")
+    return _base_load_from(sim.contact_forces(params, state), state, base, int(wall))
+
+
+@functools.partial(jax.jit, static_argnums=(2, 3))
+def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
+    """`base_load` from the contact forces `cf`: one compiled program (inlined
+    when traced), not ~40 primitives each compiled op by op for each shape."""
+    p = state.particles
+    unit = traced_force_unit(state)
+    if base == "ground":
+        contact = cf.wall.in_contact[:, wall]
+        force = jnp.where(contact[:, None], cf.wall.force[:, wall], 0.0)  # wall on disk
+        normal_dir = state.boundaries.wall_normal[wall]
+        along = jnp.stack([normal_dir[1], -normal_dir[0]])  # +x for the ground
+        x = jnp.where(contact, p.position[:, 0], 0.0)
+    else:
+        idx = state.neighbors.idx
+        n = idx.shape[0]
+        valid = idx < n
+        partner = jnp.where(valid, idx, 0)
+        contact = cf.pair.in_contact & valid & p.movable[:, None] & p.fixed[partner]
+        force = jnp.where(contact[..., None], cf.pair.force, 0.0)  # base disk on pile disk
+        x_i, x_j = p.position[:, None, 0], p.position[partner, 0]
+        r_i, r_j = p.radius[:, None], p.radius[partner]
+        x = jnp.where(contact, x_j + (x_i - x_j) * r_j / (r_i + r_j), 0.0)
+        g = state.boundaries.gravity
+        g2 = jnp.sum(g**2)
+        up = jnp.where(g2 > 0, -g / jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), jnp.array([0.0, 1.0], g.dtype))
+        normal_dir = up
+        along = jnp.stack([up[1], -up[0]])
+        contact, force, x = contact.reshape(-1), force.reshape(-1, 2), x.reshape(-1)
+    normal = (force @ normal_dir) / unit
+    horizontal = -(force @ along) / unit
+    return BaseLoad(x=x, normal=normal, horizontal=horizontal, weight=contact.astype(force.dtype))
+
+
+class BaseForces(NamedTuple):
+    """Every contact between the pile and the ground, sorted by x.
+
+    Attributes:
+      x: `[c]` contact x (the disk centre's x).
+      normal: `[c]` normal force of the ground on the disk, in mg.
+      horizontal: `[c]` horizontal force the disk exerts on the ground, in mg
+        (the sign convention of Liffman et al. 1992, eq. 43: negative = leftwards).
+      particle: `[c]` disk ids.
+    """
+
+    x: np.ndarray
+    normal: np.ndarray
+    horizontal: np.ndarray
+    particle: np.ndarray
+
+
+def force_unit(state: SimState) -> float:
+    """mg: the mean mass of the active movable disks times |g| (g taken as 1
+    when gravity is off, so forces are then in units of force)."""
+    return float(traced_force_unit(state))
+
+
+def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> BaseForces:
+    """Forces at every disk-ground contact (in mg): `base_load`'s contacts, sorted by x."""
+    load = base_load(sim, params, state, base="ground", wall=wall)
+    ids = np.flatnonzero(np.asarray(load.weight) > 0)
+    x = np.asarray(load.x)[ids]
+    order = np.argsort(x)
+    return BaseForces(x=x[order], normal=np.asarray(load.normal)[ids][order],
+                      horizontal=np.asarray(load.horizontal)[ids][order], particle=ids[order])
+
+
+class SubstrateForces(NamedTuple):
+    """Every contact between a movable disk and a fixed (substrate) disk, sorted
+    by x, in mg (`force_unit`: the mean movable mass times g). The fields of
+    `BaseForces`, plus the substrate partner.
+
+    Attributes:
+      x: `[c]` x of the contact point (on the centre line, dividing it in the
+        ratio of the radii).
+      normal: `[c]` force of the substrate on the heap normal to the base
+        (upwards, along -g): the paper's F_B.
+      horizontal: `[c]` force the heap disk exerts on the substrate along the
+        base (+x; the sign convention of `analysis.base_forces`).
+      particle: `[c]` the movable disk ids.
+      substrate: `[c]` the substrate disk ids.
+    """
+
+    x: np.ndarray
+    normal: np.ndarray
+    horizontal: np.ndarray
+    particle: np.ndarray
+    substrate: np.ndarray
+
+
+def substrate_forces(sim, params, state: SimState) -> SubstrateForces:
+    """Forces at every contact of a movable disk with a fixed one (a row of base
+    disks: the poured heap of Baxter et al. 1997, the flux pile of Lee & Herrmann
+    1993), in mg, with "normal" along -g: `base_load`'s contacts, sorted by x."""
+    load = base_load(sim, params, state, base="substrate")
+    idx = np.asarray(state.neighbors.idx)
+    keep = np.flatnonzero(np.asarray(load.weight) > 0)  # flat [n * k] slots
+    i, j = keep // idx.shape[1], idx.reshape(-1)[keep]
+    x = np.asarray(load.x)[keep]
+    order = np.argsort(x, kind="stable")
+    return SubstrateForces(x=x[order], normal=np.asarray(load.normal)[keep][order],
+                           horizontal=np.asarray(load.horizontal)[keep][order], particle=i[order],
+                           substrate=j[order])
+
+
+__all__ = ["BASES", "BaseForces", "BaseLoad", "SubstrateForces", "base_forces", "base_load", "force_unit", "substrate_forces", "traced_force_unit"]
