@@ -49,11 +49,11 @@ from jaxpile.engine import neighbors as nb
 from jaxpile.engine.batch import at_capacity, batch_size, member, stack, stack_states  # noqa: F401  (public here too)
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.errors import InputError, SimulationError
-from jaxpile.engine.loop import Advance, compiled_for, run_chunks
-from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed, non_finite_disks
+from jaxpile.engine.loop import Advance, compiled_for, non_finite_disks, run_chunks
+from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed
 from jaxpile.engine.state import SimState
 
-if TYPE_CHECKING:  # the engine does not import the protocol layer (issue 18)
+if TYPE_CHECKING:  # the set-up's type for annotations: the engine imports no protocol
     from jaxpile.protocols.base import Protocol
 
 Array = Any

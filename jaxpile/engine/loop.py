@@ -14,6 +14,7 @@ same bit for bit whatever the chunk length, checkpoints or resumes.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from typing import Any, Callable, NamedTuple
@@ -22,10 +23,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile.engine import checkpoint
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine.checkpoint import step_of
-from jaxpile.engine.state import SimState
-from jaxpile.errors import SimulationError
+from jaxpile.engine.state import Particles, SimState
+from jaxpile.errors import InputError, SimulationError
+
+Array = Any
 
 MAX_REALLOCATIONS = 20
 """Re-allocations one chunk may need before the run gives up (each grows the
@@ -170,4 +174,72 @@ def compiled_for(cache: dict, jitted, args: tuple, info):
     return fn
 
 
-__all__ = ["MAX_REALLOCATIONS", "Advance", "checked", "chunk", "compiled_for", "run_chunks"]
+class Checkpointer:
+    """Saves a run's state at chunk boundaries, every `every` steps of the
+    absolute step count (so a resumed run saves where the uninterrupted one
+    did), at the run's end, and the last good state when NaN/inf appears."""
+
+    def __init__(self, path: str, every: int, extra: dict, law, params):
+        self.path, self.every, self.extra, self.law, self.params = path, every, extra, law, params
+        self.last = None  # multiple of `every` last saved
+
+    def _save(self, target: str, state: SimState, **extra) -> str:
+        checkpoint.save(target, state, self.law, self.params, **self.extra, **extra)
+        return target
+
+    def _path(self, state: SimState) -> str:
+        return self.path.replace("{step}", str(step_of(state)))
+
+    def __call__(self, state: SimState, done: int, final: bool) -> None:
+        step = step_of(state)
+        if self.last is None:
+            self.last = (step - done) // self.every
+        if final or step // self.every > self.last:
+            self.last = step // self.every
+            self._save(self._path(state), state)
+
+    def last_good(self, state: SimState, failed_at: int) -> str:
+        """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
+        stem, suffix = os.path.splitext(self._path(state))
+        return self._save(f"{stem}.last-good{suffix or '.npz'}", state, failed_at=failed_at)
+
+
+@jax.jit
+def non_finite_disks(p: Particles) -> Array:
+    """`[n]` bool: disks with a non-finite position or velocity (one program, not op by op)."""
+    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+
+
+def non_finite_on_host(p: Particles) -> np.ndarray:
+    """`non_finite_disks` as a numpy array; on a CPU computed by numpy on the
+    arrays' zero-copy views (no program to compile per pile size), elsewhere
+    by the compiled reduction (no copy of every position to the host)."""
+    if jax.default_backend() != "cpu":
+        return np.asarray(non_finite_disks(p))
+    finite = np.isfinite(np.asarray(p.position)).all(-1) & np.isfinite(np.asarray(p.velocity)).all(-1)
+    return ~(finite & np.isfinite(np.asarray(p.angular_velocity)))
+
+
+def check_finite(particles: Particles, *, step: int, last_good=None) -> None:
+    """`InputError` (`last_good` None: the run's input) or `SimulationError` (a
+    chunk's end, `last_good` its start) naming the first non-finite disk."""
+    p = particles
+    bad = non_finite_on_host(p)
+    if bad.any():
+        first = int(np.argmax(bad))
+        if last_good is None:
+            raise InputError(
+                f"particle {first} has a non-finite position or velocity in the input "
+                f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])})."
+            )
+        raise SimulationError(
+            f"non-finite position or velocity by step {step}: first offending particle {first} "
+            f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])}). "
+            "The last good state is in this error's `last_good_state`.",
+            last_good_state=last_good,
+            step=step,
+        )
+
+
+__all__ = ["MAX_REALLOCATIONS", "Advance", "Checkpointer", "check_finite", "checked", "chunk", "compiled_for",
+           "non_finite_disks", "non_finite_on_host", "run_chunks"]

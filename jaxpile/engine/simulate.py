@@ -14,7 +14,6 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import math
-import os
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -27,11 +26,10 @@ from jaxpile.engine import blocks, host_lists
 from jaxpile.engine import transfer
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.engine import neighbors as nb
-from jaxpile.engine.checkpoint import step_of
 from jaxpile.engine.collisions import HardCollisions, hard_collision_velocities
-from jaxpile.errors import InputError, SimulationError
+from jaxpile.errors import InputError
 from jaxpile.engine.integrators import Integrator, get_integrator
-from jaxpile.engine.loop import Advance, compiled_for, run_chunks
+from jaxpile.engine.loop import Advance, Checkpointer, check_finite, compiled_for, run_chunks
 from jaxpile.engine.interactions import ContactForces, evaluate, external_force, in_slots
 from jaxpile.laws.base import ContactLaw
 from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState
@@ -288,7 +286,7 @@ class Simulator:
         self._start_jit = jit_one_off(self.start)  # run once per pile: see engine.compile
         self._compiled: dict = {}
         self._loop = Advance(self._compiled_advance, self._reallocate, self._block_for, blocks.take_jit,
-                             blocks.put_jit, lambda new, good: _check_finite(new.particles, step=int(new.step),
+                             blocks.put_jit, lambda new, good: check_finite(new.particles, step=int(new.step),
                                                                               last_good=good))
 
     # ------------------------------------------------------------------ set-up
@@ -358,7 +356,7 @@ class Simulator:
         history, on the host. `start(params, state)` finishes it (it is pure, so
         an ensemble maps it over its members in one call)."""
         self.check_params(params, particles)
-        _check_finite(particles, step=0)
+        check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
         neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles))
         n = neighbors.idx.shape[0]
@@ -548,7 +546,7 @@ class Simulator:
         if not whole:
             raise InputError(f"n_steps must be a whole number >= 0; got {n_steps!r}.")
         self.check_params(params, state.particles)
-        _check_finite(state.particles, step=int(state.step))
+        check_finite(state.particles, step=int(state.step))
         info = RunInfo() if info is None else info
         info.particles = state.particles.count
         save = self.checkpointer(params, checkpoint)
@@ -604,73 +602,6 @@ def _scan_steps(step, params, state: SimState, n: int) -> SimState:
         return state
     state, _ = lax.scan(lambda s, _: (step(params, s), None), state, None, length=n)
     return state
-
-
-class Checkpointer:
-    """Saves a run's state at chunk boundaries, every `every` steps of the
-    absolute step count (so a resumed run saves where the uninterrupted one
-    did), at the run's end, and the last good state when NaN/inf appears."""
-
-    def __init__(self, path: str, every: int, extra: dict, law, params):
-        self.path, self.every, self.extra, self.law, self.params = path, every, extra, law, params
-        self.last = None  # multiple of `every` last saved
-
-    def _save(self, target: str, state: SimState, **extra) -> str:
-        from jaxpile.engine import checkpoint
-
-        checkpoint.save(target, state, self.law, self.params, **self.extra, **extra)
-        return target
-
-    def _path(self, state: SimState) -> str:
-        return self.path.replace("{step}", str(step_of(state)))
-
-    def __call__(self, state: SimState, done: int, final: bool) -> None:
-        step = step_of(state)
-        if self.last is None:
-            self.last = (step - done) // self.every
-        if final or step // self.every > self.last:
-            self.last = step // self.every
-            self._save(self._path(state), state)
-
-    def last_good(self, state: SimState, failed_at: int) -> str:
-        """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""
-        stem, suffix = os.path.splitext(self._path(state))
-        return self._save(f"{stem}.last-good{suffix or '.npz'}", state, failed_at=failed_at)
-
-
-@jax.jit
-def non_finite_disks(p: Particles) -> Array:
-    """`[n]` bool: disks with a non-finite position or velocity (one program, not op by op)."""
-    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
-
-
-def _non_finite_on_host(p: Particles) -> np.ndarray:
-    """`non_finite_disks` as a numpy array; on a CPU computed by numpy on the
-    arrays' zero-copy views (no program to compile per pile size), elsewhere
-    by the compiled reduction (no copy of every position to the host)."""
-    if jax.default_backend() != "cpu":
-        return np.asarray(non_finite_disks(p))
-    finite = np.isfinite(np.asarray(p.position)).all(-1) & np.isfinite(np.asarray(p.velocity)).all(-1)
-    return ~(finite & np.isfinite(np.asarray(p.angular_velocity)))
-
-
-def _check_finite(particles: Particles, *, step: int, last_good=None) -> None:
-    p = particles
-    bad = _non_finite_on_host(p)
-    if bad.any():
-        first = int(np.argmax(bad))
-        if last_good is None:
-            raise InputError(
-                f"particle {first} has a non-finite position or velocity in the input "
-                f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])})."
-            )
-        raise SimulationError(
-            f"non-finite position or velocity by step {step}: first offending particle {first} "
-            f"(position {np.asarray(p.position[first])}, velocity {np.asarray(p.velocity[first])}). "
-            "The last good state is in this error's `last_good_state`.",
-            last_good_state=last_good,
-            step=step,
-        )
 
 
 def _evaluate(law: ContactLaw, params, state: SimState) -> ContactForces:
