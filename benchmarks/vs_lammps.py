@@ -88,7 +88,7 @@ from jaxpile.engine import ensemble
 from jaxpile.engine.simulate import RunInfo, Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import Setup
 from jaxpile.measure import heap
 
 try:
@@ -497,7 +497,7 @@ def ensemble_case(args, binary, root) -> tuple[dict, list]:
         params = member_params(count)
         ens = ensemble.Ensemble(sim)
         t0 = time.perf_counter()
-        state = ens.init(params, [Protocol(particles, boundaries)] * count)
+        state = ens.init(params, [Setup(particles, boundaries)] * count)
         init_seconds = time.perf_counter() - t0
         info = RunInfo()
         state = ens.run(params, state, steps, progress=False, info=info)

@@ -89,9 +89,9 @@ def test_ensemble_refuses_mismatched_members(batch):
     with pytest.raises(InputError, match="dt"):
         ens.init(params[:1], [wrong_dt])
     particles, boundaries = lattice.equilateral_pile(2)
-    from jaxpile.protocols.base import Protocol
+    from jaxpile.protocols.base import Setup
     with pytest.raises(InputError, match="driver"):
-        ens.init(params[:1], [Protocol(particles, boundaries, driver=lambda s: s)])
+        ens.init(params[:1], [Setup(particles, boundaries, driver=lambda s: s)])
     with pytest.raises(InputError, match="at least one"):
         ens.init(params, [])
 
@@ -105,13 +105,13 @@ SHARDED = textwrap.dedent("""
     from jaxpile import ensemble
     from jaxpile.laws import hooke
     from jaxpile.protocols import lattice
-    from jaxpile.protocols.base import Protocol
+    from jaxpile.protocols.base import Setup
     from jaxpile.engine.simulate import Simulator
     assert len(jax.devices()) == 2
     particles, boundaries = lattice.equilateral_pile(3)
     sim = Simulator(hooke.law(rotation=False), 5e-4, chunk_steps=100, skin=0.02)
     params = [hooke.make_params(kn=kn, gamma_n=50.0, mu=0.0) for kn in (5e3, 1e4, 2e4)]
-    protocols = [Protocol(particles, boundaries)] * 3
+    protocols = [Setup(particles, boundaries)] * 3
     sharded = ensemble.Ensemble(sim)
     single = ensemble.Ensemble(sim, devices=jax.devices()[:1])
     a = sharded.run(params, sharded.init(params, protocols), 300, progress=False)

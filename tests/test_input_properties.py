@@ -126,7 +126,7 @@ _SMALL = {"n": 12, "layers": 3, "insertions": 3, "pool": 12, "substrate_disks": 
 @settings(PROPERTY, max_examples=60)
 @given(data=st.data())
 def test_every_protocol_option_sets_up_or_refuses_in_one_line(data):
-    """Each protocol's set-up with one option drawn at its edges: a `Protocol`
+    """Each protocol's set-up with one option drawn at its edges: a `Setup`
     (or the lattice's particles) or one InputError; counts are drawn small when
     valid so that a set-up stays cheap (their huge values are the memory
     check's, tested in test_budget.py)."""

@@ -54,7 +54,7 @@ from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed
 from jaxpile.engine.state import SimState
 
 if TYPE_CHECKING:  # the set-up's type for annotations: the engine imports no protocol
-    from jaxpile.protocols.base import Protocol
+    from jaxpile.protocols.base import Setup
 
 Array = Any
 
@@ -111,7 +111,7 @@ class Ensemble:
                              "the batch's neighbour list")
 
     # --------------------------------------------------------------- set-up
-    def init(self, params, protocols: Sequence[Protocol]) -> SimState:
+    def init(self, params, protocols: Sequence[Setup]) -> SimState:
         """Starts every member (each checked as `Simulator.init` checks one pile)
         and stacks them on a shared neighbour box and capacity.
 
@@ -119,7 +119,7 @@ class Ensemble:
           params: one params pytree per member (a list), or one batched pytree
             with a leading axis of the members' count, or one unbatched pytree
             shared by all.
-          protocols: one `Protocol` per member; same disk count, driver and schedule.
+          protocols: one `Setup` per member; same disk count, driver and schedule.
 
         Returns:
           The batched `SimState` (leading axis: members), sharded over the

@@ -1,4 +1,4 @@
-"""How piles are built. Each protocol returns a `base.Protocol`: the particles
+"""How piles are built. Each protocol returns a `base.Setup`: the particles
 (parked, inactive ones included), boundaries, and what happens while it runs
 (schedule, driver); each module also has a `run(...)` that takes it to its end
 and returns the final state and the protocol's measurements."""

@@ -41,7 +41,7 @@ class Adapter:
     """What a sweep needs from a protocol.
 
     Attributes:
-      setup: `(law, seed, dt, options) -> Protocol` for one member.
+      setup: `(law, seed, dt, options) -> Setup` for one member.
       simulator: `(law, dt, options) -> Simulator` shared by the batch.
       finished: `(protocol info, options) -> (state -> bool)`, traceable, per member.
       max_steps: `(protocol info, options) -> int`, the step budget.

@@ -1,7 +1,7 @@
 """What every protocol returns: the set-up, and what happens while it runs.
 
 A protocol is a pure function of its arguments (and a seed) that returns a
-`Protocol`: particles (all of them, the ones not yet poured parked with
+`Setup`: particles (all of them, the ones not yet poured parked with
 `active=False`), boundaries, the transient `schedule` (boundaries in force at a
 step, e.g. a gravity ramp), the persistent `driver` (insertions, wall removal,
 tilting, inside the compiled loop; see `jaxpile.protocols.drivers`) with its
@@ -18,7 +18,7 @@ from jaxpile.errors import InputError
 from jaxpile.engine.state import Boundaries, Particles
 
 
-class Protocol(NamedTuple):
+class Setup(NamedTuple):
     """A protocol's set-up.
 
     Attributes:

@@ -79,7 +79,7 @@ from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.protocols.drivers import motion, rest_detector
 from jaxpile.protocols.geometry import (PARK_SPACING, check_positive, neighbor_box, parking_grid,
                                         random_positions, take_out)
@@ -182,7 +182,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
              placement_fraction: float = PAPER_SETTING["placement_fraction"],
              rest_speed: float = PAPER_SETTING["rest_speed"], hold_time: float = PAPER_SETTING["hold_time"],
              rest_measure: str = PAPER_SETTING["rest_measure"], dt: float | None = None, seed: int = 0,
-             dtype=None) -> Protocol:
+             dtype=None) -> Setup:
     """The box of Lee & Herrmann 1993, Fig. 1, ready to run with `driver`.
 
     Lengths, speeds and times are in the paper's units (cm, cm/s, s) and are
@@ -206,7 +206,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
       dtype: float dtype (default float64).
 
     Returns:
-      `Protocol` with `driver` and a `BoxState`; the right wall is on, the
+      `Setup` with `driver` and a `BoxState`; the right wall is on, the
       floor ends at x = W. `info` holds the set-up in simulation units.
 
     Raises:
@@ -280,7 +280,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
         "seed": int(seed),
     }
     box = neighbor_box(np.concatenate([position, park]), r)
-    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
+    return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
                     box=box, info=info)
 
 
@@ -330,7 +330,7 @@ def count_check(state: SimState) -> dict:
             "n_fixed": int(np.sum(fixed)), "n_out_of_play": int(np.sum(~active & ~fixed))}
 
 
-def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     """The pile's angle of repose by the three methods (degrees), the steps of
     the wall removal and of the final rest, the fill height and disk counts."""
     from jaxpile.measure import theory
@@ -372,7 +372,7 @@ DEFINITION = definition.Definition(
                fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")}))
 
 
-def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
+def execute(sim, params, p: Setup, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Starts a box protocol and runs it until its driver records the final rest
     (`BoxState.settled_at`) or `max_steps` (`definition.execute`: checkpoint,
     resume bit-identical, samples). Returns `(state, RunInfo, samples)`."""

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from jaxpile.protocols.adapter import Adapter, Stage
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import Setup
 from jaxpile.protocols.options import option_names
 from jaxpile.protocols.runner import run_record, run_to_finish
 
@@ -33,7 +33,7 @@ class Definition:
 
     Attributes:
       name: the protocol's registered name.
-      setup: the module's set-up, `setup(size, *, law?, seed?, dt?, dtype?, **options) -> Protocol`
+      setup: the module's set-up, `setup(size, *, law?, seed?, dt?, dtype?, **options) -> Setup`
         (it gets `law`, `seed`, `dt` and `dtype` where it takes them; the size by its keyword).
       size: the set-up's size keyword (`n`, `insertions`, `layers`): a sweep's `--n`.
       simulator: `(law, *, dt, rotation, integrator, chunk_steps, **kwargs) -> Simulator`;
@@ -99,7 +99,7 @@ class Definition:
             raise TypeError(f"{self.name}: a protocol that continues another's pile runs by continue_pile; "
                             "it takes no execute or report hook.")
 
-    def _setup(self, size, law, **kwargs) -> Protocol:
+    def _setup(self, size, law, **kwargs) -> Setup:
         taken = inspect.signature(self.setup).parameters
         if "law" in taken:
             kwargs["law"] = law
@@ -177,7 +177,7 @@ def run(definition: Definition, law, size=None, *, params=None, rotation: bool |
                    "info": dict(p.info)}
 
 
-def execute(definition: Definition, sim, params, p: Protocol, *, max_steps: int | None = None, progress=None,
+def execute(definition: Definition, sim, params, p: Setup, *, max_steps: int | None = None, progress=None,
             checkpoint=None, resume=None, run_options: dict | None = None):
     """Runs the set-up `p` until `definition.finished` (checked after each
     chunk) or its step budget (`max_steps`, default `definition.max_steps`).
@@ -229,7 +229,7 @@ def _run_continued(d: Definition, law, size, *, params, pile, pile_params, pile_
     return state, out
 
 
-def on_pile(d: Definition, pile, law, dt, options: dict, run_options: dict, *, facts: bool = True) -> Protocol:
+def on_pile(d: Definition, pile, law, dt, options: dict, run_options: dict, *, facts: bool = True) -> Setup:
     """The set-up of `d` on the state `pile`, its run options checked (`check`),
     with the pile's facts (`pile_facts`) in its info unless `facts` is False
     (a batch adds them as its stage's `describe`)."""
@@ -239,7 +239,7 @@ def on_pile(d: Definition, pile, law, dt, options: dict, run_options: dict, *, f
     return p if d.pile_facts is None or not facts else p._replace(info={**p.info, **d.pile_facts(pile, p)})
 
 
-def continue_pile(d: Definition, sim, params, p: Protocol, pile=None, *, run_options: dict | None = None,
+def continue_pile(d: Definition, sim, params, p: Setup, pile=None, *, run_options: dict | None = None,
                   progress=None, checkpoint=None, resume=None):
     """Runs the set-up `p` of a continued protocol from `pile`, the state it
     was built on (contact history kept; None: `p.particles` with a fresh

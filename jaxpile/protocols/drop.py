@@ -73,7 +73,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.measure.dropped_pile import measure
 from jaxpile.protocols import definition, lattice
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.engine.state import SimState, make_particles
@@ -227,7 +227,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
              drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
              settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
              max_interval: float = SETTING["max_interval"], diameter: float = 1.0, mass: float = 1.0,
-             dtype=None) -> Protocol:
+             dtype=None) -> Setup:
     """The 1992 Fig. 20 drop pile: n equal disks dropped one by one on the ground.
 
     Args:
@@ -242,7 +242,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
       max_interval: the longest wait between two drops (sqrt(sigma/g)).
 
     Returns:
-      `Protocol` with every disk parked inactive, the drop driver and its
+      `Setup` with every disk parked inactive, the drop driver and its
       `DropState`, the neighbour-list box and `info` (counts, axis, step rules).
     """
     ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
@@ -285,7 +285,7 @@ def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
         "quiet_steps": quiet_steps,
         "max_interval_steps": max_interval_steps,
     }
-    return Protocol(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=driver,
+    return Setup(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=driver,
                     protocol_state=state, box=box, info=info)
 
 
@@ -321,7 +321,7 @@ def make_simulator(law="liffman", *, dt: float = SETTING["dt"], rotation: bool |
                      in_play=make_in_play(p.info["quiet_steps"]), **extra)
 
 
-def _execute(sim, params, p: Protocol, options: dict, *, progress=None, checkpoint=None, resume=None):
+def _execute(sim, params, p: Setup, options: dict, *, progress=None, checkpoint=None, resume=None):
     """One pile: the fill (every disk dropped), then the relaxation to rest,
     each phase recorded with its checkpoints (a resume continues either)."""
     from types import SimpleNamespace
@@ -352,7 +352,7 @@ def _execute(sim, params, p: Protocol, options: dict, *, progress=None, checkpoi
                                   forced=int(state.protocol_state.forced), steps=int(state.step)), None
 
 
-def _report(measured: dict, p: Protocol, options: dict, info, samples, seconds: float) -> dict:
+def _report(measured: dict, p: Setup, options: dict, info, samples, seconds: float) -> dict:
     """One pile's output: the run's phases and timings, then the measurements."""
     n = p.info["n_particles"]
     out = {

@@ -59,7 +59,7 @@ from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Ran
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import drivers
 from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.measure.theory import marginal_stability_overlay
 from jaxpile.protocols import paper1993
@@ -237,7 +237,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
              pool: int | None = None, fixed_base: bool = True, radius: dict | None = None,
              v_cut: float = SETTING["v_cut"], rest_measure: str = SETTING["rest_measure"],
              hold_time: float = SETTING["hold_time"], gap: float = SETTING["gap"], dt: float | None = None,
-             seed: int = 0, dtype=None) -> Protocol:
+             seed: int = 0, dtype=None) -> Setup:
     """The constant-flux pile of Lee & Herrmann 1993, Fig. 5, ready to run with `driver`.
 
     Lengths, speeds and times in the paper's units (cm, cm/s, s), converted with
@@ -260,7 +260,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
       dtype: float dtype (default float64).
 
     Returns:
-      `Protocol` with `driver` and a `FluxState`: the base layer first
+      `Setup` with `driver` and a `FluxState`: the base layer first
       (`info["n_base"]` disks), then the pool, all parked and inactive; the
       right wall is off.
 
@@ -365,7 +365,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         "dt": dt,
         "seed": int(seed),
     }
-    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
+    return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
                     box=geometry.neighbor_box(park, radius_all), info=info)
 
 
@@ -383,7 +383,7 @@ def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: boo
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 
-def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     """Per insertion its `insert_step`, `in_play` and the angle by each method
     (`angle_*`); `steady_*`: the mean and standard deviation of the method-3
     angle over the second half of the insertions (the paper's level and the
@@ -427,7 +427,7 @@ DEFINITION = definition.Definition(
                fit_statistics={"columns": ("steady_mean",)}))
 
 
-def execute(sim, params, p: Protocol, *, max_steps: int, progress=None, checkpoint=None, resume=None):
+def execute(sim, params, p: Setup, *, max_steps: int, progress=None, checkpoint=None, resume=None):
     """Runs the flux protocol until every insertion is made and the pile is at
     rest (`FluxState.settled_at`), or `max_steps` (`definition.execute`).
     Returns `(state, RunInfo, samples)`."""

@@ -48,7 +48,7 @@ from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.drivers import rest_detector, rms_speed
 from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, park_where, parking_grid, random_positions
@@ -170,7 +170,7 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
              dispersity: float = SETTING["dispersity"], placement_fraction: float = SETTING["placement_fraction"],
              rest_speed: float = SETTING["rest_speed"], hold_time: float = SETTING["hold_time"],
              clog_time: float = SETTING["clog_time"], dt: float | None = None, seed: int = 0,
-             dtype=None) -> Protocol:
+             dtype=None) -> Setup:
     """The silo, filled at random, its gate closed, ready to run with `driver`.
 
     Args:
@@ -219,7 +219,7 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
     info = {"protocol": "hopper", "n": n, "width": float(width), "orifice": float(orifice),
             "dispersity": float(dispersity), "floor_disks": int(x_floor.size), "gate_disks": int(gate.sum()),
             "floor_top": FLOOR_Y + 0.5, "dt": dt, "hold_steps": hold, "seed": int(seed)}
-    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
+    return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
                     box=neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
 
 

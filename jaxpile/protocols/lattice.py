@@ -18,7 +18,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.protocols import definition, loaded_pile
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.measure.heap import ProfileSetting
 
 
@@ -135,10 +135,10 @@ def law_and_params(law, params=None, rotation=None, dtype=None):
 relax = loaded_pile.relax  # gravity ramped in, then a run to rest (shared with the sloped pile)
 
 
-def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0, dtype=None) -> Protocol:
-    """The k-layer pile as a `Protocol` (`equilateral_pile`); the gravity ramp is the run's."""
+def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0, dtype=None) -> Setup:
+    """The k-layer pile as a `Setup` (`equilateral_pile`); the gravity ramp is the run's."""
     particles, boundaries = equilateral_pile(layers, diameter=diameter, mass=mass, gap=gap, dtype=dtype)
-    return Protocol(particles=particles, boundaries=boundaries,
+    return Setup(particles=particles, boundaries=boundaries,
                     info={"protocol": "lattice", "layers": int(layers), "n": int(particles.count)})
 
 
@@ -149,7 +149,7 @@ def _compare(sim, params, state, p) -> dict:
             "steps": int(state.step)}
 
 
-def _report(measured: dict, p: Protocol, options: dict, info, seconds: float) -> dict:
+def _report(measured: dict, p: Setup, options: dict, info, seconds: float) -> dict:
     """One pile's output: the comparison with eqs. 42 and 44, the run's steps,
     times, whether it ended at rest, and the ground friction the pile needs."""
     from jaxpile.measure import theory

@@ -70,7 +70,7 @@ def definition_of(name: str, setup: Callable, law_and_params: Callable, setting:
 
     Args:
       name: the protocol's registered name.
-      setup: its set-up, `setup(size, *, ..., dtype) -> Protocol`.
+      setup: its set-up, `setup(size, *, ..., dtype) -> Setup`.
       law_and_params: its law lookup (the 1992 setting).
       setting: its defaults (`dt` and the `RUN_OPTIONS`).
       compare: `(sim, params, state, protocol) -> dict` against the paper's theory.

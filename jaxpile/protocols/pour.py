@@ -67,7 +67,7 @@ from jaxpile.measure.poured_heap import (
     check_options, measure, report, sweep_row)
 from jaxpile.protocols import definition, drivers, geometry
 from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.protocols.geometry import heap_extent
@@ -228,7 +228,7 @@ def pour(
     substrate_disks: int | None = None,
     seed: int = 0,
     dtype=None,
-) -> Protocol:
+) -> Setup:
     """The 1997 pouring set-up: a fixed row of disks and n disks to pour onto it.
 
     Units: sigma (the largest diameter) = 1, g = 1, a disk of diameter sigma has
@@ -256,7 +256,7 @@ def pour(
       dtype: float dtype (default float64).
 
     Returns:
-      `Protocol` whose `protocol_state` is a `PourState`; the substrate is
+      `Setup` whose `protocol_state` is a `PourState`; the substrate is
       particles `0 .. m-1` (fixed), the poured disks `m .. m+n-1` in release
       order. `info` holds the set-up's numbers, including `pour_steps`
       (n x interval steps: the last disk has one interval to fall).
@@ -355,7 +355,7 @@ def pour(
         "pour_steps": n * interval_steps,
         "seed": int(seed),
     }
-    return Protocol(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state, info=info)
+    return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state, info=info)
 
 
 # ----------------------------------------------------------------------- runs
@@ -392,7 +392,7 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
     return Simulator(contact_law, dt, integrator=integrator, driver=driver, chunk_steps=chunk_steps, **kwargs)
 
 
-def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
+def execute(sim, params, protocol: Setup, *, speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
             max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, checkpoint=None,
             resume=None):
     """Pours every disk (`info["pour_steps"]` steps) and runs until at rest.
@@ -422,7 +422,7 @@ def execute(sim, params, protocol: Protocol, *, speed_tolerance: float = PAPER_S
                             progress=progress, checkpoint=checkpoint)
 
 
-def _execute(sim, params, protocol: Protocol, options: dict, *, progress=None, checkpoint=None, resume=None):
+def _execute(sim, params, protocol: Setup, options: dict, *, progress=None, checkpoint=None, resume=None):
     """One heap: `execute` (every disk poured, then a run to rest checked from there)."""
     state, info = execute(sim, params, protocol, speed_tolerance=options["speed_tolerance"],
                           max_settle_steps=options["max_settle_steps"], progress=progress, checkpoint=checkpoint,

@@ -1,6 +1,6 @@
 """Running a protocol's set-up to its end: the part every protocol shares.
 
-`start` builds a `Protocol`'s first state (or restores a checkpoint of the
+`start` builds a `Setup`'s first state (or restores a checkpoint of the
 same run), `run_sampled` runs it until a host predicate holds, sampling the
 kinetic energy once per chunk and saving the samples with each checkpoint, and
 `run_to_finish` is the two together with the budget check: a protocol whose
@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxpile.errors import InputError
-from jaxpile.protocols.base import Protocol
+from jaxpile.protocols.base import Setup
 from jaxpile.engine.simulate import max_speed
 from jaxpile.engine.state import SimState
 
@@ -94,14 +94,14 @@ def run_sampled(sim, params, state: SimState, *, max_steps: int, finished, progr
     return state, info, samples
 
 
-def check_dt(sim, p: Protocol) -> None:
+def check_dt(sim, p: Setup) -> None:
     """InputError unless the simulator steps with the dt the protocol was set up for."""
     if abs(sim.dt - p.info["dt"]) > 1e-12 * p.info["dt"]:
         raise InputError(f"the protocol was set up for dt = {p.info['dt']:g} but the simulator uses "
                          f"dt = {sim.dt:g}; pass the same dt to both.")
 
 
-def start(sim, params, p: Protocol, resume=None) -> tuple[SimState, dict | None]:
+def start(sim, params, p: Setup, resume=None) -> tuple[SimState, dict | None]:
     """The protocol's first state, or with `resume` (a checkpoint file of this
     same run) the state saved there, with the samples saved beside it."""
     check_dt(sim, p)
@@ -121,7 +121,7 @@ def restore_sampled(resume, template: SimState, sim, params) -> tuple[SimState, 
     return state, samples
 
 
-def run_to_finish(sim, params, p: Protocol, *, max_steps: int, finished, progress=None, checkpoint=None,
+def run_to_finish(sim, params, p: Setup, *, max_steps: int, finished, progress=None, checkpoint=None,
                   resume=None, budget_name: str = "max_time"):
     """Starts `p` (or resumes it) and runs it until the host predicate
     `finished(state)` holds (checked after each chunk) or `max_steps` in all.

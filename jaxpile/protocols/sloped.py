@@ -35,7 +35,7 @@ from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.errors import InputError
 from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.protocols import definition, lattice, loaded_pile, outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 # the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its names here (`sloped.compare_with_theory`)
@@ -160,7 +160,7 @@ def sloped_pile(base: float, alpha_degrees: float, *, diameter: float = 1.0, mas
 
 def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None = SETTING["n"],
              base: float | None = None, ramp_steps: int = SETTING["ramp_steps"], seed: int = 0,
-             dtype=None) -> Protocol:
+             dtype=None) -> Setup:
     """The sloped pile of Liffman et al. 1992, Figs. 12-16, ready to run.
 
     Args:
@@ -172,7 +172,7 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
       seed: unused (the pile is deterministic); kept for a uniform signature.
 
     Returns:
-      `Protocol` with a gravity-ramp schedule and no driver; `info` holds the
+      `Setup` with a gravity-ramp schedule and no driver; `info` holds the
       slope, B, the row lengths, the disk count and x_c (eq. 49's text).
     """
     ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
@@ -201,7 +201,7 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
         "n_particles": int(particles.count),
         "critical_distance": theory.continuum_critical_distance(math.radians(alpha), base),
     }
-    return Protocol(particles=particles, boundaries=boundaries, schedule=gravity_ramp(ramp_steps), info=info)
+    return Setup(particles=particles, boundaries=boundaries, schedule=gravity_ramp(ramp_steps), info=info)
 
 
 def law_and_params(law, params=None, rotation=None, dtype=None, *, setting: dict = SETTING):
@@ -255,7 +255,7 @@ def _compare(sim, params, state, p) -> dict:
                                   p.info["base"], n_particles=n_in), "law": sim.law.name}
 
 
-def _report(measured: dict, p: Protocol, options: dict, info, seconds: float) -> dict:
+def _report(measured: dict, p: Setup, options: dict, info, seconds: float) -> dict:
     """One pile's output: the comparison with eqs. 54-59, the run's steps and
     times, whether it ended at rest, the disk count and the pile's geometry."""
     out = {k: v for k, v in measured.items() if k not in ("height", "max_speed")}

@@ -45,7 +45,7 @@ from jaxpile.errors import InputError
 from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
 from jaxpile.protocols import box as boxes
 from jaxpile.protocols import definition, outputs
-from jaxpile.protocols.base import CommandLine, Protocol
+from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.engine.state import SimState
 from jaxpile.measure.theory import marginal_stability_overlay
 from jaxpile.protocols import paper1993
@@ -195,7 +195,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
              move_speed: float = SETTING["move_speed"], rest_speed: float = SETTING["rest_speed"],
              rest_measure: str = SETTING["rest_measure"], hold_time: float = SETTING["hold_time"],
              max_tilt_degrees: float = SETTING["max_tilt_degrees"], edge: float | None = None,
-             dt: float | None = None) -> Protocol:
+             dt: float | None = None) -> Setup:
     """Tilting of a settled pile (Lee & Herrmann 1993, Fig. 4), ready to run with `driver`.
 
     Speeds and times are in the paper's units (cm/s, s), converted with
@@ -205,7 +205,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
       pile: the settled pile, e.g. the state `box.run` returns. Its particles,
         walls and gravity (untilted, pointing down) are the start. `run` and
         `execute(..., pile=...)` continue this state, keeping its contact history;
-        starting from `Protocol.particles` instead loses the tangential springs.
+        starting from `Setup.particles` instead loses the tangential springs.
       law: the law the run will use (units and default dt).
       rate_degrees: tilt per step (1e-3 in the paper).
       move_speed: the pile moves when its speed exceeds this.
@@ -286,7 +286,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         "dt": dt,
         "start_step": int(pile.step),
     }
-    return Protocol(particles=p, boundaries=pile.boundaries, driver=driver, protocol_state=state,
+    return Setup(particles=p, boundaries=pile.boundaries, driver=driver, protocol_state=state,
                     box=None if settings is None else settings.box, info=info)
 
 
@@ -322,7 +322,7 @@ def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: floa
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 
-def pile_facts(pile: SimState, p: Protocol) -> dict:
+def pile_facts(pile: SimState, p: Setup) -> dict:
     """The pile the tilt takes over: its angles of repose (three methods, at
     the floor's end `edge`) and whether its box run came to rest."""
     before = boxes.repose(pile, p.info["edge"])
@@ -363,7 +363,7 @@ def max_steps(info, options) -> int:
     return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000 + _settle_steps(info, options)
 
 
-def measure(sim, params, state: SimState, p: Protocol, options: dict) -> dict:
+def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     """theta_T (degrees, NaN if the pile never moved up to the largest tilt),
     the pile's theta_R (method 3) and all three methods, the theory of sec. 6
     (`compare_with_theory`), the steps of the onset and of the motion (from
@@ -407,7 +407,7 @@ DEFINITION = definition.Definition(
     starts_from=boxes.DEFINITION, pile_facts=pile_facts, check_options=check_options)
 
 
-def execute(sim, params, p: Protocol, *, pile: SimState | None = None, settle: bool = False,
+def execute(sim, params, p: Setup, *, pile: SimState | None = None, settle: bool = False,
             settle_time: float = SETTING["settle_time"], progress=None, checkpoint=None, resume=None):
     """Tilts until the pile moves (or the largest tilt), then, with `settle`,
     until it is at rest again (`definition.continue_pile`).
