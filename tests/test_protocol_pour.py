@@ -11,7 +11,7 @@ import pytest
 import jaxpile
 from jaxpile.errors import InputError
 from jaxpile.protocols import pour
-from jaxpile.measure import poured_heap
+from jaxpile.measure import analysis, poured_heap
 from jaxpile.measure import heap
 
 N = 48  # disks per test heap (the paper: 1334)
@@ -238,7 +238,7 @@ def test_m_shape_and_base_profile_on_synthetic_forces():
     """The M-shape ratio is flank maximum over the central bin."""
     x = np.linspace(0.05, 9.95, 100)
     m_profile = 1.0 + 0.25 * np.sin(np.pi * x / 10) ** 2 - 0.25 * np.exp(-((x - 5) / 1.0) ** 2) * 2
-    forces = poured_heap.SubstrateForces(x=x, normal=m_profile, horizontal=0 * x, particle=0 * x, substrate=0 * x)
+    forces = analysis.SubstrateForces(x=x, normal=m_profile, horizontal=0 * x, particle=0 * x, substrate=0 * x)
     prof = heap.base_profile(forces, extent=(0.0, 10.0), bins=11)
     assert prof.width == 10.0 and len(prof.force) == 11
     np.testing.assert_allclose(prof.x_over_b, (np.arange(11) + 0.5) / 11)

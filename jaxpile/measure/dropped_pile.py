@@ -14,9 +14,10 @@ from jaxpile.measure.heap import central_dip, normal_profile
 
 def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: float = 0.05) -> dict:
     """The drop pile's measurements at `state` (see `run`)."""
-    from jaxpile.measure import analysis
+    from jaxpile.measure.forces import base_forces
+    from jaxpile.measure.surface import repose_angles, surface_profile
 
-    base = analysis.base_forces(sim, params, state)
+    base = base_forces(sim, params, state)
     n_in = int(np.asarray(state.particles.movable).sum())
     out = {
         "base_contacts": int(len(base.x)),
@@ -45,8 +46,8 @@ def measure(sim, params, state: SimState, *, bins: int = 15, dip_threshold: floa
         )
     for flank in ("left", "right"):
         try:
-            surface = analysis.surface_profile(pos, radius, active)
-            angle = analysis.repose_angles(surface, flank=flank).cumulative_parabola
+            surface = surface_profile(pos, radius, active)
+            angle = repose_angles(surface, flank=flank).cumulative_parabola
         except InputError:
             angle = float("nan")
         out[f"repose_angle_{flank}"] = angle

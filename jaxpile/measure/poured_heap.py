@@ -13,16 +13,10 @@ import numpy as np
 from jaxpile import budget
 from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
-from jaxpile.measure import analysis
+from jaxpile.measure.forces import force_unit, substrate_forces
+from jaxpile.measure.surface import apex_x, mid_flank_angle, repose_angles, surface_profile, SurfaceProfile
+from jaxpile.measure.voidage import packing_fraction, voidage_map, voidage_map_bytes
 from jaxpile.measure.heap import base_profile, central_dip, flank_over_centre, m_shape, steepest_heap_height
-
-# -------------------------------------------------------------------- forces
-# The base forces on fixed disks are a general measurement (`analysis`); the
-# names stay here too, where the 1997 paper's F_B is computed.
-SubstrateForces = analysis.SubstrateForces
-substrate_forces = analysis.substrate_forces
-
-
 
 # -------------------------------------------------------------- measurements
 def heap_mask(state: SimState) -> np.ndarray:
@@ -30,7 +24,7 @@ def heap_mask(state: SimState) -> np.ndarray:
     return np.asarray(state.particles.movable)
 
 
-def _contiguous_columns(profile: analysis.SurfaceProfile) -> tuple[float, float]:
+def _contiguous_columns(profile: SurfaceProfile) -> tuple[float, float]:
     """x range (column centres) of the run of non-empty columns holding the apex."""
     filled = ~np.isnan(profile.height)
     top = int(np.nanargmax(profile.height))
@@ -54,15 +48,15 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
         the heap's base), `m_shape` (`MShape`);
       `weight` (mg, of the disks in play), `substrate_normal_total` (mg) and
         `force_balance` = total / weight - 1 (zero at rest);
-      `surface` (`analysis.SurfaceProfile` of the disks in play, columns one
+      `surface` (`surface.SurfaceProfile` of the disks in play, columns one
         substrate spacing wide centred on the notches of the row), `apex_x`,
         `height` (apex centre height above the substrate's centre line),
-        `base_width` B, `angles` {"left", "right"}: `analysis.ReposeAngles` of each
+        `base_width` B, `angles` {"left", "right"}: `surface.ReposeAngles` of each
         flank (the contiguous columns only), `angle_mid_flank` {"left", "right"}:
-        `analysis.mid_flank_angle` (the line through the columns between 20% and
+        `surface.mid_flank_angle` (the line through the columns between 20% and
         80% of the apex height; None when fewer than 3), `angle_height_base` = atan(2 h / B),
         `asymmetry`: apex and centre-of-mass offsets from the pouring centre;
-      `voidage` (`analysis.VoidageMap` over the heap, cells `voidage_cell` sigma)
+      `voidage` (`voidage.VoidageMap` over the heap, cells `voidage_cell` sigma)
         and `core_packing_fraction` (a rectangle B/4 wide and h/2 high under the apex).
     """
     ps = state.protocol_state  # a pour.PourState
@@ -80,7 +74,7 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
     out: dict = {"counts": {"poured": poured, "in_play": int(in_play.sum()), "lost": lost, "parked": parked,
                             "total": int(p.count) - first}}
     forces = substrate_forces(sim, params, state)
-    unit = analysis.force_unit(state)
+    unit = force_unit(state)
     weight = float(np.asarray(p.mass)[in_play].sum() * np.linalg.norm(np.asarray(state.boundaries.gravity)) / unit)
     total = float(forces.normal.sum())
     out.update(substrate_forces=forces, weight=weight, substrate_normal_total=total,
@@ -92,23 +86,23 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
     # the mean diameter (Lee & Herrmann's choice) every tenth column of a
     # one-disk-high toe would be empty, as its disks sit in notches S apart
     rows = first
-    surface = analysis.surface_profile(pos[in_play], rad[in_play], x_min=float(pos[0, 0]),
+    surface = surface_profile(pos[in_play], rad[in_play], x_min=float(pos[0, 0]),
                                        width=float(pos[rows - 1, 0] - pos[0, 0]), column_width=spacing)
     lo, hi = _contiguous_columns(surface)
     half = 0.5 * surface.column_width
     heap_cols = (pos[in_play, 0] >= lo - half) & (pos[in_play, 0] <= hi + half)
     out["counts"]["strays"] = int((~heap_cols).sum())
-    apex = analysis.apex_x(surface)
+    apex = apex_x(surface)
     height = float(np.nanmax(surface.height)) - base_y
     x_left, x_right = lo - half, hi + half
     width = x_right - x_left
     angles = {}
     for flank in ("left", "right"):
         try:
-            angles[flank] = analysis.repose_angles(surface, flank=flank, x_range=(lo, hi), apex=apex)
+            angles[flank] = repose_angles(surface, flank=flank, x_range=(lo, hi), apex=apex)
         except InputError:
             angles[flank] = None  # fewer than 3 columns on that side
-    mid_flank = {flank: analysis.mid_flank_angle(surface, flank=flank, base=base_y, apex=apex)
+    mid_flank = {flank: mid_flank_angle(surface, flank=flank, base=base_y, apex=apex)
                  for flank in ("left", "right")}
     heap_x = pos[in_play, 0][heap_cols]
     heap_m = np.asarray(p.mass)[in_play][heap_cols]
@@ -122,9 +116,9 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
         out["m_shape"] = m_shape(profile, m_threshold)
     top = float(np.max(pos[in_play, 1] + rad[in_play]))
     region = (x_left, x_right, base_y, top)
-    out["voidage"] = analysis.voidage_map(pos[in_play], rad[in_play], voidage_cell, region=region)
+    out["voidage"] = voidage_map(pos[in_play], rad[in_play], voidage_cell, region=region)
     core = (apex - width / 8.0, apex + width / 8.0, base_y + 0.5, base_y + 0.5 + max(height / 2.0, 1.0))
-    out["core_packing_fraction"] = analysis.packing_fraction(pos[in_play], rad[in_play], core)
+    out["core_packing_fraction"] = packing_fraction(pos[in_play], rad[in_play], core)
     return out
 
 
@@ -199,6 +193,6 @@ def check_options(protocol, options: dict) -> None:
         raise InputError(f"bins ({bins:g}) must be at most the substrate's {info['n_substrate']} disks: a bin "
                          "narrower than a substrate spacing holds no contact.")
     width, height = info["substrate_length"], steepest_heap_height(info["n_poured"]) + 2.0
-    need = analysis.voidage_map_bytes(width, height, options["voidage_cell"], info["n_poured"], 0.5)
+    need = voidage_map_bytes(width, height, options["voidage_cell"], info["n_poured"], 0.5)
     budget.check_host(need, f"the voidage map (voidage_cell = {options['voidage_cell']:g} sigma over up to "
                             f"{width:.0f} x {height:.0f} sigma)", "Give a larger voidage_cell (the default is 3).")
