@@ -60,7 +60,7 @@ def main(argv=None) -> dict:
 
     width = (args.n / 409) ** 0.5 * 4.0  # the paper's 4 x 4 box scaled to n disks
     dtype = jnp.float32 if args.precision == "float32" else jnp.float64
-    protocols = [box.protocol(args.n, law=LAW, width=width, height=width, seed=s, dtype=dtype)
+    protocols = [box.SPEC.set_up(LAW, args.n, width=width, height=width, seed=s, dtype=dtype)
                  for s in range(args.members)]
     params = [box.law_and_params(LAW, {"mu": 0.1 + 0.05 * (s % 5)}, dtype=dtype)[2] for s in range(args.members)]
     sim = box.make_simulator(LAW, chunk_steps=args.steps)

@@ -6,7 +6,7 @@ This pours the heap of `vs_lammps.py --small` (200 hooke disks onto 60 fixed
 ones, velocity Verlet), then, on the heap as it stands:
 
 * `rebuild`: one full-list build from the positions, its half pair list and
-  the history carried onto it (`neighbors.rebuild` + `neighbors.contacts_for`),
+  the history carried onto it (`neighbors.rebuild` + `pairs.contacts_for`),
   in a compiled loop of `--repeats` (the positions nudged by 1e-12 every other
   turn, so nothing is hoisted out of the loop);
 * `step`, `step, rebuild every step`, `step, never rebuilt`: the pour's own
@@ -29,6 +29,7 @@ from jax import lax
 import jaxpile  # noqa: F401  (float64)
 from jaxpile import io
 from jaxpile.engine import neighbors as nb
+from jaxpile.engine import pairs as pair_list
 from jaxpile.protocols import pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 from vs_lammps import DT, pour_setup
@@ -56,7 +57,7 @@ def rebuild_us(state, turns: int) -> float:
     def rebuild(i, c):
         neighbors, contacts = c
         new = nb.rebuild(neighbors, position + (i % 2) * 1e-12, settings)
-        return new, nb.contacts_for(contacts, neighbors.idx, new.idx)
+        return new, pair_list.contacts_for(contacts, neighbors.idx, new.idx)
 
     return per_turn(jax.jit(lambda c: lax.fori_loop(0, turns, rebuild, c)), (state.neighbors, state.contacts), turns)
 

@@ -327,7 +327,8 @@ growing heap more closely; the host's work between chunks is timed with them."""
 
 def pour_setup(n: int, interval: float, seed: int):
     # disks appear just above the steepest heap at the speed of a fall from 100 sigma
-    return pour.pour(n, insert_height=heap.steepest_heap_height(n) + 4.0, interval=interval, dt=DT, seed=seed)
+    return pour.SPEC.set_up(None, n, insert_height=heap.steepest_heap_height(n) + 4.0, interval=interval, dt=DT,
+                            seed=seed)
 
 
 def jax_pour(law: str, protocol, settle: int, integrator: str | None, chunk: int):

@@ -1,9 +1,9 @@
 """The valid range of every number a user gives jaxpile, and the one check that
 enforces it.
 
-Each law declares `RANGES` (its parameters), each protocol `OPTION_RANGES` (its
-set-up and run options) and the command line `cli.FLAG_RANGES` (its numeric
-flags). One `Range` states the interval, whether it holds whole numbers only,
+Each law declares `RANGES` (its parameters), each protocol a range on each field
+of its options (`protocols.spec.option`) and the command line `cli.FLAG_RANGES`
+(its numeric flags). One `Range` states the interval, whether it holds whole numbers only,
 and why a bound is where it is; `check` answers a value outside it with one
 line in one format, `"<name> must be <range>; got <value>."`, and the same
 table writes the docstrings, the `--help` text, the README's inputs section and
@@ -165,18 +165,12 @@ def check(name: str, value, range_: Range):
     return range_.check(name, value)
 
 
-def check_all(ranges: dict, values: dict, function=None) -> dict:
+def check_all(ranges: dict, values: dict) -> dict:
     """Checks each `values[name]` that has a range, one number each; returns the
-    values with the checked numbers. None passes where `function` (whose
-    arguments these are) has None as that argument's default: "the default"."""
-    optional = set()
-    if function is not None:
-        import inspect
-
-        optional = {k for k, p in inspect.signature(function).parameters.items() if p.default is None}
+    values with the checked numbers. None passes: it stands for "the default"."""
     out = dict(values)
     for name, value in values.items():
-        if name in ranges and not (value is None and (function is None or name in optional)):
+        if name in ranges and value is not None:
             out[name] = ranges[name].check(name, value, scalar=True)
     return out
 

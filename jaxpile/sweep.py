@@ -8,7 +8,7 @@ all 32 members in batches of `batch_size` in one compiled loop each, and
 measures each member as the protocol's own `run` does. The rows go to a CSV
 (`write_csv`), and `summarise` gives mean and standard error per grid point.
 
-Protocols (`adapters()`: every registered protocol module's `DEFINITION` or `sweep_adapter`):
+Protocols (every registered `ProtocolSpec`, `jaxpile.protocols.PROTOCOLS`):
 `box` (Lee & Herrmann 1993: angle of repose by the
 three methods), `pour` (Baxter et al. 1997: flank angles, base-force M
 ratio, force balance), `lattice` and `sloped` (Liffman et al. 1992: the
@@ -22,7 +22,6 @@ flow rate, Beverloo's law).
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import numbers
@@ -38,33 +37,32 @@ from jaxpile.errors import InputError
 from jaxpile import ranges
 from jaxpile.ranges import COUNT, SEED
 from jaxpile.engine.simulate import RunInfo
-from jaxpile.protocols import PROTOCOLS
-from jaxpile.protocols.adapter import Adapter
-from jaxpile.protocols.definition import Definition, adapter as definition_adapter
+from jaxpile.protocols import PROTOCOLS, running
+from jaxpile.protocols.spec import ProtocolSpec
 
 
 MEMBER_COLUMNS = ("member", "seed", "steps")
 """What `sweep` adds to every row besides the protocol's measurement and the member's point."""
 
 
-def adapters() -> dict[str, Callable[[], Adapter]]:
-    """Every protocol a sweep (and an ensemble fit) runs: each registered
-    protocol whose module declares a `DEFINITION` (`definition.adapter` of it)
-    or has its own `sweep_adapter() -> Adapter`."""
-    found = {}
-    for name, module in PROTOCOLS.items():
-        if callable(getattr(module, "sweep_adapter", None)):
-            found[name] = module.sweep_adapter
-        elif isinstance(getattr(module, "DEFINITION", None), Definition):
-            found[name] = functools.partial(definition_adapter, module.DEFINITION)
-    return found
+def spec_of(protocol: str | ProtocolSpec) -> ProtocolSpec:
+    """The spec a sweep runs: a registered protocol's by name, or a spec itself."""
+    if isinstance(protocol, ProtocolSpec):
+        return protocol
+    if protocol not in PROTOCOLS:
+        raise InputError(f"sweeps run the protocols {sorted(PROTOCOLS)}; got {protocol!r}.")
+    return PROTOCOLS[protocol]
 
 
-def adapter(protocol: str) -> Adapter:
-    known = adapters()
-    if protocol not in known:
-        raise InputError(f"sweeps run the protocols {sorted(known)}; got {protocol!r}.")
-    return known[protocol]()
+def option_names(spec: ProtocolSpec) -> frozenset:
+    """The options a sweep of `spec` takes: every stage's, and `n` for the size."""
+    return frozenset(set().union(*(s.options.names() for s in spec.chain())) | {"n"})
+
+
+def first_setup(spec: ProtocolSpec, law: str, seed: int, dt: float, options: dict, dtype=None):
+    """The first stage's set-up of a member with these sweep options (what `plan` checks per batch)."""
+    first = spec.chain()[0]
+    return running.member_setup(first, law, seed, dt, running.stage_options(spec, options)[0], dtype)
 
 
 # ---------------------------------------------------------------------- sweep
@@ -124,13 +122,19 @@ def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
 _ENSEMBLES: dict = {}  # the last few batched simulators, so repeated sweeps (a fit's iterations) compile once
 
 
-def _ensemble(protocol, stage, law, dt, sim_options, options, devices, build) -> ensemble.Ensemble:
-    """The `Ensemble` for this protocol stage and set-up: reused when a sweep
-    with the same law, dt, simulator and set-up options ran before (its
-    compiled loops are kept per batch shape); built afresh otherwise."""
+def _ensemble(spec, law, dt, rotation, options, devices) -> ensemble.Ensemble:
+    """The `Ensemble` for this protocol stage and its options: reused when a
+    sweep with the same law, dt, rotation and the options its simulator reads
+    ran before (its compiled loops are kept per batch shape); built afresh otherwise."""
+    read = options.as_dict() if spec.batch.simulator_options is None else {
+        k: v for k, v in options.as_dict().items() if k in spec.batch.simulator_options}
+
+    def build():
+        return spec.simulator(options, law=law, dt=dt, rotation=rotation)
+
     try:
-        key = (protocol, stage, law, float(dt), tuple(sorted(sim_options.items())),
-               tuple(sorted(options.items())), None if devices is None else tuple(devices))
+        key = (spec.name, law, float(dt), rotation, tuple(sorted(read.items())),
+               None if devices is None else tuple(devices))
         hash(key)
     except TypeError:  # an option that is a dict or a list: no reuse
         return ensemble.Ensemble(build(), devices=devices)
@@ -154,7 +158,7 @@ class Plan(NamedTuple):
     batch_size: int
 
 
-def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, seeds=4, params: dict | None = None,
+def plan(protocol, law: str | None = None, *, vary: dict | None = None, seeds=4, params: dict | None = None,
          options: dict | None = None, dt: float | None = None, rotation: bool | None = None,
          batch_size: int | None = None, dtype=None, points: Sequence[dict] | None = None):
     """A sweep's members checked before anything runs (`sweep`, and `jaxpile
@@ -166,13 +170,14 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
     Returns:
       `Plan`.
     """
-    a = adapter(protocol)
-    law = law or a.default_law
+    spec = spec_of(protocol)
+    law = law or spec.default_law
     vary = _check_vary(vary or {})
     options = dict(options or {})
-    unknown = set(options) - a.options
+    known = option_names(spec)
+    unknown = set(options) - known
     if unknown:
-        raise InputError(f"unknown option(s) {sorted(unknown)} for a {protocol} sweep; known: {sorted(a.options)}.")
+        raise InputError(f"unknown option(s) {sorted(unknown)} for a {spec.name} sweep; known: {sorted(known)}.")
     if points is not None:
         if vary:
             raise InputError("give a sweep either `vary` (a grid) or `points`, not both.")
@@ -184,9 +189,9 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
         members = [(point, seed) for point in points for _, seed in grid({}, seeds)]
     else:
         members = grid(vary, seeds)
-    dt = a.default_dt(law) if dt is None else float(dt)
-    law_names = set(a.law_and_params(law, {}, rotation, dtype=dtype)[0].PARAM_NAMES)
-    set_up = [k for k in vary if k in a.options and k not in law_names]  # varied set-up options
+    dt = spec.default_dt(law) if dt is None else float(dt)
+    law_names = set(spec.law_and_params(law, {}, rotation, dtype)[0].PARAM_NAMES)
+    set_up = [k for k in vary if k in known and k not in law_names]  # varied set-up options
 
     def split(point):  # (law parameters, set-up options) of a member's point
         return ({k: v for k, v in point.items() if k not in set_up},
@@ -194,7 +199,7 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
 
     member_params = []
     for point, _ in members:
-        _, contact_law, prm = a.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype=dtype)
+        _, contact_law, prm = spec.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype)
         contact_law.validate(prm)  # names and values: a NaN mu in the last batch fails here, not after the first
         member_params.append(prm)
     batch_size = len(members) if batch_size is None else int(batch_size)
@@ -208,12 +213,12 @@ def plan(protocol: str, law: str | None = None, *, vary: dict | None = None, see
             batches.append([k, k + 1])
 
     for start, end in batches:  # every batch's set-up and memory, before any batch runs (a bad value fails at once)
-        p = a.setup(law, members[start][1], dt, {**split(members[start][0])[1], "dtype": dtype})
-        memory.check(p.particles.count, dtype or "float64", batch=end - start, what=f"a batch of the {protocol} sweep")
+        p = first_setup(spec, law, members[start][1], dt, split(members[start][0])[1], dtype)
+        memory.check(p.particles.count, dtype or "float64", batch=end - start, what=f"a batch of the {spec.name} sweep")
     return Plan(members, member_params, batches, split, dt, vary, points, batch_size)
 
 
-def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
+def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[float]] | None = None,
           seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
           rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
           devices=None, progress: bool | None = None, dtype=None, checkpoint: tuple | None = None,
@@ -221,15 +226,17 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
-      protocol: a registered protocol with a `DEFINITION` or a `sweep_adapter` (`adapters()`).
+      protocol: a registered protocol's name (`jaxpile.protocols.PROTOCOLS`) or a `ProtocolSpec`.
       law: the contact law (default: the protocol paper's).
       vary: name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`: law parameters,
-        or set-up options of the protocol (`{"orifice": [4, 6, 8]}` for the
+        or options of the protocol (`{"orifice": [4, 6, 8]}` for the
         hopper; a name that is both, as the pour's `n`, is the law's). Members
-        with different set-up options run in batches of their own.
+        with different options run in batches of their own.
       seeds: a count (seeds 0..n-1) or a list of seeds.
       params: fixed overrides of the protocol's law setting.
-      options: for the protocol's set-up (e.g. `n`, `width`, `height`).
+      options: the protocol's options (e.g. `n`, `width`, `height`); for a
+        protocol of several stages (the tilt after the box), each stage takes
+        the names it has.
       dt, rotation: for the simulator (default: the protocol's).
       max_steps: step budget of the first stage (default: the protocol's;
         a later stage, e.g. the tilt, has its own).
@@ -244,122 +251,118 @@ def sweep(protocol: str = "box", law: str | None = None, *, vary: dict[str, Sequ
         state, and the sweep ends as the uninterrupted one would (rows equal).
       points: instead of `vary`'s product grid, these law-parameter points
         (dicts), each run with every seed (a fit's perturbed parameters).
-      extra_measure: `(sim, params, state, protocol) -> dict` merged into each
+      extra_measure: `(sim, params, state, setup) -> dict` merged into each
         member's row (e.g. its base profile as an array).
 
     Returns:
       `SweepResult`.
     """
-    a = adapter(protocol)
-    law = law or a.default_law
-    checked = plan(protocol, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
+    spec = spec_of(protocol)
+    law = law or spec.default_law
+    checked = plan(spec, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
                    batch_size=batch_size, dtype=dtype, points=points)
     members, member_params, batches, split = checked.members, checked.member_params, checked.batches, checked.split
     dt, vary, points, batch_size = checked.dt, checked.vary, checked.points, checked.batch_size
     options = dict(options or {})
-    sim_options = {} if rotation is None else {"rotation": rotation}
-
-    def stage0(member_options):
-        key = member_options if a.simulator_options is None else {
-            k: v for k, v in member_options.items() if k in a.simulator_options}
-        return _ensemble(protocol, 0, law, dt, sim_options, key, devices,
-                         lambda: a.simulator(law, dt, sim_options, member_options))
-
-    ens = stage0(split(members[0][0])[1])
-    sim = ens.sim
-
-    from jaxpile.engine import checkpoint as ckpt
-
+    chain = spec.chain()
+    devices_used = len(_ensemble(chain[0], law, dt, rotation, running.stage_options(spec, split(members[0][0])[1])[0],
+                                 devices).devices)
     rows, info = [], RunInfo()
     planned = [[point, seed] for point, seed in members]
     first, saved = 0, {}
     if resume is not None:
-        saved = ckpt.read_metadata(resume)["extra"]
-        if saved.get("grid") != planned or saved.get("batch_size") != batch_size:
-            raise InputError(f"{resume} was written by another sweep (other members or batch size); "
-                             "resume it with the command that made it.")
-        if saved.get("devices") != len(ens.devices):
-            raise InputError(f"{resume} was written on {saved.get('devices')} device(s), this run has "
-                             f"{len(ens.devices)}: the batch is padded to a multiple of the device count, so "
-                             "resume it with as many devices.")
+        saved = _resumed(resume, planned, batch_size, devices_used)
         rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
+    n_particles = 0
     for start, end in batches:
         if start < first:
             continue
-        chunk = members[start:end]
-        prms = member_params[start:end]
-        batch_options = split(chunk[0][0])[1]  # this batch's set-up
-        ens = stage0(batch_options)
-        sim = ens.sim
-        protocols = [a.setup(law, seed, dt, {**batch_options, "dtype": dtype}) for _, seed in chunk]
-        budget = max_steps if max_steps is not None else a.max_steps(protocols[0].info, batch_options)
-        state = ens.init(prms, protocols)
-        resuming = resume is not None and start == first
-        at_stage = int(saved.get("stage", 0)) if resuming else 0
-        saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
-        if at_stage == 0:
-            if resuming:
-                state = ens.shard(ckpt.restore(resume, state, sim.law, saved_params))
-            # the rows list is written as it stands at each save: the batches measured so far
-            spec = ckpt.with_facts(checkpoint, grid=planned, batch_size=batch_size, devices=len(ens.devices),
-                                   batch_start=start, rows=rows, stage=0)
-            state = ens.run(prms, state, max(int(budget) - ckpt.step_of(state), 0),
-                            until=a.finished(protocols[0].info, batch_options), progress=progress, info=info,
-                            checkpoint=spec)
-        last_sim = sim
-        for k, stage in enumerate(a.stages, 1):  # every member starts the next stage from where it ended the last
-            stage_ens = _ensemble(protocol, k, law, dt, sim_options, batch_options, devices,
-                                  lambda: stage.simulator(law, dt, sim_options, batch_options))
-            last_sim = stage_ens.sim
-            if k < at_stage:  # a resume past this stage: its start only shapes the template
-                started = [stage.start(law, dt, batch_options, ensemble.member(state, i), p)
-                           for i, p in enumerate(protocols)]
-                protocols = [p for _, p in started]
-                state = ensemble.stack_states([s for s, _ in started])
-                continue
-            started = [stage.start(law, dt, batch_options, ensemble.member(state, i), p)
-                       for i, p in enumerate(protocols)]
-            if k == at_stage:  # the saved stage: its start steps and measured infos come from the file
-                infos, starts = saved["stage_infos"], [int(x) for x in saved["stage_start_steps"]]
-                protocols = [p._replace(info=info) for (_, p), info in zip(started, infos)]
-                template = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
-                state = stage_ens.shard(ckpt.restore(resume, template, last_sim.law, saved_params))
-                steps = ensemble.members(state, len(chunk))
-                done = max(int(m.step) - s0 for m, s0 in zip(steps, starts))
-            else:
-                described = [stage.describe(ensemble.member(state, i), p) if stage.describe else {}
-                             for i, (_, p) in enumerate(started)]
-                protocols = [p._replace(info={**p.info, **d}) for (_, p), d in zip(started, described)]
-                starts = [int(s.step) for s, _ in started]
-                state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
-                done = 0
-            spec = ckpt.with_facts(checkpoint, grid=planned, batch_size=batch_size, devices=len(ens.devices),
-                                   batch_start=start, rows=rows, stage=k, stage_start_steps=starts,
-                                   stage_infos=[p.info for p in protocols])
-            state = stage_ens.run(prms, state, max(stage.max_steps(protocols[0].info, batch_options) - done, 0),
-                                  until=stage.finished(protocols[0].info, batch_options), progress=progress, info=info,
-                                  checkpoint=spec)
-        for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, protocols)):
+        chunk, prms = members[start:end], member_params[start:end]
+        stage_options = running.stage_options(spec, split(chunk[0][0])[1])  # this batch's set-up
+        facts = dict(grid=planned, batch_size=batch_size, devices=devices_used, batch_start=start, rows=rows)
+        state, setups, last_sim = _run_batch(
+            chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
+            checkpoint, facts, saved if resume is not None and start == first else None, resume)
+        n_particles = int(state.particles.position.shape[1])
+        for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}
-            row.update(a.measure(last_sim, prm, s, p))
+            row.update(running.member_row(chain[-1], last_sim, prm, s, p, stage_options[-1]))
             if extra_measure is not None:
                 row.update(extra_measure(last_sim, prm, s, p))
             row["steps"] = int(s.step)
             rows.append(row)
-    n_particles = int(state.particles.position.shape[1])
-    record = {"protocol": protocol, "law": law, "vary": vary, "seeds": sorted({s for _, s in members}),
+    record = {"protocol": spec.name, "law": law, "vary": vary, "seeds": sorted({s for _, s in members}),
               "params": params or {}, "options": options, "dt": dt, "members": len(members),
-              "batch_size": batch_size, "devices": len(ens.devices), "n_particles": n_particles,
+              "batch_size": batch_size, "devices": devices_used, "n_particles": n_particles,
               "batch_steps": info.steps, "compile_seconds": info.compile_seconds,
               "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
               "neighbor_reallocations": info.reallocations,
               "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
-              "angles": list(a.angles), "unit": a.unit}
+              "angles": list(spec.batch.angles), "unit": spec.batch.unit}
     if points is not None:
         record["points"] = points
     return SweepResult(rows, record)
+
+
+def _resumed(resume, planned: list, batch_size: int, devices: int) -> dict:
+    """What a sweep's checkpoint recorded, when it was written by this same sweep."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    saved = ckpt.read_metadata(resume)["extra"]
+    if saved.get("grid") != planned or saved.get("batch_size") != batch_size:
+        raise InputError(f"{resume} was written by another sweep (other members or batch size); "
+                         "resume it with the command that made it.")
+    if saved.get("devices") != devices:
+        raise InputError(f"{resume} was written on {saved.get('devices')} device(s), this run has "
+                         f"{devices}: the batch is padded to a multiple of the device count, so "
+                         "resume it with as many devices.")
+    return saved
+
+
+def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
+               checkpoint, facts: dict, saved: dict | None, resume):
+    """One batch through every stage of the protocol (stage-synchronous: each
+    member starts the next stage from where it ended the last, contact history
+    kept). `saved`: the checkpoint's record when this batch is the one it
+    continues. Returns `(state, each member's last set-up, last simulator)`."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    first = chain[0]
+    ens = _ensemble(first, law, dt, rotation, stage_options[0], devices)
+    setups = [running.member_setup(first, law, seed, dt, stage_options[0], dtype) for _, seed in chunk]
+    state = ens.init(prms, setups)
+    saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
+    at_stage = int(saved.get("stage", 0)) if saved is not None else 0
+    for k, (stage, options) in enumerate(zip(chain, stage_options)):
+        stage_ens = ens if k == 0 else _ensemble(stage, law, dt, rotation, options, devices)
+        done = 0
+        if k > 0:
+            piles = [ensemble.member(state, i) for i in range(len(chunk))]
+            started = [running.stage_start(stage, law, dt, options, pile) for pile in piles]
+            setups = [p for _, p in started]
+            state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
+        if k < at_stage:  # a resume past this stage: its start only shapes the template
+            continue
+        if k > 0 and k == at_stage:  # the saved stage: its start steps and measured infos come from the file
+            setups = [p._replace(info=i) for p, i in zip(setups, saved["stage_infos"])]
+            starts = [int(x) for x in saved["stage_start_steps"]]
+        elif k > 0:
+            setups = [p._replace(info={**p.info, **running.stage_facts(stage, pile, p)})
+                      for pile, p in zip(piles, setups)]
+            starts = [int(pile.step) for pile in piles]
+        if k == at_stage and saved is not None:
+            state = stage_ens.shard(ckpt.restore(resume, state, stage_ens.sim.law, saved_params))
+            done = (ckpt.step_of(state) if k == 0 else
+                    max(int(m.step) - s0 for m, s0 in zip(ensemble.members(state, len(chunk)), starts)))
+        stage_facts = {} if k == 0 else dict(stage_start_steps=starts, stage_infos=[p.info for p in setups])
+        # the rows list is written as it stands at each save: the batches measured so far
+        spec_ = ckpt.with_facts(checkpoint, **facts, stage=k, **stage_facts)
+        budget = max_steps if k == 0 and max_steps is not None else stage.budget(setups[0], options)
+        state = stage_ens.run(prms, state, max(int(budget) - done, 0), until=stage.finished(setups[0], options),
+                              progress=progress, info=info, checkpoint=spec_)
+    return state, setups, stage_ens.sim
 
 
 def summarise(result: SweepResult, by: str, value: str) -> dict:
@@ -439,17 +442,18 @@ def figure(result: SweepResult, by: str | None = None, path=None):
     if by is None:
         raise InputError("the sweep varied no parameter: nothing to plot against.")
     series = {name: summarise(result, by, name) for name in result.info["angles"]}
-    a = adapter(result.info["protocol"])
+    batch = spec_of(result.info["protocol"]).batch
     x = result.column(by)
     theory_x = np.linspace(np.nanmin(x), np.nanmax(x), 50)
-    theory = a.theory(by, theory_x) if a.theory else None
+    theory = batch.theory(by, theory_x) if batch.theory else None
     title = (f"{result.info['protocol']} / {result.info['law']}: {result.info['members']} members, "
              f"{len(result.info['seeds'])} seeds each")
     # the columns are angles (unit "deg") or plain numbers (unit "": the drop's central dip, a lattice's height)
-    ylabel = "angle (degrees)" if a.unit == "deg" else ", ".join(series) + (f" ({a.unit})" if a.unit else "")
+    ylabel = ("angle (degrees)" if batch.unit == "deg" else
+              ", ".join(series) + (f" ({batch.unit})" if batch.unit else ""))
     return plot.sweep_figure(series, by, theory=None if theory is None else (theory_x, *theory), title=title,
                              ylabel=ylabel, path=path)
 
 
-__all__ = ["Plan", "SweepResult", "adapter", "adapters", "figure", "grid", "plan", "read", "summarise",
+__all__ = ["Plan", "SweepResult", "figure", "first_setup", "grid", "option_names", "plan", "read", "spec_of", "summarise",
            "sweep", "write_csv"]

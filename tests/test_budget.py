@@ -24,12 +24,12 @@ def test_estimate_is_linear_in_disks_and_batch_and_follows_the_measured_bytes():
 
 
 @pytest.mark.parametrize("make", [
-    lambda: box.protocol(10**8),
-    lambda: pour.pour(10**8),
+    lambda: box.SPEC.set_up(size=10**8),
+    lambda: pour.SPEC.set_up(size=10**8),
     lambda: lattice.equilateral_pile(20_000),
-    lambda: drop.protocol(10**8),
-    lambda: sloped.protocol(30, n=10**8),
-    lambda: flux.protocol(10**9, pool=10**8),
+    lambda: drop.SPEC.set_up(size=10**8),
+    lambda: sloped.SPEC.set_up(alpha_degrees=30, n=10**8),
+    lambda: flux.SPEC.set_up(size=10**9, pool=10**8),
 ], ids=["box", "pour", "lattice", "drop", "sloped", "flux"])
 def test_a_1e8_disk_pile_is_refused_at_once_with_its_estimate(make):
     t0 = time.perf_counter()

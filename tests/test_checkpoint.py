@@ -243,7 +243,7 @@ def test_a_pour_resumed_mid_pour_ends_bit_identical(tmp_path):
 
     sim = pour.make_simulator("hooke", chunk_steps=500)
     params = pour.law_params("hooke")
-    protocol = pour.pour(12, release_height=14.0, seed=5)
+    protocol = pour.SPEC.set_up("hooke", 12, release_height=14.0, seed=5)
     steps = protocol.info["pour_steps"]
     every = 500 * max(1, steps // 1000)  # a checkpoint about halfway through the pour
     path = str(tmp_path / "pour-{step}.npz")

@@ -29,15 +29,15 @@ def saved_steps(folder, stage=""):
     return sorted(int(s) for s in steps if s.isdigit())
 
 
-TILT = dict(rate_degrees=0.05, max_tilt_degrees=30.0, chunk_steps=500,
-            box_options=dict(width=1.2, height=1.0, seed=0, max_time=1.0))
+TILT = dict(rate_degrees=0.05, max_tilt_degrees=30.0, chunk_steps=500, seed=0,
+            pile_options=dict(width=1.2, height=1.0, max_time=1.0))
 
 
 @pytest.fixture(scope="module")
 def tilted(tmp_path_factory):
     """A hooke tilt that builds its own box pile, checkpointed every 500 steps."""
     folder = tmp_path_factory.mktemp("tilt")
-    state, m = tilt.run("hooke", checkpoint=(str(folder / "ck-{step}.npz"), 500), **TILT)
+    state, m = tilt.SPEC.run("hooke", checkpoint=(str(folder / "ck-{step}.npz"), 500), **TILT)
     assert m["moved"] and m["box"]["at_rest"]
     return folder, state, m
 
@@ -50,7 +50,7 @@ def test_a_tilt_resumes_mid_tilt_from_its_save_and_the_pile_it_names(tilted):
     mid = folder / f"ck-{tilt_steps[len(tilt_steps) // 2]}.npz"
     extra = checkpoint.read_metadata(mid)["extra"]
     assert extra["stage"] == "tilt" and extra["pile_checkpoint"] == f"ck-{start}.box.npz"
-    resumed, r = tilt.run("hooke", resume=str(mid), **TILT)
+    resumed, r = tilt.SPEC.run("hooke", resume=str(mid), **TILT)
     assert_identical(resumed, whole)
     assert r["theta_t"] == m["theta_t"] and r["kinetic_energy"] == m["kinetic_energy"]
     assert r["steps"] < m["steps"]
@@ -62,7 +62,7 @@ def test_a_tilt_killed_while_building_its_pile_resumes_the_box_run_then_tilts(ti
     # what a kill during the box stage leaves in a run folder (fixed names): the box run's save alone
     shutil.copy(folder / f"ck-{box_steps[len(box_steps) // 2]}.box.npz", tmp_path / "checkpoint.box.npz")
     assert checkpoint.in_folder(tmp_path) == str(tmp_path / "checkpoint.box.npz")
-    resumed, r = tilt.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
+    resumed, r = tilt.SPEC.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
     assert_identical(resumed, whole)
     assert r["box"]["settled_step"] == m["box"]["settled_step"] and r["theta_t"] == m["theta_t"]
 
@@ -71,14 +71,14 @@ def test_resuming_a_tilt_without_its_pile_checkpoint_is_a_clear_error(tmp_path):
     from jaxpile.errors import InputError
 
     with pytest.raises(InputError, match="box run's checkpoint"):
-        tilt.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
+        tilt.SPEC.run("hooke", resume=str(tmp_path / "checkpoint.npz"), **TILT)
 
 
 DROP = dict(seed=0, speed_tolerance=1e-6, relax_steps=200_000, chunk_steps=1000)
 
 
 def test_a_drop_resumes_in_its_fill_phase_at_its_end_and_in_its_relax_phase(tmp_path):
-    whole, m = drop.run("hooke", 8, checkpoint=(str(tmp_path / "ck-{step}.npz"), 2000), **DROP)
+    whole, m = drop.SPEC.run("hooke", 8, checkpoint=(str(tmp_path / "ck-{step}.npz"), 2000), **DROP)
     steps, fill = saved_steps(tmp_path), m["fill_steps"]
     assert fill in steps, "the fill phase's last chunk is saved"
     relax = [s for s in steps if s > fill]
@@ -86,28 +86,28 @@ def test_a_drop_resumes_in_its_fill_phase_at_its_end_and_in_its_relax_phase(tmp_
     assert checkpoint.read_metadata(tmp_path / f"ck-{relax[0]}.npz")["extra"] == {"phase": "relax", "fill_steps": fill}
     # mid-fill; the fill's end (all disks in: no more fill steps, the relax phase starts); mid-relax; the end
     for step in (steps[1], fill, relax[0], steps[-1]):
-        resumed, r = drop.run("hooke", 8, resume=str(tmp_path / f"ck-{step}.npz"), **DROP)
+        resumed, r = drop.SPEC.run("hooke", 8, resume=str(tmp_path / f"ck-{step}.npz"), **DROP)
         assert_identical(resumed, whole)
         assert r["fill_steps"] == fill and r["central_dip"] == m["central_dip"]
 
 
 def test_flux_resumes_with_its_insertion_record_and_a_finished_run_takes_no_step(tmp_path):
     kw = dict(width=0.6, pool=7, max_time=3.0, chunk_steps=500)
-    whole, m = flux.run("hooke", 8, checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
+    whole, m = flux.SPEC.run("hooke", 8, checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
     steps = saved_steps(tmp_path)
-    resumed, r = flux.run("hooke", 8, resume=str(tmp_path / f"ck-{steps[len(steps) // 2]}.npz"), **kw)
+    resumed, r = flux.SPEC.run("hooke", 8, resume=str(tmp_path / f"ck-{steps[len(steps) // 2]}.npz"), **kw)
     assert_identical(resumed, whole)
     np.testing.assert_array_equal(r["angle_cumulative_parabola"], m["angle_cumulative_parabola"])
     assert r["insert_step"] == m["insert_step"] and r["kinetic_energy"] == m["kinetic_energy"]
-    finished, f = flux.run("hooke", 8, resume=str(tmp_path / f"ck-{steps[-1]}.npz"), **kw)
+    finished, f = flux.SPEC.run("hooke", 8, resume=str(tmp_path / f"ck-{steps[-1]}.npz"), **kw)
     assert_identical(finished, whole)
     assert f["steps"] == 0 and f["at_rest"]
 
 
 def test_a_sloped_pile_resumes_on_its_gravity_ramp(tmp_path):
     kw = dict(n=20, ramp_steps=2000, speed_tolerance=1e-7, max_steps=100_000)
-    whole, m = sloped.run("hooke", 30.0, checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
-    resumed, r = sloped.run("hooke", 30.0, resume=str(tmp_path / "ck-1000.npz"), **kw)
+    whole, m = sloped.SPEC.run("hooke", alpha_degrees=30.0, checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
+    resumed, r = sloped.SPEC.run("hooke", alpha_degrees=30.0, resume=str(tmp_path / "ck-1000.npz"), **kw)
     assert_identical(resumed, whole)
     assert r["steps"] == m["steps"] - 1000 and r["central_slope_horizontal"] == m["central_slope_horizontal"]
 

@@ -101,8 +101,8 @@ def test_a_base_force_table_with_no_contacts_reads_back_as_empty_columns(tmp_pat
 
 # ----------------------------------------------------- the protocols' own flags
 def test_every_option_of_every_protocol_is_a_flag_of_pile_sweep_and_fit_with_its_help_and_range(capsys):
-    """Issue 18: a protocol's options appear as `--NAME` flags, read from its
-    own signatures, docstrings and OPTION_RANGES (no table beside them)."""
+    """A protocol's options appear as `--NAME` flags, read from the fields of
+    its options dataclass (no table beside them)."""
     from jaxpile.cli import build_parser, merge_protocol_flags, protocol_flags
     from jaxpile.protocols import PROTOCOLS
 
@@ -110,8 +110,7 @@ def test_every_option_of_every_protocol_is_a_flag_of_pile_sweep_and_fit_with_its
         for protocol in PROTOCOLS:
             argv = [command, "--protocol", protocol]
             flags = protocol_flags(command, protocol)
-            # the lattice's run options are all generic flags of `pile` (--ramp-steps, --max-steps, --speed-tol)
-            assert bool(flags) == (protocol != "lattice" or command != "pile"), (command, protocol)
+            assert flags, (command, protocol)  # the lattice's run options are generic flags of `pile`, its geometry not
             subparser = build_parser(argv)._subparsers._group_actions[0].choices[command]
             for option in flags.values():
                 assert option.flag in subparser._option_string_actions, (command, protocol, option.flag)
@@ -136,68 +135,59 @@ def test_a_flag_of_another_protocol_or_an_option_given_twice_is_refused(tmp_path
     assert "given both as a flag and as --option" in capsys.readouterr().err
 
 
-def test_docstring_args_reads_shared_and_continued_entries():
-    from jaxpile.protocols.options import docstring_args
+def test_every_protocol_option_has_help_and_its_flag_states_the_fields_words(capsys):
+    """A protocol's options are the fields of its options dataclass: each has
+    help, and `--help` shows that help, its unit, its range and its default."""
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.spec import declared
 
-    def f(a, b, c, **options):
-        """Does f.
-
-        Args:
-          a, b: the first two,
-            continued here.
-          c: the third.
-          **options: not an option's help.
-
-        Returns:
-          nothing.
-        """
-
-    assert docstring_args(f) == {"a": "the first two, continued here.", "b": "the first two, continued here.",
-                                 "c": "the third."}
+    for name, spec in PROTOCOLS.items():
+        for option in declared(spec.options).values():
+            assert option.help, (name, option.name)
+    with pytest.raises(SystemExit):
+        main(["pile", "--protocol", "pour", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    polydispersity = declared(PROTOCOLS["pour"].options)["polydispersity"]
+    assert f"--polydispersity X {polydispersity.help}" in text
+    assert f"[{polydispersity.range.describe()}]" in text and f"(default {polydispersity.default})" in text
 
 
-def test_every_protocol_module_registers_itself_and_its_entry_names_what_its_run_takes():
-    """Issue 18: the registry is the modules that declare `CLI` (no list to
-    edit), in the papers' order, and each entry's keywords exist in its `run`."""
+def test_every_protocol_module_registers_its_spec_and_its_presentation_names_its_options():
+    """The registry is the modules that declare a `SPEC` (no list to edit), in
+    the papers' order; each spec's size and generic flags name its options."""
     import importlib
-    import inspect
     import pkgutil
 
     from jaxpile import protocols
     from jaxpile.laws import LAWS
     from jaxpile.protocols import PROTOCOLS
 
-    declaring = [info.name for info in pkgutil.iter_modules(protocols.__path__)
-                 if hasattr(importlib.import_module(f"jaxpile.protocols.{info.name}"), "CLI")]
-    assert sorted(PROTOCOLS) == sorted(declaring)
+    declaring = [getattr(importlib.import_module(f"jaxpile.protocols.{info.name}"), "SPEC", None)
+                 for info in pkgutil.iter_modules(protocols.__path__)]
+    assert sorted(PROTOCOLS) == sorted(s.name for s in declaring if s is not None)
     # the papers' seven first, in the papers' order; a protocol added later (its own module) after them
     assert list(PROTOCOLS)[:7] == ["lattice", "sloped", "drop", "box", "tilt", "flux", "pour"]
-    assert [m.CLI.order for m in PROTOCOLS.values()] == sorted(m.CLI.order for m in PROTOCOLS.values())
-    for name, module in PROTOCOLS.items():
-        entry = module.CLI
-        assert entry.default_law in LAWS and entry.help
-        takes = inspect.signature(module.run).parameters
-        keywords = set(takes) | (set(inspect.signature(module.protocol).parameters)
-                                 if any(p.kind is p.VAR_KEYWORD for p in takes.values()) else set())
-        assert entry.size in keywords, (name, entry.size)
-        targets = {target.partition(".")[0] for target in entry.flags.values()}  # "box_options.seed": a dict's key
-        assert targets <= keywords, (name, targets - keywords)
+    orders = [s.presentation.order for s in PROTOCOLS.values()]
+    assert orders == sorted(orders)
+    for name, spec in PROTOCOLS.items():
+        assert spec.default_law in LAWS and spec.presentation.help
+        names = set().union(*(s.options.names() for s in spec.chain()))
+        assert spec.chain()[0].size in names, (name, spec.size)
+        assert set(spec.presentation.flags.values()) <= names | {"seed"}, name
 
 
-def test_a_new_protocol_module_appears_in_pile_sweep_and_fit_by_declaring_itself(monkeypatch):
-    """A protocol module with `CLI` (and, for batches, `sweep_adapter`) is all
-    a new protocol needs for the commands to take it (issue 18)."""
-    import types
+def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(monkeypatch):
+    """A registered `ProtocolSpec` is all a new protocol needs for the commands to take it."""
+    import dataclasses
 
     from jaxpile import cli, sweep
     from jaxpile.protocols import PROTOCOLS
-    from jaxpile.protocols.base import CommandLine
 
-    hopper = types.ModuleType("hopper")
-    hopper.CLI = CommandLine(order=7, help="a silo emptied through an orifice", default_law="hooke")
-    hopper.sweep_adapter = lambda: "the hopper's adapter"
-    monkeypatch.setitem(PROTOCOLS, "hopper", hopper)
-    assert cli.sweep_protocols()[-1] == "hopper" and sweep.adapter("hopper") == "the hopper's adapter"
+    box = PROTOCOLS["box"]
+    silo = dataclasses.replace(box, name="silo", presentation=dataclasses.replace(
+        box.presentation, order=99, help="a silo emptied through an orifice"))
+    monkeypatch.setitem(PROTOCOLS, "silo", silo)
+    assert cli.sweep_protocols()[-1] == "silo" and sweep.spec_of("silo") is silo
     for command in ("pile", "sweep", "fit"):
-        argv = [command, "--protocol", "hopper", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
-        assert cli.build_parser(argv).parse_args(argv).protocol == "hopper"
+        argv = [command, "--protocol", "silo", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
+        assert cli.build_parser(argv).parse_args(argv).protocol == "silo"

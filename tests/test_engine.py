@@ -13,8 +13,9 @@ import jaxpile
 from jaxpile.engine import interactions
 from jaxpile.laws import hooke
 from jaxpile.engine import neighbors as nb
+from jaxpile.engine import pairs as pair_list
 from jaxpile.engine import host_lists
-from jaxpile.engine.neighbors import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
+from jaxpile.engine.pairs import carry_history, contacts_for, half_pairs, pair_capacity, pair_entry
 from jaxpile.protocols import lattice
 from jaxpile.engine.simulate import Simulator
 
@@ -181,7 +182,7 @@ def test_host_lists_equal_their_traced_twins(monkeypatch):
     old = host_lists.build(pos, grid, reach, 64, 40)[0]
     new = host_lists.build(moved, grid, reach, 64, 40)[0]
     for idx in (old, new):
-        assert host_lists.pair_count(idx) == int(nb.pair_count(jnp.asarray(idx))) > 100
+        assert host_lists.pair_count(idx) == int(pair_list.pair_count(jnp.asarray(idx))) > 100
         for capacity in (64, 512):
             pairs = host_lists.half_pairs(idx, capacity)
             np.testing.assert_array_equal(pairs, half_pairs(jnp.asarray(idx), capacity))
@@ -192,7 +193,7 @@ def test_host_lists_equal_their_traced_twins(monkeypatch):
     np.testing.assert_array_equal(carried, carry_history(jnp.asarray(old), jnp.asarray(old_history),
                                                          jnp.asarray(new_pairs)))
     # and the step's carry, read from the old half pairs themselves (the first 64, as the history holds)
-    np.testing.assert_array_equal(carried, nb.carry_history_from_pairs(
+    np.testing.assert_array_equal(carried, pair_list.carry_history_from_pairs(
         jnp.asarray(host_lists.half_pairs(old, 64)), jnp.asarray(old_history), jnp.asarray(new_pairs), *old.shape))
     assert 0 < (carried[:, 0] != 0).sum() < host_lists.pair_count(new)  # some carried, some new or cut
 

@@ -30,7 +30,7 @@ STEPS = 900
 @pytest.fixture(scope="module")
 def batch():
     sim = box.make_simulator(LAW, chunk_steps=300)
-    protocols = [box.protocol(30, law=LAW, seed=s, **BOX) for s in (0, 1, 2)]
+    protocols = [box.SPEC.set_up(LAW, 30, seed=s, **BOX) for s in (0, 1, 2)]
     params = [box.law_and_params(LAW, {"mu": mu})[2] for mu in (0.1, 0.2, 0.4)]
     ens = ensemble.Ensemble(sim)
     return sim, ens, protocols, params, ens.init(params, protocols)
@@ -82,10 +82,10 @@ def test_ensemble_refuses_mismatched_members(batch):
     sim, ens, protocols, params, _ = batch
     with pytest.raises(InputError, match="3 members"):
         ens.init(params[:2], protocols)
-    other = box.protocol(31, law=LAW, seed=0, **BOX)
+    other = box.SPEC.set_up(LAW, 31, seed=0, **BOX)
     with pytest.raises(InputError, match="same number of disks"):
         ens.init(params[:2], protocols[:1] + [other])
-    wrong_dt = box.protocol(30, law=LAW, seed=0, dt=1e-5, **BOX)
+    wrong_dt = box.SPEC.set_up(LAW, 30, seed=0, dt=1e-5, **BOX)
     with pytest.raises(InputError, match="dt"):
         ens.init(params[:1], [wrong_dt])
     particles, boundaries = lattice.equilateral_pile(2)
@@ -161,7 +161,7 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
     # member (mu = 0.3, seed 1) is the box protocol's own run with those settings, up to
     # round-off: the batch shares one neighbour capacity, so sums run over more empty
     # slots, and 30 000 steps of granular flow amplify the last bits
-    _, alone = box.run(LAW, 30, params={"mu": 0.3}, seed=1, **BOX)
+    _, alone = box.SPEC.run(LAW, 30, params={"mu": 0.3}, seed=1, **BOX)
     assert int(rows[3]["n_left"]) == alone["n_left"]
     assert int(rows[3]["settled_step"]) == pytest.approx(alone["settled_step"], abs=200)
     assert float(rows[3]["repose_cumulative_parabola"]) == pytest.approx(alone["repose_cumulative_parabola"], rel=1e-3)
@@ -176,7 +176,7 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
     from jaxpile.engine.ensemble import Ensemble
     from jaxpile.protocols import pour
 
-    protocols = [pour.pour(100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5)]
+    protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5)]
     params = [pour.law_params("hooke")] * 2
     states = {}
     for blocked in (True, False):

@@ -40,8 +40,8 @@ PYTHON = {
     "unknown law": (lambda: get_law_module("hertz"), "unknown law 'hertz'"),
     "unknown parameter": (lambda: hooke.make_params(mux=0.3), "unknown hooke parameter"),
     "unknown integrator": (lambda: Simulator(hooke.law(), 1e-4, integrator="rk4"), "unknown integrator 'rk4'"),
-    "no disks to pour": (lambda: pour.pour(0), "positive whole number of disks"),
-    "no disks in the box": (lambda: box.protocol(0), "n must be"),
+    "no disks to pour": (lambda: pour.SPEC.set_up(size=0), "positive whole number of disks"),
+    "no disks in the box": (lambda: box.SPEC.set_up(size=0), "n must be"),
 }
 
 
@@ -100,10 +100,10 @@ def test_the_readme_lists_every_declared_range_as_the_checks_use_it():
 RANGE_CASES = {  # one value just outside each kind of range, each with its one-line message
     "baxter n above 1000": (lambda: baxter.law().validate(baxter.make_params(n=1001.0)), "n must be > 0 and <= 1000"),
     "a stiffness that is text": (lambda: hooke.make_params(kn="stiff"), "kn must be a number > 0; got 'stiff'"),
-    "a list where one option goes": (lambda: pour.pour(10, spread=[1.0, 2.0]), "spread must be one number"),
-    "a seed beyond 32 bits": (lambda: box.protocol(10, seed=2**32), "seed must be >= 0 and <= 4,294,967,295, a whole number"),
-    "a time step below 1e-12": (lambda: pour.pour(10, dt=1e-13), "dt must be >= 1e-12 and <= 1e6"),
-    "a hold time beyond the step counter": (lambda: box.protocol(10, dt=1e-12, hold_time=1e3),
+    "a list where one option goes": (lambda: pour.SPEC.set_up(size=10, spread=[1.0, 2.0]), "spread must be one number"),
+    "a seed beyond 32 bits": (lambda: box.SPEC.set_up(size=10, seed=2**32), "seed must be >= 0 and <= 4,294,967,295, a whole number"),
+    "a time step below 1e-12": (lambda: pour.SPEC.set_up(size=10, dt=1e-13), "dt must be >= 1e-12 and <= 1e6"),
+    "a hold time beyond the step counter": (lambda: box.SPEC.set_up(size=10, dt=1e-12, hold_time=1e3),
                                             "beyond the 32-bit step counter"),
 }
 

@@ -1,6 +1,6 @@
 """Property tests of the inputs at their edges (issue 19): values drawn across and
 beyond every declared range (`jaxpile.ranges`: each law's `RANGES`, each
-protocol's `OPTION_RANGES`, the CLI's `FLAG_RANGES`), zero, negatives, huge,
+protocol's options, the CLI's `FLAG_RANGES`), zero, negatives, huge,
 tiny, NaN, inf and things that are not numbers. Every outcome must be a run (or
 a set-up) or one `InputError` line; the command line answers with exit status 2
 and one line, never a traceback.
@@ -23,7 +23,8 @@ from jaxpile import ranges
 from jaxpile.cli import FLAG_RANGES, main
 from jaxpile.errors import InputError
 from jaxpile.laws import LAWS, get_law_module
-from jaxpile.protocols import PROTOCOLS
+from jaxpile.protocols import PROTOCOLS, lattice
+from jaxpile.protocols.spec import ranges_of
 
 PROPERTY = settings(database=None, deadline=None, suppress_health_check=list(HealthCheck))
 
@@ -52,7 +53,7 @@ ONE_LINE = re.compile(r"^.+ must be .+; got .+\.$")
 def test_a_range_either_returns_a_value_inside_it_or_refuses_in_one_line(data):
     range_ = data.draw(st.sampled_from(
         [ranges.POSITIVE, ranges.NON_NEGATIVE, ranges.DISKS, ranges.STEPS, ranges.SEED, ranges.FRACTION,
-         ranges.FINITE, ranges.ANGLE, get_law_module("baxter").RANGES["n"], PROTOCOLS["pour"].OPTION_RANGES["spacing"]]))
+         ranges.FINITE, ranges.ANGLE, get_law_module("baxter").RANGES["n"], ranges_of(PROTOCOLS["pour"].options)["spacing"]]))
     value = data.draw(edge_values(range_))
     try:
         checked = range_.check("x", value)
@@ -103,14 +104,14 @@ def _is_number(value) -> bool:
 
 
 SETUPS = {  # each protocol's set-up at a size that builds in well under a second
-    "lattice": (lambda **o: PROTOCOLS["lattice"].equilateral_pile(o.pop("layers", 3), **o), {}),
-    "sloped": (lambda **o: PROTOCOLS["sloped"].protocol(o.pop("alpha_degrees", 30.0), **{"n": 20, **o}), {}),
-    "drop": (lambda **o: PROTOCOLS["drop"].protocol(**{"n": 12, **o}), {}),
-    "box": (lambda **o: PROTOCOLS["box"].protocol(**{"n": 12, **o}), {}),
-    "flux": (lambda **o: PROTOCOLS["flux"].protocol(**{"insertions": 3, **o}), {}),
-    "pour": (lambda **o: PROTOCOLS["pour"].pour(**{"n": 12, **o}), {}),
+    "lattice": (lambda **o: lattice.equilateral_pile(o.pop("layers", 3), **o), {}),
+    "sloped": (lambda **o: PROTOCOLS["sloped"].set_up(**{"alpha_degrees": 30.0, "n": 20, **o}), {}),
+    "drop": (lambda **o: PROTOCOLS["drop"].set_up(**{"n": 12, **o}), {}),
+    "box": (lambda **o: PROTOCOLS["box"].set_up(**{"n": 12, **o}), {}),
+    "flux": (lambda **o: PROTOCOLS["flux"].set_up(**{"insertions": 3, **o}), {}),
+    "pour": (lambda **o: PROTOCOLS["pour"].set_up(**{"n": 12, **o}), {}),
 }
-_SET_UP_ARGS = {  # the options each set-up function takes (the rest of OPTION_RANGES belong to `run`)
+_SET_UP_ARGS = {  # the options each set-up reads (the rest of each protocol's options belong to its run)
     "lattice": {"layers", "diameter", "mass", "gap"},
     "sloped": {"alpha_degrees", "n", "base", "ramp_steps", "seed"},
     "drop": {"n", "seed", "dt", "drop_height", "jitter", "settle_speed", "quiet_time", "max_interval", "diameter",
@@ -133,7 +134,7 @@ def test_every_protocol_option_sets_up_or_refuses_in_one_line(data):
     name = data.draw(st.sampled_from(sorted(SETUPS)))
     setup, _ = SETUPS[name]
     option = data.draw(st.sampled_from(sorted(_SET_UP_ARGS[name])))
-    range_ = PROTOCOLS[name].OPTION_RANGES[option]
+    range_ = {**ranges_of(PROTOCOLS[name].options), "seed": ranges.SEED, "dt": ranges.TIME_STEP}[option]
     value = data.draw(edge_values(range_))
     if range_.whole and _is_number(value) and value > 60:
         value = _SMALL.get(option, value)
@@ -192,11 +193,12 @@ def test_every_ranged_flag_states_its_range_in_its_help(command, capsys):
 
 
 def _ranged_options():
-    """(protocol, option) for every `--option` a protocol declares a range for."""
-    from jaxpile.protocols import options as protocol_options
+    """(protocol, option) for every `--option` a protocol declares a range for (a tilt's box's too)."""
+    from jaxpile.protocols.spec import ranges_of
 
-    return [(name, option) for name, module in sorted(PROTOCOLS.items())
-            for option in sorted(set(getattr(module, "OPTION_RANGES", {})) & protocol_options.accepted(module))]
+    return [(name, option) for name, spec in sorted(PROTOCOLS.items())
+            for option in sorted(set().union(*(ranges_of(s.options) for s in spec.chain()))
+                                 - {s.size for s in spec.chain()})]
 
 
 @pytest.mark.parametrize("protocol, option", _ranged_options())
@@ -231,18 +233,18 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
 
 
 def test_a_tilt_refuses_its_own_options_before_it_builds_its_box_pile(monkeypatch):
-    from jaxpile.protocols import definition, tilt
+    from jaxpile.protocols import running, tilt
 
-    built = definition.run
+    built = running.run
 
-    def no_box(d, *args, **kwargs):
-        if d.name == "box":
+    def no_box(spec, *args, **kwargs):
+        if spec.name == "box":
             pytest.fail("the box pile was built before the tilt's options were checked")
-        return built(d, *args, **kwargs)
+        return built(spec, *args, **kwargs)
 
-    monkeypatch.setattr(definition, "run", no_box)
+    monkeypatch.setattr(running, "run", no_box)
     with pytest.raises(InputError, match="rest_speed"):
-        tilt.run("lee-herrmann", 20, rest_speed=5.0, move_speed=1.0)
+        tilt.SPEC.run("lee-herrmann", 20, rest_speed=5.0, move_speed=1.0)
 
 
 @pytest.mark.parametrize("argv, says", [
@@ -331,6 +333,6 @@ def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_pa
 def test_a_negative_zero_jitter_or_spread_acts_as_zero():
     """-0.0 lies inside the drop's jitter range [0, 1) and the pour's spread range;
     numpy's uniform(0.0, -0.0) raised "high - low < 0" (drawn by the property test above)."""
-    for make in (lambda x: PROTOCOLS["drop"].protocol(n=12, jitter=x), lambda x: PROTOCOLS["pour"].pour(12, spread=x)):
+    for make in (lambda x: PROTOCOLS["drop"].set_up(n=12, jitter=x), lambda x: PROTOCOLS["pour"].set_up(n=12, spread=x)):
         a, b = make(-0.0), make(0.0)
         assert np.array_equal(np.asarray(a.particles.position), np.asarray(b.particles.position))

@@ -423,7 +423,7 @@ def test_shear_history_survives_neighbor_rebuilds(name):
         state = sim.run(params, state, 2000, progress=False)
         rebuilt = not np.array_equal(np.asarray(state.neighbors.reference_position), reference)
         assert rebuilt == (skin < 1.0)
-        entry = jaxpile.engine.neighbors.pair_entry(state.contacts.pairs, 0, 1)
+        entry = jaxpile.engine.pairs.pair_entry(state.contacts.pairs, 0, 1)
         histories.append(float(state.contacts.history[entry, 0]))
     assert abs(histories[0]) > 0.02
     assert histories[1] == pytest.approx(histories[0], rel=1e-10)

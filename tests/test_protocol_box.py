@@ -13,28 +13,27 @@ import pytest
 from jaxpile import theory
 from jaxpile.engine.boundaries import LEFT_WALL, RIGHT_WALL
 from jaxpile.errors import InputError
-from jaxpile.protocols import box
-from jaxpile.protocols import paper1993
-from jaxpile.protocols import geometry
-from jaxpile.protocols import drivers
+from jaxpile.protocols import box, drivers, geometry, paper1993, running
 
 WIDTH, HEIGHT = 2.0, 1.4  # the paper's units (cm); about 72 disks
 
 
 @pytest.fixture(scope="module")
 def lh_box():
-    return box.run("lee-herrmann", width=WIDTH, height=HEIGHT, seed=0, max_time=2.0)
+    return box.SPEC.run("lee-herrmann", width=WIDTH, height=HEIGHT, seed=0, max_time=2.0)
 
 
 @pytest.fixture(scope="module")
 def hooke_box_one_chunk():
     """The hooke law (reduced units) with the whole run in ONE compiled chunk:
     the wall removal and both rest detections happen inside it."""
-    p = box.protocol(law="hooke", width=WIDTH, height=HEIGHT, seed=1)
+    p = box.SPEC.set_up("hooke", width=WIDTH, height=HEIGHT, seed=1)
     _, _, params = box.law_and_params("hooke")
+    o = box.BoxOptions(width=WIDTH, height=HEIGHT, max_time=1.2)
     steps = box.max_steps_for("hooke", p.info["dt"], 1.2)
-    sim = box.make_simulator("hooke", chunk_steps=steps)
-    state, info, samples = box.execute(sim, params, p, max_steps=steps)
+    assert box.SPEC.budget(p, o) == steps
+    sim = box.SPEC.simulator(o, law="hooke", dt=p.info["dt"], chunk_steps=steps)
+    state, info, samples = running.execute(box.SPEC, sim, params, p, o)
     return p, state, info, samples
 
 
@@ -126,9 +125,9 @@ def test_random_start_has_no_overlap_and_stays_in_the_box():
 
 
 def test_protocol_is_a_pure_function_of_its_seed():
-    a = box.protocol(40, width=1.6, height=1.6, seed=7)
-    b = box.protocol(40, width=1.6, height=1.6, seed=7)
-    c = box.protocol(40, width=1.6, height=1.6, seed=8)
+    a = box.SPEC.set_up("lee-herrmann", 40, width=1.6, height=1.6, seed=7)
+    b = box.SPEC.set_up("lee-herrmann", 40, width=1.6, height=1.6, seed=7)
+    c = box.SPEC.set_up("lee-herrmann", 40, width=1.6, height=1.6, seed=8)
     np.testing.assert_array_equal(a.particles.position, b.particles.position)
     np.testing.assert_array_equal(a.particles.radius, b.particles.radius)
     assert not np.array_equal(a.particles.position, c.particles.position)
@@ -149,7 +148,7 @@ def test_protocol_is_a_pure_function_of_its_seed():
 ])
 def test_bad_arguments_raise_input_error(kwargs, match):
     with pytest.raises(InputError, match=match):
-        box.protocol(**kwargs)
+        box.SPEC.set_up(**kwargs)
 
 
 def test_params_of_the_wrong_law_raise_input_error():

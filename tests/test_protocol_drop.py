@@ -14,7 +14,6 @@ import jaxpile
 from jaxpile import analysis
 from jaxpile.errors import InputError
 from jaxpile.protocols import drop
-from jaxpile.protocols.sloped import law_and_params
 from jaxpile.engine.simulate import Simulator
 from jaxpile.measure import heap
 
@@ -24,17 +23,17 @@ RUN = dict(speed_tolerance=1e-6, relax_steps=200_000)
 
 @pytest.fixture(scope="module")
 def hooke_pile():
-    return drop.run("hooke", N, seed=0, **RUN)
+    return drop.SPEC.run("hooke", N, seed=0, **RUN)
 
 
 @pytest.fixture(scope="module")
 def liffman_pile():
-    return drop.run("liffman", N, seed=1, **RUN)
+    return drop.SPEC.run("liffman", N, seed=1, **RUN)
 
 
 # ------------------------------------------------------------------ set-up
 def test_protocol_parks_every_disk_apart_and_inactive():
-    p = drop.protocol(50, seed=3)
+    p = drop.SPEC.set_up("liffman", 50, seed=3)
     assert p.particles.count == 50
     assert not np.asarray(p.particles.active).any()
     pos = np.asarray(p.particles.position)
@@ -49,10 +48,10 @@ def test_protocol_parks_every_disk_apart_and_inactive():
 
 
 def test_seeds_give_different_drops_and_zero_jitter_drops_on_the_axis():
-    a, b = (np.asarray(drop.protocol(20, seed=s).protocol_state.drop_x) for s in (0, 1))
+    a, b = (np.asarray(drop.SPEC.set_up("liffman", 20, seed=s).protocol_state.drop_x) for s in (0, 1))
     assert not np.allclose(a, b)
-    np.testing.assert_array_equal(a, np.asarray(drop.protocol(20, seed=0).protocol_state.drop_x))
-    flat = drop.protocol(20, jitter=0.0)
+    np.testing.assert_array_equal(a, np.asarray(drop.SPEC.set_up("liffman", 20, seed=0).protocol_state.drop_x))
+    flat = drop.SPEC.set_up("liffman", 20, jitter=0.0)
     np.testing.assert_array_equal(np.asarray(flat.protocol_state.drop_x), flat.info["axis_x"])
 
 
@@ -61,21 +60,36 @@ def test_bad_inputs_raise_input_error():
                    dict(n=10, settle_speed=-1.0), dict(n=10, quiet_time=5.0, max_interval=1.0),
                    dict(n=10, dt=0.0)):
         with pytest.raises(InputError):
-            drop.protocol(**kwargs)
+            drop.SPEC.set_up("liffman", **kwargs)
     with pytest.raises(InputError):
-        drop.run("no-such-law", 5)
+        drop.SPEC.run("no-such-law", 5)
+    with pytest.raises(InputError, match="max_interval"):  # the options refuse it before any set-up
+        drop.DropOptions(quiet_time=1.0, max_interval=1.0)
     empty = analysis.BaseForces(x=np.array([]), normal=np.array([]), horizontal=np.array([]),
                                 particle=np.array([], int))
     with pytest.raises(InputError):
         heap.normal_profile(empty)
 
 
+def test_the_spec_simulator_takes_its_driver_and_hard_collisions_from_the_options():
+    """The simulator is built from the options alone (the driver's constants
+    are the same for every seed and every n): its driver is the set-up's (one
+    batch of set-ups runs on it), with the options' hard collisions."""
+    from jaxpile.engine.collisions import HardCollisions
+
+    o = drop.DropOptions(n=5, quiet_time=0.05, max_interval=0.5, hard_collisions=HardCollisions(0.6, 0.3))
+    sim = drop.SPEC.simulator(o, law="hooke", dt=1e-3)
+    p = drop.setup(o.replace(n=7), law="hooke", seed=4, dt=1e-3)
+    assert sim.driver is p.driver and sim.hard_collisions == HardCollisions(0.6, 0.3) and sim.chunk_steps == 1000
+    assert p.info["quiet_steps"] == 50 and p.info["max_interval_steps"] == 500 and p.info["dt"] == 1e-3
+
+
 # ------------------------------------------------------------ the driver rule
 @pytest.fixture(scope="module")
 def one_disk_down():
     """A 3-disk drop protocol with disk 0 resting on the ground, as a state."""
-    p = drop.protocol(3, seed=0, quiet_time=0.25, max_interval=10.0)
-    _, law, params = law_and_params("hooke", setting=drop.SETTING)
+    p = drop.SPEC.set_up("hooke", 3, seed=0, quiet_time=0.25, max_interval=10.0)
+    _, law, params = drop.law_and_params("hooke")
     sim = Simulator(law, 1e-3, driver=p.driver)
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     part = state.particles
@@ -154,11 +168,11 @@ def test_base_carries_the_weight_and_the_pile_is_a_heap(pile, request):
 def test_drops_with_different_seeds_build_different_piles():
     """The paper's piles are 'random' and differ; here the seed sets the jitter.
     The first few drops (12000 steps) already differ, and a seed repeats itself."""
-    _, law, params = law_and_params("hooke", setting=drop.SETTING)
+    _, law, params = drop.law_and_params("hooke")
     sim = None
     final = []
     for seed in (0, 5, 5):
-        p = drop.protocol(5, seed=seed)
+        p = drop.SPEC.set_up("hooke", 5, seed=seed)
         sim = sim or Simulator(law, drop.SETTING["dt"], driver=p.driver, chunk_steps=4000)
         state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
         state = sim.run(params, state, 12_000, progress=False)
@@ -173,8 +187,8 @@ def test_a_drop_run_on_blocks_of_its_dropped_disks_is_bit_identical_to_the_full_
     block of leading disks that holds every disk droppable by its end
     (`jaxpile.engine.blocks`): here 64 of 128 disks throughout. Same arithmetic in the
     same order, so the same state bit for bit as carrying every parked disk."""
-    p = drop.protocol(128, seed=2, dt=1e-3, quiet_time=0.05, max_interval=0.5)
-    _, law, params = law_and_params("hooke", {"mu": 0.5}, setting=drop.SETTING)
+    p = drop.SPEC.set_up("hooke", 128, seed=2, dt=1e-3, quiet_time=0.05, max_interval=0.5)
+    _, law, params = drop.law_and_params("hooke", {"mu": 0.5})
     in_play = drop.make_in_play(p.info["quiet_steps"])
     states = {}
     for blocked in (True, False):

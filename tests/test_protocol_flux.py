@@ -18,12 +18,12 @@ WIDTH = 1.6  # the paper's units (cm): 8 columns
 
 @pytest.fixture(scope="module")
 def lh_flux():
-    return flux.run("lee-herrmann", 20, width=WIDTH, max_time=6.0)
+    return flux.SPEC.run("lee-herrmann", 20, width=WIDTH, max_time=6.0)
 
 
 @pytest.fixture(scope="module")
 def hooke_flux():
-    return flux.run("hooke", 12, width=WIDTH, max_time=4.0)
+    return flux.SPEC.run("hooke", 12, width=WIDTH, max_time=4.0)
 
 
 def _check_counts(state, m):
@@ -71,9 +71,9 @@ def test_recorded_surface_is_the_analysis_surface_and_the_disk_lands_upper_left(
     """The surface recorded in the loop before the first insertion is
     `analysis.surface_profile` of the bottom layer, and the first disk appears
     at the left wall, `gap` above the disk under it."""
-    p = flux.protocol(3, law="hooke", width=WIDTH, seed=4)
+    p = flux.SPEC.set_up("hooke", 3, width=WIDTH, seed=4)
     _, _, params = box.law_and_params("hooke")
-    sim = flux.make_simulator("hooke", chunk_steps=10)
+    sim = flux.SPEC.simulator(flux.FluxOptions(insertions=3, width=WIDTH), law="hooke", dt=p.info["dt"], chunk_steps=10)
     state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
     first = state
     state = sim.run(params, state, 1)
@@ -99,10 +99,10 @@ def test_disks_that_leave_return_to_the_pool():
     """A pool smaller than the number of insertions: disks that run off the
     floor's end are inserted again (15 insertions from 7 disks on a short
     floor). With a pool the pile can hold entirely, insertions wait."""
-    state, m = flux.run("hooke", 15, width=0.6, pool=7, max_time=3.0)
+    state, m = flux.SPEC.run("hooke", 15, width=0.6, pool=7, max_time=3.0)
     _check_counts(state, m)
     assert m["inserted"] == 15 and m["n_left"] >= 8 and m["at_rest"] and m["starved_steps"] == 0
-    state, m = flux.run("hooke", 15, width=0.6, pool=3, max_time=0.3)
+    state, m = flux.SPEC.run("hooke", 15, width=0.6, pool=3, max_time=0.3)
     _check_counts(state, m)
     assert m["inserted"] < 15 and m["starved_steps"] > 0 and not m["at_rest"]
 
@@ -133,7 +133,7 @@ def test_angles_of_synthetic_records():
 ])
 def test_bad_arguments_raise_input_error(kwargs, match):
     with pytest.raises(InputError, match=match):
-        flux.protocol(**{"insertions": 5, **kwargs})
+        flux.SPEC.set_up("lee-herrmann", **{"insertions": 5, **kwargs})
 
 
 def test_a_long_hold_time_sets_up_with_its_fallback_at_the_step_counters_limit():
@@ -142,6 +142,6 @@ def test_a_long_hold_time_sets_up_with_its_fallback_at_the_step_counters_limit()
     instead of overflowing (found by tests/test_input_properties.py)."""
     from jaxpile.ranges import MAX_STEPS
 
-    p = flux.protocol(insertions=3, hold_time=10738.0)
+    p = flux.SPEC.set_up("lee-herrmann", insertions=3, hold_time=10738.0)
     assert int(p.protocol_state.fallback) == MAX_STEPS
     assert 0 < 4 * int(p.protocol_state.hold) > MAX_STEPS  # the hold itself is kept as asked

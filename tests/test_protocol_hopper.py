@@ -14,15 +14,16 @@ from jaxpile import sweep
 from jaxpile.cli import main
 from jaxpile.errors import InputError
 from jaxpile.protocols import PROTOCOLS, hopper
+from jaxpile.protocols.spec import ranges_of
 
 SMALL = dict(width=10.0, orifice=4.0, seed=0)  # 60 disks run out in ~45k steps
 
 
 def test_the_hopper_registers_itself_for_every_command():
-    assert PROTOCOLS["hopper"] is hopper
+    assert PROTOCOLS["hopper"] is hopper.SPEC
     from jaxpile import cli, sweep
 
-    assert "hopper" in cli.sweep_protocols() and sweep.adapter("hopper").default_law == "hooke"
+    assert "hopper" in cli.sweep_protocols() and sweep.spec_of("hopper").default_law == "hooke"
 
 
 @pytest.mark.parametrize("orifice", [1.0, 2.5, 4.0, 5.3, 7.9])
@@ -35,13 +36,13 @@ def test_the_closed_floor_has_no_gap_a_disk_passes_and_the_open_one_is_the_orifi
     open_ = np.sort(x[~gate])
     widest = np.max(np.diff(open_)) - 1.0  # between the edges of the disks beside the orifice
     assert widest == pytest.approx(orifice) and gate.sum() == math.ceil(orifice)
-    assert (hopper.protocol(10, width=12.0, orifice=orifice).particles.count
-            == hopper.protocol(10, width=12.0, orifice=2.0).particles.count)  # batchable over orifices
+    assert (hopper.SPEC.set_up("hooke", 10, width=12.0, orifice=orifice).particles.count
+            == hopper.SPEC.set_up("hooke", 10, width=12.0, orifice=2.0).particles.count)  # batchable over orifices
 
 
 def test_an_orifice_that_leaves_no_floor_is_refused_in_one_line():
     with pytest.raises(InputError, match="must leave a floor disk on each side") as err:
-        hopper.protocol(10, width=6.0, orifice=4.5)
+        hopper.SPEC.set_up("hooke", 10, width=6.0, orifice=4.5)
     assert "\n" not in str(err.value)
 
 
@@ -77,7 +78,7 @@ def test_dead_zone_angles_read_each_side_of_the_orifice_from_the_wall_to_its_edg
 def narrow_and_wide():
     """Three silos of one width (one compiled simulator): D = 3.5 (which clogs
     with this seed), 4.5 and 7.5."""
-    return {d: hopper.run("hooke", 60, **{**SMALL, "orifice": d}) for d in (3.5, 4.5, 7.5)}
+    return {d: hopper.SPEC.run("hooke", 60, **{**SMALL, "orifice": d}) for d in (3.5, 4.5, 7.5)}
 
 
 def test_the_silo_fills_opens_at_rest_and_every_disk_is_counted_once(narrow_and_wide):
@@ -149,18 +150,20 @@ EDGES = [0, -1, 1e-300, 0.49999, 0.5, 1e300, math.nan, math.inf, -math.inf, 2**6
 @given(data=st.data())
 def test_every_set_up_option_at_its_edges_sets_up_or_refuses_in_one_line(data):
     """Issue 19's promise for the new protocol: a silo with one option drawn at
-    or beyond its range is built, or refused with one InputError line."""
-    import inspect
+    or beyond its range is built, or refused with one InputError line (the
+    options' ranges, and the set-up's dt and seed)."""
+    from jaxpile.ranges import SEED, TIME_STEP
 
-    names = sorted(set(hopper.OPTION_RANGES) & set(inspect.signature(hopper.protocol).parameters))
+    option_ranges = {**ranges_of(hopper.HopperOptions), "dt": TIME_STEP, "seed": SEED}
+    names = sorted(option_ranges)
     name = data.draw(st.sampled_from(names))
-    r = hopper.OPTION_RANGES[name]
+    r = option_ranges[name]
     bounds = [b for b in (r.low, r.high) if b is not None]
     value = data.draw(st.sampled_from(EDGES + bounds) | st.floats(-1e3, 1e3) | st.integers(-5, 50))
     if name == "n" and isinstance(value, (int, float)) and not isinstance(value, bool) and value > 40:
         value = 40  # a huge valid count is the memory check's (tests/test_budget.py)
     try:
-        p = hopper.protocol(**{"n": 20, "width": 8.0, "orifice": 3.0, name: value})
+        p = hopper.SPEC.set_up("hooke", **{"n": 20, "width": 8.0, "orifice": 3.0, name: value})
     except InputError as err:
         assert "\n" not in str(err).strip(), str(err)
     else:

@@ -22,7 +22,7 @@ TOLERANCE = 1.0e-4  # rest: every disk slower than this, (sigma g)^(1/2)
 def _heap(law, polydispersity, seed):
     sim = pour.make_simulator(law)
     params = pour.law_params(law)
-    protocol = pour.pour(N, release_height=RELEASE, polydispersity=polydispersity, seed=seed)
+    protocol = pour.SPEC.set_up(law, N, release_height=RELEASE, polydispersity=polydispersity, seed=seed)
     state, info = pour.execute(sim, params, protocol, speed_tolerance=TOLERANCE, max_settle_steps=150_000,
                                progress=False)
     return sim, params, protocol, state, info, poured_heap.measure(sim, params, state)
@@ -42,7 +42,7 @@ def hooke_heap():
 
 # ----------------------------------------------------------------- the set-up
 def test_setup_follows_the_paper():
-    p = pour.pour(N, release_height=RELEASE, seed=3)
+    p = pour.SPEC.set_up("baxter", N, release_height=RELEASE, seed=3)
     info, ps, part = p.info, p.protocol_state, p.particles
     rows = info["n_substrate"]
     assert part.count == rows + N
@@ -74,7 +74,7 @@ def test_setup_follows_the_paper():
 def test_polydisperse_diameters_are_uniform_in_the_paper_range():
     """delta% polydisperse: diameters uniform in ((1 - delta) sigma, sigma)."""
     for delta in (0.05, 0.1):
-        p = pour.pour(400, release_height=40.0, polydispersity=delta, seed=4)
+        p = pour.SPEC.set_up("baxter", 400, release_height=40.0, polydispersity=delta, seed=4)
         d = 2 * np.asarray(p.particles.radius)[p.info["n_substrate"]:]
         assert d.min() >= 1 - delta and d.max() <= 1.0
         assert d.min() < 1 - 0.97 * delta and d.max() > 1 - 0.03 * delta  # fills the range
@@ -85,35 +85,54 @@ def test_polydisperse_diameters_are_uniform_in_the_paper_range():
 
 def test_bad_arguments_raise_input_errors():
     with pytest.raises(InputError, match="n must be"):
-        pour.pour(0)
+        pour.SPEC.set_up("baxter", 0)
     with pytest.raises(InputError, match="polydispersity"):
-        pour.pour(10, release_height=20, polydispersity=5)  # 5 meant as 5%
+        pour.SPEC.set_up("baxter", 10, release_height=20, polydispersity=5)  # 5 meant as 5%
     with pytest.raises(InputError, match="spacing"):
-        pour.pour(10, release_height=20, spacing=2.05)  # disks would fall through the gaps
+        pour.SPEC.set_up("baxter", 10, release_height=20, spacing=2.05)  # disks would fall through the gaps
     with pytest.raises(InputError, match="release_height"):
-        pour.pour(400, release_height=10)  # inside the heap
+        pour.SPEC.set_up("baxter", 400, release_height=10)  # inside the heap
     with pytest.raises(InputError, match="insert_height"):
-        pour.pour(10, release_height=20, insert_height=30)
+        pour.SPEC.set_up("baxter", 10, release_height=20, insert_height=30)
     with pytest.raises(InputError, match="interval"):
-        pour.pour(10, release_height=20, interval=0)
+        pour.SPEC.set_up("baxter", 10, release_height=20, interval=0)
     with pytest.raises(InputError, match="touch in the air"):
-        pour.pour(10, release_height=20, interval=1.0)  # the previous disk only 0.5 sigma below
+        pour.SPEC.set_up("baxter", 10, release_height=20, interval=1.0)  # the previous disk only 0.5 sigma below
     with pytest.raises(InputError, match="substrate_disks"):
-        pour.pour(10, release_height=20, substrate_disks=2)
+        pour.SPEC.set_up("baxter", 10, release_height=20, substrate_disks=2)
     with pytest.raises(InputError, match="narrower"):
-        pour.pour(10, release_height=20, substrate_disks=4, spread=3.0)
+        pour.SPEC.set_up("baxter", 10, release_height=20, substrate_disks=4, spread=3.0)
     with pytest.raises(InputError, match="substrate row.*would fit"):  # refused before the row is allocated
-        pour.pour(1, release_height=100, substrate_disks=1e300)
+        pour.SPEC.set_up("baxter", 1, release_height=100, substrate_disks=1e300)
     # a voidage map too fine for the memory: refused before the pour (it used to fail after it, with a traceback)
     with pytest.raises(InputError, match="voidage_cell = 1e-06"):
-        pour.run("hooke", 6, release_height=10, voidage_cell=1e-6)
+        pour.SPEC.run("hooke", 6, release_height=10, voidage_cell=1e-6)
     with pytest.raises(InputError, match="bins .* at most the substrate"):  # 1e12 bins: the same, after the pour
-        pour.run("hooke", 6, release_height=10, bins=1e12)
+        pour.SPEC.run("hooke", 6, release_height=10, bins=1e12)
     with pytest.raises(InputError, match="dt"):
         pour.execute(pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
-                     pour.pour(10, release_height=20))
+                     pour.SPEC.set_up("hooke", 10, release_height=20))
     with pytest.raises(InputError, match="unknown law"):
-        pour.run("sand", 10)
+        pour.SPEC.run("sand", 10)
+
+
+def test_the_spec_holds_the_run_options_and_its_simulator_reads_law_options():
+    """The pour's options hold its run options (rest, settling budget, bins,
+    voidage cell) beside the set-up's; its simulator runs leapfrog (the paper's
+    eqs. 9-12) with the options' `law_options`, and a run records them in its info."""
+    from jaxpile.engine.integrators import get_integrator
+    from jaxpile.protocols import spec
+
+    declared = spec.ranges_of(pour.PourOptions)
+    assert {"n", "spacing", "insert_height", "speed_tolerance", "max_settle_steps", "bins", "voidage_cell"} <= set(
+        declared)
+    assert "law_options" in pour.PourOptions.names() and "law_options" not in declared
+    sim = pour.SPEC.simulator(pour.PourOptions(law_options={"lever_arm": "centre-distance"}), law="baxter", dt=1e-3)
+    assert dict(sim.law.options)["lever_arm"] == "centre-distance"
+    assert sim.integrator is get_integrator("leapfrog") and sim.chunk_steps == 2000
+    _, m = pour.SPEC.run("hooke", 2, release_height=5.0, law_options={}, speed_tolerance=1e-2,
+                         max_settle_steps=20_000)
+    assert m["info"]["law_options"] == {} and m["counts"]["poured"] == 2 and m["run"]["at_rest"]
 
 
 # ------------------------------------------------------------- the poured heaps
@@ -201,7 +220,7 @@ def test_release_rate_and_free_fall_shortcut(baxter_heap):
     """Disks are released every 1612 steps inside one compiled chunk, and the
     `insert_height` shortcut gives them the speed of the fall from `release_height`."""
     sim, params, _, _, _, _ = baxter_heap
-    shortcut = pour.pour(N, release_height=RELEASE, insert_height=11.0, seed=1)
+    shortcut = pour.SPEC.set_up("baxter", N, release_height=RELEASE, insert_height=11.0, seed=1)
     assert shortcut.info["insert_speed"] == pytest.approx(math.sqrt(2 * (RELEASE - 11.0)))
     state = sim.init(params, shortcut.particles, shortcut.boundaries, protocol_state=shortcut.protocol_state)
     rows = shortcut.info["n_substrate"]
@@ -265,7 +284,7 @@ def test_pours_with_every_law(law):
     land on the row with nothing lost or non-finite (a short pour)."""
     sim = pour.make_simulator(law)
     params = pour.law_params(law)
-    protocol = pour.pour(4, release_height=5.0)
+    protocol = pour.SPEC.set_up(law, 4, release_height=5.0)
     state = sim.init(params, protocol.particles, protocol.boundaries, protocol_state=protocol.protocol_state)
     state = sim.run(params, state, protocol.info["pour_steps"], progress=False)
     state, info = sim.run_until_rest(params, state, speed_tolerance=1e-2, max_steps=30_000, progress=False)
@@ -286,7 +305,7 @@ def test_a_pour_run_on_blocks_of_its_poured_disks_is_bit_identical_to_the_full_r
     leading disks holding those poured by its end (`jaxpile.engine.blocks`): here 64 of
     145 disks for two chunks, then all. Same arithmetic in the same order, so the
     same state bit for bit as carrying every parked disk from the start."""
-    protocol = pour.pour(100, insert_height=14.0, interval=0.15, seed=4)
+    protocol = pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=4)
     params = pour.law_params("hooke")
     states = {}
     for blocked in (True, False):

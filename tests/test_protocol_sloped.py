@@ -26,7 +26,7 @@ RELAX = dict(ramp_steps=5_000, speed_tolerance=1e-7, max_steps=200_000)
 
 
 def _relaxed(law, alpha, n):
-    return sloped.run(law, alpha, n=n, **RELAX)
+    return sloped.SPEC.run(law, n, alpha_degrees=alpha, **RELAX)
 
 
 @pytest.fixture(scope="module")
@@ -85,15 +85,15 @@ def test_base_for_count_hits_the_paper_sizes():
 def test_bad_inputs_raise_input_error():
     for bad in (0.0, -5.0, 61.0, float("nan")):
         with pytest.raises(InputError):
-            sloped.protocol(bad, n=50)
+            sloped.SPEC.set_up("hooke", 50, alpha_degrees=bad)
     with pytest.raises(InputError):
-        sloped.protocol(30.0, base=-3.0)
+        sloped.SPEC.set_up("hooke", alpha_degrees=30.0, base=-3.0)
     with pytest.raises(InputError):
-        sloped.protocol(30.0, n=0)
+        sloped.SPEC.set_up("hooke", 0, alpha_degrees=30.0)
     with pytest.raises(InputError):
         sloped.sloped_positions(1.0, 30.0)  # too small to hold a disk
     with pytest.raises(InputError):
-        sloped.run("hooke", 30.0, n=20, params={"no_such": 1.0})
+        sloped.SPEC.run("hooke", 20, alpha_degrees=30.0, params={"no_such": 1.0})
 
 
 # ---------------------------------------------------------------- relaxed piles

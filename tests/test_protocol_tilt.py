@@ -12,27 +12,26 @@ import pytest
 
 from jaxpile import theory
 from jaxpile.errors import InputError
-from jaxpile.protocols import box, tilt
-from jaxpile.protocols import drivers
+from jaxpile.protocols import box, drivers, running, tilt
 
 RATE = 0.02  # degrees per step
 
 
 @pytest.fixture(scope="module")
 def pile():
-    state, m = box.run("lee-herrmann", width=2.0, height=1.4, seed=3, max_time=2.0)
+    state, m = box.SPEC.run("lee-herrmann", width=2.0, height=1.4, seed=3, max_time=2.0)
     assert m["at_rest"]
     return state, m
 
 
 @pytest.fixture(scope="module")
 def frictional(pile):
-    return tilt.run("lee-herrmann", pile=pile[0], rate_degrees=RATE)
+    return tilt.SPEC.run("lee-herrmann", pile=pile[0], rate_degrees=RATE)
 
 
 @pytest.fixture(scope="module")
 def frictionless(pile):
-    return tilt.run("lee-herrmann", pile=pile[0], params={"mu": 0.0}, rate_degrees=RATE)
+    return tilt.SPEC.run("lee-herrmann", pile=pile[0], params={"mu": 0.0}, rate_degrees=RATE)
 
 
 def _check_counts_and_gravity(pile_state, state, m):
@@ -78,9 +77,9 @@ def test_a_frictionless_pile_moves_at_once(pile, frictional, frictionless):
 def test_a_pile_tilted_less_than_its_tilting_angle_stays_put():
     """Another law (hooke, reduced units): with the tilt capped at 0.2 deg the
     frictional pile never moves; the run gives up and says so."""
-    state, m = box.run("hooke", width=1.6, height=1.2, seed=0, max_time=1.5)
+    state, m = box.SPEC.run("hooke", width=1.6, height=1.2, seed=0, max_time=1.5)
     assert m["at_rest"]
-    s2, t = tilt.run("hooke", pile=state, rate_degrees=0.05, max_tilt_degrees=0.2)
+    s2, t = tilt.SPEC.run("hooke", pile=state, rate_degrees=0.05, max_tilt_degrees=0.2)
     assert not t["moved"] and math.isnan(t["theta_t"])
     assert t["tilt_held"] == pytest.approx(0.2)
     g = np.asarray(s2.boundaries.gravity)
@@ -102,32 +101,54 @@ def test_the_tilt_schedule_is_linear_in_steps_and_capped():
 def test_bad_arguments_raise_input_error(pile):
     state = pile[0]
     with pytest.raises(InputError, match="SimState"):
-        tilt.protocol(state.particles)
+        tilt.SPEC.set_up("lee-herrmann", pile=state.particles)
     with pytest.raises(InputError, match="rate_degrees"):
-        tilt.protocol(state, rate_degrees=0.0)
+        tilt.SPEC.set_up("lee-herrmann", pile=state, rate_degrees=0.0)
     with pytest.raises(InputError, match="below move_speed"):
-        tilt.protocol(state, rest_speed=2.0, move_speed=1.0)
+        tilt.SPEC.set_up("lee-herrmann", pile=state, rest_speed=2.0, move_speed=1.0)
     with pytest.raises(InputError, match="max_tilt_degrees"):
-        tilt.protocol(state, max_tilt_degrees=95.0)
+        tilt.SPEC.set_up("lee-herrmann", pile=state, max_tilt_degrees=95.0)
     tilted = state.set(boundaries=state.boundaries.set(gravity=jnp.asarray([1.0, -981.0])))
     with pytest.raises(InputError, match="straight down"):
-        tilt.protocol(tilted)
+        tilt.SPEC.set_up("lee-herrmann", pile=tilted)
     with pytest.raises(InputError, match="edge"):
-        tilt.protocol(state.set(protocol_state=None))
-    p = tilt.protocol(state, rate_degrees=RATE)
+        tilt.SPEC.set_up("lee-herrmann", pile=state.set(protocol_state=None))
+    o = tilt.TiltOptions(rate_degrees=RATE)
+    p = tilt.setup(state, o, law="lee-herrmann", dt=tilt.SPEC.default_dt("lee-herrmann"))
+    sim = tilt.SPEC.simulator(o, law="lee-herrmann", dt=p.info["dt"])
     with pytest.raises(InputError, match="not the state"):
-        tilt.execute(tilt.make_simulator("lee-herrmann"), box.law_and_params("lee-herrmann")[2], p,
-                     pile=state.set(step=state.step + 1))
+        running.continue_pile(tilt.SPEC, sim, box.law_and_params("lee-herrmann")[2], p, o,
+                              state.set(step=state.step + 1))
 
 
 def test_with_settle_the_run_ends_settle_time_after_the_pile_moved(pile):
     """`settle_time` is "at most this many paper seconds after the pile moved":
     a frictionless pile, tilt held, slides off and does not rest, so the run
     ends that long after its motion (within a chunk), not at the tilt budget."""
-    state, m = tilt.run("lee-herrmann", pile=pile[0], params={"mu": 0.0}, rate_degrees=RATE, settle=True,
-                        settle_time=0.02)
+    state, m = tilt.SPEC.run("lee-herrmann", pile=pile[0], params={"mu": 0.0}, rate_degrees=RATE, settle=True,
+                             settle_time=0.02)
     assert m["moved"]
     settle_steps = round(0.02 / m["info"]["dt"])  # the paper's seconds (lee-herrmann: cgs)
     after_motion = int(state.step) - m["info"]["start_step"] - m["moved_step"]
-    chunk = tilt.make_simulator("lee-herrmann").chunk_steps  # `finished` is seen at a chunk's end
+    # `finished` is seen at a chunk's end
+    chunk = tilt.SPEC.simulator(tilt.TiltOptions(), law="lee-herrmann", dt=m["info"]["dt"]).chunk_steps
     assert m["at_rest"] or settle_steps < after_motion <= settle_steps + chunk + 1
+
+
+@pytest.mark.parametrize("options, match", [
+    ({"rest_speed": 5.0, "move_speed": 1.0}, "below move_speed"),
+    ({"hold_time": 0.0}, "hold_time"),
+    ({"settle": True, "settle_time": 0.0}, "settle_time"),
+    ({"rest_measure": "median"}, "rest_measure"),
+])
+def test_the_tilt_refuses_its_own_options_before_it_builds_its_box_pile(monkeypatch, options, match):
+    built = running.run
+
+    def no_box(spec, *args, **kwargs):
+        if spec.name == "box":
+            pytest.fail("the box pile was built before the tilt's options were checked")
+        return built(spec, *args, **kwargs)
+
+    monkeypatch.setattr(running, "run", no_box)
+    with pytest.raises(InputError, match=match):
+        tilt.SPEC.run("lee-herrmann", pile_options={"n": 20}, **options)

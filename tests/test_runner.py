@@ -35,7 +35,7 @@ def test_reallocation_grows_from_an_almost_empty_list_within_one_chunk():
     ample = Simulator(hooke.law(), dt=5e-4, chunk_steps=2000, capacity_multiplier=1.0)
     ref = ample.init(PARAMS, particles, boundaries)
     big = jaxpile.engine.neighbors.allocate(ref.neighbor_settings, ref.particles.position, extra_capacity=15)
-    pairs = jaxpile.engine.neighbors.half_pairs(big.idx)
+    pairs = jaxpile.engine.pairs.half_pairs(big.idx)
     ref = ref.set(neighbors=big, contacts=ref.contacts.set(
         pairs=pairs, history=jnp.zeros((pairs.shape[0], 2), ref.particles.position.dtype)))
     ref = ample.run(PARAMS, ref, 2000, progress=False)

@@ -47,7 +47,7 @@ CLI = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
 def pour_command(n: int, steps: int, every: int, out: str) -> list[str]:
     from jaxpile.protocols import pour
 
-    pour_steps = pour.pour(n, dt=pour.PAPER_SETTING["dt"]).info["pour_steps"]
+    pour_steps = pour.SPEC.set_up("hooke", n, dt=pour.PAPER_SETTING["dt"]).info["pour_steps"]
     if pour_steps >= steps:
         raise SystemExit(f"--steps {steps} is shorter than the pour itself ({pour_steps} steps)")
     return ["pile", "--protocol", "pour", "--law", "hooke", "--n", str(n), "--max-steps", str(steps - pour_steps),

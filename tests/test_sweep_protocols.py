@@ -15,7 +15,7 @@ LAW = "lee-herrmann"
 
 def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol_run():
     """The 1992 static piles batched over a law parameter (deterministic piles:
-    one seed): each member loads and relaxes as `lattice.relax` / `sloped.run`."""
+    one seed): each member loads and relaxes as `lattice.relax` / `sloped.SPEC.run`."""
     from jaxpile import sweep
     from jaxpile.protocols import sloped
 
@@ -25,7 +25,7 @@ def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol
     assert all(r["max_rel_dev_normal"] < 0.01 for r in lat.rows)  # eq. 42 at rest
     slo = sweep.sweep("sloped", "hooke", vary={"kn": [1e4]}, seeds=1,
                       options={"n": 20, "ramp_steps": 500, "max_steps": 4000}, progress=False)
-    _, alone = sloped.run("hooke", n=20, params={"kn": 1e4}, ramp_steps=500, max_steps=4000)
+    _, alone = sloped.SPEC.run("hooke", n=20, params={"kn": 1e4}, ramp_steps=500, max_steps=4000)
     row = slo.rows[0]
     # the batch checks rest at chunk ends counted from step 0, the single run from the ramp's end
     # (as the pour sweep): both stop at rest, the batch up to one chunk sooner
@@ -37,20 +37,20 @@ def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol
 
 def test_drop_sweep_members_are_the_dropped_piles_of_their_seeds():
     """1992 Fig. 20 over seeds in one batch: each member fills and relaxes as
-    `drop.run` with its seed (the same steps; the dip to round-off)."""
+    `drop.SPEC.run` with its seed (the same steps; the dip to round-off)."""
     from jaxpile import sweep
     from jaxpile.protocols import drop
 
     result = sweep.sweep("drop", "liffman", vary={"ks": [1e4]}, seeds=2, options={"n": 8, "relax_steps": 20000},
                          progress=False)
     for row in result.rows:
-        _, alone = drop.run("liffman", 8, seed=row["seed"], relax_steps=20000)
+        _, alone = drop.SPEC.run("liffman", 8, seed=row["seed"], relax_steps=20000)
         assert row["all_inserted"] and row["steps"] == alone["steps"]
         assert row["central_dip"] == pytest.approx(alone["central_dip"], rel=1e-6, abs=1e-9)
 
 
 def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
-    """1993 Fig. 5 batched: a member makes the insertions `flux.run` makes with
+    """1993 Fig. 5 batched: a member makes the insertions `flux.SPEC.run` makes with
     its seed, and its angle record gives the same steady mean (to round-off:
     the batch shares one neighbour capacity)."""
     from jaxpile import sweep
@@ -58,7 +58,7 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
 
     options = {"width": 1.0, "max_time": 0.3}
     result = sweep.sweep("flux", LAW, vary={"mu": [0.3]}, seeds=[1], options={"n": 6, **options}, progress=False)
-    _, alone = flux.run(LAW, 6, params={"mu": 0.3}, seed=1, **options)
+    _, alone = flux.SPEC.run(LAW, 6, params={"mu": 0.3}, seed=1, **options)
     row = result.rows[0]
     assert row["inserted"] == alone["inserted"] and row["n_left"] == alone["n_left"]
     assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
@@ -67,7 +67,7 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
 def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     """1993 Fig. 4 batched: each member builds its box pile (stage 1), then is
     tilted from where its pile settled, contact history kept (stage 2); its
-    theta_T, theta_R and last step are those of `tilt.run` with its seed.
+    theta_T, theta_R and last step are those of `tilt.SPEC.run` with its seed.
     Resumed from a save in the middle of the tilt, the sweep ends with the
     same rows (the tilt's start steps and the pile's theta_R come from the file)."""
     from jaxpile import sweep
@@ -77,8 +77,8 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.01}
     result = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
                          checkpoint=(str(tmp_path / "ck-{step}.npz"), 500))
-    state, alone = tilt.run(LAW, params={"mu": 0.3}, rate_degrees=0.01,
-                            box_options={"width": 1.2, "height": 1.2, "seed": 1})
+    state, alone = tilt.SPEC.run(LAW, params={"mu": 0.3}, rate_degrees=0.01, seed=1,
+                                 pile_options={"width": 1.2, "height": 1.2})
     row = result.rows[0]
     assert row["moved"] and alone["moved"] and row["box_settled"]
     assert row["theta_t"] == pytest.approx(alone["theta_t"], abs=1e-9)
@@ -94,7 +94,7 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
 
 
 def test_the_command_line_offers_every_sweepable_protocol():
-    from jaxpile import cli, sweep
+    from jaxpile import cli
+    from jaxpile.protocols import PROTOCOLS
 
-    assert set(sweep.adapters()) <= set(cli.sweep_protocols())  # the papers' seven, and those that bring an adapter
-    assert sorted(cli.sweep_protocols()) == sorted(sweep.adapters())
+    assert sorted(cli.sweep_protocols()) == sorted(PROTOCOLS)  # every registered spec runs as a batch

@@ -13,10 +13,10 @@ from jaxpile.io import plain
 from jaxpile.ranges import COUNT, POSITIVE
 
 
-def _statistics(args, adapter):
+def _statistics(args, spec):
     from jaxpile.fit.ensemble_fit import Statistics
 
-    default = adapter.fit_statistics
+    default = spec.batch.fit_statistics
     if args.statistics is not None:
         columns = tuple(c.strip() for c in args.statistics.split(",") if c.strip())
         bins = args.bins or 0
@@ -25,7 +25,7 @@ def _statistics(args, adapter):
     return Statistics(columns=columns, bins=int(bins))
 
 
-def _chosen_statistics(args, adapter, estimator: str, declared: bool):
+def _chosen_statistics(args, spec, estimator: str, declared: bool):
     """The statistics the fit compares: the central dip for the declared
     Smid-Novosad target, the base profile alone for the truncated estimator (what
     it can differentiate), else `--statistics`/`--bins` or the protocol's."""
@@ -35,8 +35,8 @@ def _chosen_statistics(args, adapter, estimator: str, declared: bool):
         return ensemble_fit.Statistics(columns=("central_dip",))
     if estimator == "truncated" and args.statistics is None:
         return ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
-                                                else adapter.fit_statistics.get("bins") or 9))
-    return _statistics(args, adapter)
+                                                else spec.batch.fit_statistics.get("bins") or 9))
+    return _statistics(args, spec)
 
 
 def _values(items, known, flag) -> dict:
@@ -46,13 +46,14 @@ def _values(items, known, flag) -> dict:
         raise InputError(str(err).replace("--set", flag)) from None
 
 
-def _fit_inputs(args, adapter) -> tuple:
+def _fit_inputs(args, spec) -> tuple:
     """`(law, names, start, fixed, options)`: the law, the parameters fitted and
     their starting values (`--set`, else the law's defaults), the law values
     held fixed, and the protocol's options, each checked."""
+    from jaxpile import sweep
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or adapter.default_law).NAME
+    law = get_law_module(args.law or spec.default_law).NAME
     lawmod = get_law_module(law)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     unknown = set(names) - set(lawmod.PARAM_NAMES)
@@ -61,18 +62,19 @@ def _fit_inputs(args, adapter) -> tuple:
     if len(set(names)) != len(names):
         raise InputError(f"--params names a parameter twice; got {args.params!r}.")
     given = _values(args.set, lawmod.PARAM_NAMES, "--set")
-    _, _, defaults = adapter.law_and_params(law, None)
+    _, _, defaults = spec.law_and_params(law, None, None, None)
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
     fixed = {k: v for k, v in given.items() if k not in names}
     options = parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
-    if "layers" in adapter.options and "layers" not in options:  # the protocols built in layers (the lattice)
+    known = sweep.option_names(spec)
+    if spec.size == "layers" and "layers" not in options:  # the protocols built in layers (the lattice)
         options["layers"] = args.layers
-    unknown = set(options) - adapter.options
+    unknown = set(options) - known
     if unknown:
         raise InputError(f"unknown option(s) {sorted(unknown)} for the {args.protocol} protocol; known: "
-                         f"{sorted(adapter.options)}.")
+                         f"{sorted(known)}.")
     return law, names, start, fixed, options
 
 
@@ -85,14 +87,14 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     from jaxpile.fit import ensemble_fit
     from jaxpile.laws import get_law_module
 
-    a = sweep.adapter(args.protocol)
+    a = sweep.spec_of(args.protocol)
     law, names, start, fixed, options = _fit_inputs(args, a)
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
     declared = args.target == "smid-novosad" and not args.resume
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
     statistics = _chosen_statistics(args, a, estimator, declared)
-    b = int(args.ensemble) if args.ensemble is not None else (1 if a.deterministic else 8)
+    b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
     truth = _values(args.truth, get_law_module(law).PARAM_NAMES, "--truth") if args.truth else None
@@ -117,7 +119,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     # 8: the smoothing's 4 antithetic pairs; 3: the truncated estimator's host run and two rollouts
     per_iteration = {"central": 2 * len(names) + 1, "truncated": 3}.get(estimator, 8)
     if args.dry_run:
-        setup = a.setup(law, 0, a.default_dt(law), {**options, "dtype": None})
+        setup = sweep.first_setup(a, law, 0, a.default_dt(law), options)
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
               f"{setup.particles.count} disks a pile): {b} piles per ensemble, at most {steps} iterations of "
               f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "

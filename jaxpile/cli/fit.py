@@ -14,7 +14,7 @@ from jaxpile.cli.dry_run import dry_run_report
 from jaxpile.cli.parsing import parse_options, parse_set
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.io import plain
-from jaxpile.protocols import PROTOCOLS, entry
+from jaxpile.protocols import PROTOCOLS
 
 
 def _ensemble_target(args) -> bool:
@@ -61,22 +61,22 @@ def run_fit(args) -> dict:
 def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int = 60, seed: int = 0,
                 options: dict | None = None, bins: int | None = None, window: int = 2000, progress=None):
     """The pile a pathwise fit differentiates: `(sim, params, state, steps, setting, window, description)`,
-    from the protocol module's `pathwise_problem` (the lattice: the whole
+    from the protocol spec's `pathwise.problem` (the lattice: the whole
     quasi-static loading; the pour: `window` steps of relaxation of a heap
     poured with the starting parameters). A protocol without one is refused."""
-    module = _pathwise(protocol)
-    return module.pathwise_problem(law, start, size=layers if entry(protocol).size == "layers" else n, seed=seed,
-                                   options=options, bins=bins, window=window, progress=progress)
+    pathwise = _pathwise(protocol)
+    return pathwise.problem(law, start, size=layers if PROTOCOLS[protocol].size == "layers" else n, seed=seed,
+                            options=options, bins=bins, window=window, progress=progress)
 
 
 def _pathwise(protocol: str):
-    """The protocol module, when it offers a pathwise fit (`pathwise_problem`)."""
-    module = PROTOCOLS.get(protocol)
-    if module is None or not callable(getattr(module, "pathwise_problem", None)):
-        offered = [p for p, m in PROTOCOLS.items() if callable(getattr(m, "pathwise_problem", None))]
+    """The protocol's pathwise fit (`ProtocolSpec.pathwise`), when it offers one."""
+    spec = PROTOCOLS.get(protocol)
+    if spec is None or spec.pathwise is None:
+        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
         raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
                          "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
-    return module
+    return spec.pathwise
 
 
 def _pathwise_inputs(args) -> tuple:
@@ -84,7 +84,7 @@ def _pathwise_inputs(args) -> tuple:
     from jaxpile import fit
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or entry(args.protocol).default_law).NAME
+    law = get_law_module(args.law or PROTOCOLS[args.protocol].default_law).NAME
     lawmod = get_law_module(law)
     names = [n.strip() for n in args.params.split(",") if n.strip()]
     if not names:
@@ -125,11 +125,11 @@ def _optimizer(name: str, lr: float):
 def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
     """`fit --dry-run`: the pile the fit builds (set up, not run), the parameters
     it fits from their starting values, the memory estimate and the steps."""
-    module = _pathwise(args.protocol)
-    size = args.layers if entry(args.protocol).size == "layers" else args.n
-    what, particles, params, build, per_step = module.pathwise_dry_run(law, start, size=size, seed=args.seed,
-                                                                       options=parse_options(args.option),
-                                                                       window=args.window)
+    pathwise = _pathwise(args.protocol)
+    size = args.layers if PROTOCOLS[args.protocol].size == "layers" else args.n
+    what, particles, params, build, per_step = pathwise.dry_run(law, start, size=size, seed=args.seed,
+                                                                options=parse_options(args.option),
+                                                                window=args.window)
     values = ", ".join(f"{n} = {float(getattr(params, n)):g}" for n in names)
     print(f"jaxpile: dry run of a fit of {values} ({law} law) on {what}: {args.steps} optimiser steps, each "
           f"differentiating {per_step:,} steps (a forward and a reverse pass)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from jaxpile.protocols.running import RUN_RANGES
 from jaxpile.ranges import DISKS, NON_NEGATIVE, POSITIVE, SEED, SPEED, STEPS, TIME_STEP, Range, inline
 
 
@@ -52,11 +53,13 @@ def ranges_markdown() -> str:
     (tests/test_input_catalogue.py checks that the README holds it as it is)."""
     from jaxpile.laws import LAWS, get_law_module
     from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.spec import ranges_of
 
     rows = ["| input | valid ranges |", "|---|---|"]
     rows += [f"| law `{name}` (`--set NAME=VALUE`) | {inline(get_law_module(name).RANGES)} |" for name in LAWS]
-    rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(module.OPTION_RANGES)} |"
-             for name, module in PROTOCOLS.items() if getattr(module, "OPTION_RANGES", None)]
+    rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(ranges_of(spec.options))} |"
+             for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]
+    rows += [f"| every protocol's run (`SPEC.run(..., seed=, dt=, chunk_steps=)`) | {inline(RUN_RANGES)} |"]
     rows += [f"| `jaxpile {command}` flags | "
              + "; ".join(f"--{dest.replace('_', '-')} {r.describe()}" for dest, r in FLAG_RANGES[command].items())
              + " |" for command in FLAG_RANGES]
@@ -67,6 +70,7 @@ def ranges_epilog() -> str:
     """`jaxpile pile --help`'s list of every law parameter's and protocol option's range."""
     from jaxpile.laws import LAWS, get_law_module
     from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.spec import ranges_of
 
     def entry(name, ranges_):  # wrapped between items only, never inside a range
         lines, line = [], f"  {name}:"
@@ -81,6 +85,5 @@ def ranges_epilog() -> str:
     out += [entry(name, get_law_module(name).RANGES) for name in LAWS]
     out += ["protocol options (--option NAME=VALUE, or a flag of its own: `jaxpile pile --protocol P --help`) "
             "and their valid ranges:"]
-    out += [entry(name, module.OPTION_RANGES) for name, module in PROTOCOLS.items()
-            if getattr(module, "OPTION_RANGES", None)]
+    out += [entry(name, ranges_of(spec.options)) for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]
     return "\n".join(out)

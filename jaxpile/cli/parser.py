@@ -9,7 +9,7 @@ import argparse
 from jaxpile.cli.flag_ranges import add_ranges_to_help, ranges_epilog
 from jaxpile.cli.parsing import on_off
 from jaxpile.cli.protocol_flags import DEFAULT_PROTOCOL, add_protocol_flags, command_and_protocol
-from jaxpile.protocols import PROTOCOLS, entry
+from jaxpile.protocols import PROTOCOLS
 
 
 class CommandParser(argparse.ArgumentParser):
@@ -21,11 +21,8 @@ class CommandParser(argparse.ArgumentParser):
 
 
 def sweep_protocols() -> list[str]:
-    """The registered protocols a sweep and an ensemble fit run (`sweep.adapters`)."""
-    from jaxpile import sweep
-
-    runs = sweep.adapters()
-    return [name for name in PROTOCOLS if name in runs]
+    """The registered protocols a sweep and an ensemble fit run: every one."""
+    return list(PROTOCOLS)
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -57,7 +54,7 @@ def _pile_parser(sub) -> argparse.ArgumentParser:
     names = list(PROTOCOLS)
     pile = sub.add_parser("pile", help="build a pile, relax it, measure its base forces and draw it")
     pile.add_argument("--protocol", default="lattice", choices=names,
-                      help="how the pile is built: " + "; ".join(f"{k}: {entry(k).help}" for k in names))
+                      help="how the pile is built: " + "; ".join(f"{k}: {PROTOCOLS[k].presentation.help}" for k in names))
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
     pile.add_argument("--n", type=int, default=None,
                       help="disks (sloped, drop, box, tilt, pour) or insertions (flux); default: the paper's")

@@ -11,7 +11,7 @@ import numpy as np
 
 from jaxpile.errors import InputError
 from jaxpile.io import plain
-from jaxpile.protocols import entry
+from jaxpile.protocols import PROTOCOLS, presentation
 
 
 def trajectory(args, resumed_from: int):
@@ -34,7 +34,7 @@ def _trajectory_name(args) -> str:
     return "trajectory.lammpstrj" if args.trajectory_format == "lammps" else "trajectory.xyz"
 
 
-def write_outputs(args, module, state, m, contact_law, params, options: dict, total: float,
+def write_outputs(args, spec, state, m, contact_law, params, options: dict, total: float,
                   resumed_from: int) -> dict:
     """Measures the finished pile (base forces, contact network), writes every
     file of the run to OUT, prints its headline, and returns its summary."""
@@ -43,9 +43,9 @@ def write_outputs(args, module, state, m, contact_law, params, options: dict, to
     from jaxpile.measure import analysis
 
     name = args.protocol
-    dt = args.dt if args.dt is not None else _protocol_dt(module, m)
+    dt = args.dt if args.dt is not None else _protocol_dt(spec, m, contact_law.name)
     sim = Simulator(contact_law, dt)
-    registered = entry(name)
+    registered = spec.presentation
     base = (analysis.base_forces(sim, params, state) if registered.base_forces is None
             else registered.base_forces(sim, params, state, m))  # e.g. the fixed row a heap stands on
     network = analysis.contact_network(sim, params, state)
@@ -87,20 +87,17 @@ def write_outputs(args, module, state, m, contact_law, params, options: dict, to
     return summary
 
 
-def _protocol_dt(module, m) -> float:
-    """The time step the protocol ran with: its measurements' `info`, else its setting's."""
+def _protocol_dt(spec, m, law_name: str) -> float:
+    """The time step the protocol ran with: its measurements' `info`, else its default for the law."""
     info = m.get("info") or {}
-    if "dt" in info:
-        return float(info["dt"])
-    setting = getattr(module, "SETTING", None) or module.PAPER_SETTING
-    return float(setting["dt"])
+    return float(info["dt"]) if "dt" in info else float(spec.default_dt(law_name))
 
 
 def headline(name: str, summary: dict) -> str:
     """The protocol's headline numbers from a run's summary (its registry entry's
     `headline` keys; dotted keys reach into nested dicts) and the run's rate."""
     parts = []
-    for key in entry(name).headline:
+    for key in presentation(name).headline:
         v = summary
         for part in key.split("."):
             v = v.get(part) if isinstance(v, dict) else None
@@ -116,7 +113,7 @@ def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
     figures (its registry entry's `figures`, `profile_theory`, `length_unit`)."""
     from jaxpile import plot
 
-    registered = entry(name)
+    registered = PROTOCOLS[name].presentation
     p = state.particles
     title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} disks"
     plot.pile_figure(p.position, p.radius, network, active=np.asarray(p.active), title=title,

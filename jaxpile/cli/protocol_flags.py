@@ -1,6 +1,6 @@
 """A protocol's own options as flags of `pile`, `sweep` and `fit`
 (`--polydispersity 0.05` for `--option polydispersity=0.05`), read from the
-protocol's signatures, docstrings and `OPTION_RANGES`."""
+fields of the protocol's options (`ProtocolSpec.options`)."""
 
 from __future__ import annotations
 
@@ -26,27 +26,30 @@ def command_and_protocol(argv: list[str]) -> tuple[str | None, str | None]:
 
 
 def protocol_flags(command: str, protocol: str) -> dict:
-    """`{name: options.Option}`: the options of `protocol` that `command` takes
-    as flags of their own: for `pile`, those of the protocol's `run` and set-up
-    that no generic flag (`--seed`, `--max-steps`, ...) sets; for `sweep` and
-    `fit`, the set-up options a batch takes. Options without a type the
-    command line can give (a dict, no default and no range) stay `--option`'s."""
-    from jaxpile import sweep
-    from jaxpile.protocols import PROTOCOLS, options
+    """`{name: spec.Option}`: the options of `protocol` (every stage's, the
+    pile's first for a protocol that continues one) that `command` takes as
+    flags of their own; for `pile`, less those a generic flag (`--max-steps`,
+    `--speed-tol`, ...) sets. Options the command line cannot type (a dict)
+    stay `--option`'s."""
+    from jaxpile.protocols import PROTOCOLS
+    from jaxpile.protocols.spec import declared
 
-    module = PROTOCOLS.get(protocol)
-    if module is None or not hasattr(module, "run") or command not in DEFAULT_PROTOCOL:
+    spec = PROTOCOLS.get(protocol)
+    if spec is None or command not in DEFAULT_PROTOCOL:
         return {}
+    found = {}
+    for stage in reversed(spec.chain()):  # a name two stages share is described as the last stage's
+        for name, o in declared(stage.options).items():
+            found.setdefault(name, o)
+    taken = {"n"} | {s.size for s in spec.chain()}  # the size is `--n` (or `--layers`)
     if command == "pile":
-        names = options.accepted(module) - set(module.CLI.flags.values()) - {"seed"}
-    else:
-        names = sweep.adapter(protocol).options & options.accepted(module)
-    return {k: o for k, o in options.declared(module, names).items() if o.default is not None or o.range is not None}
+        taken |= set(spec.presentation.flags.values())
+    return {k: o for k, o in found.items() if o.kind is not None and k not in taken}
 
 
 def add_protocol_flags(parser, command: str, protocol: str) -> None:
     """One `--NAME` flag per option of `protocol` (`protocol_flags`), in a group
-    of `--help` of their own, each with its docstring's help, range and default.
+    of `--help` of their own, each with its help, unit, range and default.
     A name the command already has a flag for keeps that flag."""
     flags = {k: o for k, o in protocol_flags(command, protocol).items()
              if o.flag not in parser._option_string_actions}
@@ -54,7 +57,7 @@ def add_protocol_flags(parser, command: str, protocol: str) -> None:
         return
     group = parser.add_argument_group(f"options of the {protocol} protocol (the same as --option NAME=VALUE)")
     for o in flags.values():
-        words = [o.help or o.name.replace("_", " ")]
+        words = [o.help + (f" ({o.unit})" if o.unit else "")]
         if o.range is not None:
             words.append(f"[{o.range.describe()}]")
         if o.default is not None:

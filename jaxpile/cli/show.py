@@ -48,9 +48,9 @@ def _finished(folder: str, out: str) -> list[str]:
                      title=title, path=os.path.join(out, "pile.png"))
     written = ["pile.png"]
     n_theory = h_theory = None
-    from jaxpile.protocols import entry as registered
+    from jaxpile.protocols import presentation
 
-    entry = registered(summary.get("protocol", "lattice"))  # a summary without a protocol is a lattice run's
+    entry = presentation(summary.get("protocol", "lattice"))  # a summary without a protocol is a lattice run's
     if entry is not None and entry.profile_theory is not None and len(base["x"]):
         n_theory, h_theory, label = entry.profile_theory(summary, SimpleNamespace(**base)) or (None, None, "")
     plot.base_profile_figure(base["x"], base["normal"], base["horizontal"], theory_normal=n_theory,

@@ -22,7 +22,7 @@ def run_sweep(args) -> dict:
     from jaxpile import sweep as sw
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or sw.adapter(args.protocol).default_law).NAME
+    law = get_law_module(args.law or sw.spec_of(args.protocol).default_law).NAME
     vary = _grid(args)
     if args.seeds < 1:
         raise InputError(f"--seeds must be >= 1; got {args.seeds}.")
@@ -97,12 +97,15 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
     from jaxpile import budget
     from jaxpile import sweep as sw
 
-    a = sw.adapter(args.protocol)
+    from jaxpile.protocols import running
+
+    spec = sw.spec_of(args.protocol)
     dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
                  batch_size=args.batch_size, dtype=dtype).dt
-    setup = a.setup(law, 0, dt, {**options, "dtype": dtype})
+    first = running.stage_options(spec, options)[0]
+    setup = running.member_setup(spec.chain()[0], law, 0, dt, first, dtype)
     batch = members if args.batch_size is None else min(int(args.batch_size), members)
-    steps = a.max_steps(setup.info, options) if args.max_steps is None else int(args.max_steps)
+    steps = spec.chain()[0].budget(setup, first) if args.max_steps is None else int(args.max_steps)
     report = dry_run_report(f"one {args.protocol} member", setup.particles, {}, args.precision,
                             {"max_steps": steps})
     print(f"jaxpile: a batch of {batch} members: {budget.describe(setup.particles.count, args.precision, batch)}")

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import neighbors as nb
+from jaxpile.engine import pairs as pair_list
 from jaxpile.engine.state import SimState
 
 Array = Any
@@ -106,7 +107,7 @@ def pair_room(state: SimState, size: int, at_least: int = 0) -> int:
     `PAIR_ALIGN`, and never more than the full list's."""
     held = int(np.sum(np.asarray(state.contacts.pairs[:, 0]) < state.particles.count))
     wanted = max(int(np.ceil(nb.PAIRS_PER_DISK * size)), held, int(at_least))
-    return min(int(state.contacts.pairs.shape[0]), nb.aligned(wanted))
+    return min(int(state.contacts.pairs.shape[0]), pair_list.aligned(wanted))
 
 
 def take(state: SimState, size: int, pairs: int) -> SimState:

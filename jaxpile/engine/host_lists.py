@@ -65,7 +65,7 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
 
 
 def half_slots(idx) -> tuple[np.ndarray, np.ndarray]:
-    """`neighbors.half_slots` on the host: the slots (i, k) with i < idx[i, k],
+    """`pairs.half_slots` on the host: the slots (i, k) with i < idx[i, k],
     and each one's entry in the half pair list in row-major order (-1 elsewhere)."""
     idx = np.asarray(idx)
     n = idx.shape[0]
@@ -75,19 +75,19 @@ def half_slots(idx) -> tuple[np.ndarray, np.ndarray]:
 
 
 def slot_count(idx) -> np.ndarray:
-    """The most neighbours any row of a full list holds (`neighbors.slot_count`),
+    """The most neighbours any row of a full list holds (`pairs.slot_count`),
     int32; for a batch's lists `[B, n, K]`, one per member."""
     idx = np.asarray(idx)
     return np.max(np.sum(idx < idx.shape[-2], axis=-1), axis=-1, initial=0).astype(np.int32)
 
 
 def pair_count(idx) -> int:
-    """The number of half pairs of a full list (`neighbors.pair_count`)."""
+    """The number of half pairs of a full list (`pairs.pair_count`)."""
     return int(half_slots(idx)[0].sum())
 
 
 def half_pairs(idx, capacity: int) -> np.ndarray:
-    """`neighbors.half_pairs` on the host: `[capacity, 2]` int32 `(i, j)`, i < j,
+    """`pairs.half_pairs` on the host: `[capacity, 2]` int32 `(i, j)`, i < j,
     each pair once in row-major slot order; pairs past `capacity` are left
     out; empty entries `(n, n)`."""
     idx = np.asarray(idx)
@@ -103,7 +103,7 @@ def half_pairs(idx, capacity: int) -> np.ndarray:
 
 
 def carry_history(old_idx, old_history, new_pairs) -> np.ndarray:
-    """`neighbors.carry_history` on the host: each new pair's history taken
+    """`pairs.carry_history` on the host: each new pair's history taken
     from the same pair of the old list (a copy, bit for bit), zero for a new
     pair or one the old list had no room for."""
     old_idx, old_history, new_pairs = np.asarray(old_idx), np.asarray(old_history), np.asarray(new_pairs)
@@ -119,7 +119,7 @@ def carry_history(old_idx, old_history, new_pairs) -> np.ndarray:
 
 
 def contacts_for(contacts, old_idx, new_idx, capacity: int | None = None):
-    """`neighbors.contacts_for` on the host: `contacts` re-laid on the half
+    """`pairs.contacts_for` on the host: `contacts` re-laid on the half
     pairs of `new_idx` (`capacity` entries; default as many as now), history
     carried pair by pair from `old_idx`, the demands the new list's pairs and
     its fullest row."""

@@ -4,7 +4,7 @@ and every disk against every wall, through one law kernel vectorised with `vmap`
 The pair loop evaluates the law once per pair (i < j, from i's side) and adds
 the reaction -F (and the law's torque on j) by a scatter: half the law
 evaluations of a full neighbour list, and none for its padding slots beyond
-the half list's own (see `neighbors.half_pairs`). Pairs that may not interact
+the half list's own (see `pairs.half_pairs`). Pairs that may not interact
 (padding, a parked disk, two fixed disks) are handed to the law far apart, so
 the law's own out-of-contact branch zeroes them: no separate mask pass over
 the outputs.
@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxpile.laws.base import ContactLaw, PairForce, PairGeometry
-from jaxpile.engine.neighbors import half_slots
+from jaxpile.engine.pairs import half_slots
 from jaxpile.engine.state import Boundaries, Contacts, Particles
 
 Array = Any

@@ -76,12 +76,12 @@ class Contacts:
 
     Attributes:
       pairs: `[P, 2]` int, the half pair list `(i, j)`, i < j, each pair of the
-        neighbour list once (`neighbors.half_pairs(neighbors.idx)`, rebuilt with
+        neighbour list once (`pairs.half_pairs(neighbors.idx)`, rebuilt with
         the list; empty entries `(n, n)`).
       history: `[P, h]` per-pair history, in the frame of the pair's lower id i
         (for `hooke`: the accumulated shear displacement of i relative to j).
         Non-zero only while the pair is in contact; carried pair by pair across
-        neighbour-list rebuilds (`neighbors.contacts_for`).
+        neighbour-list rebuilds (`pairs.contacts_for`).
       wall_history: `[n, w, h]` the same for each particle against each wall.
       demand: int scalar, the most half pairs any rebuild found since the pair
         list was allocated (more than P: the list overflowed and is re-allocated

@@ -18,13 +18,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import sweep
 from jaxpile.engine import batch, ensemble
 from jaxpile.engine import neighbors as nb
+from jaxpile.engine import pairs as pair_list
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import smooth_base_profile
 from jaxpile.measure import analysis
-from jaxpile.protocols import pour
+from jaxpile.protocols import pour, running
 
 PROTOCOLS = ("pour",)
 
@@ -66,27 +66,22 @@ class Construction:
         check(runner, statistics)
         names, seeds = list(names), [int(s) for s in seeds]
         law = runner.law_name()
-        d = pour.DEFINITION
-        dt = d.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
-        options = dict(runner.options or {})
-        size = options.pop("n", None)
-        setup = {k: v for k, v in options.items() if k not in d.run_options}
-        run_options = {**d.run_options, **{k: v for k, v in options.items() if k in d.run_options}}
-        protocols = [pour.pour(**({} if size is None else {"n": int(size)}), seed=s, dt=dt, dtype=runner.dtype,
-                               **setup) for s in seeds]
-        if d.check is not None:  # as the sweep's set-up: e.g. a voidage map too fine for the memory
-            d.check(protocols[0], run_options)
-        extent = tuple(sweep.adapter("pour").extent(protocols[0]))
+        spec = pour.SPEC
+        dt = spec.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
+        options = spec.make_options(runner.options or {})
+        # set up and checked as the sweep's piles (e.g. a voidage map too fine for the memory)
+        protocols = [running.member_setup(spec, law, s, dt, options, runner.dtype) for s in seeds]
+        extent = tuple(spec.batch.extent(protocols[0]))
         pieces = _pieces(law, dt, runner.dtype, runner.params, tuple(names), extent, statistics)
         self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics
         p0 = pieces.params(jnp.asarray(theta))
         start = pieces.ensemble.init([p0] * len(protocols), protocols)
-        budget = runner.max_steps if runner.max_steps is not None else d.max_steps(protocols[0].info, run_options)
+        budget = runner.max_steps if runner.max_steps is not None else spec.budget(protocols[0], options)
         end = pieces.ensemble.run([p0] * len(protocols), start, int(budget),
-                                  until=d.finished(protocols[0].info, run_options), progress=False)
+                                  until=spec.finished(protocols[0], options), progress=False)
         self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
         slots = int(end.neighbors.max_occupancy) + 8
-        pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
+        pairs = pair_list.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
         self.start = batch.stack([batch.at_capacity(batch.member(start, i), slots, None, pairs)
                                   for i in range(len(protocols))])
         self.particles = int(self.start.particles.position.shape[1])

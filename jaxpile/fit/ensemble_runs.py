@@ -11,6 +11,7 @@ import numpy as np
 
 from jaxpile import budget, sweep
 from jaxpile.errors import InputError
+from jaxpile.protocols import running
 from jaxpile.fit.profiles import base_load, smooth_base_profile
 from jaxpile.sweep import MEMBER_COLUMNS
 
@@ -19,10 +20,10 @@ class Statistics(NamedTuple):
     """What each pile contributes to the fit.
 
     Attributes:
-      columns: scalar columns of the protocol's sweep row (`sweep.adapter(P)`'s
-        measurement), e.g. `("repose_least_squares",)` or `("central_dip",)`.
+      columns: scalar columns of the protocol's sweep row (its spec's `row`
+        of its measurement), e.g. `("repose_least_squares",)` or `("central_dip",)`.
       bins: > 0: the pile's base-force profile on this many bins across the
-        protocol's fixed extent (`Adapter.extent`), normal force over its peak
+        protocol's fixed extent (`Batch.extent` of its spec), normal force over its peak
         (`fit.smooth_base_profile`); 0: no profile.
       horizontal: the horizontal profile as well (on the same scale).
       bandwidth: the profile's smoothing width (default one bin).
@@ -40,7 +41,7 @@ class Statistics(NamedTuple):
             if self.horizontal:
                 labels += [f"horizontal[{i}]" for i in range(self.bins)]
         return labels
-def _check_statistics(statistics: Statistics, adapter) -> Statistics:
+def _check_statistics(statistics: Statistics, spec) -> Statistics:
     if not isinstance(statistics, Statistics):
         raise InputError(f"statistics must be an ensemble_fit.Statistics; got {type(statistics).__name__}.")
     statistics = statistics._replace(columns=tuple(statistics.columns))
@@ -48,22 +49,23 @@ def _check_statistics(statistics: Statistics, adapter) -> Statistics:
         raise InputError(f"bins must be a whole number >= 0; got {statistics.bins!r}.")
     if not statistics.columns and not statistics.bins:
         raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
-    if statistics.bins and adapter.extent is None:
+    if statistics.bins and spec.batch.extent is None:
         raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
-    if adapter.columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
-        known = adapter.columns | set(MEMBER_COLUMNS)
+    columns = running.row_columns(spec)
+    if columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
+        known = columns | set(MEMBER_COLUMNS)
         unknown = [c for c in statistics.columns if c not in known]
         if unknown:
             raise InputError(f"the protocol's measurement has no column {unknown[0]!r}; it has {sorted(known)}.")
     return statistics
 
 
-def _profile_hook(adapter, statistics: Statistics) -> Callable | None:
+def _profile_hook(spec, statistics: Statistics) -> Callable | None:
     if not statistics.bins:
         return None
 
     def measure(sim, params, state, protocol):
-        base, x_left, x_right = adapter.extent(protocol)
+        base, x_left, x_right = spec.batch.extent(protocol)
         load = base_load(sim, params, state, base=base)
         profile = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=int(statistics.bins),
                                       bandwidth=statistics.bandwidth)
@@ -105,15 +107,15 @@ class Runner(NamedTuple):
     batch_size: int | None = None
     dtype: object = None
 
-    def adapter(self):
-        return sweep.adapter(self.protocol)
+    def spec(self):
+        return sweep.spec_of(self.protocol)
 
     def check(self, statistics: Statistics) -> Statistics:
         """The statistics, checked against what the protocol can measure."""
-        return _check_statistics(statistics, self.adapter())
+        return _check_statistics(statistics, self.spec())
 
     def law_name(self) -> str:
-        return self.law or self.adapter().default_law
+        return self.law or self.spec().default_law
 
     def setting(self) -> dict:
         """What a target made with this runner was made with (fixed law
@@ -126,19 +128,19 @@ class Runner(NamedTuple):
         batched run) and the sweep's record (`n_particles`, `batch_steps`,
         `total_seconds` are used). `checkpoint`, `resume`: as `sweep.sweep`'s
         (a long batch saved as it runs, and continued)."""
-        a = self.adapter()
-        statistics = _check_statistics(statistics, a)
+        spec = self.spec()
+        statistics = _check_statistics(statistics, spec)
         seeds = [int(s) for s in seeds]
         if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
             law = self.law_name()
-            p = a.setup(law, seeds[0], self.dt or a.default_dt(law), {**(self.options or {}), "dtype": self.dtype})
+            p = sweep.first_setup(spec, law, seeds[0], self.dt or spec.default_dt(law), self.options or {}, self.dtype)
             budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
                               f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
                               "pile", "Give fewer --bins.")
         result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
-                             extra_measure=_profile_hook(a, statistics), checkpoint=checkpoint, resume=resume)
+                             extra_measure=_profile_hook(spec, statistics), checkpoint=checkpoint, resume=resume)
         rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
         s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
         # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)

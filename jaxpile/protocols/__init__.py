@@ -1,56 +1,43 @@
-"""How piles are built. Each protocol returns a `base.Setup`: the particles
-(parked, inactive ones included), boundaries, and what happens while it runs
-(schedule, driver); each module also has a `run(...)` that takes it to its end
-and returns the final state and the protocol's measurements."""
+"""How piles are built. Each protocol module holds its physics (set-up,
+driver, measurements) and one `SPEC` (`spec.ProtocolSpec`): its options, how
+it runs, what a batch and the commands read. `PROTOCOLS` is every registered
+spec by name; `PROTOCOLS["box"].run("hooke", 72)` runs one pile."""
 
 import importlib
 import pkgutil
 
-from jaxpile.protocols.base import CommandLine
+from jaxpile.protocols.spec import ProtocolSpec
 
 
 def _registered() -> dict:
-    """`{name: module}` of every module in this package that declares a
-    `CLI = CommandLine(...)`, in the order it declares: a new protocol is
-    registered by its own module, with no list here to edit."""
+    """`{name: ProtocolSpec}` of every module in this package that declares a
+    `SPEC`, in the order its presentation gives: a new protocol is registered
+    by its own module, with no list here to edit."""
     found = {}
     for info in pkgutil.iter_modules(__path__):
         module = importlib.import_module(f"{__name__}.{info.name}")
-        if isinstance(getattr(module, "CLI", None), CommandLine):
-            found[info.name] = module
-    return dict(sorted(found.items(), key=lambda item: item[1].CLI.order))
+        spec = getattr(module, "SPEC", None)
+        if isinstance(spec, ProtocolSpec):
+            found[spec.name] = spec
+    return dict(sorted(found.items(), key=lambda item: item[1].presentation.order))
 
 
-PROTOCOLS = _registered()  # importing a submodule also binds it here: `protocols.pour` works without its own import
+PROTOCOLS = _registered()
 
 
-def entry(name) -> CommandLine | None:
-    """A registered protocol's `CommandLine` entry by name, or None."""
-    module = PROTOCOLS.get(name)
-    return None if module is None else module.CLI
+def get(name: str) -> ProtocolSpec:
+    """A registered protocol's spec by name, or `InputError` naming the known ones."""
+    from jaxpile.errors import InputError
+
+    if name not in PROTOCOLS:
+        raise InputError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOLS)}.")
+    return PROTOCOLS[name]
 
 
-def _document_ranges() -> None:
-    """Appends each set-up and run function's argument ranges (its module's
-    `OPTION_RANGES`, which the function checks first) to its docstring, so that
-    `help(pour.pour)` states them; one table, no copy to keep in step."""
-    import inspect
-
-    from jaxpile.ranges import doc_section
-
-    seen = set()  # pour.protocol is pour.pour: its section once
-    for module in PROTOCOLS.values():
-        for name in ("protocol", "pour", "run", "equilateral_pile"):
-            function = getattr(module, name, None)
-            if function is None or function.__module__ != module.__name__ or function in seen:
-                continue
-            seen.add(function)
-            taken = {k: r for k, r in getattr(module, "OPTION_RANGES", {}).items() if k in inspect.signature(function).parameters}
-            if taken:
-                function.__doc__ = (function.__doc__ or "").rstrip() + doc_section(
-                    taken, "Valid ranges (checked first; `jaxpile.ranges`)")
+def presentation(name):
+    """How the commands show a registered protocol (`spec.Presentation`), or None for an unknown name."""
+    spec = PROTOCOLS.get(name)
+    return None if spec is None else spec.presentation
 
 
-_document_ranges()
-
-__all__ = [*PROTOCOLS, "PROTOCOLS", "entry"]
+__all__ = ["PROTOCOLS", "get", "presentation"]

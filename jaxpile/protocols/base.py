@@ -40,54 +40,6 @@ class Setup(NamedTuple):
     info: dict = {}
 
 
-class CommandLine(NamedTuple):
-    """How a protocol appears on the command line: a protocol module that
-    declares one as `CLI` is registered (`jaxpile.protocols.PROTOCOLS`) and
-    `jaxpile pile|sweep|fit` take it, with no table elsewhere to edit.
-
-    Attributes:
-      order: its place in listings (the papers' order).
-      help: one line for `--protocol`'s help.
-      default_law: the law of its paper (`--law`'s default).
-      size: the `run` keyword `--n` sets, or None (`--n` refused).
-      flags: generic flag (`seed`, `max_steps`, `speed_tol`, `ramp_steps`,
-        `hard_collisions`) -> the `run` keyword it sets; absent: refused.
-      headline: summary keys `jaxpile pile` prints at its end (dotted keys
-        reach into nested dicts).
-      base_forces: `(sim, params, state, measured) -> BaseForces` written to
-        base_forces.csv; None: the ground's (`analysis.base_forces`).
-      summary: `measured -> dict` of plain numbers for summary.json; None:
-        the measurements as they are, arrays as lists.
-      length_unit: `law name -> unit` of pile.png's axes; None: diameters.
-      profile_theory: `(measured, base) -> (N, H, label) | None`, drawn on
-        profile.png.
-      figures: `(measured, title, out) -> [files]`, the protocol's own
-        figures (`jaxpile.protocols.outputs`).
-      dry_run_setup: `run keywords -> (set-up function, its extra keywords)`
-        for `--dry-run`, when the run starts from another protocol's set-up
-        (the tilt from a box); None: the module's `protocol`.
-      compare: `summary -> str`, the result column of `jaxpile compare`;
-        None: the headline's first line.
-      budget: `(run keywords, set-up info) -> steps`, the run's step budget
-        when it is given as a time (`max_time`), for `--dry-run`'s bound.
-    """
-
-    order: int
-    help: str
-    default_law: str
-    size: str | None = "n"
-    flags: dict = {}
-    headline: tuple = ()
-    base_forces: Callable | None = None
-    summary: Callable | None = None
-    length_unit: Callable | None = None
-    profile_theory: Callable | None = None
-    figures: tuple = ()
-    dry_run_setup: Callable | None = None
-    compare: Callable | None = None
-    budget: Callable | None = None
-
-
 def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):
     """`(law module, ContactLaw, params)` for a protocol run.
 

@@ -67,50 +67,73 @@ it uses); the same box then settles by step 64 000 with theta_R = 24.8 deg
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.protocols import definition
-from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
-from jaxpile.errors import InputError
-from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Setup
-from jaxpile.protocols.drivers import motion, rest_detector
-from jaxpile.protocols.geometry import (PARK_SPACING, check_positive, neighbor_box, parking_grid,
-                                        random_positions, take_out)
-from jaxpile.protocols.paper1993 import (PAPER_SETTING, measure_flag, radius_law,
-                                         fill_count, friction_coefficient, gaussian_radii, law_and_params, law_name,
-                                         law_setting, units)
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.errors import InputError
+from jaxpile.measure import analysis
 from jaxpile.measure.theory import marginal_stability_overlay
+from jaxpile.protocols import outputs
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.drivers import motion, rest_detector
+from jaxpile.protocols.geometry import (
+    PARK_SPACING,
+    check_positive,
+    neighbor_box,
+    parking_grid,
+    random_positions,
+    take_out,
+)
+from jaxpile.protocols.paper1993 import (
+    PAPER_SETTING,
+    fill_count,
+    friction_coefficient,
+    gaussian_radii,
+    law_and_params,
+    law_name,
+    law_setting,
+    measure_flag,
+    radius_law,
+    units,
+)
+from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
 
 
-# ------------------------------------------------------------------- units
-OPTION_RANGES = {
-    "n": DISKS, "width": SIZE, "height": SIZE,
-    "packing_fraction": Range(low=0, high=0.91, low_open=True, high_open=True, why="a disk packing jams near 0.91"),
-    "placement_fraction": Range(low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
-    "rest_speed": SPEED, "hold_time": SPAN, "dt": TIME_STEP, "seed": SEED, "max_time": SIZE,
-    "chunk_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+# ------------------------------------------------------------------ options
+@dataclass(frozen=True)
+class BoxOptions(Options):
+    """The box's options, in the paper's units (cm, cm/s, s), converted to the
+    law's units by the set-up (`units(law)`)."""
 
+    n: int | None = option(None, range=DISKS, help="number of disks; default: those that fill W x H at "
+                           "packing_fraction (409 for 4 x 4)")
+    width: float = option(PAPER_SETTING["width"], range=SIZE, unit="cm", help="W, the box's width")
+    height: float = option(PAPER_SETTING["height"], range=SIZE, unit="cm", help="H, the box's height")
+    radius: dict | None = option(None, help="overrides of the radius distribution (mean, width, low, high)")
+    packing_fraction: float = option(PAPER_SETTING["packing_fraction"], range=Range(
+        low=0, high=0.91, low_open=True, high_open=True, why="a disk packing jams near 0.91"),
+        help="packing fraction of the default n")
+    placement_fraction: float = option(PAPER_SETTING["placement_fraction"], range=Range(
+        low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
+        help="the disks start at random, without overlap, in the box made tall enough for this area fraction")
+    rest_speed: float = option(PAPER_SETTING["rest_speed"], range=SPEED, unit="cm/s",
+                               help="at rest below this speed (the paper's v_cut)...")
+    hold_time: float = option(PAPER_SETTING["hold_time"], range=SPAN, unit="s", help="...held this long")
+    rest_measure: str = option(PAPER_SETTING["rest_measure"], help="which speed: rms (the kinetic energy per disk "
+                               "of Fig. 1(b)) or max (the fastest disk)")
+    max_time: float = option(PAPER_SETTING["max_time"], range=SIZE, unit="s", help="give up after this long")
 
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=3, help="a box filled, its right wall removed (1993 Fig. 1)", default_law="lee-herrmann",
-    flags={"seed": "seed"},
-    headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
-              "repose_cumulative_parabola", "theta_ms_theory"),
-    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,),
-    budget=lambda kwargs, info: max_steps_for(info["law"], info["dt"], kwargs.get("max_time", PAPER_SETTING["max_time"])))
+    def validate(self):
+        measure_flag(self.rest_measure)
 
 
 # -------------------------------------------------------------- the disks
@@ -176,34 +199,12 @@ def driver(state: SimState) -> SimState:
     return state.set(boundaries=b, protocol_state=ps)
 
 
-def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_SETTING["width"],
-             height: float = PAPER_SETTING["height"], radius: dict | None = None,
-             packing_fraction: float = PAPER_SETTING["packing_fraction"],
-             placement_fraction: float = PAPER_SETTING["placement_fraction"],
-             rest_speed: float = PAPER_SETTING["rest_speed"], hold_time: float = PAPER_SETTING["hold_time"],
-             rest_measure: str = PAPER_SETTING["rest_measure"], dt: float | None = None, seed: int = 0,
-             dtype=None) -> Setup:
+def setup(o: BoxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     """The box of Lee & Herrmann 1993, Fig. 1, ready to run with `driver`.
 
     Lengths, speeds and times are in the paper's units (cm, cm/s, s) and are
-    converted to the law's units (`units(law)`).
-
-    Args:
-      n: number of disks; default `fill_count(width, height)` (409 for 4 x 4).
-      law: the law the run will use (sets the units and dt).
-      width, height: W and H of the box.
-      radius: overrides of the radius distribution (`mean`, `width`, `low`, `high`).
-      packing_fraction: for the default n.
-      placement_fraction: the disks start at random, without overlap, in the
-        box made tall enough for this area fraction (never lower than H).
-      rest_speed, hold_time: the rest criterion (speed below `rest_speed`
-        for `hold_time`), for removing the wall and for the end.
-      rest_measure: which speed: `"rms"` (default, `rms_speed`: the kinetic
-        energy per disk of Fig. 1(b)) or `"max"` (`max_speed`).
-      dt: the time step the run will use (default: the law's setting); turns
-        `hold_time` into steps.
-      seed: draws the radii and the positions.
-      dtype: float dtype (default float64).
+    converted to the law's units (`units(law)`); `dt` turns `hold_time` into
+    steps and `seed` draws the radii and the positions.
 
     Returns:
       `Setup` with `driver` and a `BoxState`; the right wall is on, the
@@ -213,27 +214,17 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
       InputError: on a bad count, size, speed, time or fraction, or when the
         disks cannot be placed.
     """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     u = units(law)
-    dt = float(law_setting(law)["dt"]) if dt is None else check_positive("dt", dt)
-    width, height = check_positive("width", width), check_positive("height", height)
-    rest_speed, hold_time = check_positive("rest_speed", rest_speed), check_positive("hold_time", hold_time)
-    mean, spread, low, high = radius_law(radius)
-    if not 0 < placement_fraction <= 0.5:
-        raise InputError(f"placement_fraction must be in (0, 0.5] (random placement jams near 0.55); "
-                         f"got {placement_fraction!r}.")
-    if n is None:
-        n = fill_count(width, height, packing_fraction=packing_fraction, radius=radius)
-    if int(n) != n or n < 1:
-        raise InputError(f"n must be a positive whole number of disks; got {n!r}.")
-    n = int(n)
+    width, height, rest_speed, hold_time = o.width, o.height, o.rest_speed, check_positive("hold_time", o.hold_time)
+    mean, spread, low, high = radius_law(o.radius)
+    n = fill_count(width, height, packing_fraction=o.packing_fraction, radius=o.radius) if o.n is None else o.n
     budget.check(n, dtype or "float64", what="a box")  # before any array is allocated
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     radius_paper = gaussian_radii(n, rng, mean=mean, width=spread, low=low, high=high)
     if 2 * high > width:
         raise InputError(f"the box (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
     area = math.pi * float(np.sum(radius_paper**2))
-    place_height = max(height, area / (placement_fraction * width))
+    place_height = max(height, area / (o.placement_fraction * width))
     position_paper = random_positions(radius_paper, width, place_height, rng)
 
     s = u.scale
@@ -251,7 +242,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
         park=jnp.asarray(park, dtype),
         rest_speed=jnp.asarray(rest_speed * u.speed, dtype),
         hold=jnp.asarray(hold, jnp.int32),
-        use_max=jnp.asarray(measure_flag(rest_measure)),
+        use_max=jnp.asarray(measure_flag(o.rest_measure)),
         phase=jnp.asarray(0, jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(False),
@@ -276,7 +267,7 @@ def protocol(n: int | None = None, *, law="lee-herrmann", width: float = PAPER_S
         "dt": dt,
         "rest_speed": rest_speed * u.speed,
         "hold_steps": hold,
-        "rest_measure": rest_measure,
+        "rest_measure": o.rest_measure,
         "seed": int(seed),
     }
     box = neighbor_box(np.concatenate([position, park]), r)
@@ -351,64 +342,44 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     }
 
 
-def settled(info, options):
+def simulator_running(driver_function):
+    """The spec's simulator of a 1993 protocol running `driver_function` (`make_simulator`)."""
+
+    def simulator(options, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
+        return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or "velocity_verlet",
+                              chunk_steps=chunk_steps, driver=driver_function)
+
+    return simulator
+
+
+def settled(p: Setup, options):
     """The 1993 family's end (box, flux): the driver's rest detector has fired."""
     return lambda s: s.protocol_state.settled_at >= 0
 
 
-def max_time_steps(default_max_time: float):
-    """The 1993 family's budget: `max_time` (paper seconds) in steps of the set-up's dt."""
-    return lambda info, options: max_steps_for(info["law"], info["dt"], options.get("max_time", default_max_time))
+def max_time_budget(p: Setup, options) -> int:
+    """The 1993 family's budget (box, flux): `max_time` (paper seconds) in steps of the set-up's dt."""
+    return max_steps_for(p.info["law"], p.info["dt"], options.max_time)
 
 
-DEFINITION = definition.Definition(
-    "box", protocol, make_simulator, law_and_params, lambda law: float(law_setting(law)["dt"]),
-    settled, max_time_steps(PAPER_SETTING["max_time"]), measure,
+SPEC = ProtocolSpec(
+    name="box", options=BoxOptions, setup=setup, simulator=simulator_running(driver), law_and_params=law_and_params,
+    default_dt=lambda law: float(law_setting(law)["dt"]), finished=settled, budget=max_time_budget, measure=measure,
     row=("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola", "at_rest", "wall_removed_step",
          "settled_step", "n_left", "fill_height"),
-    run_options={"max_time": PAPER_SETTING["max_time"]},
-    sweep=dict(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
-               theory=marginal_stability_overlay, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
-               fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")}))
+    default_law="lee-herrmann",
+    presentation=Presentation(
+        order=3, help="a box filled, its right wall removed (1993 Fig. 1)", flags={"seed": "seed"},
+        headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
+                  "repose_cumulative_parabola", "theta_ms_theory"),
+        length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
+    batch=Batch(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
+                theory=marginal_stability_overlay, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
+                fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")},
+                simulator_options=frozenset()))  # the simulator reads no option: set-ups share a compile
+"""The box (Lee & Herrmann 1993, sec. 3): `SPEC.run("lee-herrmann", width=1.6, height=1.6)` fills the box,
+removes the right wall at rest, lets the pile settle and measures its angle of repose by the three methods."""
 
 
-def execute(sim, params, p: Setup, *, max_steps: int, progress=None, checkpoint=None, resume=None):
-    """Starts a box protocol and runs it until its driver records the final rest
-    (`BoxState.settled_at`) or `max_steps` (`definition.execute`: checkpoint,
-    resume bit-identical, samples). Returns `(state, RunInfo, samples)`."""
-    return definition.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress,
-                              checkpoint=checkpoint, resume=resume)
-
-
-def run(law="lee-herrmann", n: int | None = None, *, params=None, rotation: bool | None = None,
-        dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = PAPER_SETTING["max_time"],
-        chunk_steps: int | None = None, progress=False, dtype=None, checkpoint=None, resume=None, **options):
-    """Fills the box, removes the right wall at rest, lets the pile settle, and
-    measures it (Lee & Herrmann 1993, sec. 3, Fig. 1).
-
-    Args:
-      law: `lee-herrmann` (the paper's, in cgs), `hooke`, `baxter` or `liffman`.
-      n: number of disks (default: those that fill W x H, 409 for 4 x 4).
-      params: None (`PAPER_SETTING`), a dict of overrides, or a params pytree.
-      rotation, dt, integrator, chunk_steps: for the `Simulator`.
-      max_time: give up after this many paper seconds.
-      checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
-      **options: for `protocol` (width, height, radius, packing_fraction,
-        placement_fraction, rest_speed, hold_time, seed).
-
-    Returns:
-      `(state, measurements)`: the final state and `measure`'s dict, the
-      kinetic energy per disk per chunk (Fig. 1(b)), timings, and `info` (the set-up).
-
-    Example:
-      >>> state, m = run("lee-herrmann", width=1.6, height=1.6)      # doctest: +SKIP
-      >>> m["repose_cumulative_parabola"]                             # doctest: +SKIP
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                          run_options={"max_time": max_time}, **options)
-
-
-__all__ = ["PAPER_SETTING", "BoxState", "count_check", "driver", "execute", "law_and_params", "make_simulator",
-    "max_steps_for", "max_time_steps", "protocol", "repose", "run", "settled"]
+__all__ = ["PAPER_SETTING", "SPEC", "BoxOptions", "BoxState", "count_check", "driver", "law_and_params",
+           "make_simulator", "max_steps_for", "max_time_budget", "repose", "settled", "setup", "simulator_running"]

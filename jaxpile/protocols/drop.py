@@ -51,7 +51,7 @@ sin(atan mu) of the top disk's axis sticks: with mu = 0.5 or 1, measured, all
 ground are the 1992 analytic model's assumption and what the paper's own law
 gives at rest; they slide off until they find a pocket and build a heap
 (measured on 30 disks: 9-19 disks on the ground, height 2.7-4.4 diameters).
-Pass `rotation=True` or `params={"mu": ...}` to `run` to try otherwise.
+Pass `rotation=True` or `params={"mu": ...}` to `SPEC.run` to try otherwise.
 
 Cost: a drop takes about 4-7 sqrt(sigma/g) (the fall, then the disk sliding off
 and the pile coming to rest), 4000-7000 steps at dt = 1e-3, so 968 disks need
@@ -61,7 +61,9 @@ job; tests use 20.
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -69,15 +71,16 @@ import numpy as np
 
 from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, make_boundaries
-from jaxpile.errors import InputError
-from jaxpile.ranges import COUNT, DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.dropped_pile import measure
-from jaxpile.protocols import definition, lattice
-from jaxpile.protocols.base import CommandLine, Setup
-from jaxpile.protocols.drivers import activate, next_inactive
-from jaxpile.protocols.sloped import law_and_params as sloped_law_and_params
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.errors import InputError
+from jaxpile.measure.dropped_pile import measure
+from jaxpile.protocols import lattice
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.geometry import heap_extent
+from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.ranges import COUNT, DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
 SQRT3 = math.sqrt(3.0)
@@ -100,21 +103,33 @@ SETTING = {
 PARK_SPACING = 2.5  # diameters between parked disks: beyond any law's cut-off plus the skin
 
 
-OPTION_RANGES = {
-    "n": DISKS, "seed": SEED, "dt": TIME_STEP, "drop_height": SIZE,
-    "jitter": Range(low=0, high=1, high_open=True, why="diameters"), "settle_speed": SPEED, "quiet_time": SIZE,
-    "max_interval": SIZE, "diameter": SIZE, "mass": SIZE, "speed_tolerance": SPEED,
-    "relax_steps": STEPS, "bins": COUNT, "dip_threshold": SPAN, "chunk_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+# ------------------------------------------------------------------ options
+@dataclass(frozen=True)
+class DropOptions(Options):
+    """The drop's options, in diameters sigma, sqrt(sigma/g) and sqrt(g sigma)."""
 
+    n: int = option(SETTING["n"], range=DISKS, help="number of disks (968 in the paper)")
+    drop_height: float = option(SETTING["drop_height"], range=SIZE, unit="sigma",
+                                help="gap between a dropped disk's lowest point and the pile's highest (2 in the paper)")
+    jitter: float = option(SETTING["jitter"], range=Range(low=0, high=1, high_open=True, why="diameters"),
+                           unit="sigma", help="half-width of the uniform lateral offset of each drop")
+    settle_speed: float = option(SETTING["settle_speed"], range=SPEED, unit="sqrt(g sigma)",
+                                 help="the pile counts as settled once every disk is slower than this...")
+    quiet_time: float = option(SETTING["quiet_time"], range=SIZE, unit="sqrt(sigma/g)", help="...for this long")
+    max_interval: float = option(SETTING["max_interval"], range=SIZE, unit="sqrt(sigma/g)",
+                                 help="the longest wait between two drops")
+    diameter: float = option(1.0, range=SIZE, help="the disks' diameter")
+    mass: float = option(1.0, range=SIZE, help="the disks' mass")
+    speed_tolerance: float = option(SETTING["speed_tolerance"], range=SPEED, unit="sqrt(g sigma)",
+                                    help="after the last drop, at rest once every disk is slower than this")
+    relax_steps: int = option(SETTING["relax_steps"], range=STEPS, help="step budget of the final relaxation")
+    bins: int = option(15, range=COUNT, help="bins of the base normal force profile")
+    dip_threshold: float = option(0.05, range=SPAN, help="a central dip is reported when central_dip exceeds this")
+    hard_collisions: Any = option(None, help="the simulator's hard collisions (`Simulator(hard_collisions=...)`)")
 
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=2, help="disks dropped one at a time (1992 Fig. 20)", default_law="liffman",
-    flags={"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
-           "seed": "seed"},
-    headline=("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance"))
+    def validate(self):
+        if self.max_interval <= self.quiet_time:
+            raise InputError(f"max_interval ({self.max_interval}) must be longer than quiet_time ({self.quiet_time}).")
 
 
 class DropState(NamedTuple):
@@ -172,6 +187,7 @@ def layout(n: int, diameter: float = 1.0, drop_height: float = 2.0):
     return axis * diameter, parked * diameter, box
 
 
+@functools.lru_cache(maxsize=32)
 def make_driver(*, drop_height: float, settle_speed: float, quiet_steps: int, max_interval_steps: int):
     """The insertion driver (a pure `state -> state`, see `drivers`).
 
@@ -179,7 +195,9 @@ def make_driver(*, drop_height: float, settle_speed: float, quiet_steps: int, ma
     `settle_speed`; when `quiet_steps` are reached, or `max_interval_steps` have
     passed since the last insertion, activates the next parked disk at rest,
     its lowest point `drop_height` above the highest active disk's top (or the
-    ground), at its `drop_x`."""
+    ground), at its `drop_x`. One function per set of constants (cached): the
+    driver of a set-up is its simulator's, so a batch of set-ups with the same
+    options runs on one simulator."""
     from jaxpile.engine.simulate import max_speed
 
     def driver(state: SimState) -> SimState:
@@ -223,75 +241,65 @@ def make_in_play(quiet_steps: int):
     return in_play
 
 
-def protocol(n: int = SETTING["n"], *, seed: int = 0, dt: float = SETTING["dt"],
-             drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
-             settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
-             max_interval: float = SETTING["max_interval"], diameter: float = 1.0, mass: float = 1.0,
-             dtype=None) -> Setup:
-    """The 1992 Fig. 20 drop pile: n equal disks dropped one by one on the ground.
+def driver_setting(o: DropOptions, dt: float) -> dict:
+    """The drop driver's constants (`make_driver`'s keywords) for the options
+    `o` and the time step `dt`: the same for every seed and every n."""
+    diameter, drop_height = float(o.diameter), float(o.drop_height)
+    quiet_steps = _steps("quiet_time", o.quiet_time, dt)
+    max_interval_steps = _steps("max_interval", o.max_interval, dt)
+    if max_interval_steps <= quiet_steps:
+        raise InputError(f"max_interval ({o.max_interval}) must be longer than quiet_time ({o.quiet_time}): "
+                         f"at dt = {dt:g} both are {quiet_steps} steps.")
+    return {"drop_height": drop_height * diameter, "settle_speed": float(o.settle_speed), "quiet_steps": quiet_steps,
+            "max_interval_steps": max_interval_steps}
 
-    Args:
-      n: number of disks (968 in the paper).
-      seed: draws each disk's lateral offset, uniform in +-`jitter`.
-      dt: the time step the run will use (turns the times below into steps).
-      drop_height: gap between a dropped disk's lowest point and the pile's
-        highest point, in diameters (2 in the paper).
-      jitter: half-width of the uniform lateral offset, in diameters.
-      settle_speed: the pile counts as settled once every disk has been slower
-        than this (in sqrt(g sigma)) for `quiet_time` (in sqrt(sigma/g)).
-      max_interval: the longest wait between two drops (sqrt(sigma/g)).
+
+def setup(o: DropOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
+    """The 1992 Fig. 20 drop pile: `o.n` equal disks dropped one by one on the ground.
+
+    `seed` draws each disk's lateral offset, uniform in +-`jitter`; `dt`
+    turns `quiet_time` and `max_interval` into steps. The set-up is the same
+    for every law.
 
     Returns:
       `Setup` with every disk parked inactive, the drop driver and its
-      `DropState`, the neighbour-list box and `info` (counts, axis, step rules).
+      `DropState`, the neighbour-list box and `info` (counts, axis, step rules, dt).
     """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
-    if int(n) != n or n < 1:
-        raise InputError(f"n (the number of disks to drop) must be a positive whole number; got {n!r}.")
-    n = int(n)
+    n = o.n
     budget.check(n, dtype or "float64", what="a drop")  # before any array is allocated
-    dt = _positive("dt", dt)
-    diameter = _positive("diameter", diameter)
-    drop_height = _positive("drop_height", drop_height)
-    settle_speed = _positive("settle_speed", settle_speed)
-    quiet_steps = _steps("quiet_time", quiet_time, dt)
-    max_interval_steps = _steps("max_interval", max_interval, dt)
-    if max_interval_steps <= quiet_steps:
-        raise InputError(f"max_interval ({max_interval}) must be longer than quiet_time ({quiet_time}).")
-    jitter = float(jitter) + 0.0  # -0.0 (inside [0, 1)) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
-    if not 0.0 <= jitter < 1.0:
-        raise InputError(f"jitter must be in [0, 1) diameters; got {jitter!r}.")
+    rule = driver_setting(o, dt)
+    diameter, drop_height = float(o.diameter), float(o.drop_height)
+    jitter = float(o.jitter) + 0.0  # -0.0 (inside [0, 1)) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
     axis, parked, box = layout(n, diameter, drop_height)
-    particles = make_particles(parked, 0.5 * diameter, mass=mass, active=np.zeros(n, bool), dtype=dtype)
+    particles = make_particles(parked, 0.5 * diameter, mass=o.mass, active=np.zeros(n, bool), dtype=dtype)
     dtype = particles.position.dtype
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     drop_x = axis + diameter * rng.uniform(-jitter, jitter, n)
     state = DropState(
         drop_x=jnp.asarray(drop_x, dtype),
-        last_insert=jnp.asarray(-max_interval_steps, jnp.int32),
-        quiet_steps=jnp.asarray(quiet_steps, jnp.int32),  # the first disk drops at once
+        last_insert=jnp.asarray(-rule["max_interval_steps"], jnp.int32),
+        quiet_steps=jnp.asarray(rule["quiet_steps"], jnp.int32),  # the first disk drops at once
         inserted=jnp.asarray(0, jnp.int32),
         forced=jnp.asarray(0, jnp.int32),
     )
-    driver = make_driver(drop_height=drop_height * diameter, settle_speed=settle_speed, quiet_steps=quiet_steps,
-                         max_interval_steps=max_interval_steps)
     info = {
         "n_particles": n,
         "axis_x": axis,
         "drop_height": drop_height,
         "jitter": jitter,
         "seed": int(seed),
-        "settle_speed": settle_speed,
-        "quiet_steps": quiet_steps,
-        "max_interval_steps": max_interval_steps,
+        "settle_speed": rule["settle_speed"],
+        "quiet_steps": rule["quiet_steps"],
+        "max_interval_steps": rule["max_interval_steps"],
+        "dt": float(dt),
     }
-    return Setup(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=driver,
-                    protocol_state=state, box=box, info=info)
+    return Setup(particles=particles, boundaries=make_boundaries(dtype=dtype), driver=make_driver(**rule),
+                 protocol_state=state, box=box, info=info)
 
 
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
-    return sloped_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
 
 
 def _with_phase(checkpoint, phase: str, **facts):
@@ -300,28 +308,22 @@ def _with_phase(checkpoint, phase: str, **facts):
     return ckpt.with_facts(checkpoint, phase=phase, **facts)
 
 
-RUN_OPTIONS = {"speed_tolerance": SETTING["speed_tolerance"], "relax_steps": SETTING["relax_steps"], "bins": 15,
-               "dip_threshold": 0.05}
-"""Run keywords that are not set-up options, with their defaults."""
-
-
-def make_simulator(law="liffman", *, dt: float = SETTING["dt"], rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", hard_collisions=None, chunk_steps: int | None = None,
-                   setup_options: dict | None = None):
-    """A `Simulator` running the drop driver of the set-up `setup_options`
-    describes (its constants are the same for every seed), each chunk on the
+def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None):
+    """A `Simulator` running the drop driver of the options `o` (its constants
+    are the same for every seed and every n), velocity Verlet unless another
+    integrator is given, with the options' `hard_collisions`, each chunk on the
     block of disks dropped by its end."""
     from jaxpile.engine.simulate import Simulator
 
     _, contact_law, _ = law_and_params(law, None, rotation)
-    p = protocol(seed=0, dt=dt, **dict(setup_options or {}))
+    rule = driver_setting(o, dt)
     extra = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
     # the list is allocated with the disks parked apart and sized for the pile (`packed_lists`)
-    return Simulator(contact_law, dt, driver=p.driver, integrator=integrator, hard_collisions=hard_collisions,
-                     in_play=make_in_play(p.info["quiet_steps"]), **extra)
+    return Simulator(contact_law, dt, driver=make_driver(**rule), integrator=integrator or "velocity_verlet",
+                     hard_collisions=o.hard_collisions, in_play=make_in_play(rule["quiet_steps"]), **extra)
 
 
-def _execute(sim, params, p: Setup, options: dict, *, progress=None, checkpoint=None, resume=None):
+def fill_and_relax(sim, params, p: Setup, o: DropOptions, *, progress=None, checkpoint=None, resume=None):
     """One pile: the fill (every disk dropped), then the relaxation to rest,
     each phase recorded with its checkpoints (a resume continues either)."""
     from types import SimpleNamespace
@@ -343,8 +345,8 @@ def _execute(sim, params, p: Setup, options: dict, *, progress=None, checkpoint=
                         until=lambda s: bool(np.asarray(s.particles.active).all()),
                         checkpoint=_with_phase(checkpoint, "fill"), resumed=int(state.step) > 0)
         fill_steps = int(state.step)
-    relax_left = options["relax_steps"] - (int(state.step) - fill_steps)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=options["speed_tolerance"],
+    relax_left = o.relax_steps - (int(state.step) - fill_steps)
+    state, rest = sim.run_until_rest(params, state, speed_tolerance=o.speed_tolerance,
                                      max_steps=max(relax_left, 0), progress=progress,
                                      resumed=int(state.step) > fill_steps,
                                      checkpoint=_with_phase(checkpoint, "relax", fill_steps=fill_steps))
@@ -352,7 +354,7 @@ def _execute(sim, params, p: Setup, options: dict, *, progress=None, checkpoint=
                                   forced=int(state.protocol_state.forced), steps=int(state.step)), None
 
 
-def _report(measured: dict, p: Setup, options: dict, info, samples, seconds: float) -> dict:
+def report(measured: dict, p: Setup, o: DropOptions, info, samples, seconds: float) -> dict:
     """One pile's output: the run's phases and timings, then the measurements."""
     n = p.info["n_particles"]
     out = {
@@ -371,90 +373,59 @@ def _report(measured: dict, p: Setup, options: dict, info, samples, seconds: flo
         "total_seconds": seconds,
         "at_rest": bool(info.rest.at_rest),
         "final_max_speed": info.rest.max_speed,
-        "speed_tolerance": options["speed_tolerance"],
+        "speed_tolerance": o.speed_tolerance,
     }
     out.update({k: v for k, v in measured.items() if k not in ("n_in", "all_inserted", "max_speed")})
     return out
 
 
-def _measure(sim, params, state, p, options) -> dict:
-    """`measure` with the run's bins and threshold, and the pile's counts and speed (a sweep row's too)."""
+def measure_pile(sim, params, state: SimState, p: Setup, o: DropOptions) -> dict:
+    """`measure` with the options' bins and threshold, and the pile's counts and speed (a sweep row's too)."""
     from jaxpile.engine.simulate import max_speed
 
     active = np.asarray(state.particles.active)
     return {"n_in": int(active.sum()), "all_inserted": bool(active.all()), "max_speed": float(max_speed(state)),
-            **measure(sim, params, state, bins=options["bins"], dip_threshold=options["dip_threshold"])}
+            **measure(sim, params, state, bins=o.bins, dip_threshold=o.dip_threshold)}
 
 
-def _finished(info, options):
+def filled_and_at_rest(p: Setup, o: DropOptions):
     """A batch's end for one pile: every disk in, the last one in for `quiet_time`,
     and its fastest disk below `speed_tolerance` (a single run fills, then
     relaxes; the batch checks both at each chunk's end)."""
     from jaxpile.engine.simulate import max_speed
 
-    quiet, tolerance = int(info["quiet_steps"]), float(options["speed_tolerance"])
+    quiet, tolerance = int(p.info["quiet_steps"]), float(o.speed_tolerance)
     return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
                       & (max_speed(s) < tolerance))
 
 
-def _row(m: dict) -> dict:
+def step_budget(p: Setup, o: DropOptions) -> int:
+    """Every drop at its longest wait, a chunk's slack, then the relaxation's budget."""
+    return int(p.info["n_particles"]) * int(p.info["max_interval_steps"]) + 1000 + int(o.relax_steps)
+
+
+def row(m: dict) -> dict:
+    """A sweep row: the measurements' plain numbers and flags."""
     return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k != "n_in"}
 
 
-DEFINITION = definition.Definition(
-    "drop", protocol, make_simulator, law_and_params, lambda law: float(SETTING["dt"]), _finished,
-    lambda info, options: (int(info["n_particles"]) * int(info["max_interval_steps"]) + 1000
-                           + int(options["relax_steps"])),
-    _measure, row=_row, run_options=RUN_OPTIONS, execute=_execute, report=_report,
-    sweep=dict(angles=("central_dip",), unit="", default_law="liffman",
-               extent=heap_extent("ground", "axis_x", "n_particles"),
-               fit_statistics={"columns": ("central_dip",), "bins": 9}))
+SPEC = ProtocolSpec(
+    name="drop", options=DropOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
+    default_dt=lambda law: float(SETTING["dt"]), finished=filled_and_at_rest, budget=step_budget,
+    measure=measure_pile, row=row, execute=fill_and_relax, report=report, default_law="liffman",
+    presentation=Presentation(
+        order=2, help="disks dropped one at a time (1992 Fig. 20)",
+        flags={"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
+               "seed": "seed"},
+        headline=("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance")),
+    batch=Batch(angles=("central_dip",), unit="", extent=heap_extent("ground", "axis_x", "n_particles"),
+                fit_statistics={"columns": ("central_dip",), "bins": 9},
+                simulator_options=frozenset({"drop_height", "settle_speed", "quiet_time", "max_interval", "diameter",
+                                             "hard_collisions"})))
+"""The drop (Liffman, Chan & Hughes 1992, Fig. 20): `SPEC.run("liffman", 968)` drops the disks one at a time,
+relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 
 
-def run(law="liffman", n: int = SETTING["n"], *, seed: int = 0, params=None, rotation: bool | None = None,
-        dt: float = SETTING["dt"], drop_height: float = SETTING["drop_height"], jitter: float = SETTING["jitter"],
-        settle_speed: float = SETTING["settle_speed"], quiet_time: float = SETTING["quiet_time"],
-        max_interval: float = SETTING["max_interval"], speed_tolerance: float = SETTING["speed_tolerance"],
-        relax_steps: int = SETTING["relax_steps"], bins: int = 15, dip_threshold: float = 0.05,
-        integrator: str = "velocity_verlet", hard_collisions=None, dtype=None, progress: bool | None = False,
-        chunk_steps: int = 1000, checkpoint=None, resume=None):
-    """Drops n disks one at a time, relaxes the pile to rest and measures it.
-
-    Args:
-      law: a law name or module (default `liffman`, the paper's own law).
-      params: None for `SETTING["params"][law]`, a dict of overrides, or a
-        params pytree.
-      rotation: integrate spins (default off; see the module docstring).
-      relax_steps: step budget for the final relaxation.
-      bins: bins of the base normal force profile.
-      dip_threshold: a central dip is reported when `central_dip` exceeds it.
-      integrator, hard_collisions, chunk_steps: passed to `Simulator`.
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`; each save
-        records its phase (`fill`, or `relax` with the steps the fill took).
-      resume: a checkpoint file of this same run to continue from (in either
-        phase); the run ends bit-identical to the uninterrupted one.
-      Other arguments as in `protocol`.
-
-    Returns:
-      `(state, measurements)`; measurements holds `n_particles` (disks in),
-      `all_inserted`, `at_rest`, the binned profile (`profile_x_over_base`,
-      `profile_normal` in mg, `profile_normalised`), `central_dip`,
-      `has_central_dip`, `total_normal` and `weight_balance` (total / n - 1),
-      `base_contacts`, `base_width`, `height` (highest disk top), the angles of
-      repose of each flank (Lee & Herrmann 1993 method 3, NaN when a flank is
-      too small to fit), and step counts and times.
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    if int(relax_steps) != relax_steps or relax_steps < 1:
-        raise InputError(f"relax_steps must be a positive whole number; got {relax_steps!r}.")
-    return definition.run(
-        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, chunk_steps=chunk_steps,
-        progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-        simulator_options={"hard_collisions": hard_collisions},
-        run_options={"speed_tolerance": speed_tolerance, "relax_steps": relax_steps, "bins": bins,
-                     "dip_threshold": dip_threshold},
-        seed=seed, drop_height=drop_height, jitter=jitter, settle_speed=settle_speed, quiet_time=quiet_time,
-        max_interval=max_interval)
-
-
-__all__ = ["DropState", "PARK_SPACING", "SETTING", "law_and_params", "layout", "make_driver", "protocol", "run"]
+__all__ = ["PARK_SPACING", "SETTING", "SPEC", "DropOptions", "DropState", "driver_setting", "fill_and_relax",
+           "filled_and_at_rest", "law_and_params", "layout", "make_driver", "make_in_play", "measure_pile", "report",
+           "row", "setup", "simulator", "step_budget"]

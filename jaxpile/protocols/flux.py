@@ -44,6 +44,7 @@ and the insertions stop.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax
@@ -51,19 +52,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.protocols import definition
-from jaxpile.measure import analysis
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries, set_wall
-from jaxpile.errors import InputError
-from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.protocols import box as boxes
-from jaxpile.protocols import drivers
-from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.engine.state import SimState, make_particles
+from jaxpile.errors import InputError
+from jaxpile.measure import analysis
 from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import paper1993
-from jaxpile.protocols import geometry
+from jaxpile.protocols import box as boxes
+from jaxpile.protocols import drivers, geometry, outputs, paper1993
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
 
@@ -79,22 +77,31 @@ SETTING = {
 }
 
 
-OPTION_RANGES = {
-    "insertions": Range(low=1, whole=True, unit="insertions"), "width": SIZE, "pool": DISKS,
-    "v_cut": SPEED, "hold_time": SPAN, "gap": SPAN, "dt": TIME_STEP, "seed": SEED,
-    "max_time": SIZE, "chunk_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+@dataclass(frozen=True)
+class FluxOptions(Options):
+    """The flux pile's options, in the paper's units (cm, cm/s, s), converted
+    to the law's units by the set-up (`paper1993.units(law)`)."""
 
+    insertions: int = option(SETTING["insertions"], range=Range(low=1, whole=True, unit="insertions"),
+                             help="how many disks to insert")
+    width: float = option(SETTING["width"], range=SIZE, unit="cm", help="W, the floor from the left wall to its end")
+    pool: int | None = option(None, range=DISKS, help="disks that take turns, those that leave return to it; "
+                              "default: min(insertions, pool_size(width))")
+    fixed_base: bool = option(True, help="the bottom layer is fixed (off: free disks)")
+    radius: dict | None = option(None, help="overrides of the radius distribution (mean, width, low, high)")
+    v_cut: float = option(SETTING["v_cut"], range=SPEED, unit="cm/s",
+                          help="insert when the speed is below this (0.1 cm/s in the paper)")
+    rest_measure: str = option(SETTING["rest_measure"], help="which speed: max (the fastest disk, the paper's) or "
+                               "rms (the kinetic energy per disk as a speed)")
+    hold_time: float = option(SETTING["hold_time"], range=SPAN, unit="s",
+                              help="how long the speed must stay below v_cut (0: one step)")
+    gap: float = option(SETTING["gap"], range=SPAN, unit="cm", help="drop height of the new disk above the disk "
+                        "under it")
+    max_time: float = option(SETTING["max_time"], range=SIZE, unit="s", help="give up after this long")
 
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", default_law="lee-herrmann",
-    size="insertions", flags={"seed": "seed"},
-    headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
-    base_forces=outputs.substrate_base, length_unit=outputs.cm_for_lee_herrmann,
-    figures=(outputs.angles_figure,),
-    budget=lambda kwargs, info: boxes.max_steps_for(info["law"], info["dt"], kwargs.get("max_time", SETTING["max_time"])))
+    def validate(self):
+        boxes.check_positive("gap", self.gap)
+        boxes.measure_flag(self.rest_measure)
 
 
 class FluxState(NamedTuple):
@@ -217,7 +224,7 @@ def pool_size(width: float, *, slope_degrees: float = SETTING["steepest_slope_de
         raise InputError(f"slope_degrees must be in (0, 90); got {slope_degrees!r}.")
     area = 0.5 * width**2 * math.tan(math.radians(slope_degrees))
     disk = math.pi * paper1993.mean_square_radius(*boxes.radius_law(radius))
-    return int(math.ceil(1.5 * packing_fraction * area / disk)) + 10
+    return math.ceil(1.5 * packing_fraction * area / disk) + 10
 
 
 def base_layer(radius, width: float) -> np.ndarray:
@@ -233,31 +240,12 @@ def base_layer(radius, width: float) -> np.ndarray:
     return np.asarray(out)
 
 
-def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", width: float = SETTING["width"],
-             pool: int | None = None, fixed_base: bool = True, radius: dict | None = None,
-             v_cut: float = SETTING["v_cut"], rest_measure: str = SETTING["rest_measure"],
-             hold_time: float = SETTING["hold_time"], gap: float = SETTING["gap"], dt: float | None = None,
-             seed: int = 0, dtype=None) -> Setup:
+def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     """The constant-flux pile of Lee & Herrmann 1993, Fig. 5, ready to run with `driver`.
 
     Lengths, speeds and times in the paper's units (cm, cm/s, s), converted with
-    `paper1993.units(law)`.
-
-    Args:
-      insertions: how many disks to insert.
-      law: the law the run will use (units and default dt).
-      width: W, the floor from the left wall to its end.
-      pool: disks that take turns (default `min(insertions, pool_size(width))`);
-        disks that leave return to it.
-      fixed_base: the bottom layer is fixed (default) or free.
-      radius: overrides of the radius distribution (see `paper1993.gaussian_radii`).
-      v_cut: insert when the speed is below this (0.1 cm/s in the paper).
-      rest_measure: `"max"` (`max_speed`, the paper's) or `"rms"` (`drivers.rms_speed`).
-      hold_time: how long the speed must stay below v_cut (0: one step).
-      gap: drop height of the new disk above the disk under it.
-      dt: the run's time step (default the law's).
-      seed: draws the radii and the drop positions.
-      dtype: float dtype (default float64).
+    `paper1993.units(law)`; `dt` turns `hold_time` into steps and `seed` draws
+    the radii and the drop positions.
 
     Returns:
       `Setup` with `driver` and a `FluxState`: the base layer first
@@ -265,33 +253,21 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
       right wall is off.
 
     Raises:
-      InputError: on a bad count, size, speed, gap or time.
+      InputError: on a floor narrower than the largest disk, or a pile too
+        large for memory.
     """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
-    if int(insertions) != insertions or insertions < 1:
-        raise InputError(f"insertions must be a positive whole number; got {insertions!r}.")
-    insertions = int(insertions)
+    insertions, width, v_cut, gap, hold_time = o.insertions, o.width, o.v_cut, o.gap, o.hold_time
+    fixed_base, radius, rest_measure = o.fixed_base, o.radius, o.rest_measure
     u = paper1993.units(law)
-    dt = float(paper1993.law_setting(law)["dt"]) if dt is None else boxes.check_positive("dt", dt)
-    width = boxes.check_positive("width", width)
-    v_cut = boxes.check_positive("v_cut", v_cut)
-    gap = boxes.check_positive("gap", gap)
-    if not (hold_time >= 0 and math.isfinite(hold_time)):
-        raise InputError(f"hold_time must be >= 0 and finite; got {hold_time!r}.")
     mean, spread, low, high = boxes.radius_law(radius)
     if 2 * high > width:
         raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
     base_count = int(width / (2 * low)) + 2  # the fixed floor's disks, drawn before the row is laid
     budget.check(base_count, dtype or "float64", what="a flux pile's floor")
-    if pool is None:
-        pool = min(insertions, pool_size(width, radius=radius))
-    if int(pool) == pool and pool >= 1:
-        # each insertion keeps a record of the surface (a few hundred bytes): counted as one disk more
-        budget.check(base_count + pool + insertions, dtype or "float64",
-                     what="a flux pile's floor, pool and insertion records")
-    if int(pool) != pool or pool < 1:
-        raise InputError(f"pool must be a positive whole number; got {pool!r}.")
-    pool = int(pool)
+    pool = min(insertions, pool_size(width, radius=radius)) if o.pool is None else o.pool
+    # each insertion keeps a record of the surface (a few hundred bytes): counted as one disk more
+    budget.check(base_count + pool + insertions, dtype or "float64",
+                 what="a flux pile's floor, pool and insertion records")
 
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     base_radius = paper1993.gaussian_radii(base_count, rng, mean=mean, width=spread, low=low, high=high)
@@ -314,7 +290,7 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
                           RIGHT_WALL, active=False)
 
     column_width_wanted = 2.0 * float(np.mean(radius_all))
-    columns = max(1, int(round(width * s / column_width_wanted)))
+    columns = max(1, round(width * s / column_width_wanted))
     hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
     fall_steps = ranges.steps_of("the fall through gap", math.sqrt(2.0 * gap * s / u.gravity), dt, rounding=math.ceil) if gap > 0 else 0
     state = FluxState(
@@ -366,24 +342,20 @@ def protocol(insertions: int = SETTING["insertions"], *, law="lee-herrmann", wid
         "seed": int(seed),
     }
     return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
-                    box=geometry.neighbor_box(park, radius_all), info=info)
+                 box=geometry.neighbor_box(park, radius_all), info=info)
 
 
 angles = analysis.recorded_repose_angles  # the angles of each recorded surface (sec. 3's three methods)
 
 
-def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
-    """A `Simulator` running the flux `driver` (see `box.make_simulator`); its
-    list is sized for the packed pile the inserted disks make (`packed_lists`)."""
-    return boxes.make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, chunk_steps=chunk_steps,
-                                driver=driver, **kwargs)
+simulator = boxes.simulator_running(driver)
+"""The spec's simulator: the flux `driver` with a law by name (`box.make_simulator`)."""
 
 
 law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
 
 
-def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
+def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
     """Per insertion its `insert_step`, `in_play` and the angle by each method
     (`angle_*`); `steady_*`: the mean and standard deviation of the method-3
     angle over the second half of the insertions (the paper's level and the
@@ -418,60 +390,35 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     }
 
 
-DEFINITION = definition.Definition(
-    "flux", protocol, make_simulator, law_and_params, lambda law: float(paper1993.law_setting(law)["dt"]),
-    boxes.settled, boxes.max_time_steps(SETTING["max_time"]), measure,
+SPEC = ProtocolSpec(
+    name="flux", options=FluxOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
+    default_dt=boxes.SPEC.default_dt, finished=boxes.settled, budget=boxes.max_time_budget, measure=measure,
     row=("inserted", "steady_mean", "steady_std", "repose_cumulative_parabola", "at_rest", "settled_step", "n_left"),
-    run_options={"max_time": SETTING["max_time"]}, size="insertions",
-    sweep=dict(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
-               fit_statistics={"columns": ("steady_mean",)}))
-
-
-def execute(sim, params, p: Setup, *, max_steps: int, progress=None, checkpoint=None, resume=None):
-    """Runs the flux protocol until every insertion is made and the pile is at
-    rest (`FluxState.settled_at`), or `max_steps` (`definition.execute`).
-    Returns `(state, RunInfo, samples)`."""
-    return definition.execute(DEFINITION, sim, params, p, max_steps=max_steps, progress=progress,
-                              checkpoint=checkpoint, resume=resume)
-
-
-def run(law="lee-herrmann", insertions: int = SETTING["insertions"], *, params=None, rotation: bool | None = None,
-        dt: float | None = None, integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"],
-        chunk_steps: int | None = None, progress=False, dtype=None, checkpoint=None, resume=None, **options):
-    """Feeds the pile `insertions` disks at the paper's rule and measures the
-    angle before each insertion (Fig. 5).
-
-    Args:
-      law: `lee-herrmann` (the paper's, in cgs), `hooke`, `baxter` or `liffman`.
-      insertions: disks to insert.
-      params: None (`box.PAPER_SETTING`), a dict of overrides, or a params pytree.
-      max_time: give up after this many paper seconds.
-      checkpoint, resume: see `box.execute` (save the run as it goes; continue a saved run).
-      **options: for `protocol` (width, pool, fixed_base, radius, v_cut,
-        rest_measure, hold_time, gap, seed).
-
-    Returns:
-      `(state, measurements)`: `measure`'s dict, the kinetic energy per chunk,
-      timings and `info` (the set-up).
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    return definition.run(DEFINITION, law, insertions, params=params, rotation=rotation, dt=dt,
-                          integrator=integrator, chunk_steps=chunk_steps, progress=progress, dtype=dtype,
-                          checkpoint=checkpoint, resume=resume,
-                          run_options={"max_time": max_time}, **options)
+    default_law="lee-herrmann", size="insertions",
+    presentation=Presentation(
+        order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", flags={"seed": "seed"},
+        headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
+        base_forces=outputs.substrate_base, length_unit=outputs.cm_for_lee_herrmann,
+        figures=(outputs.angles_figure,)),
+    batch=Batch(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
+                fit_statistics={"columns": ("steady_mean",)},
+                simulator_options=frozenset()))  # the simulator reads no option: set-ups share a compile
+"""The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the
+paper's rule, until it is at rest after the last, and measures the angle before each insertion (Fig. 5)."""
 
 
 __all__ = [
-    "law_and_params",
     "SETTING",
+    "SPEC",
+    "FluxOptions",
     "FluxState",
     "angles",
     "base_layer",
     "column_heights",
     "driver",
-    "execute",
-    "make_simulator",
+    "law_and_params",
+    "measure",
     "pool_size",
-    "protocol",
-    "run",
+    "setup",
+    "simulator",
 ]

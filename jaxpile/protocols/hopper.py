@@ -2,8 +2,8 @@
 
 None of the three papers has it; it is what DEM users ask for next, and it
 shows that a new protocol is one module: this file and its test, with
-nothing to edit elsewhere (the registry finds `CLI`, the sweep and
-the ensemble fit its `DEFINITION`).
+nothing to edit elsewhere (the registry finds its `SPEC`, from which come its
+run, its batch in a sweep and an ensemble fit, and its command line).
 
 The set-up, in units of the mean diameter d = 1, g = 1, a disk of diameter 1
 of mass 1 (the 1993 protocols' reduced units):
@@ -37,22 +37,29 @@ the statistic that sees the disk friction, which Beverloo's law does not.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import budget, ranges
-from jaxpile.protocols import definition
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Setup
+from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.drivers import rest_detector, rms_speed
-from jaxpile.protocols.geometry import PARK_SPACING, neighbor_box, park_where, parking_grid, random_positions
-from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
+from jaxpile.protocols.geometry import (
+    PARK_SPACING,
+    neighbor_box,
+    park_where,
+    parking_grid,
+    random_positions,
+)
+from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
 
@@ -69,15 +76,34 @@ FLOOR_Y = 3.0
 EXIT_DROP = 2.5
 """A disk this far below the floor's centres has left the silo."""
 
-OPTION_RANGES = {
-    "n": DISKS, "width": SIZE, "orifice": Range(low=0, low_open=True, high=1e9, why="diameters; < width - 2"),
-    "dispersity": Range(low=0, high=0.5, high_open=True, why="diameters 1 +- dispersity stay positive"),
-    "placement_fraction": Range(low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
-    "rest_speed": SPEED, "hold_time": SPAN, "max_time": SIZE, "dt": TIME_STEP, "seed": SEED,
-    "clog_time": Range(low=0, low_open=True, high=1e9, why="a stop with no wait would end every discharge at once"),
-    "chunk_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+@dataclass(frozen=True)
+class HopperOptions(Options):
+    """The hopper's options, in units of the mean diameter d and g: the silo,
+    its fill, when the gate opens and when the run stops, and the k of
+    Beverloo's law its C is reported at."""
+
+    n: int = option(400, range=DISKS, help="disks to fill the silo with")
+    width: float = option(SETTING["width"], range=SIZE, unit="d", help="W, between the walls")
+    orifice: float = option(SETTING["orifice"], range=Range(low=0, low_open=True, high=1e9,
+                                                            why="diameters; < width - 2"),
+                            help="D, between the edges of the floor disks beside it")
+    dispersity: float = option(SETTING["dispersity"], range=Range(
+        low=0, high=0.5, high_open=True, why="diameters 1 +- dispersity stay positive"),
+        help="diameters are uniform in 1 +- this")
+    placement_fraction: float = option(SETTING["placement_fraction"], range=Range(
+        low=0, high=0.5, low_open=True, why="random placement jams near 0.55"),
+        help="the disks start at random, without overlap, filling this fraction of the silo's area")
+    rest_speed: float = option(SETTING["rest_speed"], range=SPEED, unit="sqrt(g d)",
+                               help="the fill is at rest when the rms speed stays below this...")
+    hold_time: float = option(SETTING["hold_time"], range=SPAN, unit="sqrt(d / g)",
+                              help="...for this long; then the gate opens")
+    clog_time: float = option(SETTING["clog_time"], range=Range(
+        low=0, low_open=True, high=1e9, why="a stop with no wait would end every discharge at once"),
+        unit="sqrt(d / g)", help="the discharge stops when no disk has come out for this long")
+    max_time: float = option(SETTING["max_time"], range=SIZE, unit="sqrt(d / g)",
+                             help="give up after this much simulated time")
+    beverloo_k: float = option(SETTING["beverloo_k"], help="k of Beverloo's law at which beverloo_c is reported")
 
 
 def budget_steps(max_time: float, dt: float) -> int:
@@ -158,38 +184,21 @@ def floor(width: float, orifice: float) -> tuple[np.ndarray, np.ndarray, int]:
     left = width / 2 - orifice / 2 - 0.5
     side = np.arange(left, 0.5, -1.0)
     side = np.append(side, 0.5) if side[-1] > 0.5 + 1e-9 else side  # a disk touching the wall closes the gap
-    gates = int(math.ceil(orifice))
+    gates = math.ceil(orifice)
     gate_x = left + (orifice + 1.0) * np.arange(1, gates + 1) / (gates + 1)
     x = np.concatenate([side, width - side, gate_x])
     gate = np.arange(x.size) >= 2 * side.size
-    slots = int(math.ceil(width)) + 8
+    slots = math.ceil(width) + 8
     return x, gate, slots
 
 
-def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = SETTING["orifice"],
-             dispersity: float = SETTING["dispersity"], placement_fraction: float = SETTING["placement_fraction"],
-             rest_speed: float = SETTING["rest_speed"], hold_time: float = SETTING["hold_time"],
-             clog_time: float = SETTING["clog_time"], dt: float | None = None, seed: int = 0,
-             dtype=None) -> Setup:
-    """The silo, filled at random, its gate closed, ready to run with `driver`.
-
-    Args:
-      n: disks to fill the silo with.
-      width: W, between the walls (diameters).
-      orifice: D, between the edges of the floor disks beside it (diameters).
-      dispersity: diameters are uniform in 1 +- this.
-      placement_fraction: the disks start at random, without overlap, filling
-        this fraction of the silo's area up to the height it takes.
-      rest_speed, hold_time: the fill is at rest when the rms speed stays below
-        `rest_speed` (sqrt(g d)) for `hold_time`; then the gate opens.
-      clog_time: the discharge stops when no disk has come out for this long.
-      dt: the time step the run will use (default `SETTING["dt"]`).
-      seed: draws the diameters and the positions.
-      dtype: float dtype (default float64).
-    """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)
-    n, dt = int(n), float(SETTING["dt"] if dt is None else dt)
-    budget.check(n + int(math.ceil(width)) + 8, dtype or "float64", what="a hopper")
+def setup(o: HopperOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
+    """The silo, filled at random, its gate closed, ready to run with `driver`:
+    `seed` draws the diameters and the positions; `dt` turns `hold_time` and
+    `clog_time` into steps."""
+    n, dt = int(o.n), float(dt)
+    width, orifice, dispersity, placement_fraction = o.width, o.orifice, o.dispersity, o.placement_fraction
+    budget.check(n + math.ceil(width) + 8, dtype or "float64", what="a hopper")
     x_floor, gate, slots = floor(float(width), float(orifice))
     rng = np.random.default_rng(int(seed))
     diameter = rng.uniform(1.0 - dispersity, 1.0 + dispersity, n)
@@ -206,13 +215,13 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
                                dtype=dtype)
     dtype = particles.position.dtype
     boundaries = set_wall(make_boundaries(left=0.0, right=float(width), dtype=dtype), GROUND, active=False)
-    hold = ranges.steps_of("hold_time", hold_time, dt)
+    hold = ranges.steps_of("hold_time", o.hold_time, dt)
     as_int = lambda v: jnp.asarray(v, jnp.int32)
     state = HopperState(
         gate=jnp.asarray(np.concatenate([gate, np.zeros(unused + n, bool)])),
         park=jnp.asarray(np.concatenate([np.zeros((slots, 2)), park[:n]]), dtype),
-        exit_level=jnp.asarray(FLOOR_Y - EXIT_DROP, dtype), rest_speed=jnp.asarray(rest_speed, dtype),
-        hold=as_int(hold), clog_steps=as_int(ranges.steps_of("clog_time", clog_time, dt)), movable=as_int(n),
+        exit_level=jnp.asarray(FLOOR_Y - EXIT_DROP, dtype), rest_speed=jnp.asarray(o.rest_speed, dtype),
+        hold=as_int(hold), clog_steps=as_int(ranges.steps_of("clog_time", o.clog_time, dt)), movable=as_int(n),
         phase=as_int(0), quiet=as_int(0), armed=jnp.asarray(False), opened_at=as_int(-1), stopped_at=as_int(-1),
         last_out=as_int(-1), out_count=as_int(0), out_step=jnp.full(slots + n, -1, jnp.int32),
         fill_top=jnp.asarray(0.0, dtype))
@@ -220,7 +229,7 @@ def protocol(n: int = 400, *, width: float = SETTING["width"], orifice: float = 
             "dispersity": float(dispersity), "floor_disks": int(x_floor.size), "gate_disks": int(gate.sum()),
             "floor_top": FLOOR_Y + 0.5, "dt": dt, "hold_steps": hold, "seed": int(seed)}
     return Setup(particles=particles, boundaries=boundaries, driver=driver, protocol_state=state,
-                    box=neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
+                 box=neighbor_box(np.concatenate([floor_xy, inside, park]), particles.radius), info=info)
 
 
 # ------------------------------------------------------------------ measuring
@@ -230,7 +239,7 @@ def flow_rate(times, low: float = 0.1, high: float = 0.6) -> float:
     steady part: after the start, before the heap runs low); NaN below 5."""
     t = np.sort(np.asarray(times, dtype=float))
     k = np.arange(1, t.size + 1)
-    window = slice(int(low * t.size), int(math.ceil(high * t.size)))
+    window = slice(int(low * t.size), math.ceil(high * t.size))
     if k[window].size < 5 or np.ptp(t[window]) == 0:
         return float("nan")
     return float(np.polyfit(t[window], k[window], 1)[0])
@@ -269,8 +278,10 @@ def dead_zone_angles(state: SimState, info: dict) -> dict:
     return out
 
 
-def measure(state: SimState, info: dict, beverloo_k: float = SETTING["beverloo_k"]) -> dict:
-    """Plain numbers of a run (the sweep's row) and the discharge N(t)."""
+def measure(sim, params, state: SimState, p: Setup, o: HopperOptions) -> dict:
+    """Plain numbers of a run (the sweep's row) and the discharge N(t), with
+    Beverloo's C at the options' `beverloo_k`."""
+    info, beverloo_k = p.info, o.beverloo_k
     hs: HopperState = state.protocol_state
     p = state.particles
     dt, opened = info["dt"], int(hs.opened_at)
@@ -315,59 +326,43 @@ def discharge_figure(measured: dict, title: str, out: str) -> list[str]:
     return ["discharge.png"]
 
 
-CLI = CommandLine(
-    order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", default_law="hooke",
-    flags={"seed": "seed"},
-    headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
-    base_forces=outputs.substrate_base, figures=(discharge_figure,),
-    budget=lambda kwargs, info: budget_steps(kwargs.get("max_time", SETTING["max_time"]), info["dt"]))
-
-
 # ---------------------------------------------------------------- running it
-def make_simulator(law="hooke", *, dt: float | None = None, rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
-    """A `Simulator` running the hopper's `driver`; one serves every set-up with this dt."""
+def simulator(o: HopperOptions, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
+    """A `Simulator` running the hopper's `driver`. It reads no option: one
+    serves every set-up with this dt (every orifice shares a compile)."""
     from jaxpile.engine.simulate import Simulator
 
     _, contact_law, _ = law_and_params(law, {}, rotation)
-    return Simulator(contact_law, SETTING["dt"] if dt is None else dt, integrator=integrator, driver=driver,
-                     chunk_steps=chunk_steps or SETTING["chunk_steps"], **kwargs)
+    return Simulator(contact_law, dt, integrator=integrator or "velocity_verlet", driver=driver,
+                     chunk_steps=chunk_steps or SETTING["chunk_steps"])
 
 
-DEFINITION = definition.Definition(
-    "hopper", protocol, make_simulator, law_and_params, lambda law: float(SETTING["dt"]),
-    finished=lambda info, options: (lambda s: s.protocol_state.stopped_at >= 0),
-    max_steps=lambda info, options: budget_steps(options["max_time"], info["dt"]),
-    measure=lambda sim, params, state, p, options: measure(state, p.info, options["beverloo_k"]),
+def stopped(p: Setup, o: HopperOptions):
+    """Finished when the driver has recorded the stop."""
+    return lambda s: s.protocol_state.stopped_at >= 0
+
+
+def max_time_budget(p: Setup, o: HopperOptions) -> int:
+    """`max_time` in steps of the set-up's dt."""
+    return budget_steps(o.max_time, p.info["dt"])
+
+
+SPEC = ProtocolSpec(
+    name="hopper", options=HopperOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
+    default_dt=lambda law: float(SETTING["dt"]), finished=stopped, budget=max_time_budget, measure=measure,
     row=("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density",
          "dead_zone_angle", "dead_zone_left", "dead_zone_right"),
-    run_options={"max_time": SETTING["max_time"], "beverloo_k": SETTING["beverloo_k"]},
-    sweep=dict(angles=("flow_rate", "beverloo_c"), unit="disks / time", default_law="hooke",
-               fit_statistics={"columns": ("flow_rate",)},
-               simulator_options=frozenset()))  # one simulator for every set-up: orifices share a compile
+    default_law="hooke",
+    presentation=Presentation(
+        order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", flags={"seed": "seed"},
+        headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
+        base_forces=outputs.substrate_base, figures=(discharge_figure,)),
+    batch=Batch(angles=("flow_rate", "beverloo_c"), unit="disks / time", fit_statistics={"columns": ("flow_rate",)},
+                simulator_options=frozenset()))  # one simulator for every set-up: orifices share a compile
+"""The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,
+lets it run out, and measures the flow rate against Beverloo's law."""
 
 
-def run(law="hooke", n: int = 400, *, params=None, rotation: bool | None = None, dt: float | None = None,
-        integrator: str = "velocity_verlet", max_time: float = SETTING["max_time"], chunk_steps: int | None = None,
-        beverloo_k: float = SETTING["beverloo_k"], progress=False, dtype=None, checkpoint=None, resume=None,
-        **options):
-    """Fills the silo, opens the gate at rest, lets it run out, and measures the flow.
-
-    Args:
-      law, params, rotation: the contact law (default hooke, `SETTING`) and overrides.
-      n: disks in the silo.
-      dt, integrator, chunk_steps: for the `Simulator`.
-      max_time: give up after this much simulated time (sqrt(d / g)).
-      beverloo_k: k of Beverloo's law at which `beverloo_c` is reported.
-      checkpoint, resume: save the run as it goes; continue a saved run (bit-identical).
-      **options: for `protocol` (width, orifice, dispersity, placement_fraction,
-        rest_speed, hold_time, clog_time, seed).
-
-    Returns:
-      `(state, measurements)`: `measure`'s numbers, the kinetic energy per
-      chunk, timings and the set-up (`info`).
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)
-    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                          run_options={"max_time": max_time, "beverloo_k": beverloo_k}, **options)
+__all__ = ["EXIT_DROP", "FLOOR_Y", "SETTING", "SPEC", "HopperOptions", "HopperState", "beverloo_fit", "budget_steps",
+           "dead_zone_angles", "discharge_figure", "driver", "floor", "flow_rate", "law_and_params",
+           "max_time_budget", "measure", "setup", "simulator", "stopped"]

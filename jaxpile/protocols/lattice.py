@@ -2,32 +2,70 @@
 
 k layers of equal disks in hexagonal close packing standing on the flat ground:
 layer j (0 at the bottom) holds k - j disks, so the pile has k(k+1)/2 disks
-(k = 45: 1035) and its sides slope at 60 degrees.
+(k = 45: 1035) and its sides slope at 60 degrees. The pile is loaded by a
+gravity ramp and run to rest (`loaded_pile`); its ground forces are compared
+with eqs. 42 and 44 (Figs. 8-9).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-
-from jaxpile import budget, ranges
+from jaxpile import budget
 from jaxpile.engine.boundaries import make_boundaries
-from jaxpile.errors import InputError
-from jaxpile.ranges import SIZE, SPEED, STEPS, TIME_STEP, Range
 from jaxpile.engine.state import Boundaries, Particles, make_particles
-from jaxpile.protocols import definition, loaded_pile
-from jaxpile.protocols.base import CommandLine, Setup
+from jaxpile.errors import InputError
 from jaxpile.measure.heap import ProfileSetting
+from jaxpile.protocols import loaded_pile
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.spec import Options, Pathwise, Presentation, option
+from jaxpile.ranges import SIZE, SPEED, STEPS, Range
 
-
-OPTION_RANGES = {
-    "layers": Range(low=1, whole=True, unit="layers"), "diameter": SIZE, "mass": SIZE,
-    "gap": Range(low=0, high=0.1, high_open=True, why="diameters"),
-    "dt": TIME_STEP, "ramp_steps": STEPS, "speed_tolerance": SPEED, "max_steps": STEPS,
+# The paper's setting (Liffman, Chan & Hughes 1992, eq. 46 and the analytic model's
+# assumptions) expressed for the hooke law: mg / (k_n sigma) = 1e-4, only normal
+# forces between disks (mu = 0, no rotation), and ground friction above
+# (k - 1) / (sqrt(3) (k + 1)) = 0.55 for k = 45.
+PAPER_SETTING = {
+    "layers": 45,
+    "rotation": False,
+    "dt": 1.0e-3,
+    "ramp_steps": 20_000,
+    "speed_tolerance": 1.0e-5,
+    "max_steps": 400_000,
+    "params": {
+        "hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
+        # the same static set-up in reduced units: Hertz with a 4e-3 sigma base
+        # overlap; Baxter's n = 36 law, whose long tail makes same-level
+        # neighbours push apart with ~mg, needs disk friction for the lattice to
+        # stand (so it is not the 1992 frictionless analytic pile)
+        # the paper's own law: K_s from eq. 46; disk friction is viscous, so it
+        # vanishes at rest and the ground's static well holds the base
+        "liffman": {"ks": 1.0e4, "mu_static": 1.0},
+        "lee-herrmann": {"kn": 1.0e5, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
+        "baxter": {"n": 36.0, "r0": 1.2, "mu": 1.0, "wall_mu": 1.0},
+    },
 }
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+
+
+@dataclass(frozen=True)
+class LatticeOptions(Options):
+    """The lattice pile's options: its geometry, and the run that loads it and
+    brings it to rest (`loaded_pile.relax`)."""
+
+    layers: int = option(PAPER_SETTING["layers"], range=Range(low=1, whole=True, unit="layers"),
+                         help="k, the pile's layers (k(k+1)/2 disks)")
+    diameter: float = option(1.0, range=SIZE, help="the disks' diameter")
+    mass: float = option(1.0, range=SIZE, help="each disk's mass")
+    gap: float = option(0.0, range=Range(low=0, high=0.1, high_open=True, why="diameters"),
+                        help="horizontal gap between neighbours on one level, in diameters")
+    ramp_steps: int = option(PAPER_SETTING["ramp_steps"], range=STEPS, help="steps of the gravity ramp that loads the pile")
+    speed_tolerance: float = option(PAPER_SETTING["speed_tolerance"], range=SPEED,
+                                    help="at rest when the fastest disk is below this speed")
+    max_steps: int = option(PAPER_SETTING["max_steps"], range=STEPS, help="give up after this many steps, ramp included")
+    hard_collisions: object = option(None, help="the Simulator's hard collisions (a HardCollisions), or None")
 
 
 def _theory_lines(measured: dict, base):
@@ -39,16 +77,6 @@ def _theory_lines(measured: dict, base):
         return None
     return (np.full(len(base.x), theory.lattice_ground_normal_force(layers)),
             theory.lattice_ground_horizontal_force(layers), "Liffman et al. 1992 eqs. 42, 44")
-
-
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=0, help="the 1992 equilateral pile (--layers)", default_law="hooke", size="layers",
-    flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
-           "hard_collisions": "hard_collisions"},
-    headline=("layers", "n_particles", "at_rest", "final_max_speed", "max_rel_dev_normal", "max_rel_dev_horizontal"),
-    profile_theory=_theory_lines,
-    compare=lambda s: f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}")
 
 
 def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:
@@ -86,7 +114,8 @@ def lattice_angle(gap: float = 0.0) -> float:
 def equilateral_pile(layers: int, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0,
                      dtype=None) -> tuple[Particles, Boundaries]:
     """Particles and boundaries (the ground alone, no side-wall slots) of the k-layer pile."""
-    ranges.check_all(OPTION_RANGES, locals(), equilateral_pile)  # types, finiteness and ranges first: one message format
+    o = LatticeOptions(layers=layers, diameter=diameter, mass=mass, gap=gap)  # types, finiteness and ranges first
+    layers, diameter, mass, gap = o.layers, o.diameter, o.mass, o.gap
     if int(layers) == layers and layers >= 1:  # before any array is allocated
         budget.check(int(layers) * (int(layers) + 1) // 2, dtype or "float64", what=f"a {int(layers):,}-layer lattice pile")
     position = equilateral_positions(layers, diameter, gap=gap)
@@ -99,32 +128,6 @@ def pile_count(layers: int) -> int:
     return layers * (layers + 1) // 2
 
 
-# The paper's setting (Liffman, Chan & Hughes 1992, eq. 46 and the analytic model's
-# assumptions) expressed for the hooke law: mg / (k_n sigma) = 1e-4, only normal
-# forces between disks (mu = 0, no rotation), and ground friction above
-# (k - 1) / (sqrt(3) (k + 1)) = 0.55 for k = 45.
-PAPER_SETTING = {
-    "layers": 45,
-    "rotation": False,
-    "dt": 1.0e-3,
-    "ramp_steps": 20_000,
-    "speed_tolerance": 1.0e-5,
-    "max_steps": 400_000,
-    "params": {
-        "hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
-        # the same static set-up in reduced units: Hertz with a 4e-3 sigma base
-        # overlap; Baxter's n = 36 law, whose long tail makes same-level
-        # neighbours push apart with ~mg, needs disk friction for the lattice to
-        # stand (so it is not the 1992 frictionless analytic pile)
-        # the paper's own law: K_s from eq. 46; disk friction is viscous, so it
-        # vanishes at rest and the ground's static well holds the base
-        "liffman": {"ks": 1.0e4, "mu_static": 1.0},
-        "lee-herrmann": {"kn": 1.0e5, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
-        "baxter": {"n": 36.0, "r0": 1.2, "mu": 1.0, "wall_mu": 1.0},
-    },
-}
-
-
 def law_and_params(law, params=None, rotation=None, dtype=None):
     """`(law module, ContactLaw, params)` with `PAPER_SETTING` (see `base.law_and_params`)."""
     from jaxpile.protocols.base import law_and_params as base_law_and_params
@@ -135,11 +138,12 @@ def law_and_params(law, params=None, rotation=None, dtype=None):
 relax = loaded_pile.relax  # gravity ramped in, then a run to rest (shared with the sloped pile)
 
 
-def protocol(layers: int = 45, *, diameter: float = 1.0, mass: float = 1.0, gap: float = 0.0, dtype=None) -> Setup:
-    """The k-layer pile as a `Setup` (`equilateral_pile`); the gravity ramp is the run's."""
-    particles, boundaries = equilateral_pile(layers, diameter=diameter, mass=mass, gap=gap, dtype=dtype)
+def setup(o: LatticeOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
+    """The k-layer pile as a `Setup` (`equilateral_pile`). The pile is
+    deterministic (`seed` is not used); the gravity ramp is the simulator's."""
+    particles, boundaries = equilateral_pile(o.layers, diameter=o.diameter, mass=o.mass, gap=o.gap, dtype=dtype)
     return Setup(particles=particles, boundaries=boundaries,
-                    info={"protocol": "lattice", "layers": int(layers), "n": int(particles.count)})
+                 info={"protocol": "lattice", "layers": int(o.layers), "n": int(particles.count), "dt": float(dt)})
 
 
 def _compare(sim, params, state, p) -> dict:
@@ -149,9 +153,10 @@ def _compare(sim, params, state, p) -> dict:
             "steps": int(state.step)}
 
 
-def _report(measured: dict, p: Setup, options: dict, info, seconds: float) -> dict:
+def _report(measured: dict, p: Setup, o: LatticeOptions, info, samples, seconds: float) -> dict:
     """One pile's output: the comparison with eqs. 42 and 44, the run's steps,
-    times, whether it ended at rest, and the ground friction the pile needs."""
+    times, whether it ended at rest, the ground friction the pile needs, and
+    the hard collisions it ran with."""
     from jaxpile.measure import theory
 
     layers = p.info["layers"]
@@ -159,42 +164,12 @@ def _report(measured: dict, p: Setup, options: dict, info, seconds: float) -> di
         "protocol": "lattice", "layers": layers, "n_particles": int(p.particles.count),
         "steps": measured["steps"], "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
         "total_seconds": seconds, "neighbor_reallocations": info.reallocations,
-        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": options["speed_tolerance"],
+        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": o.speed_tolerance,
         "base_contacts": measured["base_contacts"], "pile_intact": measured["pile_intact"],
         "theory_normal_mg": measured["theory_normal"], "max_rel_dev_normal": measured["max_rel_dev_normal"],
         "max_rel_dev_horizontal": measured["max_rel_dev_horizontal"],
-        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info)}
-
-
-def run(law="hooke", layers: int = 45, *, params=None, rotation: bool | None = None,
-        dt: float = PAPER_SETTING["dt"], ramp_steps: int = PAPER_SETTING["ramp_steps"],
-        speed_tolerance: float = PAPER_SETTING["speed_tolerance"], max_steps: int = PAPER_SETTING["max_steps"],
-        integrator: str = "velocity_verlet", hard_collisions=None, dtype=None, progress: bool | None = False,
-        checkpoint=None, resume=None):
-    """Builds the k-layer pile, loads it by a gravity ramp, runs it to rest and
-    compares its ground forces with eqs. 42 and 44 (the 1992 Figs. 7-9).
-
-    Args:
-      law: a law name or module; params: None (`PAPER_SETTING["params"][law]`),
-        a dict of overrides on top of it, or a ready params pytree.
-      layers: k (k(k+1)/2 disks).
-      rotation: integrate spins (default off, the paper's static analysis).
-      dt, ramp_steps, speed_tolerance, max_steps: as `relax`.
-      integrator, hard_collisions: passed to `Simulator`.
-      checkpoint, resume: save the run as it goes; continue a saved run (bit-identical).
-
-    Returns:
-      `(state, measurements)`: `compare_with_theory`'s numbers, the run's steps,
-      times, whether it ended at rest, and the ground friction the pile needs.
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)
-    state, out = definition.run(
-        DEFINITION, law, layers, params=params, rotation=rotation, dt=dt, integrator=integrator, dtype=dtype,
-        progress=progress, checkpoint=checkpoint, resume=resume,
-        simulator_options={"hard_collisions": hard_collisions},
-        run_options={"ramp_steps": ramp_steps, "speed_tolerance": speed_tolerance, "max_steps": max_steps})
-    out["hard_collisions"] = None if hard_collisions is None else hard_collisions._asdict()
-    return state, out
+        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info),
+        "hard_collisions": None if o.hard_collisions is None else o.hard_collisions._asdict()}
 
 
 def compare_with_theory(base, layers: int) -> dict:
@@ -219,19 +194,13 @@ def compare_with_theory(base, layers: int) -> dict:
     else:
         dev_n = dev_h = float("nan")
     return {
-        "base_contacts": int(len(base.x)),
+        "base_contacts": len(base.x),
         "pile_intact": bool(intact),
         "theory_normal": n_theory,
         "theory_horizontal": h_theory,
         "max_rel_dev_normal": dev_n,
         "max_rel_dev_horizontal": dev_h,
     }
-
-
-DEFINITION = loaded_pile.definition_of(
-    "lattice", protocol, law_and_params, PAPER_SETTING, _compare, _report,
-    ("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
-    options={"layers", "n", *loaded_pile.RUN_OPTIONS})
 
 
 # ------------------------------------------------------------- pathwise fits
@@ -243,10 +212,14 @@ def fit_ramp(layers: int) -> int:
     return max(600, 100 * layers)
 
 
-def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None, **_):
+def pathwise_problem(law, start: dict, *, size: int = 6, seed: int = 0, options: dict | None = None,
+                     bins: int | None = None, window: int | None = None, progress=None):
     """What `jaxpile fit --estimator pathwise` differentiates: the `size`-layer
     pile loaded by a gravity ramp and settled, the whole quasi-static loading
-    (2 x ramp steps). Returns `(sim, params, state, steps, setting, window, description)`."""
+    (2 x ramp steps), its base profile read in `bins` columns (default: one per
+    bottom disk). The pile is the paper's, deterministic, and differentiated
+    whole: `seed`, `options`, `window` and `progress` are not used.
+    Returns `(sim, params, state, steps, setting, window, description)`."""
     from jaxpile.engine.simulate import Simulator, gravity_ramp
 
     _, contact_law, params = law_and_params(law, start)
@@ -260,9 +233,11 @@ def pathwise_problem(law, start: dict, *, size: int = 6, bins: int | None = None
         "the whole loading differentiated")
 
 
-def pathwise_dry_run(law, start: dict, *, size: int = 6, **_):
+def pathwise_dry_run(law, start: dict, *, size: int = 6, seed: int = 0, options: dict | None = None,
+                     window: int | None = None):
     """`(what, particles, params, steps of the build, steps differentiated)` of
-    `pathwise_problem`, set up and checked, not run."""
+    `pathwise_problem`, set up and checked, not run (`seed`, `options` and
+    `window` are not used, as there)."""
     from jaxpile.engine.simulate import Simulator
 
     per_step = 2 * fit_ramp(size)
@@ -270,3 +245,24 @@ def pathwise_dry_run(law, start: dict, *, size: int = 6, **_):
     particles, _ = equilateral_pile(size)
     Simulator(contact_law, PAPER_SETTING["dt"]).check_params(params, particles)
     return f"a {size}-layer lattice pile", particles, params, {}, per_step
+
+
+SPEC = loaded_pile.spec_of(
+    "lattice", options=LatticeOptions, setup=setup, law_and_params=law_and_params, setting=PAPER_SETTING,
+    compare=_compare, report=_report, angles=("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
+    presentation=Presentation(
+        order=0, help="the 1992 equilateral pile (--layers)",
+        flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
+               "hard_collisions": "hard_collisions"},
+        headline=("layers", "n_particles", "at_rest", "final_max_speed", "max_rel_dev_normal",
+                  "max_rel_dev_horizontal"),
+        profile_theory=_theory_lines,
+        compare=lambda s: f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}"),
+    pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=6))
+"""The lattice pile (Liffman et al. 1992, Figs. 7-9): `SPEC.run("hooke", 12)` builds the 12-layer pile, loads
+it by a gravity ramp, runs it to rest and compares its ground forces with eqs. 42 and 44."""
+
+
+__all__ = ["PAPER_SETTING", "SPEC", "LatticeOptions", "compare_with_theory", "equilateral_pile",
+           "equilateral_positions", "fit_ramp", "lattice_angle", "law_and_params", "pathwise_dry_run",
+           "pathwise_problem", "pile_count", "relax", "setup"]

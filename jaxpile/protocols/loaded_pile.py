@@ -1,24 +1,23 @@
 """The run the 1992 static piles share (the lattice, Figs. 7-9, and the sloped
 pile, Figs. 12-16): gravity ramped in over `ramp_steps`, then a run until the
-fastest disk is below `speed_tolerance`, within `max_steps` in all
-(`lattice.relax`). `definition_of` declares such a protocol once
-(`definition.Definition`): its single run, its batch and its ensemble fit.
+fastest disk is below `speed_tolerance`, within `max_steps` in all (`relax`).
+`spec_of` declares such a protocol once (`spec.ProtocolSpec`): its single run,
+its batch and its ensemble fit.
 
 The piles are deterministic, so a sweep's seeds repeat the same pile and a
-sweep varies the law (K_s, mu_roll, ...). Not a protocol itself (no `CLI`).
+sweep varies the law (K_s, mu_roll, ...). Not a protocol itself (no `SPEC`).
+Each pile's options carry the run options `ramp_steps`, `speed_tolerance`,
+`max_steps` and `hard_collisions`, which the functions here read.
 """
 
 from __future__ import annotations
 
-import functools
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from jaxpile.protocols import definition
 from jaxpile.protocols.geometry import bottom_row_extent
-
-RUN_OPTIONS = ("ramp_steps", "speed_tolerance", "max_steps")
+from jaxpile.protocols.spec import Batch, Pathwise, Presentation, ProtocolSpec
 
 
 def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
@@ -38,58 +37,67 @@ def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_st
                             speed_tolerance=speed_tolerance, progress=progress, checkpoint=checkpoint)
 
 
-def _execute(sim, params, p, options: dict, *, progress=None, checkpoint=None, resume=None):
+def execute(sim, params, p, o, *, progress=None, checkpoint=None, resume=None):
     """One pile: started (or resumed from `resume`) and `relax`ed."""
     from jaxpile.engine import checkpoint as ckpt
 
     state = sim.init(params, p.particles, p.boundaries, box=p.box)
     if resume is not None:
         state = ckpt.restore(resume, state, sim.law, params)
-    state, info = relax(sim, params, state, ramp_steps=int(options["ramp_steps"]),
-                        speed_tolerance=float(options["speed_tolerance"]), max_steps=int(options["max_steps"]),
-                        progress=progress, checkpoint=checkpoint)
+    state, info = relax(sim, params, state, ramp_steps=int(o.ramp_steps), speed_tolerance=float(o.speed_tolerance),
+                        max_steps=int(o.max_steps), progress=progress, checkpoint=checkpoint)
     return state, info, None
 
 
-def _finished(info, options):
+def finished(p, o):
+    """At rest: past the ramp, the fastest disk below `speed_tolerance`."""
     from jaxpile.engine.simulate import max_speed
 
-    ramp, tolerance = int(options["ramp_steps"]), float(options["speed_tolerance"])
+    ramp, tolerance = int(o.ramp_steps), float(o.speed_tolerance)
     return lambda s: (s.step >= ramp) & (max_speed(s) < tolerance)
 
 
-def _row(measured: dict) -> dict:
+def budget(p, o) -> int:
+    """`max_steps`, ramp included."""
+    return int(o.max_steps)
+
+
+def row(measured: dict) -> dict:
     """A sweep row: the plain numbers of the comparison with theory, the
     height, whether the pile is at rest and its fastest disk."""
     return {k: v for k, v in measured.items() if np.ndim(v) == 0 and not isinstance(v, str)}
 
 
-def definition_of(name: str, setup: Callable, law_and_params: Callable, setting: dict, compare: Callable,
-                  report: Callable, headline: tuple, size: str = "n", options=None) -> definition.Definition:
+def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callable, setting: dict,
+            compare: Callable, report: Callable, angles: tuple, presentation: Presentation, size: str = "n",
+            pathwise: Pathwise | None = None) -> ProtocolSpec:
     """A 1992 static pile declared once.
 
     Args:
       name: the protocol's registered name.
-      setup: its set-up, `setup(size, *, ..., dtype) -> Setup`.
+      options: its options (an `Options` with `ramp_steps`, `speed_tolerance`,
+        `max_steps` and `hard_collisions` among its fields).
+      setup: its set-up, `setup(options, *, law, seed, dt, dtype) -> Setup`
+        (no schedule: the gravity ramp is the simulator's).
       law_and_params: its law lookup (the 1992 setting).
-      setting: its defaults (`dt` and the `RUN_OPTIONS`).
-      compare: `(sim, params, state, protocol) -> dict` against the paper's theory.
-      report: `(measured, protocol, run options, RunInfo, seconds) -> dict`, one pile's output.
-      headline: the sweep's summary columns.
-      size: the set-up's size keyword (`layers` for the lattice).
-      options: the options a sweep takes (default: the set-up's and the run options).
+      setting: its defaults (`dt`).
+      compare: `(sim, params, state, setup) -> dict` against the paper's theory.
+      report: `(measured, setup, options, RunInfo, samples, seconds) -> dict`, one pile's output.
+      angles: the sweep's summary columns.
+      presentation: how the commands show it.
+      size: its size option (`layers` for the lattice).
+      pathwise: its pathwise fit, where it offers one.
     """
 
-    def simulator(law, *, dt, rotation=None, integrator="velocity_verlet", chunk_steps=None, run_options,
-                  hard_collisions=None):
+    def simulator(o, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
         from jaxpile.engine.simulate import Simulator, gravity_ramp
 
         _, contact_law, _ = law_and_params(law, None, rotation)
         kwargs = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
-        return Simulator(contact_law, dt, schedule=gravity_ramp(int(run_options["ramp_steps"])),
-                         integrator=integrator, hard_collisions=hard_collisions, **kwargs)
+        return Simulator(contact_law, dt, schedule=gravity_ramp(int(o.ramp_steps)),
+                         integrator=integrator or "velocity_verlet", hard_collisions=o.hard_collisions, **kwargs)
 
-    def measure(sim, params, state, p, options):
+    def measure(sim, params, state, p, o):
         from jaxpile.engine.simulate import max_speed
 
         particles = state.particles
@@ -98,22 +106,14 @@ def definition_of(name: str, setup: Callable, law_and_params: Callable, setting:
         height = float(np.max((np.asarray(particles.position[:, 1]) + np.asarray(particles.radius))[active]))
         fastest = float(max_speed(state))
         return {**compare(sim, params, state, p), "height": height,
-                "at_rest": bool(fastest < float(options["speed_tolerance"])), "max_speed": fastest}
+                "at_rest": bool(fastest < float(o.speed_tolerance)), "max_speed": fastest}
 
-    @functools.wraps(setup)
-    def without_schedule(*args, **kwargs):
-        return setup(*args, **kwargs)._replace(schedule=None)  # the ramp is the simulator's, from the run options
-
-    sweep = dict(angles=headline, unit="", default_law="hooke", extent=bottom_row_extent,
-                 fit_statistics={"bins": 9}, deterministic=True)
-    if options is not None:
-        sweep["options"] = frozenset(options)
-    return definition.Definition(
-        name, without_schedule, simulator, law_and_params, lambda law: float(setting["dt"]), _finished,
-        lambda info, options: int(options["max_steps"]), measure, row=_row, size=size,
-        run_options={k: setting[k] for k in RUN_OPTIONS}, execute=_execute,
-        report=lambda measured, p, options, info, samples, seconds: report(measured, p, options, info, seconds),
-        sweep=sweep)
+    return ProtocolSpec(
+        name=name, options=options, setup=setup, simulator=simulator, law_and_params=law_and_params,
+        default_dt=lambda law: float(setting["dt"]), finished=finished, budget=budget, measure=measure, row=row,
+        default_law="hooke", presentation=presentation, size=size, execute=execute, report=report,
+        batch=Batch(angles=angles, unit="", extent=bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True),
+        pathwise=pathwise)
 
 
-__all__ = ["RUN_OPTIONS", "definition_of", "relax"]
+__all__ = ["budget", "execute", "finished", "relax", "row", "spec_of"]

@@ -1,7 +1,7 @@
 """What `jaxpile pile` writes for a protocol beyond the files every protocol
 gets: its own figures, its base, its summary and its length unit. A protocol
-names the functions it uses in its `CLI = CommandLine(...)` entry, so the CLI
-branches on no protocol's name.
+names the functions it uses in its spec's `Presentation`, so the CLI branches
+on no protocol's name.
 
 Each figure function takes `(measured, title, out)` (the protocol's `run`
 measurements, or the summary.json `jaxpile show` reads them back from; the

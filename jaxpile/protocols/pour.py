@@ -50,6 +50,7 @@ angle of repose of each flank by the three methods of Lee & Herrmann 1993
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
@@ -57,23 +58,33 @@ import numpy as np
 from jax import lax
 
 from jaxpile import budget, ranges
-from jaxpile.engine.boundaries import GROUND, LEFT_WALL, RIGHT_WALL, make_boundaries, set_wall
-from jaxpile.errors import InputError
-from jaxpile.ranges import DISKS, SEED, SIZE, SPAN, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.measure.heap import (
-    steepest_heap_height, substrate_size)
-# the heap's measurements (`jaxpile.measure.poured_heap`), also under their names here (`pour.measure`)
-from jaxpile.measure.poured_heap import (
-    check_options, measure, report, sweep_row)
-from jaxpile.protocols import definition, drivers, geometry
-from jaxpile.protocols import outputs
-from jaxpile.protocols.base import CommandLine, Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.engine.boundaries import (
+    GROUND,
+    LEFT_WALL,
+    RIGHT_WALL,
+    make_boundaries,
+    set_wall,
+)
 from jaxpile.engine.state import SimState, make_particles
-from jaxpile.protocols.geometry import heap_extent
-from jaxpile.protocols.options import option_names
+from jaxpile.errors import InputError
+from jaxpile.measure.heap import ProfileSetting, steepest_heap_height, substrate_size
+
+# the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
+from jaxpile.measure.poured_heap import check_options, measure, report, sweep_row
 from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.measure.heap import ProfileSetting
+from jaxpile.protocols import drivers, geometry, outputs
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.geometry import heap_extent
+from jaxpile.protocols.spec import (
+    Batch,
+    Options,
+    Pathwise,
+    Presentation,
+    ProtocolSpec,
+    option,
+)
+from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
 
@@ -124,26 +135,47 @@ PAPER_SETTING = {
 }
 
 
-OPTION_RANGES = {
-    "n": DISKS, "spacing": Range(low=1, high=2, high_open=True, why="S >= one diameter, the gap narrower than a disk"),
-    "polydispersity": Range(low=0, high=0.5, high_open=True, why="a fraction: 0.05 for 5%"),
-    "release_height": SIZE, "insert_height": SIZE, "spread": SPAN, "interval": SIZE,
-    "dt": TIME_STEP, "substrate_disks": Range(low=3, whole=True, unit="disks"), "seed": SEED,
-    "speed_tolerance": SPEED, "max_settle_steps": STEPS, "bins": Range(low=3, whole=True), "voidage_cell": SIZE,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+# ------------------------------------------------------------------ options
+@dataclass(frozen=True)
+class PourOptions(Options):
+    """The pour's options, in sigma (the largest diameter) and (sigma / g)^(1/2)."""
 
+    n: int = option(PAPER_SETTING["n"], range=DISKS, help="disks to pour (1334 in the paper's Fig. 1)")
+    spacing: float = option(PAPER_SETTING["spacing"], range=Range(
+        low=1, high=2, high_open=True, why="S >= one diameter, the gap narrower than a disk"), unit="sigma",
+        help="S, centre-to-centre distance of the substrate disks (1.1 in the paper)")
+    polydispersity: float = option(0.0, range=Range(low=0, high=0.5, high_open=True, why="a fraction: 0.05 for 5%"),
+                                   help="delta (a fraction, 0.05 for the paper's 5%): diameters uniform in "
+                                        "((1 - delta) sigma, sigma); 0: monodisperse")
+    release_height: float = option(PAPER_SETTING["release_height"], range=SIZE, unit="sigma",
+                                   help="where disks start at rest, above the substrate's centre line (100 in the paper)")
+    insert_height: float | None = option(None, range=SIZE, unit="sigma",
+                                         help="a lower height where disks appear at the free-fall speed from "
+                                              "release_height (an exact shortcut); above a 45-degree heap + 3 sigma")
+    spread: float = option(PAPER_SETTING["spread"], range=SPAN, unit="sigma",
+                           help="release x uniform in +-spread around the middle of the row")
+    interval: float = option(PAPER_SETTING["interval"], range=SIZE, unit="sqrt(sigma/g)",
+                             help="time between releases (1.612, the paper's rate)")
+    substrate_disks: int | None = option(None, range=Range(low=3, whole=True, unit="disks"),
+                                         help="disks in the row; default: room for a 15-degree heap")
+    speed_tolerance: float = option(PAPER_SETTING["speed_tolerance"], range=SPEED, unit="sqrt(g sigma)",
+                                    help="after pouring, at rest once every disk is slower than this")
+    max_settle_steps: int = option(PAPER_SETTING["max_settle_steps"], range=STEPS,
+                                   help="step budget of the settling after the pour")
+    bins: int | None = option(None, range=Range(low=3, whole=True),
+                              help="bins of the base-force profile (made odd; default about one per 4 spacings)")
+    voidage_cell: float = option(3.0, range=SIZE, unit="sigma", help="side of the voidage map's cells")
+    law_options: dict | None = option(None, help="the law's readings, e.g. baxter's lever_arm or slip")
 
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=6, help="a heap poured onto a row of fixed disks (1997)", default_law="baxter",
-    flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
-    headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
-              "angle_mid_flank.left", "angle_mid_flank.right",
-              "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
-              "m_shape.ratio", "m_shape.m_shaped"),
-    base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
-    summary=lambda measured: measured["summary"], figures=(outputs.heap_profile_figure,))
+    def validate(self):
+        smallest = 1.0 - self.polydispersity
+        if not (1.0 <= self.spacing < 1.0 + smallest):
+            raise InputError(
+                f"spacing S must be at least one diameter (1 sigma) and leave a gap narrower than the smallest "
+                f"disk ({smallest:g} sigma), i.e. 1 <= S < {1.0 + smallest:g}; got {self.spacing!r}.")
+        if self.substrate_disks is not None and self.substrate_disks * self.spacing < 2.0 * self.spread + 2.0:
+            raise InputError(f"a row of {self.substrate_disks} disks ({self.substrate_disks * self.spacing:g} sigma) "
+                             f"is narrower than the pouring interval +-{self.spread:g} sigma.")
 
 
 class PourState(NamedTuple):
@@ -215,45 +247,16 @@ def in_play(state: SimState, steps: int) -> int:
     return int(ps.first) + min(int(ps.total), int(ps.poured) + max(releases, 0))
 
 
-def pour(
-    n: int = PAPER_SETTING["n"],
-    *,
-    spacing: float = PAPER_SETTING["spacing"],
-    polydispersity: float = 0.0,
-    release_height: float = PAPER_SETTING["release_height"],
-    insert_height: float | None = None,
-    spread: float = PAPER_SETTING["spread"],
-    interval: float = PAPER_SETTING["interval"],
-    dt: float = PAPER_SETTING["dt"],
-    substrate_disks: int | None = None,
-    seed: int = 0,
-    dtype=None,
-) -> Setup:
-    """The 1997 pouring set-up: a fixed row of disks and n disks to pour onto it.
+def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
+    """The 1997 pouring set-up: a fixed row of disks and `o.n` disks to pour onto it.
 
     Units: sigma (the largest diameter) = 1, g = 1, a disk of diameter sigma has
     mass 1; time in (sigma / g)^(1/2). Heights are measured from the substrate's
-    centre line y = sigma / 2.
-
-    Args:
-      n: disks to pour (1334 in the paper's Fig. 1).
-      spacing: S, centre-to-centre distance of the substrate disks (diameter
-        sigma); 1.1 sigma in the paper. Must leave a gap narrower than the
-        smallest disk, so nothing falls through.
-      polydispersity: delta (a fraction, 0.05 for the paper's 5%): diameters
-        uniform in ((1 - delta) sigma, sigma); 0 = monodisperse.
-      release_height: where disks start at rest (100 sigma in the paper).
-      insert_height: optional lower height where disks appear, moving down at
-        the free-fall speed from `release_height` (an exact shortcut, see the
-        module docstring). Must be above the steepest heap (45 deg) + 3 sigma.
-      spread: release x uniform in +-spread around the middle of the row.
-      interval: time between releases (1.612, the paper's rate). It must leave
-        `MIN_RELEASE_GAP` between a disk just released and the previous one.
-      dt: the time step the run will use (to turn `interval` into steps).
-      substrate_disks: disks in the row; default `substrate_size(n, spacing)`
-        (room for a 15-degree heap).
-      seed: draws the radii and release x (the protocol is a pure function of it).
-      dtype: float dtype (default float64).
+    centre line y = sigma / 2. The set-up is the same for every law; `dt` turns
+    the release `interval` into steps (which must leave `MIN_RELEASE_GAP`
+    between a disk just released and the previous one) and `seed` draws the
+    radii and the release x (the set-up is a pure function of it). The default
+    row, `substrate_size(n, spacing)`, has room for a 15-degree heap.
 
     Returns:
       `Setup` whose `protocol_state` is a `PourState`; the substrate is
@@ -262,28 +265,22 @@ def pour(
       (n x interval steps: the last disk has one interval to fall).
 
     Raises:
-      InputError: on a bad count, spacing, polydispersity, height, spread, interval or dt.
+      InputError: on heights below the steepest heap of n disks, an interval
+        too short for that dt, or a pile too big for the machine.
     """
-    # types, finiteness and each option's own range first (n, polydispersity, spread, dt, interval,
-    # substrate_disks: OPTION_RANGES), in one message format; then how the options bound each other
-    ranges.check_all(OPTION_RANGES, locals(), pour)
-    n = int(n)
-    spread = float(spread) + 0.0  # -0.0 (inside its range) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
+    n, spacing, polydispersity, interval = o.n, o.spacing, o.polydispersity, o.interval
+    release_height, insert_height, substrate_disks = o.release_height, o.insert_height, o.substrate_disks
+    spread = float(o.spread) + 0.0  # -0.0 (inside its range) as +0.0: numpy's uniform(0.0, -0.0) refuses "high < low"
     budget.check(1.1 * n, dtype or "float64", what="a pour (with its substrate row)")  # and its substrate row
-    smallest = 1.0 - polydispersity
-    if not (1.0 <= spacing < 1.0 + smallest) or not math.isfinite(spacing):
-        raise InputError(
-            f"spacing S must be at least one diameter (1 sigma) and leave a gap narrower than the smallest "
-            f"disk ({smallest:g} sigma), i.e. 1 <= S < {1.0 + smallest:g}; got {spacing!r}.")
     interval_steps = ranges.steps_of("interval", interval, dt)
     lowest = steepest_heap_height(n) + 3.0
-    if not (math.isfinite(release_height) and release_height >= lowest):
+    if not release_height >= lowest:
         raise InputError(
             f"release_height must be at least {lowest:.1f} sigma for {n} disks (a 45-degree heap plus "
             f"3 sigma); got {release_height!r}.")
     if insert_height is None:
         insert_height = release_height
-    if not (math.isfinite(insert_height) and lowest <= insert_height <= release_height):
+    if not lowest <= insert_height <= release_height:
         raise InputError(
             f"insert_height must lie between {lowest:.1f} sigma (above a 45-degree heap of {n} disks) and "
             f"release_height = {release_height:g}; got {insert_height!r}.")
@@ -296,9 +293,6 @@ def pour(
             "(the paper's 1.612 leaves 1.30 sigma).")
     rows = int(substrate_size(n, spacing) if substrate_disks is None else substrate_disks)
     budget.check(n + rows, dtype or "float64", what="a pour with its substrate row")  # a row given too long
-    if substrate_disks is not None and rows * spacing < 2.0 * spread + 2.0:
-        raise InputError(f"a row of {rows} disks ({rows * spacing:g} sigma) is narrower than the pouring "
-                         f"interval +-{spread:g} sigma.")
 
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     diameter = 1.0 - polydispersity * rng.uniform(0.0, 1.0, n) if polydispersity > 0 else np.ones(n)
@@ -376,10 +370,10 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
                    law_options: dict | None = None, **kwargs):
     """A `Simulator` running the pouring driver with a law by name (its own
     default rotation unless given; `law_options` for the law's readings, e.g.
-    baxter's `lever_arm`). One simulator serves every `pour` set-up with this dt
+    baxter's `lever_arm`). One simulator serves every pour set-up (`setup`) with this dt
     (the driver reads the set-up from the state)."""
-    from jaxpile.laws import get_law_module
     from jaxpile.engine.simulate import Simulator
+    from jaxpile.laws import get_law_module
 
     module = get_law_module(law)
     options = dict(law_options or {})
@@ -406,9 +400,9 @@ def execute(sim, params, protocol: Setup, *, speed_tolerance: float = PAPER_SETT
       (state, RunInfo): the run's steps and timings over both phases, `at_rest`
       and the final `max_speed` from the settling phase.
     """
-    from jaxpile.protocols import runner
     from jaxpile.engine import checkpoint as ckpt
     from jaxpile.engine.simulate import load_then_settle
+    from jaxpile.protocols import runner
 
     runner.check_dt(sim, protocol)
     if int(max_settle_steps) != max_settle_steps or max_settle_steps < 1:
@@ -422,90 +416,61 @@ def execute(sim, params, protocol: Setup, *, speed_tolerance: float = PAPER_SETT
                             progress=progress, checkpoint=checkpoint)
 
 
-def _execute(sim, params, protocol: Setup, options: dict, *, progress=None, checkpoint=None, resume=None):
+def simulator(o: PourOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None):
+    """The spec's simulator: `make_simulator` with the options' `law_options`,
+    leapfrog (the paper's eqs. 9-12) unless another integrator is given, and
+    chunks of 2000 steps unless given."""
+    return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or PAPER_SETTING["integrator"],
+                          law_options=o.law_options, **({} if chunk_steps is None else {"chunk_steps": chunk_steps}))
+
+
+def pour_and_settle(sim, params, p: Setup, o: PourOptions, *, progress=None, checkpoint=None, resume=None):
     """One heap: `execute` (every disk poured, then a run to rest checked from there)."""
-    state, info = execute(sim, params, protocol, speed_tolerance=options["speed_tolerance"],
-                          max_settle_steps=options["max_settle_steps"], progress=progress, checkpoint=checkpoint,
-                          resume=resume)
+    state, info = execute(sim, params, p, speed_tolerance=o.speed_tolerance, max_settle_steps=o.max_settle_steps,
+                          progress=progress, checkpoint=checkpoint, resume=resume)
     return state, info, None
 
 
-def _finished(info, options):
+def poured_and_at_rest(p: Setup, o: PourOptions):
     """A batch's end for one heap: every disk poured, then its fastest disk below the tolerance."""
     from jaxpile.engine.simulate import max_speed
 
-    pour_steps, tolerance = int(info["pour_steps"]), float(options["speed_tolerance"])
+    pour_steps, tolerance = int(p.info["pour_steps"]), float(o.speed_tolerance)
     return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
 
 
-DEFINITION = definition.Definition(
-    "pour", pour, make_simulator, law_and_params, lambda law: float(PAPER_SETTING["dt"]), _finished,
-    lambda info, options: int(info["pour_steps"]) + int(options["max_settle_steps"]),
-    lambda sim, params, state, p, options: measure(sim, params, state, bins=options["bins"],
-                                                   voidage_cell=options["voidage_cell"]),
-    row=sweep_row, execute=_execute, report=report, check=check_options,
-    run_options={"speed_tolerance": PAPER_SETTING["speed_tolerance"],
-                 "max_settle_steps": PAPER_SETTING["max_settle_steps"], "bins": None, "voidage_cell": 3.0},
-    sweep=dict(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay, default_law="baxter",
-               extent=heap_extent("substrate", "centre_x", "n_poured"),
-               fit_statistics={"columns": ("repose_mean",), "bins": 9},
-               options=option_names(pour, "speed_tolerance", "max_settle_steps")))
+def step_budget(p: Setup, o: PourOptions) -> int:
+    """The pour's steps, then at most `max_settle_steps` of settling."""
+    return int(p.info["pour_steps"]) + int(o.max_settle_steps)
 
 
-def run(law: str = "baxter", n: int = PAPER_SETTING["n"], *, params=None, dt: float = PAPER_SETTING["dt"],
-        rotation: bool | None = None, integrator: str = PAPER_SETTING["integrator"],
-        speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
-        max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, bins: int | None = None,
-        voidage_cell: float = 3.0, dtype=None, checkpoint=None, resume=None, law_options: dict | None = None,
-        **options):
-    """Pours a heap with a law by name and measures it (the paper's run by default:
-    1334 disks from 100 sigma on S = 1.1 sigma with baxter n = 36, r0 = 1.2 sigma).
-
-    Args:
-      law: `baxter`, `hooke`, `lee-herrmann` or `liffman`.
-      n: disks to pour.
-      params: None (`law_params(law)`, PAPER_SETTING), a dict of overrides, or a params pytree.
-      dt, rotation, integrator: for the `Simulator` (leapfrog, eqs. 9-12, by default).
-      speed_tolerance, max_settle_steps: the rest criterion after pouring.
-      bins: bins of the base-force profile (made odd; default about one per 4 substrate spacings).
-      voidage_cell: side of the voidage map's cells, in sigma.
-      checkpoint, resume: see `execute` (save the run as it goes; continue a saved run).
-      law_options: the law's readings (`baxter.law(lever_arm=..., slip=...)`).
-      **options: for `pour` (spacing, polydispersity, release_height,
-        insert_height, spread, interval, substrate_disks, seed).
-
-    Returns:
-      (final state, measurements): `measure`'s dict plus `run` (steps, timings,
-      at_rest, final max speed), `info` (the set-up) and `summary` (plain numbers).
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    state, result = definition.run(
-        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, progress=progress,
-        dtype=dtype, checkpoint=checkpoint, resume=resume, simulator_options={"law_options": law_options},
-        run_options={"speed_tolerance": speed_tolerance, "max_settle_steps": max_settle_steps, "bins": bins,
-                     "voidage_cell": voidage_cell}, **options)
-    result["info"]["law_options"] = dict(law_options or {})
-    return state, result
-
-
-protocol = pour  # the set-up function under the name every protocol module uses
+def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict:
+    """`measure` (`jaxpile.measure.poured_heap`) with the options' bins and voidage cell."""
+    return measure(sim, params, state, bins=o.bins, voidage_cell=o.voidage_cell)
 
 
 # ------------------------------------------------------------- pathwise fits
+def _pathwise_setup(law, size: int, seed: int, options: dict | None):
+    """The pour's options and set-up of a pathwise fit's heap (`size` disks)."""
+    o = SPEC.make_options(options, n=size)
+    return o, setup(o, law=law, seed=ranges.SEED.check("seed", seed, scalar=True), dt=SPEC.default_dt(law))
+
+
 def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
                      bins: int | None = None, window: int = 2000, progress=None):
     """What `jaxpile fit --estimator pathwise` differentiates: a `size`-disk heap
     poured and relaxed with the starting parameters (not differentiated), then
     `window` steps of relaxation from it with the parameters being fitted, all
     differentiated: the fit sees how the settled heap's base forces respond to
-    the parameters, with its geometry fixed. Returns `(sim, params, state,
-    steps, setting, window, description)`."""
-
-    p = pour(size, seed=seed, **dict(options or {}))
+    the parameters, with its geometry fixed. `options` are the pour's
+    (`PourOptions`). Returns `(sim, params, state, steps, setting, window,
+    description)`."""
+    o, p = _pathwise_setup(law, size, seed, options)
     _, _, params = law_and_params(law, start)
-    sim = make_simulator(law)
-    state, info = execute(sim, params, p, progress=progress)
-    m = measure(sim, params, state)
+    sim = simulator(o, law=law, dt=p.info["dt"])
+    state, info = execute(sim, params, p, speed_tolerance=o.speed_tolerance, max_settle_steps=o.max_settle_steps,
+                          progress=progress)
+    m = measure_heap(sim, params, state, p, o)
     if "extent" not in m:
         raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
     x_left, x_right = m["extent"]
@@ -521,12 +486,36 @@ def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options
     `pathwise_problem`, set up and checked, not run."""
     from jaxpile.engine.simulate import Simulator
 
-    p = pour(size, seed=seed, **dict(options or {}))
+    o, p = _pathwise_setup(law, size, seed, options)
     _, contact_law, params = law_and_params(law, start)
     Simulator(contact_law, p.info["dt"]).check_params(params, p.particles)
-    build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": PAPER_SETTING["max_settle_steps"]}
+    build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": o.max_settle_steps}
     return f"a {size}-disk poured heap (seed {seed})", p.particles, params, build, window
 
 
-__all__ = ["MIN_RELEASE_GAP", "PAPER_SETTING", "PourState", "driver", "execute", "in_play", "law_and_params",
-    "law_params", "make_simulator", "pour", "protocol", "run"]
+SPEC = ProtocolSpec(
+    name="pour", options=PourOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
+    default_dt=lambda law: float(PAPER_SETTING["dt"]), finished=poured_and_at_rest, budget=step_budget,
+    measure=measure_heap, row=sweep_row, execute=pour_and_settle, report=report, check=check_options,
+    default_law="baxter",
+    presentation=Presentation(
+        order=6, help="a heap poured onto a row of fixed disks (1997)",
+        flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
+        headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
+                  "angle_mid_flank.left", "angle_mid_flank.right",
+                  "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
+                  "m_shape.ratio", "m_shape.m_shaped"),
+        base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
+        summary=lambda measured: measured["summary"], figures=(outputs.heap_profile_figure,)),
+    batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,
+                extent=heap_extent("substrate", "centre_x", "n_poured"),
+                fit_statistics={"columns": ("repose_mean",), "bins": 9},
+                simulator_options=frozenset({"law_options"})),
+    pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=60))
+"""The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
+fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
+
+
+__all__ = ["LOST_DEPTH", "MIN_RELEASE_GAP", "PAPER_SETTING", "PARK_SPACING", "SPEC", "PourOptions", "PourState",
+           "driver", "execute", "in_play", "law_and_params", "law_params", "make_simulator", "measure_heap",
+           "pathwise_dry_run", "pathwise_problem", "poured_and_at_rest", "setup", "simulator", "step_budget"]

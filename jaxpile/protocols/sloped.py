@@ -27,20 +27,22 @@ Paper sizes (`PAPER_PILES`): alpha = 30, 45, 50, 55 deg with about 360 disks
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from jaxpile import budget, ranges
+from jaxpile import budget
 from jaxpile.engine.boundaries import make_boundaries
-from jaxpile.errors import InputError
-from jaxpile.ranges import DISKS, SEED, SIZE, SPEED, STEPS, TIME_STEP, Range
-from jaxpile.protocols import definition, lattice, loaded_pile, outputs
-from jaxpile.protocols.base import CommandLine, Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.engine.state import Boundaries, Particles, make_particles
-# the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its names here (`sloped.compare_with_theory`)
-from jaxpile.measure.sloped_pile import check_alpha, check_base
-from jaxpile.measure.sloped_pile import compare_with_theory
+from jaxpile.errors import InputError
+
+# the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its name here (`sloped.compare_with_theory`)
+from jaxpile.measure.sloped_pile import check_alpha, check_base, compare_with_theory
+from jaxpile.protocols import lattice, loaded_pile, outputs
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.spec import Options, Presentation, option
+from jaxpile.ranges import DISKS, SIZE, SPEED, STEPS, Range
 
 SQRT3 = math.sqrt(3.0)
 
@@ -58,22 +60,22 @@ SETTING = {
 }
 
 
-OPTION_RANGES = {
-    "alpha_degrees": Range(low=1, high=60, why="degrees; 60 is the lattice pile, below 1 a pile is one row"), "n": DISKS,
-    "base": SIZE, "ramp_steps": STEPS, "seed": SEED, "dt": TIME_STEP, "speed_tolerance": SPEED,
-    "max_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+@dataclass(frozen=True)
+class SlopedOptions(Options):
+    """The sloped pile's options: its slope and size, and the run that loads it
+    and brings it to rest (`loaded_pile.relax`)."""
 
-
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=1, help="the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)", default_law="hooke",
-    flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
-           "hard_collisions": "hard_collisions", "seed": "seed"},
-    headline=("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
-              "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
-    profile_theory=outputs.sloped_theory)
+    alpha_degrees: float = option(SETTING["alpha_degrees"], range=Range(
+        low=1, high=60, why="degrees; 60 is the lattice pile, below 1 a pile is one row"),
+        help="alpha, the side angle (60 gives the lattice pile)")
+    n: int | None = option(SETTING["n"], range=DISKS, help="target number of disks; B is chosen by base_for_count "
+                           "(not used when base is given)")
+    base: float | None = option(None, range=SIZE, help="B, the base in diameters (overrides n)")
+    ramp_steps: int = option(SETTING["ramp_steps"], range=STEPS, help="steps of the gravity ramp that loads the pile")
+    speed_tolerance: float = option(SETTING["speed_tolerance"], range=SPEED,
+                                    help="at rest when the fastest disk is below this speed")
+    max_steps: int = option(SETTING["max_steps"], range=STEPS, help="give up after this many steps, ramp included")
+    hard_collisions: object = option(None, help="the Simulator's hard collisions (a HardCollisions), or None")
 
 
 def row_lengths(base: float, alpha_degrees: float) -> list[int]:
@@ -158,34 +160,21 @@ def sloped_pile(base: float, alpha_degrees: float, *, diameter: float = 1.0, mas
     return particles, make_boundaries(dtype=particles.position.dtype)
 
 
-def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None = SETTING["n"],
-             base: float | None = None, ramp_steps: int = SETTING["ramp_steps"], seed: int = 0,
-             dtype=None) -> Setup:
-    """The sloped pile of Liffman et al. 1992, Figs. 12-16, ready to run.
-
-    Args:
-      alpha_degrees: the side angle, 0 < alpha < 60 (60 gives the lattice pile).
-      n: target number of disks; B is chosen by `base_for_count`. Ignored when
-        `base` is given.
-      base: the base B in diameters (overrides `n`).
-      ramp_steps: steps of the gravity ramp that loads the pile.
-      seed: unused (the pile is deterministic); kept for a uniform signature.
+def setup(o: SlopedOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
+    """The sloped pile of Liffman et al. 1992, Figs. 12-16, ready to run: B from
+    `o.base`, or `base_for_count(o.n, alpha)`. The pile is deterministic
+    (`seed` is not used); the gravity ramp is the simulator's.
 
     Returns:
-      `Setup` with a gravity-ramp schedule and no driver; `info` holds the
-      slope, B, the row lengths, the disk count and x_c (eq. 49's text).
+      `Setup` with no schedule and no driver; `info` holds the slope, B, the
+      row lengths, the disk count, x_c (eq. 49's text) and dt.
     """
-    ranges.check_all(OPTION_RANGES, locals(), protocol)  # types, finiteness and ranges first: one message format
     from jaxpile.measure import theory
-    from jaxpile.engine.simulate import gravity_ramp
 
-    alpha = check_alpha(alpha_degrees)
+    alpha, base = check_alpha(o.alpha_degrees), o.base
     if base is None:
-        if n is None:
-            raise InputError("give either n (a target disk count) or base (in diameters).")
-        if int(n) == n and n >= 1:  # the search for B is slow for a count far too big: refuse it first
-            budget.check(n, dtype or "float64", what="a sloped pile")
-        base = base_for_count(n, alpha)
+        budget.check(o.n, dtype or "float64", what="a sloped pile")  # the search for B is slow for a count far too big
+        base = base_for_count(o.n, alpha)
     base = check_base(base)
     # counting the rows takes time and memory in B: refuse a base far too big from the
     # continuum count first (within ~1% of the lattice's), then check the exact count
@@ -200,51 +189,14 @@ def protocol(alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None =
         "rows": rows,
         "n_particles": int(particles.count),
         "critical_distance": theory.continuum_critical_distance(math.radians(alpha), base),
+        "dt": float(dt),
     }
-    return Setup(particles=particles, boundaries=boundaries, schedule=gravity_ramp(ramp_steps), info=info)
+    return Setup(particles=particles, boundaries=boundaries, info=info)
 
 
 def law_and_params(law, params=None, rotation=None, dtype=None, *, setting: dict = SETTING):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
     return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype)
-
-
-def run(law="hooke", alpha_degrees: float = SETTING["alpha_degrees"], *, n: int | None = SETTING["n"],
-        base: float | None = None, params=None, rotation: bool | None = None, dt: float = SETTING["dt"],
-        ramp_steps: int = SETTING["ramp_steps"], speed_tolerance: float = SETTING["speed_tolerance"],
-        max_steps: int = SETTING["max_steps"], integrator: str = "velocity_verlet", hard_collisions=None,
-        dtype=None, progress: bool | None = False, seed: int = 0, checkpoint=None, resume=None):
-    """Builds the sloped pile, loads and relaxes it, and compares its base forces
-    with eqs. 54-59.
-
-    Args:
-      law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`) or module.
-      params: None for `SETTING["params"][law]` (the lattice protocol's paper
-        setting: hooke / lee-herrmann frictionless disks on a wall_mu = 1 ground,
-        liffman's eq. 46 K_s, baxter n = 36, r0 = 1.2 with mu = 1), a dict of
-        overrides on top of it, or a ready params pytree.
-      rotation: integrate spins (default off, the 1992 static analysis).
-      integrator, hard_collisions: passed to `Simulator`.
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
-      resume: a checkpoint file of this same run to continue from (bit-identical
-        to the uninterrupted run).
-      Other arguments as in `protocol` and `lattice.relax`.
-
-    Returns:
-      `(state, measurements)`: the final state and a dict of plain numbers:
-      `compare_with_theory`'s comparison plus the run's steps, times, whether it
-      ended at rest, the disk count and the pile's geometry.
-
-    Example:
-      >>> state, m = run("hooke", 30.0, n=40, ramp_steps=2000)       # doctest: +SKIP
-      >>> m["central_slope_horizontal"], m["theory_central_slope_horizontal"]  # doctest: +SKIP
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    return definition.run(
-        DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator, dtype=dtype,
-        progress=progress, checkpoint=checkpoint, resume=resume, simulator_options={"hard_collisions": hard_collisions},
-        run_options={"ramp_steps": ramp_steps, "speed_tolerance": speed_tolerance, "max_steps": max_steps},
-        alpha_degrees=alpha_degrees, base=base, ramp_steps=ramp_steps, seed=seed)
 
 
 def _compare(sim, params, state, p) -> dict:
@@ -255,21 +207,32 @@ def _compare(sim, params, state, p) -> dict:
                                   p.info["base"], n_particles=n_in), "law": sim.law.name}
 
 
-def _report(measured: dict, p: Setup, options: dict, info, seconds: float) -> dict:
+def _report(measured: dict, p: Setup, o: SlopedOptions, info, samples, seconds: float) -> dict:
     """One pile's output: the comparison with eqs. 54-59, the run's steps and
     times, whether it ended at rest, the disk count and the pile's geometry."""
     out = {k: v for k, v in measured.items() if k not in ("height", "max_speed")}
     out.update(protocol="sloped", n_particles=int(np.asarray(p.particles.active).sum()),
                rows=len(p.info["rows"]), bottom_row=int(p.info["rows"][0]), steps=int(info.steps),
                wall_seconds=info.wall_seconds, compile_seconds=info.compile_seconds, total_seconds=seconds,
-               at_rest=bool(info.at_rest), final_max_speed=info.max_speed, speed_tolerance=options["speed_tolerance"])
+               at_rest=bool(info.at_rest), final_max_speed=info.max_speed, speed_tolerance=o.speed_tolerance)
     return out
 
 
-DEFINITION = loaded_pile.definition_of(
-    "sloped", protocol, law_and_params, SETTING, _compare, _report,
-    ("central_normal_rel_dev", "central_slope_horizontal"))
+SPEC = loaded_pile.spec_of(
+    "sloped", options=SlopedOptions, setup=setup, law_and_params=law_and_params, setting=SETTING,
+    compare=_compare, report=_report, angles=("central_normal_rel_dev", "central_slope_horizontal"),
+    presentation=Presentation(
+        order=1, help="the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)",
+        # --seed is taken and changes nothing: the pile is deterministic
+        flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
+               "hard_collisions": "hard_collisions", "seed": "seed"},
+        headline=("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
+                  "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
+        profile_theory=outputs.sloped_theory))
+"""The sloped pile (Liffman et al. 1992, Figs. 12-16): `SPEC.run("hooke", 40, alpha_degrees=30.0,
+ramp_steps=2000)` builds the pile of about 40 disks, loads and relaxes it, and compares its base forces with
+eqs. 54-59 (`m["central_slope_horizontal"]` against `m["theory_central_slope_horizontal"]`)."""
 
 
-__all__ = ["PAPER_PILES", "SETTING", "base_for_count", "law_and_params", "pile_count", "protocol",
-    "row_lengths", "run", "sloped_pile", "sloped_positions"]
+__all__ = ["PAPER_PILES", "SETTING", "SPEC", "SlopedOptions", "base_for_count", "compare_with_theory",
+           "law_and_params", "pile_count", "row_lengths", "setup", "sloped_pile", "sloped_positions"]

@@ -34,23 +34,22 @@ with the pile's own theta_R (method 3) and mu (`theory.tilting_angle`, Fig. 7(b)
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import ranges
-from jaxpile.measure import theory
-from jaxpile.errors import InputError
-from jaxpile.ranges import ANGLE, DISKS, FINITE, SIZE, SPAN, SPEED, STEPS, TIME_STEP
-from jaxpile.protocols import box as boxes
-from jaxpile.protocols import definition, outputs
-from jaxpile.protocols.base import CommandLine, Setup
 from jaxpile.engine.state import SimState
+from jaxpile.errors import InputError
+from jaxpile.measure import theory
 from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import paper1993
-from jaxpile.protocols import geometry
-from jaxpile.protocols import drivers
+from jaxpile.protocols import box as boxes
+from jaxpile.protocols import drivers, geometry, outputs, paper1993
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.ranges import ANGLE, FINITE, SIZE, SPAN, SPEED
 
 Array = Any
 
@@ -65,29 +64,41 @@ SETTING = {
 }
 
 
-OPTION_RANGES = {
-    "n": DISKS, "rate_degrees": SIZE, "move_speed": SIZE, "rest_speed": SPEED, "hold_time": SPAN,
-    "max_tilt_degrees": ANGLE, "edge": FINITE, "dt": TIME_STEP, "settle_time": SPAN, "chunk_steps": STEPS,
-}
-"""Each option's valid range (`jaxpile.ranges`), checked first by the set-up and `run`."""
+@dataclass(frozen=True)
+class TiltOptions(Options):
+    """The tilt's options, in the paper's units (cm/s, s; the tilt rate per
+    step, as in the paper), converted to the law's units by the set-up
+    (`paper1993.units(law)`). The pile it tilts is the box run's (or given)."""
 
+    settle: bool = option(False, help="after the pile moved, hold the tilt and run until it is at rest again "
+                          "(the paper stops at theta_T)")
+    settle_time: float = option(SETTING["settle_time"], range=SPAN, unit="s",
+                                help="with settle: at most this long after the pile moved")
+    rate_degrees: float = option(SETTING["rate_degrees"], range=SIZE, unit="deg/step",
+                                 help="tilt per step (1e-3 in the paper)")
+    move_speed: float = option(SETTING["move_speed"], range=SIZE, unit="cm/s",
+                               help="the pile moves when its speed exceeds this")
+    rest_speed: float = option(SETTING["rest_speed"], range=SPEED, unit="cm/s",
+                               help="the pile is at rest below this (also the onset of its motion)")
+    rest_measure: str = option(SETTING["rest_measure"], help="which speed: rms (the kinetic energy per disk as a "
+                               "speed) or max (the fastest disk)")
+    hold_time: float = option(SETTING["hold_time"], range=SPAN, unit="s",
+                              help="how long the speed must stay below rest_speed at the end")
+    max_tilt_degrees: float = option(SETTING["max_tilt_degrees"], range=ANGLE, unit="deg",
+                                     help="tilting stops here if the pile has not moved")
+    edge: float | None = option(None, range=FINITE, help="x where the floor ends, in the run's units; default: "
+                                "the box pile's")
 
-# How `jaxpile pile|sweep|fit` list and run this protocol (the registry entry).
-CLI = CommandLine(
-    order=4, help="a box pile tilted until it moves (1993 Fig. 4)", default_law="lee-herrmann",
-    headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"), flags={"seed": "box_options.seed"},
-    length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,),
-    dry_run_setup=lambda kwargs: _box_setup(kwargs))
-
-
-def _box_setup(kwargs: dict):
-    """The box set-up a tilt run starts from, with the run's box options and n
-    (`jaxpile pile --protocol tilt --dry-run`)."""
-    extra = dict(kwargs.get("box_options") or {})
-    if "n" in kwargs:
-        extra["n"] = kwargs["n"]
-    check_options(**{k: v for k, v in kwargs.items() if k != "n"})  # the tilt's own, before its pile
-    return boxes.protocol, extra
+    def validate(self):
+        for name in ("rate_degrees", "move_speed", "rest_speed", "hold_time"):
+            boxes.check_positive(name, getattr(self, name))
+        if not self.rest_speed < self.move_speed:
+            raise InputError(f"rest_speed ({self.rest_speed:g}) must be below move_speed ({self.move_speed:g}).")
+        boxes.measure_flag(self.rest_measure)
+        if self.edge is not None:
+            boxes.check_positive("edge", self.edge)
+        if self.settle:
+            boxes.check_positive("settle_time", self.settle_time)
 
 
 class TiltState(NamedTuple):
@@ -172,61 +183,32 @@ def driver(state: SimState) -> SimState:
     return state.set(boundaries=b, protocol_state=ps)
 
 
-def check_options(*, rate_degrees: float = SETTING["rate_degrees"], move_speed: float = SETTING["move_speed"],
-                  rest_speed: float = SETTING["rest_speed"], rest_measure: str = SETTING["rest_measure"],
-                  hold_time: float = SETTING["hold_time"], max_tilt_degrees: float = SETTING["max_tilt_degrees"],
-                  edge: float | None = None, dt: float | None = None, **_) -> None:
-    """Refuses the tilt's own options (`protocol`'s, less the pile) before a
-    box pile is built for them: a run, a sweep or a dry run checks these first."""
-    ranges.check_all(OPTION_RANGES, locals(), check_options)  # types, finiteness and ranges first: one message format
-    for name, value in (("rate_degrees", rate_degrees), ("move_speed", move_speed), ("rest_speed", rest_speed),
-                        ("hold_time", hold_time)) + ((("dt", dt),) if dt is not None else ()):
-        boxes.check_positive(name, value)
-    if not rest_speed < move_speed:
-        raise InputError(f"rest_speed ({rest_speed:g}) must be below move_speed ({move_speed:g}).")
-    if not 0 < max_tilt_degrees < 90:
-        raise InputError(f"max_tilt_degrees must be in (0, 90); got {max_tilt_degrees!r}.")
-    boxes.measure_flag(rest_measure)
-    if edge is not None:
-        boxes.check_positive("edge", edge)
-
-
-def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTING["rate_degrees"],
-             move_speed: float = SETTING["move_speed"], rest_speed: float = SETTING["rest_speed"],
-             rest_measure: str = SETTING["rest_measure"], hold_time: float = SETTING["hold_time"],
-             max_tilt_degrees: float = SETTING["max_tilt_degrees"], edge: float | None = None,
-             dt: float | None = None) -> Setup:
+def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
     """Tilting of a settled pile (Lee & Herrmann 1993, Fig. 4), ready to run with `driver`.
 
     Speeds and times are in the paper's units (cm/s, s), converted with
-    `paper1993.units(law)`; the tilt rate is per step, as in the paper.
+    `paper1993.units(law)`; the tilt rate is per step, as in the paper; `dt`
+    turns `hold_time` into steps.
 
     Args:
-      pile: the settled pile, e.g. the state `box.run` returns. Its particles,
-        walls and gravity (untilted, pointing down) are the start. `run` and
-        `execute(..., pile=...)` continue this state, keeping its contact history;
-        starting from `Setup.particles` instead loses the tangential springs.
-      law: the law the run will use (units and default dt).
-      rate_degrees: tilt per step (1e-3 in the paper).
-      move_speed: the pile moves when its speed exceeds this.
-      rest_speed: the pile is at rest below this (also the onset threshold).
-      rest_measure: `"rms"` (`drivers.rms_speed`) or `"max"` (`max_speed`).
-      hold_time: how long the speed must stay below `rest_speed` at the end.
-      max_tilt_degrees: tilting stops here if the pile has not moved.
-      edge: x where the floor ends; default: the box pile's (`BoxState.edge`).
-      dt: the run's time step (default the law's), for `hold_time`.
+      pile: the settled pile, e.g. the state `box.SPEC.run` returns. Its
+        particles, walls and gravity (untilted, pointing down) are the start.
+        `SPEC.run(..., pile=...)` and `running.continue_pile` continue this
+        state, keeping its contact history; starting from `Setup.particles`
+        instead loses the tangential springs.
+      o: the tilt's options; `edge` None takes the box pile's (`BoxState.edge`).
 
     Raises:
-      InputError: on a bad rate, speed or angle, a pile whose gravity is
+      InputError: on a pile that is not a state, a pile whose gravity is
         already tilted, or a pile that is not a box pile when `edge` is missing.
     """
-    check_options(rate_degrees=rate_degrees, move_speed=move_speed, rest_speed=rest_speed, rest_measure=rest_measure,
-                  hold_time=hold_time, max_tilt_degrees=max_tilt_degrees, edge=edge, dt=dt)
     if not isinstance(pile, SimState):
-        raise InputError("pile must be a SimState (a settled pile, e.g. from box.run).")
+        raise InputError("pile must be a SimState (a settled pile, e.g. from box.SPEC.run).")
     u = paper1993.units(law)
-    dt = float(paper1993.law_setting(law)["dt"]) if dt is None else float(dt)
-    rate, move_speed, rest_speed, hold_time = (float(x) for x in (rate_degrees, move_speed, rest_speed, hold_time))
+    dt = float(dt)
+    rate, move_speed, rest_speed, hold_time = (float(x) for x in (o.rate_degrees, o.move_speed, o.rest_speed,
+                                                                  o.hold_time))
+    max_tilt_degrees = o.max_tilt_degrees
     gravity = np.asarray(pile.boundaries.gravity, dtype=np.float64)
     g = float(np.linalg.norm(gravity))
     if not (g > 0 and abs(gravity[0]) <= 1e-12 * g and gravity[1] < 0):
@@ -234,6 +216,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
     p = pile.particles
     dtype = p.position.dtype
     before = pile.protocol_state
+    edge = o.edge
     if edge is None:
         if not hasattr(before, "edge"):
             raise InputError("give edge (the x where the floor ends) for a pile that is not a box pile.")
@@ -257,7 +240,7 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         max_tilt=jnp.asarray(math.radians(max_tilt_degrees), dtype),
         move_speed=jnp.asarray(move_speed * u.speed, dtype),
         rest_speed=jnp.asarray(rest_speed * u.speed, dtype),
-        use_max=jnp.asarray(boxes.measure_flag(rest_measure)),
+        use_max=jnp.asarray(boxes.measure_flag(o.rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(False),
@@ -278,23 +261,20 @@ def protocol(pile: SimState, *, law="lee-herrmann", rate_degrees: float = SETTIN
         "rate_degrees_per_time": rate / dt,
         "move_speed": move_speed * u.speed,
         "rest_speed": rest_speed * u.speed,
-        "rest_measure": rest_measure,
+        "rest_measure": o.rest_measure,
         "hold_steps": hold,
         "max_tilt_degrees": float(max_tilt_degrees),
-        "max_tilt_steps": int(math.ceil(max_tilt_degrees / rate)),
+        "max_tilt_steps": math.ceil(max_tilt_degrees / rate),
         "edge": edge,
         "dt": dt,
         "start_step": int(pile.step),
     }
     return Setup(particles=p, boundaries=pile.boundaries, driver=driver, protocol_state=state,
-                    box=None if settings is None else settings.box, info=info)
+                 box=None if settings is None else settings.box, info=info)
 
 
-def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, **kwargs):
-    """A `Simulator` running the tilt `driver` (see `box.make_simulator`)."""
-    return boxes.make_simulator(law, dt=dt, rotation=rotation, integrator=integrator, chunk_steps=chunk_steps,
-                                driver=driver, **kwargs)
+simulator = boxes.simulator_running(driver)
+"""The spec's simulator: the tilt `driver` with a law by name (`box.make_simulator`)."""
 
 
 def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: float | None) -> dict:
@@ -331,39 +311,39 @@ def pile_facts(pile: SimState, p: Setup) -> dict:
             "box_settled": bool(int(ps.settled_at) >= 0) if hasattr(ps, "settled_at") else None}
 
 
-def _settle_steps(info, options) -> int:
+def _settle_steps(p: Setup, o: TiltOptions) -> int:
     """With `settle`: `settle_time` paper seconds in steps (0 without)."""
-    if not options["settle"]:
+    if not o.settle:
         return 0
-    u = paper1993.units(info["law"])
-    return int(round(boxes.check_positive("settle_time", options["settle_time"]) * u.time / info["dt"]))
+    u = paper1993.units(p.info["law"])
+    return round(boxes.check_positive("settle_time", o.settle_time) * u.time / p.info["dt"])
 
 
-def finished(info, options):
+def finished(p: Setup, o: TiltOptions):
     """Moved; with `settle`, at rest again or `settle_time` after it moved;
     or the largest tilt passed without motion and its hold time after it: the
     run gives up. Traceable."""
-    give_up = int(info["max_tilt_steps"])
-    settle = _settle_steps(info, options)
+    give_up = int(p.info["max_tilt_steps"])
+    settle = _settle_steps(p, o)
 
     def done(s):
         ps = s.protocol_state
         gave_up = (ps.phase == 0) & (s.step - ps.start > give_up + ps.hold)
-        if not options["settle"]:
+        if not o.settle:
             return (ps.phase >= 1) | gave_up
         return (ps.phase >= 2) | ((ps.phase == 1) & (s.step - ps.moved_at > settle)) | gave_up
 
     return done
 
 
-def max_steps(info, options) -> int:
+def budget(p: Setup, o: TiltOptions) -> int:
     """The tilt's budget from its start: the largest tilt, the hold after it,
     `settle_time` with `settle`, and room for `finished` to be seen at a
     chunk's end (it ends the run first)."""
-    return int(info["max_tilt_steps"]) + 4 * int(info["hold_steps"]) + 10_000 + _settle_steps(info, options)
+    return int(p.info["max_tilt_steps"]) + 4 * int(p.info["hold_steps"]) + 10_000 + _settle_steps(p, o)
 
 
-def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
+def measure(sim, params, state: SimState, p: Setup, o: TiltOptions) -> dict:
     """theta_T (degrees, NaN if the pile never moved up to the largest tilt),
     the pile's theta_R (method 3) and all three methods, the theory of sec. 6
     (`compare_with_theory`), the steps of the onset and of the motion (from
@@ -391,102 +371,44 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
         "n_left": int(ps.left),
         **boxes.count_check(state),
     }
-    if options["settle"] and out["at_rest"]:
+    if o.settle and out["at_rest"]:
         after = boxes.repose(state, p.info["edge"])
         out["after_repose_box_frame"] = {k: v for k, v in after.items() if not k.startswith("surface")}
     return out
 
 
-DEFINITION = definition.Definition(
-    "tilt", protocol, make_simulator, law_and_params, boxes.DEFINITION.default_dt, finished, max_steps, measure,
+SPEC = ProtocolSpec(
+    name="tilt", options=TiltOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
+    default_dt=boxes.SPEC.default_dt, finished=finished, budget=budget, measure=measure,
     row=("theta_t", "theta_r", "moved", "theta_r_plus_theta_t", "theta_ms_theory", "theta_t_theory", "box_settled",
          "tilt_held", "n_left"),
-    run_options={"settle": False, "settle_time": SETTING["settle_time"]},
-    sweep=dict(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability_overlay,
-               fit_statistics={"columns": ("theta_t", "theta_r")}),
-    starts_from=boxes.DEFINITION, pile_facts=pile_facts, check_options=check_options)
-
-
-def execute(sim, params, p: Setup, *, pile: SimState | None = None, settle: bool = False,
-            settle_time: float = SETTING["settle_time"], progress=None, checkpoint=None, resume=None):
-    """Tilts until the pile moves (or the largest tilt), then, with `settle`,
-    until it is at rest again (`definition.continue_pile`).
-
-    Args:
-      pile: the state `p` was built from: continued as it is (contact history
-        kept). None: start from `p.particles` with `sim.init` (fresh history).
-      settle_time: at most this many paper seconds after the pile moved.
-      checkpoint, resume: as in `box.execute` (a tilt checkpoint resumes on the
-        same `pile`).
-
-    Returns:
-      (state, RunInfo, samples) as `runner.run_sampled`.
-    """
-    return definition.continue_pile(DEFINITION, sim, params, p, pile, progress=progress, checkpoint=checkpoint,
-                                    resume=resume, run_options={"settle": settle, "settle_time": settle_time})
-
-
-def run(law="lee-herrmann", n: int | None = None, *, pile: SimState | None = None, params=None,
-        pile_params=None, rotation: bool | None = None, dt: float | None = None,
-        integrator: str = "velocity_verlet", settle: bool = False, settle_time: float = SETTING["settle_time"],
-        chunk_steps: int | None = None, progress=False, dtype=None, box_options: dict | None = None,
-        checkpoint=None, resume=None, **options):
-    """Builds a pile with the box protocol (or takes `pile`), tilts it at the
-    paper's rate until it moves, and measures theta_T (`definition.run`).
-
-    Args:
-      law: `lee-herrmann` (the paper's, in cgs), `hooke`, `baxter` or `liffman`.
-      n: disks of the box pile (when `pile` is None).
-      pile: a settled pile to tilt (e.g. `box.run`'s state); its contact
-        history is kept.
-      params: the law's parameters for the tilt: None (`box.PAPER_SETTING`),
-        a dict of overrides, or a params pytree.
-      pile_params: the same for building the pile (default: `params`).
-      settle: after the pile moved, run (tilt held) until it rests again; off
-        by default: the paper stops at theta_T, and once the held tilt exceeds
-        the floor's friction angle the disks slide off and never rest.
-      box_options: for `box.run` (width, height, seed, max_time, ...).
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`: the tilt is
-        saved to `path`; the box run that builds the pile (when `pile` is
-        None) to `checkpoint.sibling(path, "box")` (`checkpoint.box.npz`),
-        whose last save is the pile the tilt starts from.
-      resume: a checkpoint of this same run: a tilt save (the pile it started
-        from, named in it, is read back beside it), a box save (the box run
-        is continued, then the tilt starts), or the tilt's fixed `path` before
-        the tilt began (its box sibling is continued). Ends bit-identical to
-        the uninterrupted run.
-      **options: for `protocol` (rate_degrees, move_speed, rest_speed,
-        rest_measure, hold_time, max_tilt_degrees, edge).
-
-    Returns:
-      `(state, measurements)`: `measure`'s dict, the kinetic energy per chunk,
-      timings, `info`; `box` holds the box run's measurements when the pile
-      was built here.
-    """
-    ranges.check_all(OPTION_RANGES, locals(), run)  # types, finiteness and ranges first: one message format
-    if box_options:
-        ranges.check_all(boxes.OPTION_RANGES, box_options, boxes.run)
-    return definition.run(DEFINITION, law, n, params=params, rotation=rotation, dt=dt, integrator=integrator,
-                          chunk_steps=chunk_steps, progress=progress, dtype=dtype, checkpoint=checkpoint, resume=resume,
-                          run_options={"settle": settle, "settle_time": settle_time}, pile=pile,
-                          pile_params=pile_params, pile_options=box_options, **options)
+    default_law="lee-herrmann",
+    presentation=Presentation(
+        order=4, help="a box pile tilted until it moves (1993 Fig. 4)", flags={"seed": "seed"},
+        headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
+        length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
+    batch=Batch(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability_overlay,
+                fit_statistics={"columns": ("theta_t", "theta_r")},
+                simulator_options=frozenset()),  # the simulator reads no option: set-ups share a compile
+    starts_from=boxes.SPEC, pile_facts=pile_facts)
+"""The tilt (Lee & Herrmann 1993, sec. 4): `SPEC.run("lee-herrmann", pile_options={"width": 1.6, "height": 1.6})`
+builds a box pile (its seed is the run's `seed`; `pile=` a state tilts that one instead, contact history kept),
+tilts it at the paper's rate until it moves, and measures theta_T; the box run's measurements are under "box"."""
 
 
 __all__ = [
-    "DEFINITION",
-    "check_options",
-    "law_and_params",
     "SETTING",
+    "SPEC",
+    "TiltOptions",
     "TiltState",
+    "budget",
     "compare_with_theory",
     "driver",
-    "execute",
     "finished",
-    "make_simulator",
-    "max_steps",
+    "law_and_params",
     "measure",
     "pile_facts",
-    "protocol",
-    "run",
+    "setup",
+    "simulator",
     "tilt_at",
 ]

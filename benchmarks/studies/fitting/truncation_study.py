@@ -42,13 +42,13 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     import jaxpile  # noqa: F401  (float64)
     from jaxpile import analysis, fit, sweep
     from jaxpile.engine import ensemble
-    from jaxpile.engine import neighbors as nb
+    from jaxpile.engine import pairs as pair_list
     from jaxpile.engine.neighbors import overflowed
     from jaxpile.protocols import pour
 
     sim = pour.make_simulator("baxter", in_play=None)  # rollouts carry every disk (no host blocks inside)
     base = pour.law_params("baxter")
-    protocols = [pour.pour(n, seed=s, interval=interval, insert_height=insert_height) for s in seeds]
+    protocols = [pour.SPEC.set_up("baxter", n, seed=s, interval=interval, insert_height=insert_height) for s in seeds]
     ens = ensemble.Ensemble(sim)
     start = ens.init([base] * len(seeds), protocols)
     steps = int(protocols[0].info["pour_steps"]) + settle
@@ -56,10 +56,10 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     end = ens.run([base] * len(seeds), start, steps, progress=False)
     # with head-room: other n (the target's, the central differences') pack the heap differently
     slots, cells = int(end.neighbors.max_occupancy) + 8, None  # None: a cell window of every disk (few here)
-    pairs = nb.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
+    pairs = pair_list.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
     start = ensemble.stack([ensemble.at_capacity(ensemble.member(start, i), slots, cells, pairs)
                             for i in range(len(seeds))])
-    _, x_left, x_right = sweep.adapter("pour").extent(protocols[0])
+    _, x_left, x_right = sweep.spec_of("pour").batch.extent(protocols[0])
 
     def params(theta):
         return base.set(n=jax.numpy.exp(theta[0]))

@@ -35,7 +35,7 @@ def main(argv=None) -> list[dict]:
     args = parser.parse_args(argv)
     rows = []
     for seed in (int(s) for s in args.seeds.split(",")):
-        setup = pour.pour(args.n, seed=seed, insert_height=heap.steepest_heap_height(args.n) + 6.0)
+        setup = pour.SPEC.set_up("baxter", args.n, seed=seed, insert_height=heap.steepest_heap_height(args.n) + 6.0)
         _, _, params = pour.law_and_params("baxter")
         sim = pour.make_simulator("baxter")
         state = sim.init(params, setup.particles, setup.boundaries, box=setup.box,

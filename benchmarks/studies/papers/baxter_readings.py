@@ -107,9 +107,9 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
     if spec["row_angle"] is not None:
         spacing = spec["pour"].get("spacing", pour.PAPER_SETTING["spacing"])
         spec["pour"] = {**spec["pour"], "substrate_disks": heap.substrate_size(n, spacing, spec["row_angle"], margin=0.0)}
-    _, result = pour.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None, **dt,
-                         law_options=spec["law_options"], progress=False,
-                         checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
+    _, result = pour.SPEC.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None,
+                              **dt, law_options=spec["law_options"], progress=False,
+                              checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
     row = {"setting": setting, "seed": seed, "n": n, "insert_height": insert_height,
            "seconds": time.perf_counter() - t0, **result["summary"], "device": device()}
     pathlib.Path(out).write_text(json.dumps(row, indent=1))

@@ -35,7 +35,7 @@ KEYS = ("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "number
 def one_silo(orifice: float, seed: int, args) -> dict:
     from jaxpile.protocols import hopper
 
-    state, m = hopper.run("hooke", args.n, params={"mu": args.mu}, width=args.width, orifice=orifice, seed=seed)
+    state, m = hopper.SPEC.run("hooke", args.n, params={"mu": args.mu}, width=args.width, orifice=orifice, seed=seed)
     return {"orifice": orifice, "seed": seed, **{k: m[k] for k in KEYS}}
 
 

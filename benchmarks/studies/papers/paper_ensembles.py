@@ -64,8 +64,8 @@ def one_tilt(mu: float, seed: int, n: int, out: str, every: int) -> dict:
     state_file = out.replace(".json", ".npz")
     resume = state_file if os.path.exists(state_file) else None
     t0 = time.perf_counter()
-    _, m = tilt.run("lee-herrmann", n, params={"mu": mu}, box_options={"seed": seed},
-                    checkpoint=(state_file, every), resume=resume)
+    _, m = tilt.SPEC.run("lee-herrmann", n, params={"mu": mu}, seed=seed, checkpoint=(state_file, every),
+                         resume=resume)
     keep = ("theta_t", "theta_r", "theta_ms_theory", "theta_t_theory", "theta_r_plus_theta_t", "theory_note")
     row = {"mu": mu, "seed": seed, "n": n, "seconds": time.perf_counter() - t0,
            **{k: _plain(m.get(k)) for k in keep},
@@ -82,7 +82,7 @@ def one_drop(seed: int, n: int, out: str, every: int) -> dict:
     state_file = out.replace(".json", ".npz")
     resume = state_file if os.path.exists(state_file) else None
     t0 = time.perf_counter()
-    _, m = drop.run("liffman", n, seed=seed, checkpoint=(state_file, every), resume=resume)
+    _, m = drop.SPEC.run("liffman", n, seed=seed, checkpoint=(state_file, every), resume=resume)
     keep = ("n_particles", "all_inserted", "at_rest", "profile_x_over_base", "profile_normal", "profile_normalised",
             "central_dip", "has_central_dip", "weight_balance", "base_width", "height")
     row = {"seed": seed, "n": n, "seconds": time.perf_counter() - t0, **{k: _plain(m.get(k)) for k in keep},

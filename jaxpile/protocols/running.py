@@ -1,0 +1,267 @@
+"""One pile of a protocol from its spec, set-up to measurements, and the
+per-member steps a batch takes with the same spec.
+
+`run(spec, law, size, **options)` builds the options (checked), the law's
+parameters, the set-up and the simulator, runs the pile until the spec says it
+is finished or its budget is spent (`runner.run_to_finish`: samples,
+checkpoints, bit-identical resume; or the spec's own `execute`), and measures
+it. A spec that `starts_from` another (the tilt from a box) first builds that
+pile, unless it is given one, and continues it with its contact history; each
+stage is checkpointed and resumable. A sweep and an ensemble fit run the same
+functions per member: `member_setup`, `stage_start`, `member_row`.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+from jaxpile import ranges
+from jaxpile.errors import InputError
+from jaxpile.protocols.base import Setup
+from jaxpile.protocols.runner import (
+    check_dt,
+    restore_sampled,
+    run_record,
+    run_sampled,
+    run_to_finish,
+)
+
+
+def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None, dt: float | None = None,
+        integrator: str | None = None, chunk_steps: int | None = None, seed: int = 0, progress=False, dtype=None,
+        checkpoint=None, resume=None, pile=None, pile_params=None, pile_options: dict | None = None, **options):
+    """One pile of `spec` from set-up to its end, and its measurements.
+
+    Args:
+      spec: the protocol's `ProtocolSpec`.
+      law: a law name (default: the protocol's paper's).
+      size: the protocol's size option (`spec.size`: disks, layers, insertions).
+      params: None (the protocol's setting for the law), a dict of overrides,
+        or a params pytree of that law.
+      rotation, dt, integrator, chunk_steps: for the simulator (None: the protocol's).
+      seed: draws the pile (a deterministic pile takes none).
+      progress: a progress bar (None: when stderr is a terminal).
+      dtype: float dtype (default float64).
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
+      resume: a checkpoint file of this same run: it ends bit-identical to the
+        uninterrupted one, samples included.
+      pile, pile_params, pile_options: for a protocol that `starts_from`
+        another: the pile to continue (a state), or the parameters and options
+        (a dict) of the run that builds it; that run is saved beside
+        `checkpoint` (`checkpoint.sibling(path, its name)`), and `resume` takes
+        a save of either stage.
+      **options: the protocol's options (`spec.options`).
+
+    Returns:
+      `(state, measurements)`: `{"protocol": name, **measure(...),
+      "kinetic_energy": samples, **run record, "info": set-up info}`, or the
+      spec's `report`; a continued protocol that built its pile adds the
+      pile's measurements under the pile protocol's name.
+    """
+    law = law or spec.default_law
+    if size is not None and spec.starts_from is not None and spec.size not in spec.options.names():
+        pile_options = {**(pile_options or {}), spec.starts_from.size: size}  # the size of the pile it builds
+    elif size is not None:
+        options[spec.size] = size
+    o = spec.make_options(options)  # every option checked before anything is built
+    dt = _check_run(dt, chunk_steps, seed)
+    if spec.starts_from is not None:
+        return _run_continued(spec, law, o, params=params, pile=pile, pile_params=pile_params,
+                              pile_options=pile_options, rotation=rotation, dt=dt, integrator=integrator,
+                              chunk_steps=chunk_steps, seed=seed, progress=progress, dtype=dtype,
+                              checkpoint=checkpoint, resume=resume)
+    if pile is not None or pile_params is not None or pile_options:
+        raise InputError(f"the {spec.name} protocol builds its own pile: pile, pile_params and pile_options are "
+                         "for a protocol that continues another's.")
+    _, _, params = spec.law_and_params(law, params, rotation, dtype)
+    p = spec.setup(o, law=law, seed=seed, dt=spec.default_dt(law) if dt is None else dt, dtype=dtype)
+    if spec.check is not None:
+        spec.check(p, o)
+    sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
+                         chunk_steps=chunk_steps)
+    t0 = time.perf_counter()
+    if spec.execute is None:
+        state, info, samples = execute(spec, sim, params, p, o, progress=progress, checkpoint=checkpoint,
+                                       resume=resume)
+    else:
+        state, info, samples = spec.execute(sim, params, p, o, progress=progress, checkpoint=checkpoint,
+                                            resume=resume)
+    seconds = time.perf_counter() - t0
+    measured = spec.measure(sim, params, state, p, o)
+    if spec.report is not None:
+        return state, spec.report(measured, p, o, info, samples, seconds)
+    return state, {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
+                   "info": dict(p.info)}
+
+
+RUN_RANGES = {"seed": ranges.SEED, "dt": ranges.TIME_STEP, "chunk_steps": ranges.STEPS}
+"""The ranges of a run's own numbers, the same for every protocol."""
+
+
+def _check_run(dt, chunk_steps, seed):
+    """The run's own numbers, against their ranges (one message format; None: the protocol's)."""
+    ranges.SEED.check("seed", seed, scalar=True)
+    checked = ranges.check_all(RUN_RANGES, {"dt": dt, "chunk_steps": chunk_steps})
+    return checked["dt"]
+
+
+def execute(spec, sim, params, p: Setup, options, *, progress=None, checkpoint=None, resume=None):
+    """Runs the set-up `p` until `spec.finished` (checked after each chunk) or
+    its budget. Returns `(state, RunInfo, samples)` as `runner.run_sampled`."""
+    done = spec.finished(p, options)
+    return run_to_finish(sim, params, p, max_steps=spec.budget(p, options), finished=lambda s: bool(done(s)),
+                         progress=progress, checkpoint=checkpoint, resume=resume)
+
+
+def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rotation, dt, integrator, chunk_steps,
+                   seed, progress, dtype, checkpoint, resume):
+    """`run` of a spec that continues another's pile (see `run`)."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    base = spec.starts_from
+    _, _, stage_params = spec.law_and_params(law, params, rotation, dtype)
+    built = None
+    if pile is None:
+        pile_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], base.name)
+        pile_resume, resume = continued_stages(spec, resume)
+        pile, built = run(base, law, params=params if pile_params is None else pile_params, rotation=rotation,
+                          dt=dt, integrator=integrator, chunk_steps=chunk_steps, seed=seed, progress=progress,
+                          dtype=dtype, checkpoint=ckpt.with_facts(checkpoint, path=pile_file, stage=base.name),
+                          resume=pile_resume, **dict(pile_options or {}))
+        if checkpoint is not None:  # each save of this stage names the pile it started from (the last pile save)
+            checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=os.path.basename(
+                pile_file.replace("{step}", str(int(pile.step)))))
+    elif pile_params is not None or pile_options:
+        raise InputError(f"the {spec.name} protocol continues the pile it is given: pile_params and pile_options "
+                         "are for the run that builds one.")
+    p = on_pile(spec, pile, law, spec.default_dt(law) if dt is None else dt, o)
+    sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
+                         chunk_steps=chunk_steps)
+    t0 = time.perf_counter()
+    state, info, samples = continue_pile(spec, sim, stage_params, p, o, pile, progress=progress,
+                                         checkpoint=checkpoint, resume=resume)
+    measured = spec.measure(sim, stage_params, state, p, o)
+    out = {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
+    if built is not None:
+        out[base.name] = {k: v for k, v in built.items() if k != "kinetic_energy"}
+    return state, out
+
+
+def on_pile(spec, pile, law, dt, options, *, facts: bool = True) -> Setup:
+    """The set-up of `spec` on the state `pile`, checked (`spec.check`), with
+    the pile's facts (`spec.pile_facts`) in its info unless `facts` is False
+    (a batch adds them as its stage starts)."""
+    p = spec.setup(pile, options, law=law, dt=dt)
+    if spec.check is not None:
+        spec.check(p, options)
+    return p if spec.pile_facts is None or not facts else p._replace(info={**p.info, **spec.pile_facts(pile, p)})
+
+
+def continue_pile(spec, sim, params, p: Setup, options, pile=None, *, progress=None, checkpoint=None, resume=None):
+    """Runs the set-up `p` of a continued protocol from `pile`, the state it
+    was built on (contact history kept; None: `p.particles` with a fresh
+    history), until `spec.finished` or its budget, counted from the pile's last
+    step. Each save records `stage=spec.name`; `resume` continues such a save.
+
+    Returns:
+      `(state, RunInfo, samples)` as `runner.run_sampled`.
+    """
+    from jaxpile.engine import checkpoint as ckpt
+
+    check_dt(sim, p)
+    start = int(p.info["start_step"])
+    if pile is None:
+        state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    else:
+        if int(pile.step) != start or pile.particles.count != p.info["n"]:
+            raise InputError(f"pile is not the state this {spec.name} protocol was built from.")
+        state = pile.set(protocol_state=p.protocol_state)
+    samples = None
+    if resume is not None:
+        state, samples = restore_sampled(resume, state, sim, params)
+    done = spec.finished(p, options)
+    budget = spec.budget(p, options) - (int(state.step) - start)
+    return run_sampled(sim, params, state, max_steps=budget, finished=lambda s: bool(done(s)), progress=progress,
+                       checkpoint=ckpt.with_facts(checkpoint, stage=spec.name), samples=samples)
+
+
+def continued_stages(spec, resume) -> tuple[str | None, str | None]:
+    """`(pile run's checkpoint, this stage's checkpoint)` to resume a continued
+    protocol that builds its own pile from `resume`: a save of this stage
+    (which names its pile's file), a save of the pile's run, or this stage's
+    fixed path when the run stopped before the stage began (then only its
+    `checkpoint.sibling(resume, pile name)` exists)."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    base = spec.starts_from.name
+    if resume is None:
+        return None, None
+    if not os.path.exists(resume):
+        sibling = ckpt.sibling(resume, base)
+        if not os.path.exists(sibling):
+            raise InputError(f"resuming a {spec.name} that builds its own pile needs the {base} run's checkpoint "
+                             f"{sibling} (or the {spec.name}'s {resume}); neither is there.")
+        return sibling, None
+    extra = ckpt.read_metadata(resume)["extra"]
+    if extra.get("stage") == base:
+        return resume, None
+    pile = os.path.join(os.path.dirname(resume), extra.get("pile_checkpoint") or "")
+    if not extra.get("pile_checkpoint") or not os.path.exists(pile):
+        raise InputError(f"{resume} is a {spec.name} checkpoint; resuming it needs the pile it started from, the "
+                         f"{base} run's last save {pile or '(not recorded)'}, beside it.")
+    return pile, resume
+
+
+# ---------------------------------------------------------------- a batch
+def stage_options(spec, options: dict) -> list:
+    """Each stage's options (`spec.chain()`, the pile's first) from one dict
+    of a sweep's options: a name goes to every stage that has it; a name no
+    stage has is refused."""
+    chain = spec.chain()
+    known = set().union(*(s.options.names() for s in chain)) | {s.size for s in chain} | {"n"}
+    unknown = set(options) - known
+    if unknown:
+        raise InputError(f"unknown option(s) {sorted(unknown)} for a {spec.name} sweep; known: {sorted(known)}.")
+    out = []
+    for s in chain:
+        names = set(s.options.names()) | ({"n"} if s.size != "n" else set())
+        out.append(s.make_options({k: v for k, v in options.items() if k in names}))
+    return out
+
+
+def member_setup(spec, law, seed, dt, options, dtype=None) -> Setup:
+    """The first stage's set-up of one member (`spec` is that stage's), checked."""
+    p = spec.setup(options, law=law, seed=seed, dt=dt, dtype=dtype)
+    if spec.check is not None:
+        spec.check(p, options)
+    return p
+
+
+def stage_start(spec, law, dt, options, pile):
+    """A later stage's start for one member: `(state, setup)` on the member's
+    end state `pile` of the stage before, contact history kept. Structure
+    only (it also shapes a resume's template): the pile's facts are
+    `stage_facts`'."""
+    p = on_pile(spec, pile, law, dt, options, facts=False)
+    return pile.set(protocol_state=p.protocol_state), p
+
+
+def stage_facts(spec, pile, p: Setup) -> dict:
+    """What the member's pile was when this stage took it over (`spec.pile_facts`), for its info."""
+    return {} if spec.pile_facts is None else spec.pile_facts(pile, p)
+
+
+def member_row(spec, sim, params, state, p: Setup, options) -> dict:
+    """One member's sweep row: `spec.row`'s keys of its measurement, or `spec.row(measured)`."""
+    m = spec.measure(sim, params, state, p, options)
+    return spec.row(m) if callable(spec.row) else {k: m[k] for k in spec.row}
+
+
+def row_columns(spec) -> frozenset | None:
+    """A row's columns where the spec names them (None: its row is computed)."""
+    return None if callable(spec.row) else frozenset(spec.row)
+
+
+__all__ = ["RUN_RANGES", "continue_pile", "continued_stages", "execute", "member_row", "member_setup", "on_pile", "row_columns",
+           "run", "stage_facts", "stage_options", "stage_start"]

@@ -1,0 +1,306 @@
+"""A protocol declared once: its options and its `ProtocolSpec`.
+
+A protocol module holds its physics (set-up, driver, measurements) and one
+`SPEC = ProtocolSpec(...)`. Its options are a frozen dataclass derived from
+`Options` whose fields are made by `option(default, range=..., help=...)`: each
+field states its default, valid range, unit and help, and the options are
+checked when they are made. From that one declaration come the protocol's run
+(`jaxpile.protocols.running.run`), its batch in a sweep and an ensemble fit,
+its command-line flags and `--help`, and the inputs table of the docs: nothing
+reads a signature or a docstring.
+
+Every function in a spec has one fixed signature, listed on `ProtocolSpec`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+from jaxpile import ranges
+from jaxpile.errors import InputError
+from jaxpile.protocols.running import run as run_protocol
+from jaxpile.ranges import Range
+
+
+def option(default: Any = None, *, help: str, range: Range | None = None, unit: str = ""):
+    """A field of a protocol's options: its default, help, valid range and unit.
+
+    An option whose default is None and that has no range (a dict, an object)
+    is set from Python or by `--option NAME=VALUE`, not by a flag of its own.
+    """
+    return field(default=default, metadata={"help": help, "range": range, "unit": unit})
+
+
+@dataclass(frozen=True)
+class Options:
+    """The base of every protocol's options: each field's range is checked when
+    the options are made (None passes where it is the field's default: "the
+    set-up's default"), then the rules between fields (`validate`)."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value, range_ = getattr(self, f.name), f.metadata.get("range")
+            if range_ is not None and (value is not None or f.default is not None):  # None: "the default"
+                object.__setattr__(self, f.name, range_.check(f.name, value, scalar=True))
+        self.validate()
+
+    def validate(self) -> None:
+        """Raises `InputError` when options that are each in range do not work
+        together (a rest speed above the speed that means motion)."""
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    @classmethod
+    def of(cls, values: dict, what: str):
+        """The options with `values` (a dict) over the defaults; an unknown name is refused."""
+        unknown = set(values) - set(cls.names())
+        if unknown:
+            raise InputError(f"unknown option(s) {sorted(unknown)} for {what}; known: {', '.join(cls.names())}.")
+        return cls(**values)
+
+    def replace(self, **changes):
+        """These options with `changes` (checked as new ones are)."""
+        return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+class Option(NamedTuple):
+    """One option as the command line and the docs show it.
+
+    Attributes:
+      name: the field name (`release_height`); the flag is `--release-height`.
+      kind: `bool`, `int`, `float` or `str`: how a flag's text is read; None
+        for an option only Python or `--option` can give (a dict).
+      default: the field's default (None: computed by the set-up).
+      help: the field's help.
+      range: its valid range, or None.
+      unit: its unit ("" where it has none or the range says it).
+    """
+
+    name: str
+    kind: type | None
+    default: Any
+    help: str
+    range: Range | None
+    unit: str
+
+    @property
+    def flag(self) -> str:
+        return "--" + self.name.replace("_", "-")
+
+
+def _kind(default, range_: Range | None) -> type | None:
+    for kind in (bool, int, float, str):  # bool first: a bool is an int
+        if isinstance(default, kind):
+            return kind
+    if range_ is None:
+        return None
+    return int if range_.whole else float
+
+
+def declared(options: type) -> dict[str, Option]:
+    """`{name: Option}` of an options dataclass, in field order."""
+    return {f.name: Option(f.name, _kind(f.default, f.metadata.get("range")), f.default, f.metadata.get("help", ""),
+                           f.metadata.get("range"), f.metadata.get("unit", ""))
+            for f in dataclasses.fields(options)}
+
+
+def ranges_of(options: type) -> dict[str, Range]:
+    """`{name: Range}` of the options that have one."""
+    return {name: o.range for name, o in declared(options).items() if o.range is not None}
+
+
+@dataclass(frozen=True)
+class Presentation:
+    """How the commands show a protocol (`jaxpile pile|sweep|fit|show|compare`).
+
+    Attributes:
+      order: its place in listings (the papers' order).
+      help: one line for `--protocol`'s help.
+      headline: summary keys `jaxpile pile` prints at its end (dotted keys
+        reach into nested dicts).
+      flags: generic flag (`max_steps`, `speed_tol`, `ramp_steps`,
+        `hard_collisions`) -> the option it sets; `seed` -> `seed` where the
+        protocol takes a seed. Absent: the flag is refused.
+      base_forces: `(sim, params, state, measured) -> BaseForces` written to
+        base_forces.csv; None: the ground's (`analysis.base_forces`).
+      summary: `measured -> dict` of plain numbers for summary.json; None:
+        the measurements as they are, arrays as lists.
+      length_unit: `law name -> unit` of pile.png's axes; None: diameters.
+      profile_theory: `(measured, base) -> (N, H, label) | None`, drawn on profile.png.
+      figures: `(measured, title, out) -> [files]`, the protocol's own figures.
+      compare: `summary -> str`, the result column of `jaxpile compare`;
+        None: the headline's first line.
+    """
+
+    order: int
+    help: str
+    headline: tuple = ()
+    flags: dict = field(default_factory=dict)
+    base_forces: Callable | None = None
+    summary: Callable | None = None
+    length_unit: Callable | None = None
+    profile_theory: Callable | None = None
+    figures: tuple = ()
+    compare: Callable | None = None
+
+
+@dataclass(frozen=True)
+class Batch:
+    """What a sweep and an ensemble fit read besides the run itself.
+
+    Attributes:
+      angles: the columns to summarise and plot (the first is the headline).
+      unit: of those columns ("deg", "" for plain numbers).
+      theory: optional `(name, values) -> (label, values)` overlaid on the sweep's figure.
+      extent: optional `setup -> (base, x_left, x_right)`: where a member's
+        base profile is read for fitting; the same for every member of one set-up.
+      fit_statistics: what an ensemble fit compares by default:
+        `{"columns": (...), "bins": b}`.
+      deterministic: every seed builds the same pile: one seed is an ensemble.
+      simulator_options: the options the simulator depends on (None: all);
+        members whose options differ only in others share one compiled batch.
+    """
+
+    angles: tuple
+    unit: str = "deg"
+    theory: Callable | None = None
+    extent: Callable | None = None
+    fit_statistics: dict = field(default_factory=dict)
+    deterministic: bool = False
+    simulator_options: frozenset | None = None
+
+
+class Pathwise(NamedTuple):
+    """A protocol's pathwise fit (`jaxpile fit --estimator pathwise`).
+
+    Attributes:
+      problem: `(law, start, *, size, seed, options, bins, window, progress)
+        -> FitProblem`: the pile built with the starting parameters, and the
+        steps differentiated from it.
+      dry_run: `(law, start, *, size, seed, options, window) -> (what,
+        particles, params, build steps, steps differentiated)`, set up and
+        checked, not run.
+      default_size: the pile's size when none is given.
+    """
+
+    problem: Callable
+    dry_run: Callable
+    default_size: int
+
+
+@dataclass(frozen=True)
+class ProtocolSpec:
+    """A protocol: what one pile's run, a batch and the commands need, declared once.
+
+    The functions, each with one signature:
+
+    - `setup(options, *, law, seed, dt, dtype) -> Setup`; a protocol that
+      `starts_from` another takes that one's end state first:
+      `setup(pile, options, *, law, dt) -> Setup`.
+    - `simulator(options, *, law, dt, rotation, integrator, chunk_steps) ->
+      Simulator` (None for `rotation`, `integrator`, `chunk_steps`: the
+      protocol's own).
+    - `law_and_params(law, params, rotation, dtype) -> (law module,
+      ContactLaw, params)`, params None (the protocol's setting), a dict of
+      overrides, or a params pytree.
+    - `default_dt(law name) -> dt`.
+    - `finished(setup, options) -> (state -> bool array)`, traceable.
+    - `budget(setup, options) -> steps`, the run's step budget (counted from
+      the set-up's `info["start_step"]` for a continued protocol).
+    - `measure(sim, params, state, setup, options) -> dict`: what a run reports.
+    - `row`: the keys of `measure` a sweep row carries, or `measured -> row`.
+    - `execute(sim, params, setup, options, *, progress, checkpoint, resume)
+      -> (state, RunInfo, samples or None)`, optional: how one pile runs when
+      it is not `finished` checked at each chunk's end (the pour: a loading
+      phase of fixed length, then a run to rest; a batch still uses `finished`).
+    - `report(measured, setup, options, RunInfo, samples, seconds) -> dict`,
+      optional: one pile's whole output, when it is not the default
+      `{"protocol", **measured, "kinetic_energy", **run record, "info"}`.
+    - `check(setup, options) -> None`, optional: raises `InputError` when the
+      options cannot work with this set-up (a voidage map too fine for memory).
+    - `pile_facts(pile, setup) -> dict`, optional with `starts_from`: what the
+      pile was when this protocol took it over (the tilt: its angle of repose).
+
+    Attributes:
+      name: the protocol's registered name.
+      options: its options dataclass (an `Options`).
+      default_law: the law of its paper.
+      size: the option a sweep's and the command line's `--n` (or `--layers`) sets.
+      presentation: how the commands show it.
+      batch: what a sweep and an ensemble fit read.
+      starts_from: the spec whose end state this one continues, contact history
+        kept (the tilt continues a box pile); a batch runs the two as stages.
+      pathwise: its pathwise fit, where it offers one.
+    """
+
+    name: str
+    options: type
+    setup: Callable
+    simulator: Callable
+    law_and_params: Callable
+    default_dt: Callable
+    finished: Callable
+    budget: Callable
+    measure: Callable
+    row: tuple | Callable
+    default_law: str
+    presentation: Presentation
+    batch: Batch
+    size: str = "n"
+    execute: Callable | None = None
+    report: Callable | None = None
+    check: Callable | None = None
+    starts_from: ProtocolSpec | None = None
+    pile_facts: Callable | None = None
+    pathwise: Pathwise | None = None
+
+    def __post_init__(self):
+        if not (isinstance(self.options, type) and issubclass(self.options, Options)):
+            raise TypeError(f"{self.name}: options must be an Options dataclass; got {self.options!r}.")
+        if self.starts_from is not None and (self.execute is not None or self.report is not None):
+            raise TypeError(f"{self.name}: a protocol that continues another's pile takes no execute or report.")
+
+    def make_options(self, values: dict | None = None, **more):
+        """This protocol's options from a dict and keywords (a sweep's `n` names
+        the size, whatever the option is called); unknown names refused."""
+        values = {**(values or {}), **more}
+        if self.size != "n" and "n" in values and "n" not in self.options.names():
+            if values.get(self.size) is not None:
+                raise InputError(f"give the {self.name} pile's size once: n or {self.size}, not both.")
+            values[self.size] = values.pop("n")
+        return self.options.of(values, f"the {self.name} protocol")
+
+    def chain(self) -> tuple[ProtocolSpec, ...]:
+        """The specs a run goes through in order: the pile's first, this one last."""
+        return (*(() if self.starts_from is None else self.starts_from.chain()), self)
+
+    def set_up(self, law: str | None = None, size=None, *, seed: int = 0, dt: float | None = None, dtype=None,
+               pile=None, **options):
+        """This protocol's `Setup` from keywords, e.g. `box.SPEC.set_up("hooke", 72, width=1.6)`;
+        a continued protocol's takes the `pile` it continues."""
+        law = law or self.default_law
+        if size is not None:
+            options[self.size] = size
+        o = self.make_options(options)
+        dt = self.default_dt(law) if dt is None else ranges.TIME_STEP.check("dt", dt, scalar=True)
+        if self.starts_from is not None:
+            if pile is None:
+                raise InputError(f"the {self.name} protocol continues a pile: give the pile (a state) it starts from.")
+            return self.setup(pile, o, law=law, dt=dt)
+        return self.setup(o, law=law, seed=ranges.SEED.check("seed", seed, scalar=True), dt=dt, dtype=dtype)
+
+    def run(self, law: str | None = None, size=None, **kwargs):
+        """One pile from set-up to measurements: `jaxpile.protocols.running.run(self, ...)`."""
+        return run_protocol(self, law, size, **kwargs)
+
+
+__all__ = ["Batch", "Option", "Options", "Pathwise", "Presentation", "ProtocolSpec", "declared", "option",
+           "ranges_of"]
