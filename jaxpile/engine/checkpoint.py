@@ -279,9 +279,10 @@ def restore(path, template: SimState, law, params) -> SimState:
     if meta["precision"] != _precision(template):
         raise InputError(f"{path} holds a {meta['precision']} run; the set-up to resume is "
                          f"{_precision(template)}. Resume with --precision {meta['precision']}.")
-    if _params_record(params) != meta["params"]:
-        changed = sorted(k for k in set(meta["params"]) | set(_params_record(params))
-                         if meta["params"].get(k) != _params_record(params).get(k))
+    record = _params_record(params)
+    # a parameter absent on one side reads as unset (None): one a law gained later, left unset, matches
+    changed = sorted(k for k in set(meta["params"]) | set(record) if meta["params"].get(k) != record.get(k))
+    if changed:
         raise InputError(f"{path} was written with other law parameters ({', '.join(changed)} differ); "
                          "resuming with other parameters is not the same run.")
     if meta["n_particles"] != template.particles.count:

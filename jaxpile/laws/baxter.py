@@ -50,6 +50,11 @@ of `law(...)` (named after what they mean), measured against the paper's heap in
 
 Walls act as partners of zero radius: sigma_ij = a_i, so a disk rests on the
 ground with its centre exactly a_i above it.
+
+Rolling resistance (`law(rolling="sds" | "constant")`, `jaxpile.laws.rolling`;
+not in the paper): a torque R_eff f_r on i and -R_eff f_r on j while the pair is
+engaged (r < r0 sigma_ij), capped at mu_roll |F^N| R_eff with F^N of eq. 3
+(damping included), carried as a second history entry. Walls use the same values.
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
+from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, dot2,
                                normal_and_distance, perp, safe_sqrt)
@@ -68,12 +74,12 @@ from jaxpile.ranges import NON_NEGATIVE, POSITIVE, Range
 
 Array = Any
 NAME = "baxter"
-PARAM_NAMES = ("n", "r0", "mu", "alpha", "damping_fraction", "weight", "wall_mu")
+PARAM_NAMES = ("n", "r0", "mu", "alpha", "damping_fraction", "weight", "wall_mu") + rolling_.PARAM_NAMES
 RANGES = {
     "n": Range(low=0, low_open=True, high=1000, why="beyond ~1000 the law is a hard disk: its stiffness overflows"),
     "r0": Range(low=1, low_open=True, high=3, why="a cut-off beyond contact; the neighbour list grows as r0^2"),
     "mu": NON_NEGATIVE, "alpha": NON_NEGATIVE, "damping_fraction": NON_NEGATIVE, "weight": POSITIVE,
-    "wall_mu": NON_NEGATIVE,
+    "wall_mu": NON_NEGATIVE, **rolling_.RANGES,
 }
 """Each parameter's valid range (`jaxpile.ranges`); the paper uses n = 36 and 144, r0 = 1.047 and 1.2."""
 
@@ -99,16 +105,20 @@ class Params:
     damping_fraction: Array
     weight: Array
     wall_mu: Array = None
+    k_roll: Array = None
+    gamma_roll: Array = None
+    mu_roll: Array = None
 
 
-Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+Params.__doc__ = (Params.__doc__ or "").rstrip() + "\n" + rolling_.DOC + ranges_doc(RANGES)
 
 
 def make_params(n=36.0, r0=1.2, mu=0.5, alpha=1.214, damping_fraction=0.5, weight=1.0, *, wall_mu=None,
-                dtype=None) -> Params:
+                k_roll=None, gamma_roll=None, mu_roll=None, dtype=None) -> Params:
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
-    values = dict(n=n, r0=r0, mu=mu, alpha=alpha, damping_fraction=damping_fraction, weight=weight, wall_mu=wall_mu)
-    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=("wall_mu",)))
+    values = dict(n=n, r0=r0, mu=mu, alpha=alpha, damping_fraction=damping_fraction, weight=weight, wall_mu=wall_mu,
+                  k_roll=k_roll, gamma_roll=gamma_roll, mu_roll=mu_roll)
+    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=("wall_mu",) + rolling_.PARAM_NAMES))
 
 
 def paper_params(n: float = 36.0, r0: float | None = None, mu: float = 0.5, dtype=None) -> Params:
@@ -135,8 +145,10 @@ SLIP_MODES = ("hold", "accumulate")
 DAMPING_MASSES = ("pair", "disk")
 
 
-def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold", damping_mass: str = "pair"):
-    """The eqs. 3-8 kernel in one reading (see the module docstring)."""
+def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold", damping_mass: str = "pair",
+                    rolling: str | None = None):
+    """The eqs. 3-8 kernel in one reading (see the module docstring), with the
+    rolling resistance `rolling` (None: none)."""
     centre = lever_arm == "centre-distance"
     hold = slip == "hold"
     own_mass = damping_mass == "disk"
@@ -178,16 +190,23 @@ def make_pair_force(lever_arm: str = "contact-point", slip: str = "hold", dampin
         force = f_n * n_hat + f_t * t_hat
         torque = -lever_i * f_t  # (-lever_i n) x (f_t t)
         torque_j = -lever_j * f_t  # (lever_j n) x (-f_t t)
-        return contact_result(engaged, force, torque, delta[None], f_n, torque_j)
+        new_history = delta[None]
+        if rolling is not None:
+            roll_i, roll_j, carried = rolling_.resist(rolling, p, f_n, g.radius_i, g.radius_j, g.angular_velocity_i,
+                                                      g.angular_velocity_j, g.effective_mass, history[1], dt)
+            torque, torque_j = torque + roll_i, torque_j + roll_j
+            new_history = jnp.stack([delta, carried])
+        return contact_result(engaged, force, torque, new_history, f_n, torque_j)
 
     return pair_force
 
 
 # one kernel object per reading, so that laws built with the same options are
 # equal (hashable alike) and a jit that closes over them compiles once
-_KERNELS = {(arm, slip, mass): make_pair_force(arm, slip, mass)
-            for arm in LEVER_ARMS for slip in SLIP_MODES for mass in DAMPING_MASSES}
-pair_force = _KERNELS["contact-point", "hold", "pair"]
+ROLLING = (None,) + rolling_.MODES
+_KERNELS = {(arm, slip, mass, mode): make_pair_force(arm, slip, mass, mode)
+            for arm in LEVER_ARMS for slip in SLIP_MODES for mass in DAMPING_MASSES for mode in ROLLING}
+pair_force = _KERNELS["contact-point", "hold", "pair", None]
 
 
 def hooke_equivalent(n: float, r0: float, r_min: float, sigma: float = 1.0, weight: float = 1.0) -> float:
@@ -212,11 +231,16 @@ def interaction_range(p: Params, radius_i, radius_j) -> float:
 def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
     """Estimate with the force law's stiffness k(r) at r = 0.95 sigma (a deep
     overlap for n = 36) and the lattice factor 8 k / m; damping is at most
-    critical, which the undamped limit already covers to within a factor 2."""
+    critical, which the undamped limit already covers to within a factor 2. A
+    rolling spring and dashpot, where set, as in the hooke law."""
     r = 0.95
-    k = (float(p.n) + 1.0) * float(p.weight) * r ** (-(float(p.n) + 2.0)) / (2.0 * min_radius)
+    k_roll, gamma_roll = rolling_.time_step_limits(p)
+    k = max((float(p.n) + 1.0) * float(p.weight) * r ** (-(float(p.n) + 2.0)) / (2.0 * min_radius), k_roll)
     omega = math.sqrt(8.0 * k / min_mass)
-    return 1.0 / omega if omega > 0 else math.inf  # a stiffness so small it underflows has no limit
+    limits = [1.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
+    if gamma_roll > 0:
+        limits.append(2.0 / (4.0 * gamma_roll / min_mass))
+    return min(limits)
 
 
 def validate(p: Params) -> None:
@@ -224,8 +248,19 @@ def validate(p: Params) -> None:
     validate_ranges(NAME, p, RANGES)
 
 
+def _make_validate(rolling):
+    def check(p: Params) -> None:
+        """`validate`, and the parameters the rolling model needs set."""
+        validate(p)
+        rolling_.validate(NAME, p, rolling)
+    return check
+
+
+_VALIDATORS = {None: validate, **{mode: _make_validate(mode) for mode in rolling_.MODES}}
+
+
 def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "hold",
-        damping_mass: str = "pair") -> ContactLaw:
+        damping_mass: str = "pair", rolling: str | None = None) -> ContactLaw:
     """The Baxter et al. law (disks rotate, eqs. 10, 12, 13).
 
     Args:
@@ -236,6 +271,8 @@ def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "ho
         (delta_F integrated on, only the force capped).
       damping_mass: `"pair"` (default: 2 m_i m_j / (m_i + m_j), 2 m_i against a
         fixed partner) or `"disk"` (the printed m: m_i against a fixed partner).
+      rolling: None (default), `"sds"` or `"constant"`: rolling resistance
+        (`jaxpile.laws.rolling`), recorded in `options` when set.
     """
     if lever_arm not in LEVER_ARMS:
         raise InputError(f"unknown lever_arm {lever_arm!r} for {NAME}; choose one of {list(LEVER_ARMS)}.")
@@ -243,8 +280,10 @@ def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "ho
         raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {list(SLIP_MODES)}.")
     if damping_mass not in DAMPING_MASSES:
         raise InputError(f"unknown damping_mass {damping_mass!r} for {NAME}; choose one of {list(DAMPING_MASSES)}.")
-    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation),
-                      pair_force=_KERNELS[lever_arm, slip, damping_mass],
+    rolling_.check_mode(NAME, rolling, rotation)
+    return ContactLaw(name=NAME, history_size=1 + rolling_.HISTORY[rolling], rotation=bool(rotation),
+                      pair_force=_KERNELS[lever_arm, slip, damping_mass, rolling],
                       wall_params=wall_params, interaction_range=interaction_range,
-                      stable_time_step=stable_time_step, validate=validate, params_type=Params,
-                      options=(("lever_arm", lever_arm), ("slip", slip), ("damping_mass", damping_mass)))
+                      stable_time_step=stable_time_step, validate=_VALIDATORS[rolling], params_type=Params,
+                      options=(("lever_arm", lever_arm), ("slip", slip), ("damping_mass", damping_mass))
+                      + (() if rolling is None else (("rolling", rolling),)))

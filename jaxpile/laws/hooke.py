@@ -17,6 +17,23 @@ The shear displacement s is the per-pair history (a 2-vector, zeroed when the
 pair separates). Walls and the ground use `wall_kn, wall_kt, wall_gamma_n,
 wall_gamma_t, wall_mu`, each defaulting to the disk value when left `None`.
 
+Rolling resistance (`law(rolling="sds" | "constant")`, `jaxpile.laws.rolling`):
+a torque R_eff f_r on i and -R_eff f_r on j added after F_n is known, with
+`k_roll, gamma_roll, mu_roll` (`"sds"`, LAMMPS `rolling sds`) or `mu_roll`
+alone (`"constant"`), carried as a third history entry. Walls use the same
+values.
+
+The tangential spring's reading (`law(pair_style=...)`). `"gran/hooke/history"`
+(the default) is the above, as LAMMPS's `pair_style gran/hooke/history`.
+`"granular"` is LAMMPS's `pair_style granular hooke kn gamma_n damping
+mass_velocity tangential linear_history kt gamma_t/gamma_n mu` (29Sep2021), which
+differs in two places: before the step's increment the spring is turned into
+the current tangent plane keeping its length (when |s . n| k_t > 1e-10 mu |F_n|),
+s <- (s - (s . n) n) |s| / |s - (s . n) n|, then s <- s + v_tr dt; and the torque
+arm is the distance to the contact point, r_i - delta/2 on i and r_j - delta/2 on
+j (walls, `fix wall/gran granular`: r_i). It is what a LAMMPS run with rolling
+resistance (which only `pair_style granular` has) computes.
+
 The 1992 static-pile analysis (Liffman, Chan & Hughes, eqs. 42 and 44) assumes
 only normal forces between disks at rest; with this law that means disk-disk
 `mu = 0` and rotation off, and enough ground friction (`wall_mu`).
@@ -31,15 +48,20 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
+from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
 NAME = "hooke"
-PARAM_NAMES = ("kn", "kt", "gamma_n", "gamma_t", "mu", "wall_kn", "wall_kt", "wall_gamma_n", "wall_gamma_t", "wall_mu")
-RANGES = {name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES}
+WALL_NAMES = ("wall_kn", "wall_kt", "wall_gamma_n", "wall_gamma_t", "wall_mu")
+PARAM_NAMES = ("kn", "kt", "gamma_n", "gamma_t", "mu") + WALL_NAMES + rolling_.PARAM_NAMES
+RANGES = {**{name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES[:10]},
+          **rolling_.RANGES}
 """Each parameter's valid range (`jaxpile.ranges`): the normal stiffness > 0, the rest >= 0."""
+OPTIONAL = WALL_NAMES + rolling_.PARAM_NAMES
+"""The parameters that may be None (unset)."""
 
 
 @dataclasses.dataclass
@@ -67,15 +89,20 @@ class Params:
     wall_gamma_n: Array = None
     wall_gamma_t: Array = None
     wall_mu: Array = None
+    k_roll: Array = None
+    gamma_roll: Array = None
+    mu_roll: Array = None
 
 
-Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+Params.__doc__ = (Params.__doc__ or "").rstrip() + "\n" + rolling_.DOC + ranges_doc(RANGES)
 
 
-def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, dtype=None, **wall) -> Params:
+def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, k_roll=None, gamma_roll=None,
+                mu_roll=None, dtype=None, **wall) -> Params:
     """`hooke` parameters with LAMMPS's defaults for what is left out:
-    kt = 2/7 kn and gamma_t = gamma_n / 2; `wall_*` default to the disk values."""
-    unknown = set(wall) - set(PARAM_NAMES[5:])
+    kt = 2/7 kn and gamma_t = gamma_n / 2; `wall_*` default to the disk values;
+    the rolling parameters stay None (unset) unless given."""
+    unknown = set(wall) - set(WALL_NAMES)
     if unknown:
         raise InputError(f"unknown hooke parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
@@ -83,74 +110,124 @@ def make_params(kn=2.0e5, kt=None, gamma_n=50.0, gamma_t=None, mu=0.5, *, dtype=
     kn, gamma_n = param_arrays(NAME, dict(kn=kn, gamma_n=gamma_n), RANGES, dtype).values()
     kt = 2.0 / 7.0 * kn if kt is None else kt
     gamma_t = 0.5 * gamma_n if gamma_t is None else gamma_t
-    values = dict(kn=kn, kt=kt, gamma_n=gamma_n, gamma_t=gamma_t, mu=mu, **wall)
-    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=PARAM_NAMES[5:]))
+    values = dict(kn=kn, kt=kt, gamma_n=gamma_n, gamma_t=gamma_t, mu=mu, **wall, k_roll=k_roll,
+                  gamma_roll=gamma_roll, mu_roll=mu_roll)
+    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=OPTIONAL))
 
 
 def wall_params(p: Params) -> Params:
-    """The parameters used against walls: each `wall_*` or, if None, its disk value."""
+    """The parameters used against walls: each `wall_*` or, if None, its disk
+    value; the rolling parameters as they are."""
     pick = lambda w, d: d if w is None else w
     return Params(
         kn=pick(p.wall_kn, p.kn), kt=pick(p.wall_kt, p.kt), gamma_n=pick(p.wall_gamma_n, p.gamma_n),
         gamma_t=pick(p.wall_gamma_t, p.gamma_t), mu=pick(p.wall_mu, p.mu),
+        k_roll=p.k_roll, gamma_roll=p.gamma_roll, mu_roll=p.mu_roll,
     )
 
 
-def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
-    """One pair's force, torque and new shear history (see the module docstring).
+FRAME_EPSILON = 1e-10
+"""LAMMPS `pair_style granular`'s EPSILON: the shear spring is turned into the
+tangent plane when |s . n| k_t exceeds this fraction of mu |F_n|."""
 
-    Written component by component (x, y scalars rather than 2-vectors): vmapped
-    over the slots every intermediate is then an `[n, k]` array, and XLA on CPU
-    computes the shared scalars (r, F_n, the Coulomb ratio) once instead of once
-    per vector component (measured: see benchmarks/profile_step.py)."""
-    dx, dy = g.displacement[0], g.displacement[1]
-    r2 = dx * dx + dy * dy
-    positive = r2 > 0
-    r = jnp.sqrt(jnp.where(positive, r2, 1.0))
-    inv_r = jnp.where(positive, 1.0 / r, 0.0)
-    nx, ny = dx * inv_r, dy * inv_r
-    r = jnp.where(positive, r, 0.0)
-    radsum = g.radius_i + g.radius_j
-    in_contact = (r < radsum) & positive
 
-    vx, vy = g.velocity[0], g.velocity[1]
-    vn = vx * nx + vy * ny
-    spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
-    # relative velocity of the contact points: v - (v.n) n - spin (z x n), z x n = (-ny, nx)
-    vtx = vx - vn * nx + spin * ny
-    vty = vy - vn * ny - spin * nx
+def make_pair_force(rolling=None, pair_style: str = "gran/hooke/history"):
+    """The kernel in one reading: `rolling` (None, `"sds"`, `"constant"`) and the
+    tangential spring's `pair_style` (see the module docstring)."""
+    granular = pair_style == "granular"
 
-    fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
+    def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
+        """One pair's force, torque and new shear history (see the module docstring).
 
-    sx, sy = shear[0] + vtx * dt, shear[1] + vty * dt
-    s2 = sx * sx + sy * sy
-    sn = sx * nx + sy * ny
-    sx, sy = sx - sn * nx, sy - sn * ny  # rotate into the current tangent plane
-    damping = g.effective_mass * p.gamma_t
-    ftx, fty = -(p.kt * sx + damping * vtx), -(p.kt * sy + damping * vty)
-    ft2 = ftx * ftx + fty * fty
-    cap = p.mu * jnp.abs(fn)
-    sliding = ft2 > cap * cap
-    # cap / |F_t| with a select between the divide and the sqrt: XLA rewrites
-    # a / sqrt(b) into a * rsqrt(b), and XLA:CPU emits a float64 rsqrt as scalar
-    # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
-    # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
-    # in the unselected branch would make the gradient NaN where F_t = 0.
-    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
-    # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
-    has_kt = p.kt > 0
-    inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, p.kt, 1.0), 0.0)
-    rescale = sliding & (s2 > 0)
-    sx = jnp.where(rescale, jnp.where(has_kt, ratio * (sx + damping * vtx * inv_kt) - damping * vtx * inv_kt, 0.0), sx)
-    sy = jnp.where(rescale, jnp.where(has_kt, ratio * (sy + damping * vty * inv_kt) - damping * vty * inv_kt, 0.0), sy)
-    keep = jnp.where(sliding & (s2 <= 0), 0.0, ratio)
-    ftx, fty = keep * ftx, keep * fty
+        Written component by component (x, y scalars rather than 2-vectors): vmapped
+        over the slots every intermediate is then an `[n, k]` array, and XLA on CPU
+        computes the shared scalars (r, F_n, the Coulomb ratio) once instead of once
+        per vector component (measured: see benchmarks/profile_step.py)."""
+        dx, dy = g.displacement[0], g.displacement[1]
+        r2 = dx * dx + dy * dy
+        positive = r2 > 0
+        r = jnp.sqrt(jnp.where(positive, r2, 1.0))
+        inv_r = jnp.where(positive, 1.0 / r, 0.0)
+        nx, ny = dx * inv_r, dy * inv_r
+        r = jnp.where(positive, r, 0.0)
+        radsum = g.radius_i + g.radius_j
+        in_contact = (r < radsum) & positive
 
-    fx, fy = fn * nx + ftx, fn * ny + fty
-    n_cross_ft = nx * fty - ny * ftx
-    torque = -g.radius_i * n_cross_ft
-    torque_j = -g.radius_j * n_cross_ft  # (r_j n) x (-F_t)
-    return contact_result(in_contact, jnp.stack([fx, fy]), torque, jnp.stack([sx, sy]), fn, torque_j)
+        vx, vy = g.velocity[0], g.velocity[1]
+        vn = vx * nx + vy * ny
+        spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
+        # relative velocity of the contact points: v - (v.n) n - spin (z x n), z x n = (-ny, nx)
+        vtx = vx - vn * nx + spin * ny
+        vty = vy - vn * ny - spin * nx
+
+        fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
+
+        if granular:  # turn the spring into the tangent plane keeping its length, then add the increment
+            sx, sy = shear[0], shear[1]
+            sn = sx * nx + sy * ny
+            turn = jnp.abs(sn) * p.kt > FRAME_EPSILON * (p.mu * jnp.abs(fn))
+            length2 = sx * sx + sy * sy
+            px, py = sx - sn * nx, sy - sn * ny
+            projected2 = px * px + py * py
+            keep_length = projected2 > 0
+            scale = jnp.where(keep_length, jnp.sqrt(jnp.where(keep_length, length2, 1.0)
+                                                    / jnp.where(keep_length, projected2, 1.0)), 0.0)
+            sx, sy = jnp.where(turn, px * scale, sx), jnp.where(turn, py * scale, sy)
+            sx, sy = sx + vtx * dt, sy + vty * dt
+            s2 = sx * sx + sy * sy
+        else:
+            sx, sy = shear[0] + vtx * dt, shear[1] + vty * dt
+            s2 = sx * sx + sy * sy
+            sn = sx * nx + sy * ny
+            sx, sy = sx - sn * nx, sy - sn * ny  # rotate into the current tangent plane
+        damping = g.effective_mass * p.gamma_t
+        ftx, fty = -(p.kt * sx + damping * vtx), -(p.kt * sy + damping * vty)
+        ft2 = ftx * ftx + fty * fty
+        cap = p.mu * jnp.abs(fn)
+        sliding = ft2 > cap * cap
+        # cap / |F_t| with a select between the divide and the sqrt: XLA rewrites
+        # a / sqrt(b) into a * rsqrt(b), and XLA:CPU emits a float64 rsqrt as scalar
+        # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
+        # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
+        # in the unselected branch would make the gradient NaN where F_t = 0.
+        ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+        # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
+        has_kt = p.kt > 0
+        inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, p.kt, 1.0), 0.0)
+        rescale = sliding & (s2 > 0)
+        sx = jnp.where(rescale, jnp.where(has_kt, ratio * (sx + damping * vtx * inv_kt) - damping * vtx * inv_kt, 0.0),
+                       sx)
+        sy = jnp.where(rescale, jnp.where(has_kt, ratio * (sy + damping * vty * inv_kt) - damping * vty * inv_kt, 0.0),
+                       sy)
+        keep = jnp.where(sliding & (s2 <= 0), 0.0, ratio)
+        ftx, fty = keep * ftx, keep * fty
+
+        fx, fy = fn * nx + ftx, fn * ny + fty
+        n_cross_ft = nx * fty - ny * ftx
+        if granular:  # the arm to the contact point (pair granular); a wall's is r_i (fix wall/gran granular)
+            half_overlap = 0.5 * (radsum - r)
+            torque = -jnp.where(g.radius_j > 0, g.radius_i - half_overlap, g.radius_i) * n_cross_ft
+            torque_j = -(g.radius_j - half_overlap) * n_cross_ft
+        else:
+            torque = -g.radius_i * n_cross_ft
+            torque_j = -g.radius_j * n_cross_ft  # (r_j n) x (-F_t)
+        history = [sx, sy]
+        if rolling is not None:
+            roll_i, roll_j, carried = rolling_.resist(rolling, p, fn, g.radius_i, g.radius_j, g.angular_velocity_i,
+                                                      g.angular_velocity_j, g.effective_mass, shear[2], dt)
+            torque, torque_j = torque + roll_i, torque_j + roll_j
+            history.append(carried)
+        return contact_result(in_contact, jnp.stack([fx, fy]), torque, jnp.stack(history), fn, torque_j)
+
+    return pair_force
+
+
+PAIR_STYLES = ("gran/hooke/history", "granular")
+ROLLING = (None,) + rolling_.MODES
+# one kernel object per reading, so that laws built with the same options are
+# equal (hashable alike) and a jit that closes over them compiles once
+_KERNELS = {(mode, style): make_pair_force(mode, style) for mode in ROLLING for style in PAIR_STYLES}
+pair_force = _KERNELS[None, "gran/hooke/history"]
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:
@@ -164,11 +241,14 @@ def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> flo
     The highest vibration frequency of a close-packed 2D lattice of springs k is
     omega^2 = 6 k / m (hexagonal lattice, M point); we take 8 k / m to cover a
     disk that also touches a wall. Damping adds the explicit-damping limit
-    gamma dt < 2 with gamma summed over about four contacts.
+    gamma dt < 2 with gamma summed over about four contacts. A rolling spring
+    and dashpot, where set, count as one more stiffness and damping rate
+    (`rolling.time_step_limits`).
     """
     w = wall_params(p)
-    k = max(float(p.kn), float(p.kt), float(w.kn), float(w.kt))
-    gamma = max(float(p.gamma_n), float(p.gamma_t), float(w.gamma_n), float(w.gamma_t))
+    k_roll, gamma_roll = rolling_.time_step_limits(p)
+    k = max(float(p.kn), float(p.kt), float(w.kn), float(w.kt), k_roll)
+    gamma = max(float(p.gamma_n), float(p.gamma_t), float(w.gamma_n), float(w.gamma_t), gamma_roll / min_mass)
     omega = math.sqrt(8.0 * k / min_mass)
     limits = [2.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
     if gamma > 0:
@@ -181,16 +261,46 @@ def validate(p: Params) -> None:
     validate_ranges(NAME, p, RANGES)
 
 
-def law(rotation: bool = True) -> ContactLaw:
-    """The `hooke` law; `rotation=False` freezes angular degrees of freedom."""
+def _make_validate(rolling):
+    def check(p: Params) -> None:
+        """`validate`, and the parameters the rolling model needs set."""
+        validate(p)
+        rolling_.validate(NAME, p, rolling)
+    return check
+
+
+_VALIDATORS = {mode: (validate if mode is None else _make_validate(mode)) for mode in ROLLING}
+
+
+def law(rotation: bool = True, rolling: str | None = None, pair_style: str = "gran/hooke/history") -> ContactLaw:
+    """The `hooke` law.
+
+    Args:
+      rotation: False freezes angular degrees of freedom.
+      rolling: None (default), `"sds"` or `"constant"`: rolling resistance
+        (`jaxpile.laws.rolling`); `"sds"` adds one history entry.
+      pair_style: the tangential spring's reading, `"gran/hooke/history"`
+        (default) or `"granular"` (LAMMPS `pair_style granular`; see the module
+        docstring).
+
+    Options other than the defaults are recorded in `ContactLaw.options` (and so
+    in checkpoints); the defaults are not, so a run without them is recorded as
+    before they existed.
+    """
+    rolling_.check_mode(NAME, rolling, rotation)
+    if pair_style not in PAIR_STYLES:
+        raise InputError(f"unknown pair_style {pair_style!r} for {NAME}; choose one of {list(PAIR_STYLES)}.")
+    options = (() if rolling is None else (("rolling", rolling),)) + \
+        (() if pair_style == PAIR_STYLES[0] else (("pair_style", pair_style),))
     return ContactLaw(
         name=NAME,
-        history_size=2,
+        history_size=2 + rolling_.HISTORY[rolling],
         rotation=bool(rotation),
-        pair_force=pair_force,
+        pair_force=_KERNELS[rolling, pair_style],
         wall_params=wall_params,
         interaction_range=interaction_range,
         stable_time_step=stable_time_step,
-        validate=validate,
+        validate=_VALIDATORS[rolling],
         params_type=Params,
+        options=options,
     )

@@ -26,6 +26,12 @@ own stiffness (`wall_kn`, 2e6 in the paper). The paper's particles do not rotate
 `law()` freezes rotation by default; with `rotation=True` the spins enter the
 contact velocity and F_s exerts a torque, as for the other laws.
 
+Rolling resistance (`law(rolling="sds" | "constant")`, with rotation on;
+`jaxpile.laws.rolling`; not in the paper, whose disks do not rotate): a torque
+R_eff f_r on i and -R_eff f_r on j added once F_n (eq. 2a) is known, capped at
+mu_roll |F_n| R_eff, carried as a second history entry. Walls use the same
+values.
+
 Units: the paper's values (`paper_params`) are in its own units (cgs-like: radii
 around 0.1). It gives neither g nor the density; the protocols using this preset
 state their choice.
@@ -40,6 +46,7 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.errors import InputError
+from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, dot2,
                                normal_and_distance, perp, safe_sqrt)
@@ -47,9 +54,13 @@ from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
 NAME = "lee-herrmann"
-PARAM_NAMES = ("kn", "ks", "gamma_n", "gamma_s", "mu", "wall_kn", "wall_ks", "wall_gamma_n", "wall_gamma_s", "wall_mu")
-RANGES = {name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES}
+WALL_NAMES = ("wall_kn", "wall_ks", "wall_gamma_n", "wall_gamma_s", "wall_mu")
+PARAM_NAMES = ("kn", "ks", "gamma_n", "gamma_s", "mu") + WALL_NAMES + rolling_.PARAM_NAMES
+RANGES = {**{name: POSITIVE if name in ("kn", "wall_kn") else NON_NEGATIVE for name in PARAM_NAMES[:10]},
+          **rolling_.RANGES}
 """Each parameter's valid range (`jaxpile.ranges`): the normal stiffness > 0, the rest >= 0."""
+OPTIONAL = WALL_NAMES + rolling_.PARAM_NAMES
+"""The parameters that may be None (unset)."""
 
 
 @dataclasses.dataclass
@@ -74,23 +85,28 @@ class Params:
     wall_gamma_n: Array = None
     wall_gamma_s: Array = None
     wall_mu: Array = None
+    k_roll: Array = None
+    gamma_roll: Array = None
+    mu_roll: Array = None
 
 
-Params.__doc__ = (Params.__doc__ or "").rstrip() + ranges_doc(RANGES)
+Params.__doc__ = (Params.__doc__ or "").rstrip() + "\n" + rolling_.DOC + ranges_doc(RANGES)
 
 
-def make_params(kn=1.0e6, ks=None, gamma_n=5.0e2, gamma_s=None, mu=0.2, *, dtype=None, **wall) -> Params:
+def make_params(kn=1.0e6, ks=None, gamma_n=5.0e2, gamma_s=None, mu=0.2, *, k_roll=None, gamma_roll=None,
+                mu_roll=None, dtype=None, **wall) -> Params:
     """Parameters, with the paper's ratios for what is left out: k_s = k_n / 100
-    and gamma_s = gamma_n / 100."""
-    unknown = set(wall) - set(PARAM_NAMES[5:])
+    and gamma_s = gamma_n / 100; the rolling parameters stay None unless given."""
+    unknown = set(wall) - set(WALL_NAMES)
     if unknown:
         raise InputError(f"unknown {NAME} parameter(s) {sorted(unknown)}; known: {list(PARAM_NAMES)}.")
     dtype = jnp.zeros(()).dtype if dtype is None else dtype
     # arrays (and refused if not numbers) before the defaults are computed from them
     kn, gamma_n = param_arrays(NAME, dict(kn=kn, gamma_n=gamma_n), RANGES, dtype).values()
     values = dict(kn=kn, ks=kn / 100.0 if ks is None else ks, gamma_n=gamma_n,
-                  gamma_s=gamma_n / 100.0 if gamma_s is None else gamma_s, mu=mu, **wall)
-    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=PARAM_NAMES[5:]))
+                  gamma_s=gamma_n / 100.0 if gamma_s is None else gamma_s, mu=mu, **wall, k_roll=k_roll,
+                  gamma_roll=gamma_roll, mu_roll=mu_roll)
+    return Params(**param_arrays(NAME, values, RANGES, dtype, optional=OPTIONAL))
 
 
 def paper_params(dtype=None) -> Params:
@@ -102,7 +118,8 @@ def paper_params(dtype=None) -> Params:
 def wall_params(p: Params) -> Params:
     pick = lambda w, d: d if w is None else w
     return Params(kn=pick(p.wall_kn, p.kn), ks=pick(p.wall_ks, p.ks), gamma_n=pick(p.wall_gamma_n, p.gamma_n),
-                  gamma_s=pick(p.wall_gamma_s, p.gamma_s), mu=pick(p.wall_mu, p.mu))
+                  gamma_s=pick(p.wall_gamma_s, p.gamma_s), mu=pick(p.wall_mu, p.mu),
+                  k_roll=p.k_roll, gamma_roll=p.gamma_roll, mu_roll=p.mu_roll)
 
 
 def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
@@ -116,7 +133,14 @@ def pair_force_literal(p: Params, g: PairGeometry, history: Array, dt) -> PairFo
     return _pair_force(p, g, history, dt, slip=False)
 
 
-def _pair_force(p: Params, g: PairGeometry, history: Array, dt, slip: bool) -> PairForce:
+def _make_pair_force(slip: bool, rolling):
+    def kernel(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
+        """Eqs. 1, 2a, 2b with rolling resistance; `history[0]` is delta_s, `history[1]` the rolling entry."""
+        return _pair_force(p, g, history, dt, slip=slip, rolling=rolling)
+    return kernel
+
+
+def _pair_force(p: Params, g: PairGeometry, history: Array, dt, slip: bool, rolling=None) -> PairForce:
     n, r = normal_and_distance(g.displacement)
     overlap = g.radius_i + g.radius_j - r
     in_contact = (overlap > 0) & (r > 0)
@@ -137,7 +161,13 @@ def _pair_force(p: Params, g: PairGeometry, history: Array, dt, slip: bool) -> P
     force = f_n * n + f_s * s
     torque = g.radius_i * f_s  # (-a_i n) x (f_s s), z component
     torque_j = g.radius_j * f_s  # (a_j n) x (-f_s s)
-    return contact_result(in_contact, force, torque, delta_s[None], f_n, torque_j)
+    new_history = delta_s[None]
+    if rolling is not None:
+        roll_i, roll_j, carried = rolling_.resist(rolling, p, f_n, g.radius_i, g.radius_j, g.angular_velocity_i,
+                                                  g.angular_velocity_j, g.effective_mass, history[1], dt)
+        torque, torque_j = torque + roll_i, torque_j + roll_j
+        new_history = jnp.stack([delta_s, carried])
+    return contact_result(in_contact, force, torque, new_history, f_n, torque_j)
 
 
 def interaction_range(p: Params, radius_i, radius_j) -> float:
@@ -147,11 +177,13 @@ def interaction_range(p: Params, radius_i, radius_j) -> float:
 def stable_time_step(p: Params, min_mass: float, min_radius: float = 0.5) -> float:
     """Velocity-Verlet limit estimated with the Hertz contact's tangent stiffness
     1.5 k_n sqrt(delta) at a deep overlap delta = 5% of the smallest radius, and
-    the lattice factor 8 k / m of the hooke law."""
+    the lattice factor 8 k / m of the hooke law; a rolling spring and dashpot,
+    where set, as in the hooke law."""
     w = wall_params(p)
     delta = 0.05 * min_radius
-    k = max(1.5 * max(float(p.kn), float(w.kn)) * math.sqrt(delta), float(p.ks), float(w.ks))
-    gamma = max(float(p.gamma_n), float(p.gamma_s), float(w.gamma_n), float(w.gamma_s))
+    k_roll, gamma_roll = rolling_.time_step_limits(p)
+    k = max(1.5 * max(float(p.kn), float(w.kn)) * math.sqrt(delta), float(p.ks), float(w.ks), k_roll)
+    gamma = max(float(p.gamma_n), float(p.gamma_s), float(w.gamma_n), float(w.gamma_s), gamma_roll / min_mass)
     omega = math.sqrt(8.0 * k / min_mass)
     limits = [2.0 / omega if omega > 0 else math.inf]  # a stiffness so small it underflows has no limit
     if gamma > 0:
@@ -165,19 +197,39 @@ def validate(p: Params) -> None:
 
 
 SLIP_MODES = {"cundall-strack": pair_force, "literal": pair_force_literal}
+# one kernel object per reading (equal laws hash alike; a jit closing over them compiles once)
+_KERNELS = {**{(slip, None): kernel for slip, kernel in SLIP_MODES.items()},
+            **{(slip, mode): _make_pair_force(slip == "cundall-strack", mode)
+               for slip in SLIP_MODES for mode in rolling_.MODES}}
 
 
-def law(rotation: bool = False, slip: str = "cundall-strack") -> ContactLaw:
+def _make_validate(rolling):
+    def check(p: Params) -> None:
+        """`validate`, and the parameters the rolling model needs set."""
+        validate(p)
+        rolling_.validate(NAME, p, rolling)
+    return check
+
+
+_VALIDATORS = {None: validate, **{mode: _make_validate(mode) for mode in rolling_.MODES}}
+
+
+def law(rotation: bool = False, slip: str = "cundall-strack", rolling: str | None = None) -> ContactLaw:
     """The Lee-Herrmann law; the paper's disks do not rotate (default).
 
     Args:
       rotation: let the disks rotate (the paper's do not).
       slip: `"cundall-strack"` (default) lets the shear spring slip at mu F_n;
         `"literal"` caps only the force (see the module docstring).
+      rolling: None (default), `"sds"` or `"constant"`: rolling resistance
+        (`jaxpile.laws.rolling`; needs `rotation=True`), recorded in `options`
+        when set.
     """
     if slip not in SLIP_MODES:
         raise InputError(f"unknown slip mode {slip!r} for {NAME}; choose one of {sorted(SLIP_MODES)}.")
-    return ContactLaw(name=NAME, history_size=1, rotation=bool(rotation), pair_force=SLIP_MODES[slip],
+    rolling_.check_mode(NAME, rolling, rotation)
+    return ContactLaw(name=NAME, history_size=1 + rolling_.HISTORY[rolling], rotation=bool(rotation),
+                      pair_force=_KERNELS[slip, rolling],
                       wall_params=wall_params, interaction_range=interaction_range,
-                      stable_time_step=stable_time_step, validate=validate, params_type=Params,
-                      options=(("slip", slip),))
+                      stable_time_step=stable_time_step, validate=_VALIDATORS[rolling], params_type=Params,
+                      options=(("slip", slip),) + (() if rolling is None else (("rolling", rolling),)))
