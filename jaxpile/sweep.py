@@ -122,7 +122,7 @@ def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
 _ENSEMBLES: dict = {}  # the last few batched simulators, so repeated sweeps (a fit's iterations) compile once
 
 
-def _ensemble(spec, law, dt, rotation, options, devices) -> ensemble.Ensemble:
+def _ensemble(spec, law, dt, rotation, options, devices, law_options=None) -> ensemble.Ensemble:
     """The `Ensemble` for this protocol stage and its options: reused when a
     sweep with the same law, dt, rotation and the options its simulator reads
     ran before (its compiled loops are kept per batch shape); built afresh otherwise."""
@@ -130,11 +130,11 @@ def _ensemble(spec, law, dt, rotation, options, devices) -> ensemble.Ensemble:
         k: v for k, v in options.as_dict().items() if k in spec.batch.simulator_options}
 
     def build():
-        return spec.simulator(options, law=law, dt=dt, rotation=rotation)
+        return spec.simulator(options, law=law, dt=dt, rotation=rotation, law_options=law_options)
 
     try:
-        key = (spec.name, law, float(dt), rotation, tuple(sorted(read.items())),
-               None if devices is None else tuple(devices))
+        key = (spec.name, law, float(dt), rotation, tuple(sorted((law_options or {}).items())),
+               tuple(sorted(read.items())), None if devices is None else tuple(devices))
         hash(key)
     except TypeError:  # an option that is a dict or a list: no reuse
         return ensemble.Ensemble(build(), devices=devices)
@@ -160,7 +160,8 @@ class Plan(NamedTuple):
 
 def plan(protocol, law: str | None = None, *, vary: dict | None = None, seeds=4, params: dict | None = None,
          options: dict | None = None, dt: float | None = None, rotation: bool | None = None,
-         batch_size: int | None = None, dtype=None, points: Sequence[dict] | None = None):
+         batch_size: int | None = None, dtype=None, points: Sequence[dict] | None = None,
+         law_options: dict | None = None):
     """A sweep's members checked before anything runs (`sweep`, and `jaxpile
     sweep --dry-run`): every member's law parameters, and the set-up of one
     member of every batch (its options; a later stage's own options too), so
@@ -190,7 +191,7 @@ def plan(protocol, law: str | None = None, *, vary: dict | None = None, seeds=4,
     else:
         members = grid(vary, seeds)
     dt = spec.default_dt(law) if dt is None else float(dt)
-    law_names = set(spec.law_and_params(law, {}, rotation, dtype)[0].PARAM_NAMES)
+    law_names = set(spec.law_and_params(law, {}, rotation, dtype, law_options)[0].PARAM_NAMES)
     set_up = [k for k in vary if k in known and k not in law_names]  # varied set-up options
 
     def split(point):  # (law parameters, set-up options) of a member's point
@@ -199,7 +200,8 @@ def plan(protocol, law: str | None = None, *, vary: dict | None = None, seeds=4,
 
     member_params = []
     for point, _ in members:
-        _, contact_law, prm = spec.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype)
+        _, contact_law, prm = spec.law_and_params(law, {**(params or {}), **split(point)[0]}, rotation, dtype,
+                                                  law_options)
         contact_law.validate(prm)  # names and values: a NaN mu in the last batch fails here, not after the first
         member_params.append(prm)
     batch_size = len(members) if batch_size is None else int(batch_size)
@@ -222,7 +224,8 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
           seeds=4, params: dict | None = None, options: dict | None = None, dt: float | None = None,
           rotation: bool | None = None, max_steps: int | None = None, batch_size: int | None = None,
           devices=None, progress: bool | None = None, dtype=None, checkpoint: tuple | None = None,
-          resume=None, points: Sequence[dict] | None = None, extra_measure: Callable | None = None) -> SweepResult:
+          resume=None, points: Sequence[dict] | None = None, extra_measure: Callable | None = None,
+          law_options: dict | None = None) -> SweepResult:
     """Runs a protocol for every member of `grid(vary, seeds)`, batched.
 
     Args:
@@ -238,6 +241,7 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
         protocol of several stages (the tilt after the box), each stage takes
         the names it has.
       dt, rotation: for the simulator (default: the protocol's).
+      law_options: the law's readings beyond rotation, e.g. `{"rolling": "sds"}`.
       max_steps: step budget of the first stage (default: the protocol's;
         a later stage, e.g. the tilt, has its own).
       batch_size: members per compiled batch (default: all at once).
@@ -260,13 +264,13 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     spec = spec_of(protocol)
     law = law or spec.default_law
     checked = plan(spec, law, vary=vary, seeds=seeds, params=params, options=options, dt=dt, rotation=rotation,
-                   batch_size=batch_size, dtype=dtype, points=points)
+                   batch_size=batch_size, dtype=dtype, points=points, law_options=law_options)
     members, member_params, batches, split = checked.members, checked.member_params, checked.batches, checked.split
     dt, vary, points, batch_size = checked.dt, checked.vary, checked.points, checked.batch_size
     options = dict(options or {})
     chain = spec.chain()
     devices_used = len(_ensemble(chain[0], law, dt, rotation, running.stage_options(spec, split(members[0][0])[1])[0],
-                                 devices).devices)
+                                 devices, law_options).devices)
     rows, info = [], RunInfo()
     planned = [[point, seed] for point, seed in members]
     first, saved = 0, {}
@@ -283,7 +287,7 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
         facts = dict(grid=planned, batch_size=batch_size, devices=devices_used, batch_start=start, rows=rows)
         state, setups, last_sim = _run_batch(
             chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
-            checkpoint, facts, saved if resume is not None and start == first else None, resume)
+            checkpoint, facts, saved if resume is not None and start == first else None, resume, law_options)
         n_particles = int(state.particles.position.shape[1])
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
             s = ensemble.member(state, k)
@@ -300,7 +304,7 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
               "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
               "neighbor_reallocations": info.reallocations,
               "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
-              "angles": list(spec.batch.angles), "unit": spec.batch.unit}
+              "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {})}
     if points is not None:
         record["points"] = points
     return SweepResult(rows, record)
@@ -322,7 +326,7 @@ def _resumed(resume, planned: list, batch_size: int, devices: int) -> dict:
 
 
 def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
-               checkpoint, facts: dict, saved: dict | None, resume):
+               checkpoint, facts: dict, saved: dict | None, resume, law_options):
     """One batch through every stage of the protocol (stage-synchronous: each
     member starts the next stage from where it ended the last, contact history
     kept). `saved`: the checkpoint's record when this batch is the one it
@@ -330,13 +334,13 @@ def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dt
     from jaxpile.engine import checkpoint as ckpt
 
     first = chain[0]
-    ens = _ensemble(first, law, dt, rotation, stage_options[0], devices)
+    ens = _ensemble(first, law, dt, rotation, stage_options[0], devices, law_options)
     setups = [running.member_setup(first, law, seed, dt, stage_options[0], dtype) for _, seed in chunk]
     state = ens.init(prms, setups)
     saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
     at_stage = int(saved.get("stage", 0)) if saved is not None else 0
     for k, (stage, options) in enumerate(zip(chain, stage_options)):
-        stage_ens = ens if k == 0 else _ensemble(stage, law, dt, rotation, options, devices)
+        stage_ens = ens if k == 0 else _ensemble(stage, law, dt, rotation, options, devices, law_options)
         done = 0
         if k > 0:
             piles = [ensemble.member(state, i) for i in range(len(chunk))]

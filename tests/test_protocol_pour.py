@@ -119,15 +119,16 @@ def test_bad_arguments_raise_input_errors():
 def test_the_spec_holds_the_run_options_and_its_simulator_reads_law_options():
     """The pour's options hold its run options (rest, settling budget, bins,
     voidage cell) beside the set-up's; its simulator runs leapfrog (the paper's
-    eqs. 9-12) with the options' `law_options`, and a run records them in its info."""
+    eqs. 9-12) with the run's `law_options` (the law's readings, a keyword of
+    every protocol's run, not an option of the pour), and a run records them in its info."""
     from jaxpile.engine.integrators import get_integrator
     from jaxpile.protocols import spec
 
     declared = spec.ranges_of(pour.PourOptions)
     assert {"n", "spacing", "insert_height", "speed_tolerance", "max_settle_steps", "bins", "voidage_cell"} <= set(
         declared)
-    assert "law_options" in pour.PourOptions.names() and "law_options" not in declared
-    sim = pour.SPEC.simulator(pour.PourOptions(law_options={"lever_arm": "centre-distance"}), law="baxter", dt=1e-3)
+    assert "law_options" not in pour.PourOptions.names()
+    sim = pour.SPEC.simulator(pour.PourOptions(), law="baxter", dt=1e-3, law_options={"lever_arm": "centre-distance"})
     assert dict(sim.law.options)["lever_arm"] == "centre-distance"
     assert sim.integrator is get_integrator("leapfrog") and sim.chunk_steps == 2000
     _, m = pour.SPEC.run("hooke", 2, release_height=5.0, law_options={}, speed_tolerance=1e-2,

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from jaxpile.cli.parsing import parse_options, parse_set
+from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
 from jaxpile.errors import InputError
 from jaxpile.io import plain
 from jaxpile.ranges import COUNT, POSITIVE
@@ -89,7 +89,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
 
     a = sweep.spec_of(args.protocol)
     law, names, start, fixed, options = _fit_inputs(args, a)
-    runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None)
+    runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None,
+                                 law_options=law_options_of(args) or None, rotation=args.rotation)
     declared = args.target == "smid-novosad" and not args.resume
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
@@ -115,7 +116,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     for n in names:
         POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
     for values in (start, truth or {}):
-        sweep.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options)
+        sweep.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options,
+                   rotation=runner.rotation, law_options=runner.law_options)
     # 8: the smoothing's 4 antithetic pairs; 3: the truncated estimator's host run and two rollouts
     per_iteration = {"central": 2 * len(names) + 1, "truncated": 3}.get(estimator, 8)
     if args.dry_run:

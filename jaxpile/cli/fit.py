@@ -47,6 +47,9 @@ def run_fit(args) -> dict:
         raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
                          "smoothing.")
     _pathwise(args.protocol)  # refused here when the protocol offers no pathwise fit
+    if args.rolling is not None or args.rotation is not None:
+        raise InputError("a pathwise fit builds its pile with the protocol's own law readings: --rolling and "
+                         "--rotation are for ensemble fits (--estimator central or smoothing).")
     if args.target is None:
         raise InputError("a pathwise fit needs --target FILE|smid-novosad.")
     args.optimizer = args.optimizer or "adam"

@@ -41,6 +41,16 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _rolling_arg(parser) -> None:
+    """`--rolling MODEL`: rolling resistance for hooke, lee-herrmann and baxter
+    (`law(rolling=...)`; its parameters by --set: k_roll, gamma_roll, mu_roll)."""
+    parser.add_argument("--rolling", default=None, choices=["sds", "constant"],
+                        help="rolling resistance (hooke, lee-herrmann, baxter; needs --rotation on where the "
+                             "protocol's default is off): sds, LAMMPS's spring-dashpot-slider (--set "
+                             "k_roll=... --set mu_roll=... [--set gamma_roll=...]), or constant, a torque "
+                             "mu_roll R_eff |F_n| (--set mu_roll=...); docs/rolling_resistance.md")
+
+
 def _output_args(parser, precision: bool = True) -> None:
     """The flags every run command shares: precision, progress bar, output folder."""
     if precision:
@@ -67,6 +77,7 @@ def _pile_parser(sub) -> argparse.ArgumentParser:
     pile.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a law parameter (repeatable)")
     pile.add_argument("--rotation", type=on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
+    _rolling_arg(pile)
     pile.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
     pile.add_argument("--integrator", default="velocity_verlet",
                       choices=["velocity_verlet", "leapfrog", "gear", "implicit_midpoint"],
@@ -127,6 +138,9 @@ def _sweep_parser(sub) -> argparse.ArgumentParser:
     sweep.add_argument("--n", type=int, default=None, help="disks per pile (default: the protocol's)")
     sweep.add_argument("--option", action="append", metavar="NAME=VALUE", help="a set-up option (repeatable)")
     sweep.add_argument("--set", action="append", metavar="NAME=VALUE", help="a fixed law parameter (repeatable)")
+    sweep.add_argument("--rotation", type=on_off, default=None, metavar="on|off",
+                       help="integrate spins (default: the protocol's)")
+    _rolling_arg(sweep)
     sweep.add_argument("--dt", type=float, default=None, help="time step (default: the protocol's)")
     sweep.add_argument("--max-steps", type=int, default=None, help="step budget per batch")
     sweep.add_argument("--batch-size", type=int, default=None, help="members per compiled batch (default: all)")
@@ -164,6 +178,9 @@ def _fit_parser(sub) -> argparse.ArgumentParser:
     fitp.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     fitp.add_argument("--params", required=True, metavar="NAME,NAME", help="the law parameters to fit")
     fitp.add_argument("--set", action="append", metavar="NAME=VALUE", help="a starting/fixed law parameter")
+    fitp.add_argument("--rotation", type=on_off, default=None, metavar="on|off",
+                      help="ensemble fits: integrate spins (default: the protocol's)")
+    _rolling_arg(fitp)
     fitp.add_argument("--layers", type=int, default=6, help="lattice: layers of the pile")
     fitp.add_argument("--n", type=int, default=None, help="disks (pathwise pour: default 60; ensembles: the "
                                                           "protocol's --n, default its own)")

@@ -53,3 +53,8 @@ def parse_options(items) -> dict:
             value = {"on": True, "true": True, "off": False, "false": False}.get(lowered, text)
         options[name.replace("-", "_")] = value
     return options
+
+
+def law_options_of(args) -> dict:
+    """The law's readings the flags ask for (`--rolling`), for `law(...)`."""
+    return {} if getattr(args, "rolling", None) is None else {"rolling": args.rolling}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from jaxpile.cli.dry_run import dry_run_report
-from jaxpile.cli.parsing import parse_options, parse_set
+from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
 from jaxpile.cli.pile_outputs import trajectory, write_outputs
 from jaxpile.cli.run_folder import checkpoint_spec, replacing_earlier, resume_point
 from jaxpile.errors import InputError
@@ -28,9 +28,10 @@ def run_protocol(args) -> dict:
     lawmod = get_law_module(args.law or spec.default_law)
     dtype = jnp.float64 if args.precision == "float64" else jnp.float32
     overrides = parse_set(args.set, lawmod.PARAM_NAMES)
-    _, contact_law, params = spec.law_and_params(lawmod.NAME, overrides, args.rotation, dtype)
+    law_options = law_options_of(args)
+    _, contact_law, params = spec.law_and_params(lawmod.NAME, overrides, args.rotation, dtype, law_options)
     kwargs = dict(params=params, rotation=args.rotation, integrator=args.integrator, dtype=dtype,
-                  progress=False if args.no_progress else None)
+                  progress=False if args.no_progress else None, law_options=law_options)
     options = _run_keywords(args, spec, size_flag, kwargs)
     if args.dry_run:
         return _dry_run_protocol(args, spec, kwargs, contact_law)
@@ -100,7 +101,7 @@ def _run_keywords(args, spec, size_flag: str, kwargs: dict) -> dict:
 
 
 _RUN_KEYWORDS = frozenset({"params", "rotation", "integrator", "dtype", "progress", "dt", "seed", "checkpoint",
-                           "resume"})
+                           "resume", "law_options"})
 
 
 def _split_stages(spec, kwargs: dict) -> dict:

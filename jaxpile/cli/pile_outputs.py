@@ -56,6 +56,7 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
         "protocol": name,
         "law": contact_law.name,
         "rotation": bool(contact_law.rotation),
+        "law_options": dict(contact_law.options),  # its readings beyond rotation (rolling, lever arm, ...)
         "params": {k: float(v) for k, v in vars(params).items() if v is not None},
         "dt": dt,
         "integrator": args.integrator,

@@ -8,7 +8,7 @@ import os
 import numpy as np
 
 from jaxpile.cli.dry_run import dry_run_report
-from jaxpile.cli.parsing import parse_options, parse_set
+from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
 from jaxpile.cli.run_folder import checkpoint_spec, replacing_earlier, resume_point
 from jaxpile.errors import InputError
 from jaxpile.io import plain
@@ -43,7 +43,8 @@ def run_sweep(args) -> dict:
     with replacing_earlier(args):
         result = sw.sweep(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options,
                           dt=args.dt, max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
-                          progress=False if args.no_progress else None, checkpoint=spec, resume=resume)
+                          progress=False if args.no_progress else None, checkpoint=spec, resume=resume,
+                          rotation=args.rotation, law_options=law_options_of(args))
     out = args.out
     os.makedirs(out, exist_ok=True)
     sw.write_csv(os.path.join(out, "sweep.csv"), result)
@@ -101,7 +102,8 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
 
     spec = sw.spec_of(args.protocol)
     dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
-                 batch_size=args.batch_size, dtype=dtype).dt
+                 batch_size=args.batch_size, dtype=dtype, rotation=args.rotation,
+                 law_options=law_options_of(args)).dt
     first = running.stage_options(spec, options)[0]
     setup = running.member_setup(spec.chain()[0], law, 0, dt, first, dtype)
     batch = members if args.batch_size is None else min(int(args.batch_size), members)

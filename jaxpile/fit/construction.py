@@ -39,6 +39,10 @@ def check(runner, statistics) -> None:
     if statistics.columns or not statistics.bins:
         raise InputError("the truncated pathwise estimator differentiates the base profile alone (the angles "
                          "are fitted on the host, with no tangent): fit bins > 0 and no columns.")
+    if runner.law_options:
+        raise InputError(f"the truncated pathwise estimator builds its rollouts with the law's own readings; "
+                         f"law options {sorted(runner.law_options)} (e.g. --rolling): use --estimator central or "
+                         "smoothing.")
 
 
 class Construction:

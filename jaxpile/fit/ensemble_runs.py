@@ -106,6 +106,8 @@ class Runner(NamedTuple):
     max_steps: int | None = None
     batch_size: int | None = None
     dtype: object = None
+    law_options: dict | None = None
+    rotation: bool | None = None
 
     def spec(self):
         return sweep.spec_of(self.protocol)
@@ -120,7 +122,9 @@ class Runner(NamedTuple):
     def setting(self) -> dict:
         """What a target made with this runner was made with (fixed law
         parameters other than the fitted ones are compared by name)."""
-        return {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
+        made = {"protocol": self.protocol, "law": self.law_name(), "options": dict(self.options or {})}
+        made = {**made, "law_options": dict(self.law_options)} if self.law_options else made
+        return made if self.rotation is None else {**made, "rotation": bool(self.rotation)}
 
     def run(self, points: Sequence[dict], seeds, statistics: Statistics, progress=None, checkpoint=None,
             resume=None) -> tuple[np.ndarray, dict]:
@@ -140,7 +144,8 @@ class Runner(NamedTuple):
         result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
-                             extra_measure=_profile_hook(spec, statistics), checkpoint=checkpoint, resume=resume)
+                             extra_measure=_profile_hook(spec, statistics), checkpoint=checkpoint, resume=resume,
+                             law_options=self.law_options, rotation=self.rotation)
         rows = result.rows  # point-major: every seed of point 0, then of point 1, ...
         s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
         # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)

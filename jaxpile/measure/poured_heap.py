@@ -177,9 +177,10 @@ def report(measured: dict, protocol, options, info, samples, seconds: float) -> 
     result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
                      "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
                      "total_seconds": seconds, "neighbor_reallocations": info.reallocations}
-    result["info"] = dict(protocol.info)
-    result["summary"] = {**summary(result), "run": result["run"], "setup": dict(protocol.info)}
-    result["info"]["law_options"] = dict(options.law_options or {})
+    setup = {k: v for k, v in protocol.info.items() if k != "law_options"}
+    result["info"] = dict(setup)
+    result["summary"] = {**summary(result), "run": result["run"], "setup": setup}
+    result["info"]["law_options"] = dict(protocol.info.get("law_options") or {})
     return result
 
 

@@ -40,7 +40,7 @@ class Setup(NamedTuple):
     info: dict = {}
 
 
-def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None):
+def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` for a protocol run.
 
     Args:
@@ -50,6 +50,8 @@ def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None
       rotation: integrate spins; None for `setting["rotation"]`.
       setting: a protocol setting with `"params"` (per law name) and
         `"rotation"` (None: the law's own default).
+      law_options: the law's readings beyond rotation (`hooke.law(rolling="sds")`,
+        baxter's `lever_arm`), passed to its `law(...)`.
     """
     from jaxpile.laws import get_law_module
 
@@ -65,4 +67,14 @@ def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None
         raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or {lawmod.NAME}.make_params(...); "
                          f"got {type(params).__name__}.")
     rotation = setting["rotation"] if rotation is None else bool(rotation)
-    return lawmod, lawmod.law() if rotation is None else lawmod.law(rotation=rotation), params
+    readings = dict(law_options or {})
+    if "rotation" in readings:
+        raise InputError("give rotation as rotation=..., not among the law's options.")
+    if rotation is not None:
+        readings["rotation"] = rotation
+    try:
+        contact_law = lawmod.law(**readings)
+    except TypeError as error:
+        raise InputError(f"the {lawmod.NAME} law does not take {sorted(law_options or {})} "
+                         f"(law() says: {error}).") from None
+    return lawmod, contact_law, params

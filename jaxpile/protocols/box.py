@@ -294,13 +294,14 @@ def repose(state: SimState, width: float, *, x_min: float = 0.0) -> dict:
 
 
 def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, driver=None, **kwargs):
+                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, driver=None,
+                   law_options: dict | None = None, **kwargs):
     """A `Simulator` running a 1993 protocol's driver (default: the box `driver`)
     with a law by name (no rotation unless asked). One simulator serves every
     set-up of that protocol with this dt."""
     from jaxpile.engine.simulate import Simulator
 
-    _, contact_law, _ = law_and_params(law, {}, rotation)
+    _, contact_law, _ = law_and_params(law, {}, rotation, law_options=law_options)
     dt = float(law_setting(law)["dt"]) if dt is None else dt
     if chunk_steps is None:
         chunk_steps = max(1, int(round(PAPER_SETTING["chunk_time"] * units(law).time / dt)))
@@ -345,9 +346,9 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
 def simulator_running(driver_function):
     """The spec's simulator of a 1993 protocol running `driver_function` (`make_simulator`)."""
 
-    def simulator(options, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
+    def simulator(options, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
         return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or "velocity_verlet",
-                              chunk_steps=chunk_steps, driver=driver_function)
+                              chunk_steps=chunk_steps, driver=driver_function, law_options=law_options)
 
     return simulator
 

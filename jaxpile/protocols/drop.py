@@ -297,9 +297,9 @@ def setup(o: DropOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
                  protocol_state=state, box=box, info=info)
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
-    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype, law_options=law_options)
 
 
 def _with_phase(checkpoint, phase: str, **facts):
@@ -308,14 +308,14 @@ def _with_phase(checkpoint, phase: str, **facts):
     return ckpt.with_facts(checkpoint, phase=phase, **facts)
 
 
-def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None):
+def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None, law_options=None):
     """A `Simulator` running the drop driver of the options `o` (its constants
     are the same for every seed and every n), velocity Verlet unless another
     integrator is given, with the options' `hard_collisions`, each chunk on the
     block of disks dropped by its end."""
     from jaxpile.engine.simulate import Simulator
 
-    _, contact_law, _ = law_and_params(law, None, rotation)
+    _, contact_law, _ = law_and_params(law, None, rotation, law_options=law_options)
     rule = driver_setting(o, dt)
     extra = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
     # the list is allocated with the disks parked apart and sized for the pile (`packed_lists`)

@@ -111,9 +111,9 @@ def budget_steps(max_time: float, dt: float) -> int:
     return ranges.steps_of("max_time", max_time, dt)
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)`: `SETTING["params"]` under the overrides; rotation on."""
-    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype, law_options=law_options)
 
 
 class HopperState(NamedTuple):
@@ -327,12 +327,12 @@ def discharge_figure(measured: dict, title: str, out: str) -> list[str]:
 
 
 # ---------------------------------------------------------------- running it
-def simulator(o: HopperOptions, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
+def simulator(o: HopperOptions, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
     """A `Simulator` running the hopper's `driver`. It reads no option: one
     serves every set-up with this dt (every orifice shares a compile)."""
     from jaxpile.engine.simulate import Simulator
 
-    _, contact_law, _ = law_and_params(law, {}, rotation)
+    _, contact_law, _ = law_and_params(law, {}, rotation, law_options=law_options)
     return Simulator(contact_law, dt, integrator=integrator or "velocity_verlet", driver=driver,
                      chunk_steps=chunk_steps or SETTING["chunk_steps"])
 

@@ -128,11 +128,11 @@ def pile_count(layers: int) -> int:
     return layers * (layers + 1) // 2
 
 
-def law_and_params(law, params=None, rotation=None, dtype=None):
+def law_and_params(law, params=None, rotation=None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` with `PAPER_SETTING` (see `base.law_and_params`)."""
     from jaxpile.protocols.base import law_and_params as base_law_and_params
 
-    return base_law_and_params(law, params, rotation, setting=PAPER_SETTING, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting=PAPER_SETTING, dtype=dtype, law_options=law_options)
 
 
 relax = loaded_pile.relax  # gravity ramped in, then a run to rest (shared with the sloped pile)

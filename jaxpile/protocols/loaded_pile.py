@@ -89,10 +89,10 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
       pathwise: its pathwise fit, where it offers one.
     """
 
-    def simulator(o, *, law, dt, rotation=None, integrator=None, chunk_steps=None):
+    def simulator(o, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
         from jaxpile.engine.simulate import Simulator, gravity_ramp
 
-        _, contact_law, _ = law_and_params(law, None, rotation)
+        _, contact_law, _ = law_and_params(law, None, rotation, law_options=law_options)
         kwargs = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
         return Simulator(contact_law, dt, schedule=gravity_ramp(int(o.ramp_steps)),
                          integrator=integrator or "velocity_verlet", hard_collisions=o.hard_collisions, **kwargs)

@@ -97,7 +97,7 @@ def units(law) -> Units:
     return Units(scale=scale, gravity=gravity, time=t, speed=scale / t, sphere_density=s["sphere_density"])
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` for this paper's protocols.
 
     Args:
@@ -105,10 +105,11 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
       params: None (the setting's values), a dict of overrides on top of them,
         or a ready params pytree of that law.
       rotation: integrate spins; default off (the paper's disks do not rotate).
+      law_options: the law's readings beyond rotation (`base.law_and_params`).
     """
     name = law_name(law)
     setting = {"params": {name: law_setting(name)["params"]}, "rotation": PAPER_SETTING["rotation"]}
-    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype)
+    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype, law_options=law_options)
 
 
 def friction_coefficient(params) -> float | None:

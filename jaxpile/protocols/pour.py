@@ -165,7 +165,6 @@ class PourOptions(Options):
     bins: int | None = option(None, range=Range(low=3, whole=True),
                               help="bins of the base-force profile (made odd; default about one per 4 spacings)")
     voidage_cell: float = option(3.0, range=SIZE, unit="sigma", help="side of the voidage map's cells")
-    law_options: dict | None = option(None, help="the law's readings, e.g. baxter's lever_arm or slip")
 
     def validate(self):
         smallest = 1.0 - self.polydispersity
@@ -358,11 +357,12 @@ def law_params(law: str, dtype=None, **overrides):
     return law_and_params(law, overrides, dtype=dtype)[2]
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None):
+def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` with the pour setting: params None (the
     setting's values), a dict of overrides on top of them, or a params pytree;
     rotation None keeps the law's own default."""
-    return base_law_and_params(law, params, rotation, setting={**PAPER_SETTING, "rotation": None}, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting={**PAPER_SETTING, "rotation": None}, dtype=dtype,
+                               law_options=law_options)
 
 
 def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
@@ -416,12 +416,12 @@ def execute(sim, params, protocol: Setup, *, speed_tolerance: float = PAPER_SETT
                             progress=progress, checkpoint=checkpoint)
 
 
-def simulator(o: PourOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None):
-    """The spec's simulator: `make_simulator` with the options' `law_options`,
-    leapfrog (the paper's eqs. 9-12) unless another integrator is given, and
-    chunks of 2000 steps unless given."""
+def simulator(o: PourOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None, law_options=None):
+    """The spec's simulator: `make_simulator` with the law's readings
+    `law_options`, leapfrog (the paper's eqs. 9-12) unless another integrator
+    is given, and chunks of 2000 steps unless given."""
     return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or PAPER_SETTING["integrator"],
-                          law_options=o.law_options, **({} if chunk_steps is None else {"chunk_steps": chunk_steps}))
+                          law_options=law_options, **({} if chunk_steps is None else {"chunk_steps": chunk_steps}))
 
 
 def pour_and_settle(sim, params, p: Setup, o: PourOptions, *, progress=None, checkpoint=None, resume=None):
@@ -510,7 +510,7 @@ SPEC = ProtocolSpec(
     batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,
                 extent=heap_extent("substrate", "centre_x", "n_poured"),
                 fit_statistics={"columns": ("repose_mean",), "bins": 9},
-                simulator_options=frozenset({"law_options"})),
+                simulator_options=frozenset()),
     pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=60))
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""

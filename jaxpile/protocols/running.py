@@ -30,7 +30,8 @@ from jaxpile.protocols.runner import (
 
 def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str | None = None, chunk_steps: int | None = None, seed: int = 0, progress=False, dtype=None,
-        checkpoint=None, resume=None, pile=None, pile_params=None, pile_options: dict | None = None, **options):
+        checkpoint=None, resume=None, pile=None, pile_params=None, pile_options: dict | None = None,
+        law_options: dict | None = None, **options):
     """One pile of `spec` from set-up to its end, and its measurements.
 
     Args:
@@ -40,6 +41,9 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
       params: None (the protocol's setting for the law), a dict of overrides,
         or a params pytree of that law.
       rotation, dt, integrator, chunk_steps: for the simulator (None: the protocol's).
+      law_options: the law's readings beyond rotation, e.g. `{"rolling": "sds"}`
+        (`hooke.law(rolling=...)`), or baxter's `lever_arm`; recorded in the
+        set-up's `info` when given.
       seed: draws the pile (a deterministic pile takes none).
       progress: a progress bar (None: when stderr is a terminal).
       dtype: float dtype (default float64).
@@ -70,16 +74,17 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
         return _run_continued(spec, law, o, params=params, pile=pile, pile_params=pile_params,
                               pile_options=pile_options, rotation=rotation, dt=dt, integrator=integrator,
                               chunk_steps=chunk_steps, seed=seed, progress=progress, dtype=dtype,
-                              checkpoint=checkpoint, resume=resume)
+                              checkpoint=checkpoint, resume=resume, law_options=law_options)
     if pile is not None or pile_params is not None or pile_options:
         raise InputError(f"the {spec.name} protocol builds its own pile: pile, pile_params and pile_options are "
                          "for a protocol that continues another's.")
-    _, _, params = spec.law_and_params(law, params, rotation, dtype)
-    p = spec.setup(o, law=law, seed=seed, dt=spec.default_dt(law) if dt is None else dt, dtype=dtype)
+    _, _, params = spec.law_and_params(law, params, rotation, dtype, law_options)
+    p = _with_law_options(spec.setup(o, law=law, seed=seed, dt=spec.default_dt(law) if dt is None else dt,
+                                     dtype=dtype), law_options)
     if spec.check is not None:
         spec.check(p, o)
     sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
-                         chunk_steps=chunk_steps)
+                         chunk_steps=chunk_steps, law_options=law_options)
     t0 = time.perf_counter()
     if spec.execute is None:
         state, info, samples = execute(spec, sim, params, p, o, progress=progress, checkpoint=checkpoint,
@@ -93,6 +98,11 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
         return state, spec.report(measured, p, o, info, samples, seconds)
     return state, {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
                    "info": dict(p.info)}
+
+
+def _with_law_options(p: Setup, law_options: dict | None) -> Setup:
+    """The set-up with the law's readings in its info, where a run was given any."""
+    return p._replace(info={**p.info, "law_options": dict(law_options)}) if law_options else p
 
 
 RUN_RANGES = {"seed": ranges.SEED, "dt": ranges.TIME_STEP, "chunk_steps": ranges.STEPS}
@@ -115,12 +125,12 @@ def execute(spec, sim, params, p: Setup, options, *, progress=None, checkpoint=N
 
 
 def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rotation, dt, integrator, chunk_steps,
-                   seed, progress, dtype, checkpoint, resume):
+                   seed, progress, dtype, checkpoint, resume, law_options):
     """`run` of a spec that continues another's pile (see `run`)."""
     from jaxpile.engine import checkpoint as ckpt
 
     base = spec.starts_from
-    _, _, stage_params = spec.law_and_params(law, params, rotation, dtype)
+    _, _, stage_params = spec.law_and_params(law, params, rotation, dtype, law_options)
     built = None
     if pile is None:
         pile_file = None if checkpoint is None else ckpt.sibling(checkpoint[0], base.name)
@@ -128,16 +138,16 @@ def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rot
         pile, built = run(base, law, params=params if pile_params is None else pile_params, rotation=rotation,
                           dt=dt, integrator=integrator, chunk_steps=chunk_steps, seed=seed, progress=progress,
                           dtype=dtype, checkpoint=ckpt.with_facts(checkpoint, path=pile_file, stage=base.name),
-                          resume=pile_resume, **dict(pile_options or {}))
+                          resume=pile_resume, law_options=law_options, **dict(pile_options or {}))
         if checkpoint is not None:  # each save of this stage names the pile it started from (the last pile save)
             checkpoint = ckpt.with_facts(checkpoint, pile_checkpoint=os.path.basename(
                 pile_file.replace("{step}", str(int(pile.step)))))
     elif pile_params is not None or pile_options:
         raise InputError(f"the {spec.name} protocol continues the pile it is given: pile_params and pile_options "
                          "are for the run that builds one.")
-    p = on_pile(spec, pile, law, spec.default_dt(law) if dt is None else dt, o)
+    p = _with_law_options(on_pile(spec, pile, law, spec.default_dt(law) if dt is None else dt, o), law_options)
     sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
-                         chunk_steps=chunk_steps)
+                         chunk_steps=chunk_steps, law_options=law_options)
     t0 = time.perf_counter()
     state, info, samples = continue_pile(spec, sim, stage_params, p, o, pile, progress=progress,
                                          checkpoint=checkpoint, resume=resume)

@@ -194,9 +194,10 @@ def setup(o: SlopedOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     return Setup(particles=particles, boundaries=boundaries, info=info)
 
 
-def law_and_params(law, params=None, rotation=None, dtype=None, *, setting: dict = SETTING):
+def law_and_params(law, params=None, rotation=None, dtype=None, law_options: dict | None = None, *,
+                   setting: dict = SETTING):
     """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
-    return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype)
+    return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype, law_options=law_options)
 
 
 def _compare(sim, params, state, p) -> dict:

@@ -205,12 +205,13 @@ class ProtocolSpec:
     - `setup(options, *, law, seed, dt, dtype) -> Setup`; a protocol that
       `starts_from` another takes that one's end state first:
       `setup(pile, options, *, law, dt) -> Setup`.
-    - `simulator(options, *, law, dt, rotation, integrator, chunk_steps) ->
-      Simulator` (None for `rotation`, `integrator`, `chunk_steps`: the
-      protocol's own).
-    - `law_and_params(law, params, rotation, dtype) -> (law module,
-      ContactLaw, params)`, params None (the protocol's setting), a dict of
-      overrides, or a params pytree.
+    - `simulator(options, *, law, dt, rotation, integrator, chunk_steps,
+      law_options) -> Simulator` (None for `rotation`, `integrator`,
+      `chunk_steps`: the protocol's own; `law_options`: the law's readings
+      beyond rotation, such as `{"rolling": "sds"}`).
+    - `law_and_params(law, params, rotation, dtype, law_options) -> (law
+      module, ContactLaw, params)`, params None (the protocol's setting), a
+      dict of overrides, or a params pytree.
     - `default_dt(law name) -> dt`.
     - `finished(setup, options) -> (state -> bool array)`, traceable.
     - `budget(setup, options) -> steps`, the run's step budget (counted from
