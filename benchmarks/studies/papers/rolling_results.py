@@ -1,0 +1,101 @@
+"""The rolling-resistance ensembles' table and figures, from the sweeps that made them.
+
+    python benchmarks/studies/papers/rolling_results.py [FOLDER]
+
+reads FOLDER/box_mu_roll.csv (the 1993 box's angle of repose against mu_roll) and
+FOLDER/drop_dip_grid.csv (the dropped pile's central dip over (mu, mu_roll)), written by
+`benchmarks/studies/papers/gpu_rolling.sh` (`jaxpile sweep` rows), and writes
+FOLDER/rolling_summary.json (mean, standard error and count per point) and
+FOLDER/rolling.png. FOLDER defaults to benchmarks/results/rolling/gpu_h200.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import pathlib
+from collections import defaultdict
+
+import numpy as np
+
+HERE = pathlib.Path(__file__).resolve()
+DEFAULT = HERE.parents[3] / "benchmarks" / "results" / "rolling" / "gpu_h200"
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan
+
+
+def summarise(rows: list[dict], by: tuple, columns: tuple) -> list[dict]:
+    """Mean, standard error, count and unmeasurable count of each column at each point of `by`."""
+    groups = defaultdict(list)
+    for row in rows:
+        groups[tuple(_number(row[k]) for k in by)].append(row)
+    out = []
+    for point in sorted(groups):
+        entry = dict(zip(by, point))
+        for column in columns:
+            values = np.array([_number(r[column]) for r in groups[point]])
+            ok = values[np.isfinite(values)]
+            entry[column] = {"mean": float(ok.mean()) if ok.size else math.nan,
+                             "stderr": float(ok.std(ddof=1) / math.sqrt(ok.size)) if ok.size > 1 else math.nan,
+                             "count": int(ok.size), "missing": int(values.size - ok.size)}
+        out.append(entry)
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", nargs="?", default=str(DEFAULT))
+    folder = pathlib.Path(parser.parse_args(argv).folder)
+    box = list(csv.DictReader(open(folder / "box_mu_roll.csv")))
+    drop = list(csv.DictReader(open(folder / "drop_dip_grid.csv")))
+    summary = {
+        "how": "benchmarks/studies/papers/gpu_rolling.sh on one H200 (jaxpile sweep, hooke, spins on, rolling sds "
+               "k_roll = 1000, gamma_roll = 30), summarised by benchmarks/studies/papers/rolling_results.py",
+        "box": {"setting": json.load(open(folder / "box_mu_roll.json"))["options"] or "the paper's W = H = 4 box",
+                "points": summarise(box, ("mu_roll",), ("repose_cumulative_parabola", "repose_least_squares"))},
+        "drop": {"points": summarise(drop, ("mu", "mu_roll"),
+                                     ("central_dip", "repose_angle_left", "repose_angle_right", "height"))},
+    }
+    (folder / "rolling_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
+    points = summary["box"]["points"]
+    x = [p["mu_roll"] for p in points]
+    y = [p["repose_cumulative_parabola"] for p in points]
+    a.errorbar(x, [v["mean"] for v in y], [v["stderr"] for v in y], marker="o", capsize=3)
+    a.set(xlabel="mu_roll", ylabel="theta_R, method 3 (deg)", title="1993 box (409 disks, mu = 0.2): 16 piles a point")
+    for mu in sorted({p["mu"] for p in summary["drop"]["points"]}):
+        sel = [p for p in summary["drop"]["points"] if p["mu"] == mu]
+        b.errorbar([p["mu_roll"] for p in sel], [p["central_dip"]["mean"] for p in sel],
+                   [p["central_dip"]["stderr"] for p in sel], marker="o", capsize=3, label=f"mu = {mu:g}")
+    b.axhspan(0.2, 0.3, color="0.85", label="Smid & Novosad's dip (20-30 %)")
+    b.axhline(0.0, color="0.5", lw=0.8)
+    b.set(xlabel="mu_roll", ylabel="central dip (1 - centre / lower flank maximum)",
+          title="1992 drop (300 disks): 16 piles a point")
+    b.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "rolling.png", dpi=120)
+    for p in summary["drop"]["points"]:
+        d = p["central_dip"]
+        print(f"drop mu = {p['mu']:g}, mu_roll = {p['mu_roll']:g}: dip {d['mean']:+.3f} +- {d['stderr']:.3f} "
+              f"({d['count']} piles)")
+    for p in points:
+        r = p["repose_cumulative_parabola"]
+        print(f"box mu_roll = {p['mu_roll']:g}: theta_R {r['mean']:.2f} +- {r['stderr']:.2f} deg "
+              f"({r['count']} piles, {r['missing']} unmeasurable)")
+
+
+if __name__ == "__main__":
+    main()
