@@ -192,9 +192,35 @@ def rows_1997() -> list[list[str]]:
     return rows
 
 
+# ----------------------------------------------------- rolling resistance
+ROLLING = RESULTS / "rolling" / "gpu_h200" / "rolling_summary.json"
+
+
+def rows_rolling() -> list[list[str]]:
+    """Beyond the papers: the box's angle of repose and the drop's central dip with
+    rolling resistance (`rolling_results.py`, from `gpu_rolling.sh`'s sweeps)."""
+    s = _load(ROLLING)
+    if s is None:
+        return [["beyond", "rolling resistance (sds)", "—", "not run yet (`bash benchmarks/studies/papers/gpu_rolling.sh`)"]]
+    box = s["box"]["points"]
+    angles = ", ".join(_pm(p["repose_cumulative_parabola"]) for p in box)
+    rolls = ", ".join(f"{p['mu_roll']:g}" for p in box)
+    count = max(p["repose_cumulative_parabola"]["count"] + p["repose_cumulative_parabola"]["missing"] for p in box)
+    rows = [["beyond", f"1993 box (W = H = 4, 409 disks, hooke μ = 0.2, spins on) with rolling resistance sds, "
+                       f"θ_R against μ_r = {rolls}, {count} piles each",
+             "rises with μ_r and saturates (Zhou et al. 2001; Ai et al. 2011)",
+             f"{angles} (μ_r = 0: the disks roll off; `docs/rolling_resistance.md`)"]]
+    drop = s["drop"]["points"]
+    cells = "; ".join(f"μ = {p['mu']:g}, μ_r = {p['mu_roll']:g}: {_pm(p['central_dip'], 2, '')}" for p in drop)
+    rows.append(["beyond", f"1992 drop, 300 disks, hooke with rolling resistance sds: central dip over (μ, μ_r), "
+                           f"{drop[0]['central_dip']['count']} piles each",
+                 "Smid–Novosad 20–30%; no dip without rolling resistance", cells])
+    return rows
+
+
 # ----------------------------------------------------------------- table
 def table() -> str:
-    rows = rows_1992() + rows_1993() + rows_1997()
+    rows = rows_1992() + rows_1993() + rows_1997() + rows_rolling()
     lines = ["| paper | quantity | paper | jaxpile |", "|---|---|---|---|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
