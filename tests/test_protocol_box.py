@@ -162,3 +162,27 @@ def test_theory_reference_matches_eq_3():
     assert paper1993.friction_coefficient(box.law_and_params("lee-herrmann")[2]) == pytest.approx(0.2)
     assert paper1993.friction_coefficient(box.law_and_params("liffman")[2]) is None
     assert float(theory.marginal_stability_angle(0.2)) == pytest.approx(math.atan(0.6))
+
+
+def test_a_box_far_too_sparse_to_stand_warns_with_the_count_that_fills_it():
+    """60 disks in the paper's 4 x 4 box are one layer: the set-up says so and
+    names the count that fills the box (409), instead of a silent 2.5-degree angle."""
+    import warnings
+
+    with pytest.warns(UserWarning, match=r"60 disks fill the 4 x 4 box .* the box takes 409"):
+        box.SPEC.set_up("hooke", 60)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a third of the fill stands: no warning
+        box.SPEC.set_up("hooke", 140)
+
+
+def test_the_energy_figure_leaves_out_the_start_at_rest_and_the_headline_says_why_an_angle_is_nan():
+    """Fig. 1(b) on a log axis: the first sample (at rest, E = 0) is left out, so
+    the axis spans the run's energies; a NaN angle's reason is printed with the headline."""
+    from jaxpile.cli.pile_outputs import headline
+    from jaxpile.protocols import outputs
+
+    time, energy = outputs.energy_series({"kinetic_energy": {"time": [0.0, 0.5, 1.0], "kinetic_energy": [0.0, 2e-3, 1e-6]}})
+    assert time.tolist() == [0.5, 1.0] and energy.tolist() == [2e-3, 1e-6]
+    text = headline("box", {"repose_cumulative_parabola": float("nan"), "repose_error": "fewer than 3 columns"})
+    assert "repose_error: fewer than 3 columns" in text

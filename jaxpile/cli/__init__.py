@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 from jaxpile.cli.compare import compare_table
 from jaxpile.cli.fit import fit_problem, fit_runs_batches, run_fit
@@ -59,6 +60,21 @@ from jaxpile.errors import InputError, SimulationError
 def main(argv=None) -> int:
     """`jaxpile ARGS`: parses the command line, sets up JAX for the command,
     runs it, and returns the exit status (2 with one line for a refusal)."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def one_line(message, category, filename, lineno, file=None, line=None):
+            """jaxpile's own warnings as one line on stdout (stderr holds refusals alone)."""
+            if issubclass(category, UserWarning) and os.sep + "jaxpile" + os.sep in filename:
+                print(f"jaxpile: warning: {message}", flush=True)
+            else:
+                shown(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = one_line
+        return _main(argv)
+
+
+def _main(argv) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("MPLBACKEND", "Agg")  # figures go to files; never open a window
     try:

@@ -106,7 +106,9 @@ def headline(name: str, summary: dict) -> str:
             parts.append(f"{key} = {v:.4g}" if isinstance(v, float) else f"{key} = {v}")
     rate = summary.get("particle_steps_per_second")
     timing = f"{rate:.3g} particle-steps/s" if rate else ""
-    return "  " + ", ".join(parts) + (f"\n  {timing}" if timing else "")
+    # why a measurement is NaN (the surface could not be read: `repose_error`), where summary.json says it
+    reasons = [f"  {key}: {value}" for key, value in summary.items() if key.endswith("_error") and value]
+    return "\n".join(["  " + ", ".join(parts), *reasons] + ([f"  {timing}"] if timing else []))
 
 
 def _protocol_figures(name, m, state, base, network, law_name, out) -> list:

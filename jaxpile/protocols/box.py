@@ -67,6 +67,7 @@ it uses); the same box then settles by step 64 000 with theta_R = 24.8 deg
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -106,6 +107,11 @@ from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, o
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
+
+
+SPARSE_FILL = 0.25
+"""Below this fraction of the disks that fill the box, the pile is a layer or two
+and its angle of repose means little: the set-up warns."""
 
 
 # ------------------------------------------------------------------ options
@@ -217,7 +223,12 @@ def setup(o: BoxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     u = units(law)
     width, height, rest_speed, hold_time = o.width, o.height, o.rest_speed, check_positive("hold_time", o.hold_time)
     mean, spread, low, high = radius_law(o.radius)
-    n = fill_count(width, height, packing_fraction=o.packing_fraction, radius=o.radius) if o.n is None else o.n
+    fills = fill_count(width, height, packing_fraction=o.packing_fraction, radius=o.radius)
+    n = fills if o.n is None else o.n
+    if n < SPARSE_FILL * fills:
+        warnings.warn(f"{n} disks fill the {width:g} x {height:g} box to {n / fills:.0%} of its height: a layer "
+                      f"or two, too few to stand as a pile; the box takes {fills} (leave n out), or make it "
+                      f"narrower and lower.", stacklevel=2)
     budget.check(n, dtype or "float64", what="a box")  # before any array is allocated
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     radius_paper = gaussian_radii(n, rng, mean=mean, width=spread, low=low, high=high)

@@ -21,13 +21,22 @@ def energy_figure(measured: dict, title: str, out: str) -> list[str]:
     """energy.png: kinetic energy per disk against time (Lee & Herrmann 1993 Fig. 1b)."""
     from jaxpile import plot
 
-    ke = measured.get("kinetic_energy")
-    if not ke:
+    time, energy = energy_series(measured)
+    if not len(time):
         return []
-    energy = np.maximum(np.asarray(ke["kinetic_energy"], dtype=float), 1e-300)
-    plot.series_figure(ke["time"], {"kinetic energy per disk": energy}, xlabel="time", ylabel="E_kin per disk",
+    plot.series_figure(time, {"kinetic energy per disk": energy}, xlabel="time", ylabel="E_kin per disk",
                        logy=True, title=title + " (Lee & Herrmann 1993 Fig. 1b)", path=os.path.join(out, "energy.png"))
     return ["energy.png"]
+
+
+def energy_series(measured: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The kinetic energy per disk against time, the samples with energy > 0 alone
+    (a log axis: the start at rest, E = 0, would stretch it to 1e-300)."""
+    ke = measured.get("kinetic_energy") or {}
+    time = np.asarray(ke.get("time", []), dtype=float)
+    energy = np.asarray(ke.get("kinetic_energy", []), dtype=float)
+    keep = np.isfinite(energy) & (energy > 0)
+    return time[keep], energy[keep]
 
 
 def angles_figure(measured: dict, title: str, out: str) -> list[str]:
