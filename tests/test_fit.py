@@ -537,3 +537,16 @@ def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
     target.unlink()
     assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
     assert (tmp_path / "redrawn" / "fit.png").stat().st_size > 10_000
+
+
+def test_a_pathwise_dry_run_refuses_a_start_the_fit_cannot_take_the_log_of(tmp_path, capsys):
+    """The hooke lattice's mu starts at 0, which a fit in log space cannot start
+    from: the dry run says so in one line, as the run does, before a pile is built."""
+    from jaxpile.cli import main
+
+    argv = ["fit", "--protocol", "lattice", "--law", "hooke", "--params", "mu", "--target", "smid-novosad",
+            "--layers", "3", "--steps", "1", "--dry-run", "--out", str(tmp_path / "fit")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "mu must be finite and > 0 to be fitted in log space" in err
+    assert main(argv[:-2] + ["--set", "mu=0.2", "--out", str(tmp_path / "fit2")]) == 0

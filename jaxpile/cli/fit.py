@@ -105,6 +105,8 @@ def _pathwise_inputs(args) -> tuple:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     optimizer = _optimizer(args.optimizer, args.lr)
     start = parse_set(args.set, lawmod.PARAM_NAMES)
+    # the starting values the fit takes logs of, checked before any pile is built (a dry run too)
+    fit.to_unconstrained(PROTOCOLS[args.protocol].law_and_params(law, start)[2], names)
     return law, names, target, optimizer, start
 
 
