@@ -232,21 +232,6 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
         sweep.sweep(protocol, vary=vary, seeds=1, options=options, progress=False)
 
 
-def test_a_tilt_refuses_its_own_options_before_it_builds_its_box_pile(monkeypatch):
-    from jaxpile.protocols import running, tilt
-
-    built = running.run
-
-    def no_box(spec, *args, **kwargs):
-        if spec.name == "box":
-            pytest.fail("the box pile was built before the tilt's options were checked")
-        return built(spec, *args, **kwargs)
-
-    monkeypatch.setattr(running, "run", no_box)
-    with pytest.raises(InputError, match="rest_speed"):
-        tilt.SPEC.run("lee-herrmann", 20, rest_speed=5.0, move_speed=1.0)
-
-
 @pytest.mark.parametrize("argv, says", [
     (["sweep", "--protocol", "box", "--vary", "n=20,0"], "n must be"),
     (["sweep", "--protocol", "hopper", "--vary", "mu=0.1,nan"], "mu must be"),

@@ -248,15 +248,7 @@ def validate(p: Params) -> None:
     validate_ranges(NAME, p, RANGES)
 
 
-def _make_validate(rolling):
-    def check(p: Params) -> None:
-        """`validate`, and the parameters the rolling model needs set."""
-        validate(p)
-        rolling_.validate(NAME, p, rolling)
-    return check
-
-
-_VALIDATORS = {None: validate, **{mode: _make_validate(mode) for mode in rolling_.MODES}}
+_VALIDATORS = rolling_.validators(NAME, validate)
 
 
 def law(rotation: bool = True, lever_arm: str = "contact-point", slip: str = "hold",

@@ -261,15 +261,7 @@ def validate(p: Params) -> None:
     validate_ranges(NAME, p, RANGES)
 
 
-def _make_validate(rolling):
-    def check(p: Params) -> None:
-        """`validate`, and the parameters the rolling model needs set."""
-        validate(p)
-        rolling_.validate(NAME, p, rolling)
-    return check
-
-
-_VALIDATORS = {mode: (validate if mode is None else _make_validate(mode)) for mode in ROLLING}
+_VALIDATORS = rolling_.validators(NAME, validate)
 
 
 def law(rotation: bool = True, rolling: str | None = None, pair_style: str = "gran/hooke/history") -> ContactLaw:

@@ -203,15 +203,7 @@ _KERNELS = {**{(slip, None): kernel for slip, kernel in SLIP_MODES.items()},
                for slip in SLIP_MODES for mode in rolling_.MODES}}
 
 
-def _make_validate(rolling):
-    def check(p: Params) -> None:
-        """`validate`, and the parameters the rolling model needs set."""
-        validate(p)
-        rolling_.validate(NAME, p, rolling)
-    return check
-
-
-_VALIDATORS = {None: validate, **{mode: _make_validate(mode) for mode in rolling_.MODES}}
+_VALIDATORS = rolling_.validators(NAME, validate)
 
 
 def law(rotation: bool = False, slip: str = "cundall-strack", rolling: str | None = None) -> ContactLaw:

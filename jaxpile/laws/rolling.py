@@ -117,6 +117,20 @@ def check_mode(law_name: str, rolling, rotation: bool) -> None:
         raise InputError(f"rolling={rolling!r} for {law_name} needs rotation=True: rolling resistance acts on spins.")
 
 
+def validators(law_name: str, validate_law) -> dict:
+    """`{model: validate}` for a law: its own `validate_law` for no rolling, and for
+    each model that check followed by the parameters the model needs (`validate`).
+    One function per model, so equal laws hash alike (a jit closing over them compiles once)."""
+
+    def with_model(model):
+        def check(p) -> None:
+            validate_law(p)
+            validate(law_name, p, model)
+        return check
+
+    return {None: validate_law, **{model: with_model(model) for model in MODES}}
+
+
 def validate(law_name: str, params, rolling) -> None:
     """Raises `InputError` when `rolling` is on and a parameter it needs is None,
     or one it does not use is set."""
