@@ -3,9 +3,10 @@ PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+DOCS_STAMP := $(VENV)/.installed-docs
 DEMO   ?= demo
 
-.PHONY: demo test soak bench papers clean
+.PHONY: demo test soak bench papers docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -14,6 +15,11 @@ $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
+
+$(DOCS_STAMP): $(BIN)/python pyproject.toml
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[docs]"
+	touch $(DOCS_STAMP)
 
 # The main job: the 1992 equilateral pile (45 layers, 1035 disks) relaxed with the hooke
 # law and checked against eqs. 42 and 44; the same pile with disk-disk friction
@@ -38,15 +44,20 @@ test: $(STAMP)
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -m soak
 
+# The documentation site (mkdocs.yml: MkDocs Material, the API from the docstrings, the notebooks as
+# tutorials) built into site/, warnings as errors. tests/test_docs.py builds it in `make test` too.
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
+
 # Benchmarks (about 10 minutes on 2 CPU cores; LAMMPS `lmp` is raced when installed):
-# JSON in benchmarks/results/<backend>/, README table regenerated. BENCH=--full for full sizes.
+# JSON in benchmarks/results/<backend>/, docs/performance.md's table regenerated. BENCH=--full for full sizes.
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py $(BENCH)
 
 # The papers' numbers as ensembles (hours on 2 CPU cores; resumable: rerun to continue), then
-# README's papers table from benchmarks/results/. PAPERS=--only=lattice,tilt picks studies.
+# docs/papers.md's table from benchmarks/results/. PAPERS=--only=lattice,tilt picks studies.
 papers: $(STAMP)
 	$(BIN)/python benchmarks/studies/papers/papers.py --run $(PAPERS)
 
 clean:
-	rm -rf $(VENV) $(DEMO) .pytest_cache
+	rm -rf $(VENV) $(DEMO) .pytest_cache site

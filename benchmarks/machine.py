@@ -1,4 +1,4 @@
-"""One line naming the machine a benchmark ran on (the README table's first column)."""
+"""One line naming the machine a benchmark ran on (the first column of the benchmark table in docs/performance.md)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """`make bench`: every benchmark at a size that finishes in about ten minutes on
 two CPU cores, its JSON written to `benchmarks/results/<backend>/`, and the
-README's benchmark table regenerated from those files.
+benchmark table of docs/performance.md regenerated from those files.
 
 Each benchmark script runs in its own process (a fresh JAX: no compile cache or
 memory carried from one to the next) with the arguments below; `--full` runs
@@ -8,7 +8,7 @@ them at the issue's full sizes instead (much longer on a CPU; the size a GPU
 run should use). The table is rebuilt from every results folder present, so a
 GPU run adds its rows beside the CPU ones.
 
-    python benchmarks/run_all.py [--full] [--only NAME,...] [--no-readme]
+    python benchmarks/run_all.py [--full] [--only NAME,...] [--no-table]
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import sys
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
-README = HERE.parent / "README.md"
+PAGE = HERE.parent / "docs" / "performance.md"
 START, END = "<!-- bench-table:start -->", "<!-- bench-table:end -->"
 
 # name -> (script, small arguments, full arguments)
@@ -74,16 +74,16 @@ def table(results_root: pathlib.Path) -> str:
     return "\n".join(lines)
 
 
-def update_readme(text: str) -> bool:
-    """Writes `text` as README's benchmark table; False (and a warning) when
-    README has no table block."""
-    import readme_block
+def update_page(text: str) -> bool:
+    """Writes `text` as the benchmark table of docs/performance.md; False (and
+    a warning) when the page has no table block."""
+    import docs_block
 
-    readme = README.read_text()
-    if START not in readme or END not in readme:
-        print(f"README has no {START} ... {END} block; table not written", file=sys.stderr)
+    content = PAGE.read_text()
+    if START not in content or END not in content:
+        print(f"{PAGE.name} has no {START} ... {END} block; table not written", file=sys.stderr)
         return False
-    readme_block.rewrite(START + "\n", END, text + "\n", readme=README)
+    docs_block.rewrite(START + "\n", END, text + "\n", page=PAGE)
     return True
 
 
@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--full", action="store_true", help="the issue's full sizes")
     parser.add_argument("--only", default=None, help="comma-separated names: " + ",".join(BENCHMARKS))
-    parser.add_argument("--no-readme", action="store_true", help="do not rewrite the README table")
+    parser.add_argument("--no-table", action="store_true", help="do not rewrite the table in docs/performance.md")
     args = parser.parse_args(argv)
 
     names = list(BENCHMARKS) if args.only is None else args.only.split(",")
@@ -111,10 +111,10 @@ def main(argv=None) -> int:
             failed.append(name)
         print(f"== {name}: {time.perf_counter() - t0:.0f} s", flush=True)
     print(f"\nall benchmarks: {time.perf_counter() - t_all:.0f} s; results in {out_dir}")
-    if not args.no_readme:
+    if not args.no_table:
         text = table(HERE / "results")
-        if update_readme(text):
-            print("README benchmark table regenerated")
+        if update_page(text):
+            print("docs/performance.md's benchmark table regenerated")
         print(text)
     if failed:
         print(f"failed: {failed}", file=sys.stderr)

@@ -1,6 +1,6 @@
 """The benchmark harness: its LAMMPS twin is the same problem as jaxpile's (run
-against LAMMPS when `lmp` is installed), and `make bench` rebuilds the README
-table from the results. No timings here: figures live in benchmarks/ (the
+against LAMMPS when `lmp` is installed), and `make bench` rebuilds the
+benchmark table of docs/performance.md from the results. No timings here: figures live in benchmarks/ (the
 suite) and benchmarks/studies/ (the papers' ensembles, the fits' recoveries)."""
 
 import json
@@ -60,7 +60,7 @@ def test_lammps_and_jaxpile_give_the_same_base_forces_on_a_small_lattice_pile(tm
     assert run.steps == RAMP + HOLD
 
 
-def test_readme_table_is_rebuilt_from_the_results_files(tmp_path, monkeypatch):
+def test_performance_table_is_rebuilt_from_the_results_files(tmp_path, monkeypatch):
     results = tmp_path / "results" / "cpu"
     results.mkdir(parents=True)
     rows = [{"case": "lattice", "jaxpile": 2.0e6, "lammps": 1.0e7, "ratio": 0.2, "note": "n1"},
@@ -69,16 +69,16 @@ def test_readme_table_is_rebuilt_from_the_results_files(tmp_path, monkeypatch):
     study = tmp_path / "results" / "hopper"  # a study's own table beside the benchmarks: not a benchmark row
     study.mkdir()
     (study / "beverloo.json").write_text(json.dumps({"table": [{"orifice": 4, "flow_rate_mean": 4.7}]}))
-    readme = tmp_path / "README.md"
-    readme.write_text(f"intro\n{run_all.START}\nold table\n{run_all.END}\nafter\n")
-    monkeypatch.setattr(run_all, "README", readme)
-    assert run_all.update_readme(run_all.table(tmp_path / "results"))
-    text = readme.read_text()
+    page = tmp_path / "performance.md"
+    page.write_text(f"intro\n{run_all.START}\nold table\n{run_all.END}\nafter\n")
+    monkeypatch.setattr(run_all, "PAGE", page)
+    assert run_all.update_page(run_all.table(tmp_path / "results"))
+    text = page.read_text()
     assert "old table" not in text and text.startswith("intro\n") and text.endswith("after\n")
     assert "| m | lattice | 2e+06 | 1e+07 | 0.20x | n1 |" in text
     assert "| m | scaling | 3e+06 | — | — | n2 |" in text
-    readme.write_text("no markers\n")
-    assert not run_all.update_readme("x")  # says so rather than appending somewhere
+    page.write_text("no markers\n")
+    assert not run_all.update_page("x")  # says so rather than appending somewhere
 
 
 def test_bench_lists_only_scripts_that_exist():
@@ -126,30 +126,30 @@ def test_baxter_angle_bands_read_the_saved_heaps_as_the_study_measured_them():
     assert len(spilled) == 8 and sum(spilled) > 0
 
 
-def test_readme_papers_table_is_the_one_the_results_give():
-    """benchmarks/studies/papers/papers.py writes README's papers-side-by-side table from the
-    committed results JSON (issue 16): README must hold exactly that table."""
+def test_papers_table_is_the_one_the_results_give():
+    """benchmarks/studies/papers/papers.py writes the papers-side-by-side table of docs/papers.md
+    from the committed results JSON (issue 16): the page must hold exactly that table."""
     import papers
 
-    assert papers.rewrite_readme(check=True), "run `python benchmarks/studies/papers/papers.py` and commit README.md"
+    assert papers.rewrite_page(check=True), "run `python benchmarks/studies/papers/papers.py` and commit docs/papers.md"
     assert "| 1993 | θ_T against" in papers.table()
 
 
-def test_readme_recovery_table_is_the_one_the_results_give():
-    """benchmarks/studies/fitting/fit_recovery.py writes README's recovery table (issue 17)
-    from the committed results JSON: README must hold exactly that table."""
+def test_recovery_table_is_the_one_the_results_give():
+    """benchmarks/studies/fitting/fit_recovery.py writes the recovery table of docs/fitting.md
+    (issue 17) from the committed results JSON: the page must hold exactly that table."""
     import fit_recovery
 
-    assert fit_recovery.rewrite_readme(check=True), "run `python benchmarks/studies/fitting/fit_recovery.py --table`"
+    assert fit_recovery.rewrite_page(check=True), "run `python benchmarks/studies/fitting/fit_recovery.py --table`"
 
 
-def test_readme_estimator_study_table_is_the_one_the_results_give():
-    """benchmarks/studies/fitting/estimator_study.py writes README's estimator-study table
-    (issue 17, item 3) from the committed results JSON: README must hold
+def test_estimator_study_table_is_the_one_the_results_give():
+    """benchmarks/studies/fitting/estimator_study.py writes the estimator-study table of
+    docs/fitting.md (issue 17, item 3) from the committed results JSON: the page must hold
     exactly that table, one row per (estimator, B, parameter) of each study."""
     import estimator_study
 
-    assert estimator_study.rewrite_readme(check=True), "run `python benchmarks/studies/fitting/estimator_study.py --table`"
+    assert estimator_study.rewrite_page(check=True), "run `python benchmarks/studies/fitting/estimator_study.py --table`"
     rows = estimator_study.table().splitlines()[2:]
     assert any("| box, 102 disks (mu = 0.25) | central differences, h = 0.1 | 32 | mu | 346, 199 |" in r for r in rows)
 

@@ -24,7 +24,7 @@ the same seeds at every theta: common random numbers).
         [--out benchmarks/results/estimator_study.json] [--figure docs/estimator_study.png]
       box:  [--mu 0.25] [--target 20] [--n 409] [--option width=2 ...]
       pour: [--n 40] (point n = 33, mu = 0.5; target 32 heaps at n = 41.3, seeds 10000+)
-    python benchmarks/studies/fitting/estimator_study.py --table   # README's table from the results JSON
+    python benchmarks/studies/fitting/estimator_study.py --table   # docs/fitting.md's table from the results JSON
     python benchmarks/studies/fitting/estimator_study.py ... --resume --summarise-only   # the rows so far, summarised
 
 Each finished row is written to `--out` at once; `--resume` skips the rows
@@ -61,7 +61,7 @@ import numpy as np
 HERE = pathlib.Path(__file__).resolve().parent  # benchmarks/studies/fitting
 BENCHMARKS = HERE.parents[1]
 sys.path.insert(0, str(BENCHMARKS.parent))  # jaxpile from this checkout where it is not installed (a GPU call)
-sys.path.insert(1, str(BENCHMARKS))  # readme_block
+sys.path.insert(1, str(BENCHMARKS))  # docs_block
 
 CASES = {
     "box": dict(protocol="box", law="lee-herrmann", options={"n": 409}, point={"mu": 0.25},
@@ -74,7 +74,7 @@ CASES = {
 
 STUDIES = ("estimator_study.json", "estimator_study_b32.json", "estimator_study_b128.json",
            "estimator_study_pour.json", "estimator_study_pour_b128.json")
-"""The results README's table is built from, in its order (those that exist)."""
+"""The results the table in docs/fitting.md is built from, in its order (those that exist)."""
 
 START, END = "<!-- estimator-study:start -->\n", "<!-- estimator-study:end -->"
 
@@ -175,13 +175,13 @@ def main(argv=None) -> dict:
                              "continue it from there")
     parser.add_argument("--out", default=str(BENCHMARKS / "results" / "estimator_study.json"))
     parser.add_argument("--figure", default=None)
-    parser.add_argument("--table", action="store_true", help="rewrite README's table from the results and stop")
+    parser.add_argument("--table", action="store_true", help="rewrite docs/fitting.md's table from the results and stop")
     parser.add_argument("--summarise-only", action="store_true",
                         help="with --resume: run nothing, summarise the rows in --out (a study cut off by the end "
                              "of a session; `complete` says whether every planned row is in)")
     args = parser.parse_args(argv)
     if args.table:
-        rewrite_readme()
+        rewrite_page()
         print(table())
         return {}
 
@@ -388,7 +388,7 @@ def _cost(x: float) -> str:
 
 
 def table(folder: pathlib.Path = BENCHMARKS / "results") -> str:
-    """README's estimator-study table: one block of rows per study in
+    """The estimator-study table of docs/fitting.md: one block of rows per study in
     `STUDIES`, its reference first; each gradient component is a column group
     (d loss / d log p)."""
     lines = ["| case | estimator | B | d loss / d log | estimates | bias against the reference (± s.e. of the mean) | "
@@ -439,11 +439,11 @@ def table(folder: pathlib.Path = BENCHMARKS / "results") -> str:
     return "\n".join(lines) + "\n"
 
 
-def rewrite_readme(check: bool = False) -> bool:
-    """Writes `table()` between README's markers (with `check`: only compares)."""
-    import readme_block
+def rewrite_page(check: bool = False) -> bool:
+    """Writes `table()` between its markers in docs/fitting.md (with `check`: only compares)."""
+    import docs_block
 
-    return readme_block.rewrite(START, END, table(), check=check)
+    return docs_block.rewrite(START, END, table(), check=check, page=docs_block.DOCS / "fitting.md")
 
 
 def _rows_of(out: dict, key: str) -> list:

@@ -13,7 +13,7 @@ hour on 2 CPU cores each.
     python benchmarks/studies/fitting/fit_recovery.py pour         # Baxter heap: n
     python benchmarks/studies/fitting/fit_recovery.py hopper       # a silo's flow rate: mu
     python benchmarks/studies/fitting/fit_recovery.py drop         # Liffman dropped pile (1992 Fig. 20): mu_roll
-    python benchmarks/studies/fitting/fit_recovery.py --table      # README's recovery table from the JSON
+    python benchmarks/studies/fitting/fit_recovery.py --table      # docs/fitting.md's recovery table from the JSON
 
 Writes benchmarks/results/fit_recovery/CASE.json (with the command), the
 fit's history as CASE_checkpoint.json while it runs (a rerun resumes), and
@@ -32,7 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))  # benchmarks/studies/fitting
 BENCHMARKS = os.path.dirname(os.path.dirname(HERE))
 ROOT = os.path.dirname(BENCHMARKS)
 sys.path.insert(0, ROOT)
-sys.path.insert(1, BENCHMARKS)  # readme_block, machine
+sys.path.insert(1, BENCHMARKS)  # docs_block, machine
 
 CASES = {
     # 102-disk boxes (W = H = 2 cm): theta_R moves by ~30 deg per unit log mu, one pile scatters by ~5 deg
@@ -81,7 +81,7 @@ after the cases: FOLDER/CASE.json is named by its folder, any other by its file.
 
 
 def table(folder: str = os.path.join(BENCHMARKS, "results", "fit_recovery")) -> str:
-    """README's recovery table, from the cases' result JSON (a case not run yet is left out)."""
+    """The recovery table of docs/fitting.md, from the cases' result JSON (a case not run yet is left out)."""
     lines = ["| case | fitted | truth | start | recovered | 95 % interval | truth inside | piles a side | "
              "sensitivity | cost | through all ensembles (95 %) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     runs = [(case, os.path.join(folder, f"{case}.json")) for case in CASES]
@@ -137,11 +137,11 @@ def _regression(record: dict) -> dict | None:
     return None if estimate is None else estimate.to_json()
 
 
-def rewrite_readme(check: bool = False) -> bool:
-    """Writes `table()` between README's markers (with `check`: only compares)."""
-    import readme_block
+def rewrite_page(check: bool = False) -> bool:
+    """Writes `table()` between its markers in docs/fitting.md (with `check`: only compares)."""
+    import docs_block
 
-    return readme_block.rewrite(START, END, table(), check=check)
+    return docs_block.rewrite(START, END, table(), check=check, page=docs_block.DOCS / "fitting.md")
 
 
 def _options(pairs) -> dict:
@@ -173,7 +173,7 @@ def main(argv=None) -> dict:
     if argv is None:
         argv = sys.argv[1:]
     if argv and argv[0] == "--table":
-        rewrite_readme()
+        rewrite_page()
         print(table())
         return {}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -249,7 +249,7 @@ def main(argv=None) -> dict:
         print(f"{args.case}: {n} through all ensembles: {_through_all(record.get('regression'), n, case['truth'][n])}")
     print(f"wrote {args.out}/{args.case}.json and {figure} ({record['wall_seconds']:.0f} s)")
     if args.out == os.path.join(BENCHMARKS, "results", "fit_recovery"):
-        rewrite_readme()
+        rewrite_page()
     return record
 
 

@@ -1,7 +1,7 @@
-"""The papers side by side (issue 16, item 4): one script for README's table.
+"""The papers side by side (issue 16, item 4): one script for the table in docs/papers.md.
 
-    python benchmarks/studies/papers/papers.py             # rewrite README's table and the docs/ figures from the results JSON
-    python benchmarks/studies/papers/papers.py --check     # exit 1 when README's table is not the one the JSON gives
+    python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
+    python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
     python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
 
@@ -29,10 +29,10 @@ import tempfile
 HERE = pathlib.Path(__file__).resolve().parent  # benchmarks/studies/papers
 ROOT = HERE.parents[2]
 RESULTS = ROOT / "benchmarks" / "results"
-README = ROOT / "README.md"
+PAGE = ROOT / "docs" / "papers.md"
 START, END = "<!-- papers-table:start -->\n", "<!-- papers-table:end -->"
 sys.path.insert(0, str(HERE))  # its sibling studies (paper_ensembles, baxter_readings)
-sys.path.insert(1, str(ROOT / "benchmarks"))  # readme_block
+sys.path.insert(1, str(ROOT / "benchmarks"))  # docs_block
 
 PILES = 8  # the ensembles' target size (issue 16)
 
@@ -226,12 +226,12 @@ def table() -> str:
     return "\n".join(lines) + "\n"
 
 
-def rewrite_readme(check: bool = False) -> bool:
-    """Writes the table into README (between its markers); with `check`, only
-    says whether it is already there. Returns True when README holds it."""
-    import readme_block
+def rewrite_page(check: bool = False) -> bool:
+    """Writes the table into docs/papers.md (between its markers); with `check`,
+    only says whether it is already there. Returns True when the page holds it."""
+    import docs_block
 
-    return readme_block.rewrite(START, END, table(), check=check, readme=README)
+    return docs_block.rewrite(START, END, table(), check=check, page=PAGE)
 
 
 # ---------------------------------------------------------------- figures
@@ -266,7 +266,7 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
 
 def notebook_section(paper: str, folder: str = ".") -> list[str]:
     """A paper notebook's view of its ensembles at the paper's sizes: prints
-    the paper's rows of README's papers table and draws its ensemble figures
+    the paper's rows of the papers table (docs/papers.md) and draws its ensemble figures
     into `folder` (the notebooks' full-size numbers are these files, which a
     committed command wrote; `make papers` runs what is missing). Returns the
     figure paths."""
@@ -325,7 +325,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", action="store_true", help="run the missing studies first (hours on 2 cores)")
     parser.add_argument("--only", default=",".join(STUDIES), help=f"with --run: among {', '.join(STUDIES)}")
-    parser.add_argument("--check", action="store_true", help="exit 1 when README's table is out of date")
+    parser.add_argument("--check", action="store_true", help="exit 1 when docs/papers.md's table is out of date")
     args = parser.parse_args(argv)
     if args.run:
         chosen = [s.strip() for s in args.only.split(",") if s.strip()]
@@ -334,11 +334,11 @@ def main(argv=None) -> int:
             parser.error(f"unknown studies {sorted(unknown)}; choose from {', '.join(STUDIES)}")
         run(chosen)
     if args.check:
-        ok = rewrite_readme(check=True)
-        print("README's papers table is " + ("up to date" if ok else "out of date: run python benchmarks/studies/papers/papers.py"))
+        ok = rewrite_page(check=True)
+        print("docs/papers.md's table is " + ("up to date" if ok else "out of date: run python benchmarks/studies/papers/papers.py"))
         return 0 if ok else 1
-    same = rewrite_readme()
-    print("README's papers table " + ("was already up to date" if same else "rewritten") + f":\n{table()}")
+    same = rewrite_page()
+    print("docs/papers.md's table " + ("was already up to date" if same else "rewritten") + f":\n{table()}")
     print("figures: " + ", ".join(os.path.relpath(p, ROOT) for p in figures()))
     return 0
 

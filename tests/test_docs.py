@@ -1,0 +1,83 @@
+"""The documentation site builds with warnings as errors (`make docs`, mkdocs.yml),
+every page of its nav is in the output, and the API reference documents every
+name `jaxpile` exports (`jaxpile.__all__`, read when the test runs)."""
+
+import ast
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def _nav_pages(nav) -> list[str]:
+    """Every page path in mkdocs.yml's nav (nested sections included)."""
+    if isinstance(nav, str):
+        return [nav]
+    if isinstance(nav, list):
+        return [page for item in nav for page in _nav_pages(item)]
+    if isinstance(nav, dict):
+        return [page for value in nav.values() for page in _nav_pages(value)]
+    return []
+
+
+def _built_path(page: str) -> str:
+    """Where mkdocs writes a page (directory URLs: a.md -> a/index.html)."""
+    stem = page.rsplit(".", 1)[0]
+    if stem == "index" or stem.endswith("/index"):
+        return stem + ".html"
+    return stem + "/index.html"
+
+
+def _exported_names() -> list[str]:
+    """`jaxpile.__all__`, parsed from jaxpile/__init__.py (no JAX import)."""
+    tree = ast.parse((ROOT / "jaxpile" / "__init__.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "__all__" for t in node.targets):
+            return list(ast.literal_eval(node.value))
+    raise AssertionError("jaxpile/__init__.py has no __all__")
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    out = tmp_path_factory.mktemp("site")
+    env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(out),
+                          "--config-file", str(ROOT / "mkdocs.yml")],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=False)
+    assert run.returncode == 0, f"mkdocs build --strict failed (make docs):\n{run.stdout}\n{run.stderr}"
+    return out
+
+
+def test_every_nav_page_is_built(site):
+    import yaml
+
+    # mkdocs.yml holds no python tags; the nav is plain YAML
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    pages = _nav_pages(config["nav"])
+    assert "index.md" in pages and any(p.endswith(".ipynb") for p in pages)
+    missing = [p for p in pages if not (site / _built_path(p)).is_file()]
+    assert not missing, f"nav pages not in the built site: {missing}"
+
+
+def test_the_api_reference_documents_every_exported_name(site):
+    """Each name of `jaxpile.__all__` is rendered in the API pages: under its
+    exported name (`jaxpile.Simulator`) or where it is defined
+    (`jaxpile.engine.simulate.Simulator`, `jaxpile.measure.analysis`)."""
+    import griffe
+
+    package = griffe.load("jaxpile", search_paths=[str(ROOT)])
+    ids = set()
+    for page in (site / "api").rglob("*.html"):
+        ids.update(re.findall(r'id="(jaxpile[\w.]*)"', page.read_text()))
+    missing = []
+    for name in _exported_names():
+        obj = package[name]
+        where = {f"jaxpile.{name}", obj.final_target.path if obj.is_alias else obj.path}
+        if not where & ids:
+            missing.append(name)
+    assert not missing, f"jaxpile.__all__ names with no entry in docs/api/: {missing}"
