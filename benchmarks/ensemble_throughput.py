@@ -28,15 +28,15 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import io
 from jaxpile.engine import ensemble
 from jaxpile.protocols import box
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
-# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
-# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 LAW = "lee-herrmann"
 

@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import io
 from jaxpile import fit
 from jaxpile.engine.boundaries import GROUND
@@ -48,10 +48,9 @@ from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
-# the programs as `jaxpile fit` compiles them: XLA:CPU's multi-output fusion on
-# and derivatives with XLA's default emitters (jaxpile/__init__.py,
-# engine/compile.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0 (Python's default)
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 NAMES = ("kn", "kt", "mu")
 

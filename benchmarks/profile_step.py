@@ -30,16 +30,16 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import io
 from jaxpile.engine.simulate import Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
-# the step as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (see
-# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 
 def _table(hlo_text: str, title: str) -> dict[int, str]:

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import io
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine import pairs as pair_list
@@ -34,9 +34,9 @@ from jaxpile.protocols import pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 from vs_lammps import DT, pour_setup
 
-# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
-# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 
 def per_turn(loop, carry, turns: int) -> float:

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import io
 from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.engine.simulate import RunInfo, Simulator
@@ -36,9 +36,9 @@ from jaxpile.engine.state import make_particles
 from jaxpile.laws import hooke
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
-# as `jaxpile pile` and `sweep` run: XLA:CPU's multi-output fusion on (see
-# jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 DT = 1e-3
 

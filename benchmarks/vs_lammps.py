@@ -82,7 +82,7 @@ import time
 import jax
 import numpy as np
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
 from jaxpile import analysis, io
 from jaxpile.engine import ensemble
 from jaxpile.engine.simulate import RunInfo, Simulator, gravity_ramp
@@ -98,9 +98,9 @@ except ImportError:  # run as a script: benchmarks/ is on sys.path
     import lammps_peer as peer
     from machine import describe, details
 
-# jaxpile raced as `jaxpile pile` runs it: XLA:CPU's multi-output fusion on (each
-# law computed once a step; see jaxpile/__init__.py), unless JAXPILE_MULTI_OUTPUT_FUSION=0
-jaxpile.use_multi_output_fusion()
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
 
 FULL = {"ramp": 20_000, "hold": 20_000, "pour_n": 1000, "pour_settle": 30_000, "ensemble_steps": "5000,5000"}
 SMALL = {"ramp": 20_000, "hold": 20_000, "pour_n": 200, "pour_settle": 20_000, "ensemble_steps": "1000,1000"}

@@ -41,9 +41,11 @@ def load_arrays(path) -> dict:
 
 
 def write_csv(path, columns: dict) -> None:
+    """Columns of numbers as CSV with a header row, each number to the last bit
+    (17 significant digits read back exactly)."""
     names = list(columns)
     table = np.column_stack([np.asarray(columns[n], float) for n in names]) if names else np.zeros((0, 0))
-    atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=",".join(names), comments="", fmt="%.10g"),
+    atomic_write(path, lambda f: np.savetxt(f, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g"),
                   text=True)
 
 

@@ -32,6 +32,7 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from jaxpile import budget as memory
+from jaxpile import config
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
 from jaxpile import ranges
@@ -304,7 +305,8 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
               "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
               "neighbor_reallocations": info.reallocations,
               "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
-              "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {})}
+              "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {}),
+              "settings": config.settings()}
     if points is not None:
         record["points"] = points
     return SweepResult(rows, record)

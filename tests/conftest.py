@@ -37,7 +37,9 @@ jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE
 jax.config.update("jax_persistent_cache_min_compile_time_secs",
                   float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"]))
 
-import jaxpile  # noqa: F401,E402  (float64 on)
+import jaxpile  # noqa: E402
+
+jaxpile.configure()  # float64, one XLA thread, 512-bit vectors; the fusion as set above
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.engine.simulate import Simulator, gravity_ramp

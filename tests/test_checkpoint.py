@@ -180,6 +180,7 @@ def test_checkpoints_from_elsewhere_get_one_line_in_jaxpiles_words(setting, tmp_
 WRITER = r"""
 import sys
 import jaxpile
+jaxpile.configure()
 from jaxpile.engine import checkpoint
 from jaxpile.laws import hooke
 sys.path.insert(0, sys.argv[2])

@@ -97,11 +97,9 @@ def test_ensemble_refuses_mismatched_members(batch):
 
 
 SHARDED = textwrap.dedent("""
-    import os
-    # added to the suite's XLA flags (tests/conftest.py: the faster-compiling fusion emitters), not instead of them
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2").strip()
     import jax, numpy as np
     import jaxpile
+    jaxpile.configure(host_devices=2)  # the host split into two JAX devices, as the docs say
     from jaxpile import ensemble
     from jaxpile.laws import hooke
     from jaxpile.protocols import lattice

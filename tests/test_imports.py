@@ -1,10 +1,11 @@
-"""`import jaxpile` loads only the jax-md modules it uses (jaxpile/_jax_md.py),
-and jax-md stays whole for a user who imports it after jaxpile."""
+"""`import jaxpile` changes nothing in JAX, XLA or the environment and loads
+only the jax-md modules it uses (jaxpile/_jax_md.py); `jaxpile.configure()`
+sets what the commands set, and a script that calls it gets the commands'
+numbers for the same seed, bit for bit."""
 
 import os
 import subprocess
 import sys
-
 
 XLA_THREADS = ("def xla_threads():\n"
                "    import glob, jax\n"
@@ -12,41 +13,70 @@ XLA_THREADS = ("def xla_threads():\n"
                "    return sum(open(f).read().startswith('tf_XLAEigen') for f in glob.glob('/proc/self/task/*/comm'))\n")
 """Code that counts the threads of XLA's CPU client (made by the first JAX operation)."""
 
+OURS = ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION", "JAXPILE_HOST_DEVICES")
 
-def test_import_jaxpile_leaves_the_rest_of_jax_md_unloaded_but_one_attribute_away():
-    code = ("import sys, jaxpile\n"
+
+def clean_env(**extra) -> dict:
+    """The environment without the suite's XLA settings (tests/conftest.py), as a user's shell has it."""
+    return {k: v for k, v in os.environ.items() if k not in OURS} | extra
+
+
+def python(code, env, *args):
+    done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done
+
+
+def test_import_changes_nothing_and_configure_sets_float64_and_the_commands_xla_settings():
+    code = ("import os, sys, warnings, jax\n"
+            "env, x64 = dict(os.environ), jax.config.jax_enable_x64\n"
+            "import jaxpile\n"
+            "assert dict(os.environ) == env and jax.config.jax_enable_x64 == x64 == False\n"
             "loaded = sorted(m for m in sys.modules if m.startswith('jax_md'))\n"
             "assert 'jax_md.energy' not in loaded and 'jax_md.rigid_body' not in loaded, loaded\n"
-            "import jax_md\n"
-            "assert callable(jax_md.energy.soft_sphere) and callable(jax_md.simulate.nve)\n"
-            "from jax_md import quantity\n"
-            "assert callable(quantity.force)\n"
             # and starts no XLA backend: threads, host devices and jax.distributed are still the user's to set
             "from jax._src import xla_bridge\n"
             "assert not xla_bridge.backends_are_initialized()\n"
-            # and asks XLA for 512-bit vectors on the CPU (10% on the lattice step, same bits)
-            "import os\n"
+            # a float64 pile without float64 is refused in one line (before JAX starts)
+            "try:\n"
+            "    jaxpile.make_particles([[0.0, 0.5]], 0.5)\n"
+            "    raise SystemExit('float64 particles were made without float64')\n"
+            "except jaxpile.InputError as e:\n"
+            "    assert 'jaxpile.configure()' in str(e), e\n"
+            "import numpy as np\n"
+            "s = jaxpile.configure()\n"
+            "assert jax.config.jax_enable_x64 and s['float64'] and s['multi_output_fusion'] and s['vector_width'] == 512\n"
             "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
-            # and leaves XLA:CPU's multi-output fusion off (it aborts compiling some users' gradients)
-            "assert 'multi_output' not in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
-            # and one XLA thread for a pile's small kernels (88 vs 119 us a lattice step on 2 cores)
-            f"{XLA_THREADS}assert xla_threads() == 1, xla_threads()\n")
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION")}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
-    assert done.returncode == 0, done.stderr[-2000:]
+            "assert 'xla_cpu_use_multi_output_fusion' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"
+            # one XLA thread for a pile's small kernels (88 vs 119 us a lattice step on 2 cores)
+            f"{XLA_THREADS}assert xla_threads() == 1 and jaxpile.settings()['xla_threads'] == 1, xla_threads()\n"
+            "assert jaxpile.make_particles([[0.0, 0.5]], 0.5).position.dtype == np.float64\n"
+            "assert jaxpile.make_particles(np.float32([[0.0, 0.5]]), 0.5).position.dtype == np.float32\n"
+            # once JAX has run, XLA's settings cannot change: said, not silently ignored
+            "with warnings.catch_warnings(record=True) as caught:\n"
+            "    warnings.simplefilter('always')\n"
+            "    jaxpile.configure(host_devices=2)\n"
+            "assert any('after JAX had run' in str(w.message) for w in caught), [str(w.message) for w in caught]\n"
+            # and jax-md stays whole for a user who imports it after jaxpile
+            "import jax_md\n"
+            "assert callable(jax_md.energy.soft_sphere) and callable(jax_md.simulate.nve)\n"
+            "from jax_md import quantity\n"
+            "assert callable(quantity.force)\n")
+    python(code, clean_env())
 
 
-def test_sweep_and_fit_give_a_batch_xla_s_own_threads_and_a_thread_count_the_user_gave_is_kept():
-    batch = ("import os, jaxpile\n"
-             "from jaxpile.cli import threads_for_batches\n"
-             f"assert threads_for_batches()\n{XLA_THREADS}"
+def test_threads_for_a_batch_and_what_the_user_set_wins():
+    """`configure(threads=True)` (sweeps, fits, large piles) gives XLA its own
+    thread count; a thread count, vector width or fusion the user set is kept."""
+    batch = (f"import os, jaxpile\njaxpile.configure(threads=True)\n{XLA_THREADS}"
              "assert xla_threads() == len(os.sched_getaffinity(0)), xla_threads()\n")
-    user = f"import os, jaxpile\nfrom jaxpile.cli import threads_for_batches\nassert not threads_for_batches()\n{XLA_THREADS}" \
-           "assert os.environ['PJRT_NPROC'] == '3' and xla_threads() == 3, xla_threads()\n"
-    for code, nproc in ((batch, None), (user, "3")):
-        env = {k: v for k, v in os.environ.items() if k != "PJRT_NPROC"} | ({} if nproc is None else {"PJRT_NPROC": nproc})
-        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
-        assert done.returncode == 0, done.stderr[-2000:]
+    user = (f"import os, jaxpile\ns = jaxpile.configure()\n{XLA_THREADS}"
+            "assert os.environ['PJRT_NPROC'] == '3' and xla_threads() == 3, xla_threads()\n"
+            "assert os.environ['XLA_FLAGS'] == '--xla_cpu_prefer_vector_width=256', os.environ['XLA_FLAGS']\n"
+            "assert s['vector_width'] == 256 and not s['multi_output_fusion'], s\n")
+    python(batch, clean_env())
+    python(user, clean_env(PJRT_NPROC="3", XLA_FLAGS="--xla_cpu_prefer_vector_width=256",
+                           JAXPILE_MULTI_OUTPUT_FUSION="0"))
 
 
 def test_pile_gives_a_large_pile_xla_s_threads_and_keeps_one_for_the_papers_sizes(tmp_path):
@@ -80,15 +110,6 @@ def test_a_pathwise_fit_keeps_one_thread_and_an_ensemble_fit_runs_batches():
     assert not fit_runs_batches(Namespace(**{**args, "estimator": "pathwise", "target": "target.json"}))
 
 
-def test_a_vector_width_the_user_gave_xla_is_kept():
-    code = ("import os, jaxpile\n"
-            "print(os.environ['XLA_FLAGS'])\n")
-    env = {**os.environ, "XLA_FLAGS": "--xla_cpu_prefer_vector_width=256"}
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert done.stdout.split() == ["--xla_cpu_prefer_vector_width=256"]
-
-
 SETTLING_PILE = """
 import json, os
 import jax.numpy as jnp, numpy as np
@@ -97,6 +118,7 @@ from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from jaxpile.engine.simulate import Simulator
 
+jaxpile.configure()
 particles, boundaries = lattice.equilateral_pile(6)
 rng = np.random.default_rng(0)  # sliding and spinning contacts while it settles
 particles = particles.set(velocity=jnp.asarray(rng.normal(0, 0.2, (particles.count, 2))),
@@ -120,7 +142,7 @@ def test_multi_output_fusion_gives_the_same_pile():
     import numpy as np
 
     runs = {}
-    on = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"} | {"JAXPILE_MULTI_OUTPUT_FUSION": "1"}
+    on = clean_env()  # jaxpile.configure() as a user calls it: the fusion on
     for name, env in (("on", on), ("suite", dict(os.environ))):
         done = subprocess.run([sys.executable, "-c", SETTLING_PILE], capture_output=True, text=True, timeout=300,
                               env=env)
@@ -237,3 +259,47 @@ def test_no_protocol_module_holds_more_than_300_lines_of_code():
     sizes = {path.name: _code_lines(path) for path in sorted(folder.glob("*.py"))}
     assert len(sizes) >= 10 and sizes["pour.py"] > 100, sizes  # the count sees code
     assert {name: n for name, n in sizes.items() if n > 300} == {}, sizes
+
+
+SWEEP_FLAGS = ["--protocol", "box", "--n", "40", "--width", "1.6", "--height", "1.6", "--mu", "0.1,0.3", "--seeds", "2"]
+PYTHON_SWEEP = """
+import json, sys
+import jaxpile
+jaxpile.configure()
+from jaxpile import sweep
+result = sweep.sweep("box", "lee-herrmann", vary={"mu": [0.1, 0.3]}, seeds=2,
+                     options={"n": 40, "width": 1.6, "height": 1.6}, progress=False)
+print(json.dumps({"rows": result.rows, "settings": result.info["settings"]}, default=float))
+"""
+
+
+def test_a_box_sweep_gives_the_same_rows_bit_for_bit_from_the_command_and_from_python(tmp_path):
+    """One seed, one result: `jaxpile sweep` and `jaxpile.configure()` + `sweep.sweep(...)`
+    with the same arguments, each in a user's environment, agree to the last bit in every
+    row (the command's sweep.csv holds each number's shortest exact repr), and both
+    record the same settings."""
+    import csv
+    import json
+    import math
+
+    out = tmp_path / "cli"
+    command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
+    python(command, clean_env(), "sweep", *SWEEP_FLAGS, "--no-progress", "--out", str(out))
+    with open(out / "sweep.csv") as fh:
+        cli_rows = list(csv.DictReader(fh))
+    ours = json.loads(python(PYTHON_SWEEP, clean_env()).stdout.strip().splitlines()[-1])
+    assert len(cli_rows) == len(ours["rows"]) == 4
+    compared = 0
+    for cli_row, row in zip(cli_rows, ours["rows"]):
+        for key, value in row.items():
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and key != "wall_seconds":
+                text = cli_row[key]
+                a = float(text) if text not in ("", "None") else None
+                assert (a is None and value is None) or a == value or (math.isnan(a) and math.isnan(value)), \
+                    (key, text, value)
+                compared += 1
+    assert compared >= 4 * 3, compared
+    recorded = json.loads((out / "sweep.json").read_text())["settings"]
+    assert {k: recorded[k] for k in ("float64", "multi_output_fusion", "fusion_emitters")} == \
+        {k: ours["settings"][k] for k in ("float64", "multi_output_fusion", "fusion_emitters")} == \
+        {"float64": True, "multi_output_fusion": True, "fusion_emitters": True}

@@ -30,6 +30,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--fits", type=int, default=40)
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "regression_coverage.json"))
     args = parser.parse_args(argv)
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
 
     from test_ensemble_fit import ChaoticToyRunner, ToyRunner, _target
 

@@ -26,8 +26,8 @@ and fit_checkpoint.json (the history, written every iteration).
 
 The package, one idea a module: `parser` (the argument parser), `protocol_flags`
 (a protocol's options as flags), `flag_ranges` (the numeric flags' ranges),
-`parsing` (flag text into values), `xla_settings` (threads, fusion, compile
-cache), `run_folder` (the output folder, checkpoints, resuming), `dry_run`;
+`parsing` (flag text into values), `xla_settings` (`jaxpile.configure` for the
+command, the compile cache), `run_folder` (the output folder, checkpoints, resuming), `dry_run`;
 one module a command: `pile` (with `pile_outputs`), `sweep`, `fit` (with
 `ensemble_fit`), `show`, `compare`.
 """
@@ -49,8 +49,7 @@ from jaxpile.cli.sweep import run_sweep
 from jaxpile.cli.xla_settings import (
     THREADED_PILE_DISKS,
     compile_cache_dir,
-    fusion_for_commands,
-    threads_for_batches,
+    configure_for,
     use_compile_cache,
     wants_xla_threads,
 )
@@ -88,9 +87,7 @@ def _main(argv) -> int:
             if args.resume is not None:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         check_flags(args)
-        if wants_xla_threads(args):
-            threads_for_batches()
-        fusion_for_commands(args.command)
+        configure_for(args)
         use_compile_cache()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
@@ -123,6 +120,7 @@ __all__ = [
     "build_parser",
     "compare_table",
     "compile_cache_dir",
+    "configure_for",
     "fit_problem",
     "fit_runs_batches",
     "main",
@@ -133,7 +131,6 @@ __all__ = [
     "run_protocol",
     "run_sweep",
     "sweep_protocols",
-    "threads_for_batches",
     "use_compile_cache",
 ]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 
+from jaxpile import config
 from jaxpile.cli.pile_outputs import headline
 from jaxpile.errors import InputError
 from jaxpile.protocols import presentation
@@ -45,6 +46,12 @@ def compare_table(dirs) -> str:
             raise InputError(f"{os.path.join(d, 'summary.json')} is not a finished {protocol} run's summary "
                              f"({type(err).__name__}: {err}); give folders written by 'jaxpile pile --out DIR'."
                              ) from None
+    first = next((s["settings"] for _, s in rows if isinstance(s.get("settings"), dict)), None)
+    for d, s in rows:
+        differ = config.differences(first, s.get("settings")) if isinstance(s.get("settings"), dict) else []
+        if differ:
+            lines.append(f"note: {d} ran under other JAX/XLA settings than {rows[0][0]} ({'; '.join(differ)}): "
+                         "the same seed differs at round-off, grown by the dynamics (jaxpile.config).")
     lines.append(
         "dev N, dev H (lattice): largest deviation of the ground forces from Liffman et al. 1992 eqs. 42 and 44.\n"
         "The analytic forces assume frictionless disks at rest; with disk-disk friction the base forces\n"

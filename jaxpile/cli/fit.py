@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 
+from jaxpile import config
 from jaxpile.cli.dry_run import dry_run_report
 from jaxpile.cli.parsing import parse_options, parse_set
 from jaxpile.errors import InputError, SimulationError
@@ -225,6 +226,7 @@ def _fit_record(args, law, names, described, target, params, result, seconds, be
         "initial_loss": result.history[0]["loss"] if result.history else None, "loss": result.loss,
         "best_step": result.best_step, "steps": result.steps, "converged": result.converged,
         "message": result.message, "optimizer": args.optimizer, "lr": args.lr, "fit_seconds": seconds,
+        "settings": config.settings(),  # float64 and XLA's (jaxpile.config)
         "target_central_dip": target.central_dip,
         "target_profile": {"x_over_b": np.asarray(target.x_over_b).tolist(), "normal": np.asarray(target.normal).tolist(),
                            "horizontal": None if target.horizontal is None else np.asarray(target.horizontal).tolist()},

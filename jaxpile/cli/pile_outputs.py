@@ -9,6 +9,7 @@ import os
 
 import numpy as np
 
+from jaxpile import config
 from jaxpile.errors import InputError
 from jaxpile.io import plain
 from jaxpile.protocols import PROTOCOLS, presentation
@@ -61,6 +62,7 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
         "dt": dt,
         "integrator": args.integrator,
         "precision": args.precision,
+        "settings": config.settings(),  # float64 and XLA's, which decide the numbers at round-off (jaxpile.config)
         "seed": args.seed,
         "options": options,
         "n_particles": int(active.sum()),

@@ -1,7 +1,7 @@
-"""What a command sets in JAX and XLA before JAX runs anything: XLA's thread
-count (one for a small pile, XLA's own for batches and large piles), XLA:CPU's
-multi-output fusion, and the on-disk cache of compiled programs. None of them
-changes results."""
+"""What a command sets in JAX and XLA before JAX runs anything:
+`jaxpile.configure()` (float64 and XLA's settings, with XLA's own thread count
+for batches and large piles, one thread for a small pile), and the on-disk
+cache of compiled programs."""
 
 from __future__ import annotations
 
@@ -33,22 +33,12 @@ def wants_xla_threads(args) -> bool:
             or (args.command == "pile" and (pile_disks(args) or 0) >= THREADED_PILE_DISKS))
 
 
-def threads_for_batches() -> bool:
-    """`sweep` and `fit` run batches, and `pile` may run a large pile: XLA's own
-    thread count for them, where `import jaxpile` asked for one thread (see
-    `jaxpile`'s docstring: a batch's kernels are large enough to split, one
-    small pile's are not). Read when JAX makes its CPU client, so it only acts
-    before JAX has run anything; threads do not change results. Returns whether
-    it acted."""
-    return jaxpile.use_xla_threads()
-
-
-def fusion_for_commands(command: str) -> None:
-    """`pile`, `sweep` and `fit` turn XLA:CPU's multi-output fusion on (each law
-    computed once a step; jaxpile's own losses hold no `jnp.interp` scatter),
-    unless JAXPILE_MULTI_OUTPUT_FUSION says otherwise (`jaxpile.use_multi_output_fusion`)."""
-    if command in ("pile", "sweep", "fit") and "JAXPILE_MULTI_OUTPUT_FUSION" not in os.environ:
-        jaxpile.use_multi_output_fusion()
+def configure_for(args) -> dict:
+    """`jaxpile.configure()` as the command needs it, before JAX runs anything:
+    float64, and on a CPU XLA's settings, with XLA's own thread count for work
+    large enough to split (`wants_xla_threads`). Returns the settings in force,
+    which the command's outputs record."""
+    return jaxpile.configure(threads=wants_xla_threads(args))
 
 
 COMPILE_CACHE_ENV = "JAXPILE_COMPILE_CACHE"

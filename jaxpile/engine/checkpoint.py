@@ -30,9 +30,12 @@ import os
 import zipfile
 from typing import Any
 
+import warnings
+
 import jax
 import numpy as np
 
+from jaxpile import config
 from jaxpile.engine import batch
 from jaxpile.engine import host_lists
 from jaxpile.engine import transfer
@@ -110,6 +113,7 @@ def metadata(state: SimState, law, params, **extra) -> dict:
         "neighbor_capacity": int(state.neighbors.max_occupancy),
         "cell_capacity": None if state.neighbors.cell_list_capacity is None else int(state.neighbors.cell_list_capacity),
         "neighbor_settings": list(state.neighbor_settings),
+        "settings": config.settings(),  # float64 and XLA's: a resume under others ends elsewhere (round-off, grown)
         "extra": extra,
     }
 
@@ -285,6 +289,11 @@ def restore(path, template: SimState, law, params) -> SimState:
     if changed:
         raise InputError(f"{path} was written with other law parameters ({', '.join(changed)} differ); "
                          "resuming with other parameters is not the same run.")
+    differ = config.differences(meta.get("settings"))
+    if differ:
+        warnings.warn(f"{path} was written under other JAX/XLA settings ({'; '.join(differ)}): the resumed run "
+                      "goes on, and ends where an uninterrupted run under these settings would, not that one "
+                      "(jaxpile.configure sets the commands' settings).", stacklevel=2)
     if meta["n_particles"] != template.particles.count:
         raise InputError(f"{path} holds {meta['n_particles']} disks; the set-up to resume has "
                          f"{template.particles.count}. Build the same set-up it was written from.")

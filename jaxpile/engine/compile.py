@@ -7,7 +7,7 @@ compile time is then most of their cost.
 Derivative programs (a gradient or Jacobian through a rollout) compile with
 XLA:CPU's older fusion emitters, where a forward run keeps XLA's default:
 the newer emitters make the forward step faster and its derivatives slower.
-With XLA:CPU's multi-output fusion on (`jaxpile.use_multi_output_fusion`, as
+With XLA:CPU's multi-output fusion on (`jaxpile.configure`, as
 `jaxpile pile`, `sweep` and `fit` run) the newer emitters are the faster for
 derivatives too and the older ones make a reverse gradient many times slower,
 so derivatives keep XLA's default there (measured:
@@ -22,7 +22,7 @@ import os
 import jax
 
 _FLAG = "xla_cpu_use_fusion_emitters"
-_MULTI_OUTPUT_FUSION = "xla_cpu_use_multi_output_fusion"  # as jaxpile.multi_output_fusion_on reads it (the
+_MULTI_OUTPUT_FUSION = "xla_cpu_use_multi_output_fusion"  # as jaxpile.config.multi_output_fusion_on reads it (the
 # engine imports nothing from the package's top, tests/test_layers.py)
 
 

@@ -175,15 +175,20 @@ def make_particles(
       angular_velocity: `[n]`, default zero.
       fixed: `[n]` bool, default all False.
       active: `[n]` bool, default all True.
-      dtype: float dtype (default: that of `position` if floating, else the
-        JAX default float, float64 when jaxpile is imported).
+      dtype: float dtype (default: that of `position` if floating, else
+        float64, which needs JAX's float64: `jaxpile.configure()`).
 
     Raises:
-      InputError: on a non-positive radius or mass, a wrong shape, or NaN/inf.
+      InputError: on a non-positive radius or mass, a wrong shape, or NaN/inf;
+        on float64 while JAX's float64 is off.
     """
     position = np.asarray(position)
     if dtype is None:
-        dtype = position.dtype if np.issubdtype(position.dtype, np.floating) else transfer.default_float()
+        dtype = position.dtype if np.issubdtype(position.dtype, np.floating) else np.float64
+    if np.dtype(dtype) == np.float64 and not jax.config.jax_enable_x64:
+        raise InputError("float64 particles need JAX's float64, which is off: call jaxpile.configure() right after "
+                         "`import jaxpile` (or jax.config.update('jax_enable_x64', True)); for single precision "
+                         "give dtype=numpy.float32.")
     position = np.asarray(position, dtype=dtype)
     if position.ndim != 2 or position.shape[1] != 2:
         raise InputError(f"position must have shape [n, 2]; got {position.shape}.")

@@ -19,7 +19,7 @@ import numpy as np
 
 
 def default_float():
-    """JAX's default float dtype (float64 once jaxpile is imported), found
+    """JAX's default float dtype (float64 once `jaxpile.configure()` has run), found
     without running anything (`jnp.zeros(()).dtype` compiles two programs)."""
     return jax.dtypes.canonicalize_dtype(np.float64)
 

@@ -59,6 +59,7 @@ import json
 import math
 import os
 import time
+import warnings
 from typing import Callable, NamedTuple, Sequence
 
 import jax
@@ -69,7 +70,7 @@ import optax
 import jaxpile.fit.construction as construction
 import jaxpile.fit.estimators as estimators
 import jaxpile.fit.regression as regression
-from jaxpile import io
+from jaxpile import config, io
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Runner, Statistics
 from jaxpile.fit.ensemble_runs import fill_missing
@@ -243,7 +244,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               **({"window": int(window)} if estimator == "truncated" else {}),
               "max_step": max_step, "tolerance": tolerance, "noise_stop": noise_stop,
               "options": dict(runner.options or {}),
-              "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean]}
+              "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean],
+              "settings": config.settings()}
     if resume is not None:
         theta, opt_state, history = _replay(resume, record, theta, opt, opt_state)
     t0 = time.perf_counter()
@@ -322,11 +324,16 @@ def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
     saved = io.read_json(resume, "an ensemble fit's checkpoint")
     if not isinstance(saved, dict) or not isinstance(saved.get("history"), list):
         raise InputError(f"{resume} is not an ensemble fit's checkpoint (no history in it).")
-    same = [k for k in record if k not in ("steps", "noise_stop")]  # when to stop may change on resume
+    # when to stop may change on resume; other JAX/XLA settings are said, not refused
+    same = [k for k in record if k not in ("steps", "noise_stop", "settings")]
     differ = [k for k in same if json.dumps(saved.get(k), default=float) != json.dumps(record[k], default=float)]
     if differ:
         raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
                          "with the command that made it.")
+    settings_differ = config.differences(saved.get("settings"), record["settings"])
+    if settings_differ:
+        warnings.warn(f"{resume} was written under other JAX/XLA settings ({'; '.join(settings_differ)}): the "
+                      "fit goes on, and its next iterations are those of a fit under these settings.", stacklevel=3)
     history = []
     for entry in saved["history"]:
         theta = np.asarray(entry["next_theta"], float)

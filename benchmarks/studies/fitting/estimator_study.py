@@ -187,7 +187,9 @@ def main(argv=None) -> dict:
 
     import jax
 
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile import cli
     from jaxpile.fit import estimators
     from jaxpile.fit import construction

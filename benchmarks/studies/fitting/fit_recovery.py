@@ -189,7 +189,9 @@ def main(argv=None) -> dict:
 
     import numpy as np
 
-    import jaxpile  # noqa: F401
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile import cli
 
     cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit

@@ -39,7 +39,9 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     advance(theta, state, k) runs k steps of every member at n = exp(theta)."""
     import jax
 
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile import analysis, fit, sweep
     from jaxpile.engine import ensemble
     from jaxpile.engine import pairs as pair_list

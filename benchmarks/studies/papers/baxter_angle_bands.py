@@ -56,6 +56,9 @@ def main(argv=None) -> dict:
     parser.add_argument("--setting", default="contact-point_hold", help="file prefix of the saved heaps")
     parser.add_argument("--out", default=None, help="JSON (default: <folder>/angle_bands_<setting>.json)")
     args = parser.parse_args(argv)
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
 
     files = sorted(glob.glob(f"{args.folder}/{args.setting}_seed*.npz"))
     if not files:

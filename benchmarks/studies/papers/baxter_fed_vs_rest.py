@@ -14,7 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 
-import jaxpile  # noqa: F401  (float64)
+import jaxpile
+
+jaxpile.configure()  # float64 and the commands' XLA settings
 from jaxpile.protocols import pour
 from jaxpile.measure import poured_heap
 from jaxpile.measure import heap

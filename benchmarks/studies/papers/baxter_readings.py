@@ -93,7 +93,8 @@ def setting_of(name: str) -> dict:
 def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | None,
              checkpoint_every: int = 200_000) -> dict:
     """Pours one heap in `setting` and writes its measurements to `out`."""
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile.measure import heap
     from jaxpile.protocols import pour
 
@@ -142,7 +143,8 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     runs fast) and writes each heap's row as `one_heap` does. The batch saves
     itself every `checkpoint_every` steps and a rerun resumes it. Each member
     runs until the whole batch is poured and at rest (a heap at rest stays so)."""
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile import sweep
     from jaxpile.measure import heap, poured_heap
     from jaxpile.protocols import pour

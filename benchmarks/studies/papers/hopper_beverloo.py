@@ -121,6 +121,9 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(ROOT / "benchmarks/results/hopper/beverloo.json"))
     parser.add_argument("--figure", default=str(ROOT / "docs/hopper_beverloo.png"))
     args = parser.parse_args(argv)
+    import jaxpile
+
+    jaxpile.configure()  # float64 and the commands' XLA settings
     orifices = [float(x) for x in args.orifices.split(",")]
     seeds = list(range(args.seeds))
     setting = {"n": args.n, "width": args.width, "mu": args.mu, "orifices": orifices, "seeds": seeds,

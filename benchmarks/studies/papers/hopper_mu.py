@@ -79,9 +79,9 @@ def main(argv=None) -> int:
     parser.add_argument("--figure", default=str(ROOT / "docs/hopper_mu.png"))
     args = parser.parse_args(argv)
 
-    from jaxpile import cli
+    import jaxpile
 
-    cli.threads_for_batches()  # one batch of silos: XLA's threads, as `jaxpile sweep`
+    jaxpile.configure(threads=True)  # one batch of silos: XLA's threads, as `jaxpile sweep`
     from jaxpile import sweep
 
     mus = sorted(float(m) for m in args.mu.split(","))

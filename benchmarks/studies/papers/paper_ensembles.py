@@ -58,7 +58,8 @@ def _plain(value):
 
 
 def one_tilt(mu: float, seed: int, n: int, out: str, every: int) -> dict:
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile.protocols import tilt
 
     state_file = out.replace(".json", ".npz")
@@ -76,7 +77,8 @@ def one_tilt(mu: float, seed: int, n: int, out: str, every: int) -> dict:
 
 
 def one_drop(seed: int, n: int, out: str, every: int) -> dict:
-    import jaxpile  # noqa: F401  (float64)
+    import jaxpile
+    jaxpile.configure()  # float64 and the commands' XLA settings
     from jaxpile.protocols import drop
 
     state_file = out.replace(".json", ".npz")
