@@ -1,12 +1,19 @@
 """jaxpile: a differentiable, vectorised 2D granular (DEM) simulator in JAX.
 
     import jaxpile as jp
-    jp.configure()     # float64 and the commands' XLA settings: call it first
+    jp.configure()                                   # float64 and the commands' XLA settings: first
+
+    pile = jp.run("lattice", "hooke", 6)             # a protocol's pile, run to its end and measured
+    base = jp.base_forces(pile.simulator, pile.params, pile.state)      # eagerly or under jax.grad
+    rows = jp.sweep("box", vary={"mu": [0.1, 0.3]}, seeds=4)            # one batched run
+    jp.summarise(rows, "mu", "repose_cumulative_parabola")              # mean +- s.e. per mu
 
 `import jaxpile` changes nothing in JAX, XLA or the environment;
 `jaxpile.configure()` sets what the commands set (float64, and on a CPU the XLA
 settings that make a script's result for a seed the command's, bit for bit; see
-`jaxpile.config`).
+`jaxpile.config`). The modules behind these names: `protocols` (the papers'
+piles, one spec each), `sweeps` (batches), `fit` (gradients and fits), `laws`,
+`measure`, `engine` (state, simulator, ensembles).
 """
 
 from jaxpile.config import configure, settings  # noqa: E402
@@ -15,17 +22,32 @@ from jaxpile.engine import _jax_md  # noqa: E402
 
 _jax_md.register()  # jax-md's neighbour lists without the rest of jax-md's slow import (see _jax_md)
 
-from jaxpile import fit, laws, protocols, sweep  # noqa: E402
-from jaxpile.measure import analysis, theory
-from jaxpile.engine import boundaries, ensemble
+from jaxpile import fit, laws, protocols, sweeps  # noqa: E402
+from jaxpile.engine import boundaries, ensemble  # noqa: E402
 from jaxpile.engine.boundaries import make_boundaries, set_wall  # noqa: E402
-from jaxpile.errors import InputError, SimulationError  # noqa: E402
 from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed  # noqa: E402
 from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState, make_particles  # noqa: E402
+from jaxpile.errors import InputError, SimulationError  # noqa: E402
+from jaxpile.measure import analysis, theory  # noqa: E402
+from jaxpile.measure.forces import base_forces  # noqa: E402
+from jaxpile.protocols import run  # noqa: E402
+from jaxpile.protocols.running import PileRun  # noqa: E402
+from jaxpile.sweeps import SweepResult, summarise, sweep  # noqa: E402
 
 from jaxpile._version import __version__  # noqa: E402
 
 __all__ = [
+    # set-up, and the four things a newcomer does
+    "configure",
+    "settings",
+    "run",
+    "PileRun",
+    "base_forces",
+    "sweep",
+    "SweepResult",
+    "summarise",
+    "fit",
+    # by hand: particles, boundaries, a simulator, batches
     "Boundaries",
     "Contacts",
     "InputError",
@@ -34,17 +56,17 @@ __all__ = [
     "SimState",
     "SimulationError",
     "Simulator",
-    "analysis",
-    "boundaries",
-    "ensemble",
-    "fit",
-    "laws",
     "make_boundaries",
     "make_particles",
     "make_step",
     "max_speed",
-    "protocols",
     "set_wall",
-    "sweep",
+    # the modules
+    "analysis",
+    "boundaries",
+    "ensemble",
+    "laws",
+    "protocols",
+    "sweeps",
     "theory",
 ]

@@ -42,10 +42,10 @@ def test_a_1e8_disk_pile_is_refused_at_once_with_its_estimate(make):
 
 
 def test_a_batch_too_big_for_the_machine_is_refused_by_the_sweep(monkeypatch):
-    from jaxpile import sweep
+    from jaxpile import sweeps
 
     # room for two members of 40 disks, not for the batch of four: 80 disks over 4 members
     room = (budget.FIXED_BYTES + 2 * 40 * budget.bytes_per_disk("float64")) / budget.USABLE_FRACTION
     monkeypatch.setattr(budget, "available", lambda: (int(room), "test memory"))
     with pytest.raises(InputError, match=r"a batch of the box sweep of 4 x 40 disks .* At most (19|20) disks per member"):
-        sweep.sweep("box", vary={"mu": [0.2, 0.4]}, seeds=2, options={"n": 40}, max_steps=10, progress=False)
+        sweeps.sweep("box", vary={"mu": [0.2, 0.4]}, seeds=2, options={"n": 40}, max_steps=10, progress=False)

@@ -113,11 +113,11 @@ def test_a_sloped_pile_resumes_on_its_gravity_ramp(tmp_path):
 
 
 def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_same_rows(tmp_path):
-    from jaxpile import sweep
+    from jaxpile import sweeps
 
     kw = dict(vary={"mu": [0.2, 0.4]}, seeds=1, batch_size=1, progress=False, max_steps=4000,
               options={"n": 20, "width": 1.0, "height": 1.0, "max_time": 1.0})
-    whole = sweep.sweep("box", "hooke", checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
+    whole = sweeps.sweep("box", "hooke", checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
     assert [r["mu"] for r in whole.rows] == [0.2, 0.4]
     # the second batch overwrote the first's files where it got to: take one of its mid-run saves
     second = [s for s in saved_steps(tmp_path)
@@ -125,7 +125,7 @@ def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_sam
     mid = tmp_path / f"ck-{second[len(second) // 2]}.npz"
     extra = checkpoint.read_metadata(mid)["extra"]
     assert extra["rows"] == whole.rows[:1] and checkpoint.read_metadata(mid)["batch"] == 1
-    resumed = sweep.sweep("box", "hooke", resume=str(mid), **kw)
+    resumed = sweeps.sweep("box", "hooke", resume=str(mid), **kw)
     assert resumed.rows == whole.rows
     # a sweep still running is not drawn as one pile: `jaxpile show` says what it holds
     from jaxpile.cli import main
@@ -133,4 +133,4 @@ def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_sam
     shutil.copy(mid, tmp_path / "checkpoint.npz")
     assert main(["show", str(tmp_path)]) == 2
     with pytest.raises(Exception, match="another sweep"):
-        sweep.sweep("box", "hooke", resume=str(mid), **{**kw, "seeds": 2})
+        sweeps.sweep("box", "hooke", resume=str(mid), **{**kw, "seeds": 2})

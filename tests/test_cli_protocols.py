@@ -180,14 +180,14 @@ def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(m
     """A registered `ProtocolSpec` is all a new protocol needs for the commands to take it."""
     import dataclasses
 
-    from jaxpile import cli, sweep
+    from jaxpile import cli, sweeps
     from jaxpile.protocols import PROTOCOLS
 
     box = PROTOCOLS["box"]
     silo = dataclasses.replace(box, name="silo", presentation=dataclasses.replace(
         box.presentation, order=99, help="a silo emptied through an orifice"))
     monkeypatch.setitem(PROTOCOLS, "silo", silo)
-    assert cli.sweep_protocols()[-1] == "silo" and sweep.spec_of("silo") is silo
+    assert cli.sweep_protocols()[-1] == "silo" and sweeps.spec_of("silo") is silo
     for command in ("pile", "sweep", "fit"):
         argv = [command, "--protocol", "silo", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
         assert cli.build_parser(argv).parse_args(argv).protocol == "silo"

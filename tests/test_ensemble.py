@@ -1,4 +1,4 @@
-"""Batched ensembles (jaxpile.engine.ensemble, jaxpile.sweep): a batch run gives each
+"""Batched ensembles (jaxpile.engine.ensemble, jaxpile.sweeps): a batch run gives each
 member exactly what it gets alone, across a neighbour re-allocation and with
 members frozen when they finish; the rebuild decision stays a real branch under
 vmap; the batch shards over two CPU devices; `jaxpile sweep` writes its table
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import jaxpile
-from jaxpile import ensemble, sweep
+from jaxpile import ensemble, sweeps
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, lattice
 from jaxpile.engine.simulate import RunInfo, Simulator
@@ -149,7 +149,7 @@ def test_sweep_cli_writes_table_and_figure_and_a_member_equals_the_protocol_run(
     # `jaxpile show` redraws the sweep's figure from sweep.csv + sweep.json without running
     assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
     assert (tmp_path / "redrawn" / "sweep.png").stat().st_size > 10_000
-    reread = sweep.read(out)
+    reread = sweeps.read(out)
     assert reread.column("mu").tolist() == [0.15, 0.15, 0.3, 0.3] and reread.rows[3]["at_rest"] is True
     # resuming the finished sweep from its checkpoint runs no step and measures the same rows
     table = (out / "sweep.csv").read_text()
@@ -192,9 +192,9 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
 
 
 def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
-    from jaxpile import sweep
+    from jaxpile import sweeps
 
-    result = sweep.sweep("pour", "baxter", vary={"mu": [0.3, 0.6]}, seeds=1,
+    result = sweeps.sweep("pour", "baxter", vary={"mu": [0.3, 0.6]}, seeds=1,
                          options={"n": 12, "release_height": 7.0, "speed_tolerance": 1e-3}, progress=False)
     assert [(r["mu"], r["seed"]) for r in result.rows] == [(0.3, 0), (0.6, 0)]
     for row in result.rows:
@@ -204,10 +204,10 @@ def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
         # equal when the two flank ratios agree, so it is consistent with the M ratio's mean
         assert row["central_dip"] <= 1.0 - 1.0 / row["m_ratio"] + 1e-12
         assert row["flank_over_centre"] > 0  # window means of the same profile (heap.flank_over_centre)
-    summary = sweep.summarise(result, "mu", "repose_mean")
+    summary = sweeps.summarise(result, "mu", "repose_mean")
     assert summary["x"] == [0.3, 0.6] and summary["count"][0] + summary["missing"][0] == 1
     with pytest.raises(InputError, match="unknown option"):
-        sweep.sweep("pour", vary={"mu": [0.3]}, seeds=1, options={"colour": "red"})
+        sweeps.sweep("pour", vary={"mu": [0.3]}, seeds=1, options={"colour": "red"})
     with pytest.raises(InputError, match="unknown baxter parameter"):
-        sweep.sweep("pour", vary={"kn": [1.0]}, seeds=1, options={"n": 12})
+        sweeps.sweep("pour", vary={"kn": [1.0]}, seeds=1, options={"n": 12})
 

@@ -516,8 +516,8 @@ def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
     from jaxpile import cli
 
     true = {"kt": 3000.0, "mu": 0.15}
-    sim, params, state, steps, setting, window, _ = cli.fit_problem("lattice", "hooke", true, layers=4)
-    made = jax.jit(lambda p: fit.simulated_profile(sim, p, state, steps, setting))(params)
+    problem = fit.problem("lattice", "hooke", true, size=4)
+    made = jax.jit(problem.profile)(problem.params)
     target = tmp_path / "target.csv"
     rows = zip(np.asarray(made.x_over_b), np.asarray(made.normal), np.asarray(made.horizontal))
     lines = [f"{float(x)!r},{float(n)!r},{float(h)!r}" for x, n, h in rows]

@@ -266,15 +266,14 @@ PYTHON_SWEEP = """
 import json, sys
 import jaxpile
 jaxpile.configure()
-from jaxpile import sweep
-result = sweep.sweep("box", "lee-herrmann", vary={"mu": [0.1, 0.3]}, seeds=2,
-                     options={"n": 40, "width": 1.6, "height": 1.6}, progress=False)
+result = jaxpile.sweep("box", "lee-herrmann", vary={"mu": [0.1, 0.3]}, seeds=2,
+                       options={"n": 40, "width": 1.6, "height": 1.6}, progress=False)
 print(json.dumps({"rows": result.rows, "settings": result.info["settings"]}, default=float))
 """
 
 
 def test_a_box_sweep_gives_the_same_rows_bit_for_bit_from_the_command_and_from_python(tmp_path):
-    """One seed, one result: `jaxpile sweep` and `jaxpile.configure()` + `sweep.sweep(...)`
+    """One seed, one result: `jaxpile sweep` and `jaxpile.configure()` + `jaxpile.sweep(...)`
     with the same arguments, each in a user's environment, agree to the last bit in every
     row (the command's sweep.csv holds each number's shortest exact repr), and both
     record the same settings."""

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxpile import sweep
+from jaxpile import sweeps
 from jaxpile.cli import main
 from jaxpile.errors import InputError
 from jaxpile.protocols import PROTOCOLS, hopper
@@ -21,9 +21,9 @@ SMALL = dict(width=10.0, orifice=4.0, seed=0)  # 60 disks run out in ~45k steps
 
 def test_the_hopper_registers_itself_for_every_command():
     assert PROTOCOLS["hopper"] is hopper.SPEC
-    from jaxpile import cli, sweep
+    from jaxpile import cli, sweeps
 
-    assert "hopper" in cli.sweep_protocols() and sweep.spec_of("hopper").default_law == "hooke"
+    assert "hopper" in cli.sweep_protocols() and sweeps.spec_of("hopper").default_law == "hooke"
 
 
 @pytest.mark.parametrize("orifice", [1.0, 2.5, 4.0, 5.3, 7.9])
@@ -125,9 +125,9 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
     # a sweep over a set-up option: one batch per orifice (Beverloo's law from the command line)
     assert main(["sweep", "--protocol", "hopper", "--vary", "orifice=4,7", "--seeds", "1", "--n", "60", "--width",
                  "10", "--beverloo-k", "2", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
-    narrow, wide = sweep.read(tmp_path / "sweep").rows
+    narrow, wide = sweeps.read(tmp_path / "sweep").rows
     # the simulator ignores the orifice (Adapter.simulator_options): both batches ran on one compiled ensemble
-    assert len([key for key in sweep._ENSEMBLES if key[0] == "hopper"]) == 1
+    assert len([key for key in sweeps._ENSEMBLES if key[0] == "hopper"]) == 1
     assert (narrow["orifice"], wide["orifice"]) == (4.0, 7.0)
     # a batch sums forces in another order, and a discharge is chaotic: a member
     # is a pile of its own (5.1 vs 3.5 disks / time measured at D = 4), not the single run

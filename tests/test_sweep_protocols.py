@@ -16,14 +16,14 @@ LAW = "lee-herrmann"
 def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol_run():
     """The 1992 static piles batched over a law parameter (deterministic piles:
     one seed): each member loads and relaxes as `lattice.relax` / `sloped.SPEC.run`."""
-    from jaxpile import sweep
+    from jaxpile import sweeps
     from jaxpile.protocols import sloped
 
-    lat = sweep.sweep("lattice", "hooke", vary={"kn": [5e3, 1e4]}, seeds=1,
+    lat = sweeps.sweep("lattice", "hooke", vary={"kn": [5e3, 1e4]}, seeds=1,
                       options={"layers": 5, "ramp_steps": 500, "max_steps": 4000}, progress=False)
     assert [r["kn"] for r in lat.rows] == [5e3, 1e4] and all(r["pile_intact"] for r in lat.rows)
     assert all(r["max_rel_dev_normal"] < 0.01 for r in lat.rows)  # eq. 42 at rest
-    slo = sweep.sweep("sloped", "hooke", vary={"kn": [1e4]}, seeds=1,
+    slo = sweeps.sweep("sloped", "hooke", vary={"kn": [1e4]}, seeds=1,
                       options={"n": 20, "ramp_steps": 500, "max_steps": 4000}, progress=False)
     _, alone = sloped.SPEC.run("hooke", n=20, params={"kn": 1e4}, ramp_steps=500, max_steps=4000)
     row = slo.rows[0]
@@ -32,16 +32,16 @@ def test_lattice_and_sloped_sweeps_vary_the_law_and_a_member_equals_the_protocol
     assert row["at_rest"] and alone["at_rest"] and alone["steps"] - 1000 <= row["steps"] <= alone["steps"]
     assert row["central_normal_rel_dev"] == pytest.approx(alone["central_normal_rel_dev"], abs=1e-4)  # N to 1e-4
     with pytest.raises(InputError, match="unknown option"):
-        sweep.sweep("lattice", vary={"kn": [1e4]}, seeds=1, options={"width": 3})
+        sweeps.sweep("lattice", vary={"kn": [1e4]}, seeds=1, options={"width": 3})
 
 
 def test_drop_sweep_members_are_the_dropped_piles_of_their_seeds():
     """1992 Fig. 20 over seeds in one batch: each member fills and relaxes as
     `drop.SPEC.run` with its seed (the same steps; the dip to round-off)."""
-    from jaxpile import sweep
+    from jaxpile import sweeps
     from jaxpile.protocols import drop
 
-    result = sweep.sweep("drop", "liffman", vary={"ks": [1e4]}, seeds=2, options={"n": 8, "relax_steps": 20000},
+    result = sweeps.sweep("drop", "liffman", vary={"ks": [1e4]}, seeds=2, options={"n": 8, "relax_steps": 20000},
                          progress=False)
     for row in result.rows:
         _, alone = drop.SPEC.run("liffman", 8, seed=row["seed"], relax_steps=20000)
@@ -53,11 +53,11 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
     """1993 Fig. 5 batched: a member makes the insertions `flux.SPEC.run` makes with
     its seed, and its angle record gives the same steady mean (to round-off:
     the batch shares one neighbour capacity)."""
-    from jaxpile import sweep
+    from jaxpile import sweeps
     from jaxpile.protocols import flux
 
     options = {"width": 1.0, "max_time": 0.3}
-    result = sweep.sweep("flux", LAW, vary={"mu": [0.3]}, seeds=[1], options={"n": 6, **options}, progress=False)
+    result = sweeps.sweep("flux", LAW, vary={"mu": [0.3]}, seeds=[1], options={"n": 6, **options}, progress=False)
     _, alone = flux.SPEC.run(LAW, 6, params={"mu": 0.3}, seed=1, **options)
     row = result.rows[0]
     assert row["inserted"] == alone["inserted"] and row["n_left"] == alone["n_left"]
@@ -70,12 +70,12 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     theta_T, theta_R and last step are those of `tilt.SPEC.run` with its seed.
     Resumed from a save in the middle of the tilt, the sweep ends with the
     same rows (the tilt's start steps and the pile's theta_R come from the file)."""
-    from jaxpile import sweep
+    from jaxpile import sweeps
     from jaxpile.engine import checkpoint
     from jaxpile.protocols import tilt
 
     options = {"width": 1.2, "height": 1.2, "rate_degrees": 0.01}
-    result = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
+    result = sweeps.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
                          checkpoint=(str(tmp_path / "ck-{step}.npz"), 500))
     state, alone = tilt.SPEC.run(LAW, params={"mu": 0.3}, rate_degrees=0.01, seed=1,
                                  pile_options={"width": 1.2, "height": 1.2})
@@ -88,7 +88,7 @@ def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     saves = sorted(tmp_path.glob("ck-*.npz"), key=lambda f: int(f.stem[3:]))
     tilting = [f for f in saves if checkpoint.read_metadata(f)["extra"]["stage"] == 1]
     assert len(tilting) >= 2 and any(checkpoint.read_metadata(f)["extra"]["stage"] == 0 for f in saves)
-    resumed = sweep.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
+    resumed = sweeps.sweep("tilt", LAW, vary={"mu": [0.3]}, seeds=[1], options=options, progress=False,
                           resume=str(tilting[len(tilting) // 2]))
     assert json.dumps(resumed.rows) == json.dumps(result.rows)  # equal, NaN theory included
 

@@ -39,7 +39,7 @@ import sys
 import warnings
 
 from jaxpile.cli.compare import compare_table
-from jaxpile.cli.fit import fit_problem, fit_runs_batches, run_fit
+from jaxpile.cli.fit import fit_runs_batches, run_fit
 from jaxpile.cli.flag_ranges import FLAG_RANGES, check_flags, ranges_markdown
 from jaxpile.cli.parser import build_parser, sweep_protocols
 from jaxpile.cli.pile import run_protocol
@@ -121,7 +121,6 @@ __all__ = [
     "compare_table",
     "compile_cache_dir",
     "configure_for",
-    "fit_problem",
     "fit_runs_batches",
     "main",
     "merge_protocol_flags",

@@ -62,17 +62,6 @@ def run_fit(args) -> dict:
     return _fit_one_pile(args, law, names, target, optimizer, start)
 
 
-def fit_problem(protocol: str, law: str, start: dict, *, layers: int = 6, n: int = 60, seed: int = 0,
-                options: dict | None = None, bins: int | None = None, window: int = 2000, progress=None):
-    """The pile a pathwise fit differentiates: `(sim, params, state, steps, setting, window, description)`,
-    from the protocol spec's `pathwise.problem` (the lattice: the whole
-    quasi-static loading; the pour: `window` steps of relaxation of a heap
-    poured with the starting parameters). A protocol without one is refused."""
-    pathwise = _pathwise(protocol)
-    return pathwise.problem(law, start, size=layers if PROTOCOLS[protocol].size == "layers" else n, seed=seed,
-                            options=options, bins=bins, window=window, progress=progress)
-
-
 def _pathwise(protocol: str):
     """The protocol's pathwise fit (`ProtocolSpec.pathwise`), when it offers one."""
     spec = PROTOCOLS.get(protocol)
@@ -157,9 +146,10 @@ def _fit_one_pile(args, law: str, names: list, target, optimizer, start: dict) -
     from jaxpile import fit
 
     progress = False if args.no_progress else None
-    sim, params, state, steps, setting, window, described = fit_problem(
-        args.protocol, law, start, layers=args.layers, n=args.n, seed=args.seed, options=parse_options(args.option),
-        bins=args.bins, window=args.window, progress=progress)
+    size = args.layers if PROTOCOLS[args.protocol].size == "layers" else args.n
+    sim, params, state, steps, setting, window, described = fit.problem(
+        args.protocol, law, start, size=size, seed=args.seed, options=parse_options(args.option), bins=args.bins,
+        window=args.window, progress=progress)
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
           flush=True)
     horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0

@@ -121,10 +121,10 @@ def _checkpointed(path: str, out: str) -> list[str]:
 
 
 def _sweep(folder: str, out: str) -> list[str]:
-    from jaxpile import sweep
+    from jaxpile import sweeps
 
-    result = sweep.read(folder)
-    sweep.figure(result, result.info.get("summary_by"), path=os.path.join(out, "sweep.png"))
+    result = sweeps.read(folder)
+    sweeps.figure(result, result.info.get("summary_by"), path=os.path.join(out, "sweep.png"))
     return ["sweep.png"]
 
 

@@ -19,7 +19,7 @@ def run_sweep(args) -> dict:
     import jax.numpy as jnp
 
     from jaxpile import io
-    from jaxpile import sweep as sw
+    from jaxpile import sweeps as sw
     from jaxpile.laws import get_law_module
 
     law = get_law_module(args.law or sw.spec_of(args.protocol).default_law).NAME
@@ -96,7 +96,7 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
     checked as the sweep checks them before it runs, one member set up, and
     the memory a batch needs."""
     from jaxpile import budget
-    from jaxpile import sweep as sw
+    from jaxpile import sweeps as sw
 
     from jaxpile.protocols import running
 

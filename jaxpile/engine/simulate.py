@@ -282,6 +282,9 @@ class Simulator:
         self._block_pairs: dict[int, int] = {}  # pair entries each block size has needed
         self.step = make_step(law, self.dt, schedule, self.integrator, hard_collisions, driver)
         self._advance_jit = jax.jit(self._advance)
+        # one program for a rollout called eagerly (and for its derivatives under an eager jax.grad); inlined
+        # in a program that calls it
+        self._rollout_jit = jax.jit(self._rollout, static_argnums=(2, 3, 4))
         self._refresh_jit = jax.jit(self.refresh_forces)
         self._start_jit = jit_one_off(self.start)  # run once per pile: see engine.compile
         self._compiled: dict = {}
@@ -458,14 +461,18 @@ class Simulator:
             recomputes one block at a time, so memory grows like sqrt(n_steps)
             for about one extra forward pass. An int sets the block length.
         """
+        n_steps = int(n_steps)
+        if checkpoint is not True and checkpoint is not False and int(checkpoint) < 1:
+            raise InputError(f"checkpoint must be True, False or a block length >= 1; got {checkpoint!r}.")
+        checkpoint = checkpoint if isinstance(checkpoint, bool) else int(checkpoint)
+        return self._rollout_jit(params, state, n_steps, checkpoint, bool(refresh))
+
+    def _rollout(self, params, state: SimState, n_steps: int, checkpoint: bool | int, refresh: bool) -> SimState:
         if refresh:
             state = self.refresh_forces(params, state)
-        n_steps = int(n_steps)
         if not checkpoint:
             return _scan_steps(self.step, params, state, n_steps)
-        block = max(1, round(math.sqrt(n_steps))) if checkpoint is True else int(checkpoint)
-        if block < 1:
-            raise InputError(f"checkpoint must be True, False or a block length >= 1; got {checkpoint!r}.")
+        block = max(1, round(math.sqrt(n_steps))) if checkpoint is True else checkpoint
         blocks, rest = divmod(n_steps, block)
         run_block = jax.checkpoint(lambda p, s: _scan_steps(self.step, p, s, block), prevent_cse=False)
         state, _ = lax.scan(lambda s, _: (run_block(params, s), None), state, None, length=blocks)

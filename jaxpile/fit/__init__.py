@@ -23,6 +23,8 @@ The pieces live in one module each, and every name below is re-exported here:
 - `losses`: a predicted profile against a target;
 - `simulated`: the profile and the loss of a rollout (`ProfileSetting`, which
   says how the profile is read, lives in `jaxpile.measure.heap`);
+- `problem`: the pile a pathwise fit differentiates (`FitProblem`), built
+  from a protocol that offers one;
 - `optimise`: the log-space `Transform`, forward or reverse gradients, the
   optax loop `fit` and its figure.
 
@@ -74,6 +76,7 @@ from jaxpile.fit.profiles import (
     smooth_base_profile,
     smooth_profile,
 )
+from jaxpile.fit.problem import FitProblem, problem
 from jaxpile.fit.simulated import profile_objective, simulated_profile
 from jaxpile.fit.targets import (
     SMID_NOVOSAD_ANGLE_DEGREES,
@@ -92,6 +95,7 @@ __all__ = [
     "SMID_NOVOSAD_DIP_RANGE",
     "BaseLoad",
     "FORWARD_MODE_MAX",
+    "FitProblem",
     "FitResult",
     "GRADIENT_MODES",
     "Profile",
@@ -111,6 +115,7 @@ __all__ = [
     "normalise",
     "profile_loss",
     "profile_objective",
+    "problem",
     "profile_peak",
     "smid_novosad_target",
     "smooth_base_profile",

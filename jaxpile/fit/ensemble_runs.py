@@ -1,5 +1,5 @@
 """How the ensembles of an ensemble fit are built (`Runner`: the protocol,
-law and set-up, run through `sweep.sweep`) and what each pile contributes to
+law and set-up, run through `sweeps.sweep`) and what each pile contributes to
 it (`Statistics`: columns of the sweep's row, the base profile)."""
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from jaxpile import budget, sweep
+from jaxpile import budget, sweeps
 from jaxpile.errors import InputError
 from jaxpile.protocols import running
 from jaxpile.fit.profiles import base_load, smooth_base_profile
-from jaxpile.sweep import MEMBER_COLUMNS
+from jaxpile.sweeps import MEMBER_COLUMNS
 
 
 class Statistics(NamedTuple):
@@ -95,7 +95,7 @@ def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
 
 
 class Runner(NamedTuple):
-    """How the ensembles of a fit are built: everything `sweep.sweep` takes
+    """How the ensembles of a fit are built: everything `sweeps.sweep` takes
     except the parameter points and seeds."""
 
     protocol: str
@@ -110,7 +110,7 @@ class Runner(NamedTuple):
     rotation: bool | None = None
 
     def spec(self):
-        return sweep.spec_of(self.protocol)
+        return sweeps.spec_of(self.protocol)
 
     def check(self, statistics: Statistics) -> Statistics:
         """The statistics, checked against what the protocol can measure."""
@@ -130,18 +130,18 @@ class Runner(NamedTuple):
             resume=None) -> tuple[np.ndarray, dict]:
         """`[len(points), B, k]` statistics (the B seeds at every point, one
         batched run) and the sweep's record (`n_particles`, `batch_steps`,
-        `total_seconds` are used). `checkpoint`, `resume`: as `sweep.sweep`'s
+        `total_seconds` are used). `checkpoint`, `resume`: as `sweeps.sweep`'s
         (a long batch saved as it runs, and continued)."""
         spec = self.spec()
         statistics = _check_statistics(statistics, spec)
         seeds = [int(s) for s in seeds]
         if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
             law = self.law_name()
-            p = sweep.first_setup(spec, law, seeds[0], self.dt or spec.default_dt(law), self.options or {}, self.dtype)
+            p = sweeps.first_setup(spec, law, seeds[0], self.dt or spec.default_dt(law), self.options or {}, self.dtype)
             budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
                               f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
                               "pile", "Give fewer --bins.")
-        result = sweep.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
+        result = sweeps.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
                              extra_measure=_profile_hook(spec, statistics), checkpoint=checkpoint, resume=resume,

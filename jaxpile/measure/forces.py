@@ -1,6 +1,7 @@
 """Forces on a pile's base: the ground's (Liffman, Chan & Hughes 1992, Figs. 8-9)
 and the fixed substrate disks' (Baxter et al. 1997); `base_load` traceable (for
-`jax.grad` and `vmap`), `base_forces` and `substrate_forces` on the host."""
+`jax.grad` and `vmap`), `base_forces` either way (the contacts alone, sorted,
+on the host), `substrate_forces` on the host."""
 
 from __future__ import annotations
 
@@ -145,8 +146,20 @@ def force_unit(state: SimState) -> float:
 
 
 def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> BaseForces:
-    """Forces at every disk-ground contact (in mg): `base_load`'s contacts, sorted by x."""
+    """Forces at every disk-ground contact (in mg), eagerly or under a trace.
+
+    Eagerly: the contacts alone, sorted by x. Under `jax.grad`, `jax.vmap` or
+    `jax.jit`, where how many disks touch the ground is not known: one entry
+    per disk, in disk order, those off the ground with particle -1 and zero x
+    and forces, so sums, maxima and force-weighted means are the eager ones.
+
+        load = lambda p: jaxpile.base_forces(sim, p, sim.rollout(p, state, 100)).normal.max()
+        jax.grad(load)(params)
+    """
     load = base_load(sim, params, state, base="ground", wall=wall)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((load, params, state))):
+        particle = jnp.where(load.weight > 0, jnp.arange(load.x.shape[0]), -1)
+        return BaseForces(x=load.x, normal=load.normal, horizontal=load.horizontal, particle=particle)
     ids = np.flatnonzero(np.asarray(load.weight) > 0)
     x = np.asarray(load.x)[ids]
     order = np.argsort(x)

@@ -34,6 +34,15 @@ def get(name: str) -> ProtocolSpec:
     return PROTOCOLS[name]
 
 
+def run(name: str, law: str | None = None, size: int | None = None, **kwargs):
+    """One pile of the protocol `name`, set up, run to its end and measured:
+    `get(name).run(law, size, **kwargs)` (`protocols.running.run`: `params`,
+    `seed`, `dt`, `checkpoint`, `resume`, ... and the protocol's options).
+    Returns a `PileRun` (`state`, `measurements`, `simulator`, `params`;
+    unpacks as `(state, measurements)`)."""
+    return get(name).run(law, size, **kwargs)
+
+
 def presentation(name):
     """How the commands show a registered protocol (`spec.Presentation`), or None for an unknown name."""
     spec = PROTOCOLS.get(name)

@@ -13,8 +13,10 @@ functions per member: `member_setup`, `stage_start`, `member_row`.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
+from typing import Any
 
 from jaxpile import ranges
 from jaxpile.errors import InputError
@@ -26,6 +28,38 @@ from jaxpile.protocols.runner import (
     run_sampled,
     run_to_finish,
 )
+
+
+@dataclasses.dataclass(frozen=True)
+class PileRun:
+    """One pile's run, as `ProtocolSpec.run` and `jaxpile.run` return it.
+
+    Behaves as the pair `(state, measurements)` (unpacking, `run[1]`):
+
+        state, measured = jaxpile.run("box", "lee-herrmann", 72, width=1.6, height=1.6)
+
+    Attributes:
+      state: the final `SimState`.
+      measurements: the protocol's measurements (`{"protocol": name, ...}`).
+      simulator: the `Simulator` that ran it: for a measurement of your own
+        (`jaxpile.base_forces(run.simulator, run.params, run.state)`) or a
+        rollout to differentiate (`run.simulator.rollout(params, run.state, steps)`).
+      params: the law's parameters it ran with (a pytree; `params.set(mu=0.3)`).
+    """
+
+    state: Any
+    measurements: dict
+    simulator: Any
+    params: Any
+
+    def __iter__(self):
+        return iter((self.state, self.measurements))
+
+    def __getitem__(self, index):
+        return (self.state, self.measurements)[index]
+
+    def __len__(self) -> int:
+        return 2
 
 
 def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None, dt: float | None = None,
@@ -58,10 +92,11 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
       **options: the protocol's options (`spec.options`).
 
     Returns:
-      `(state, measurements)`: `{"protocol": name, **measure(...),
-      "kinetic_energy": samples, **run record, "info": set-up info}`, or the
-      spec's `report`; a continued protocol that built its pile adds the
-      pile's measurements under the pile protocol's name.
+      a `PileRun` (unpacks as `(state, measurements)`); its measurements are
+      `{"protocol": name, **measure(...), "kinetic_energy": samples, **run
+      record, "info": set-up info}`, or the spec's `report`; a continued
+      protocol that built its pile adds the pile's measurements under the pile
+      protocol's name.
     """
     law = law or spec.default_law
     if size is not None and spec.starts_from is not None and spec.size not in spec.options.names():
@@ -95,9 +130,9 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
     seconds = time.perf_counter() - t0
     measured = spec.measure(sim, params, state, p, o)
     if spec.report is not None:
-        return state, spec.report(measured, p, o, info, samples, seconds)
-    return state, {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
-                   "info": dict(p.info)}
+        return PileRun(state, spec.report(measured, p, o, info, samples, seconds), sim, params)
+    return PileRun(state, {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
+                           "info": dict(p.info)}, sim, params)
 
 
 def _with_law_options(p: Setup, law_options: dict | None) -> Setup:
@@ -155,7 +190,7 @@ def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rot
     out = {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
     if built is not None:
         out[base.name] = {k: v for k, v in built.items() if k != "kinetic_energy"}
-    return state, out
+    return PileRun(state, out, sim, stage_params)
 
 
 def on_pile(spec, pile, law, dt, options, *, facts: bool = True) -> Setup:

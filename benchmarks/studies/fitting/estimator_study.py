@@ -16,7 +16,7 @@ independent ensembles (disjoint seeds) give the estimate's spread; the bias
 is measured against a reference: central differences over every seed of the
 central-difference rows together (their members, reused: no second run).
 The cost is counted in particle-steps per gradient. Every ensemble of a
-given theta is one batched `jaxpile.sweep` (through `ensemble_fit.Runner`;
+given theta is one batched `jaxpile.sweeps` (through `ensemble_fit.Runner`;
 the same seeds at every theta: common random numbers).
 
     python benchmarks/studies/fitting/estimator_study.py [--case box|pour] [--B 8,32] [--repeats 4]

@@ -139,13 +139,13 @@ def groups(settings: list[str]) -> list[list[str]]:
 def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, insert_height: float | None,
                checkpoint_every: int = 200_000) -> list[dict]:
     """Pours the heaps of `settings` (one of `groups`) for `seeds` as one batched
-    `Ensemble` (`jaxpile.sweep`, one compiled call for every member: what a GPU
+    `Ensemble` (`jaxpile.sweeps`, one compiled call for every member: what a GPU
     runs fast) and writes each heap's row as `one_heap` does. The batch saves
     itself every `checkpoint_every` steps and a rerun resumes it. Each member
     runs until the whole batch is poured and at rest (a heap at rest stays so)."""
     import jaxpile
     jaxpile.configure()  # float64 and the commands' XLA settings
-    from jaxpile import sweep
+    from jaxpile import sweeps
     from jaxpile.measure import heap, poured_heap
     from jaxpile.protocols import pour
     from jaxpile.engine.simulate import max_speed
@@ -171,7 +171,7 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
                 "setup": dict(protocol.info)}
 
     t0 = time.perf_counter()
-    result = sweep.sweep("pour", law, points=[dict(spec["params"]) for spec in specs], seeds=list(seeds),
+    result = sweeps.sweep("pour", law, points=[dict(spec["params"]) for spec in specs], seeds=list(seeds),
                          options={"n": n, "insert_height": insert_height, **pour_options}, dt=dt,
                          checkpoint=(state_file, checkpoint_every), resume=resume, extra_measure=extra)
     seconds = time.perf_counter() - t0

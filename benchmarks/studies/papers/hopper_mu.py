@@ -82,12 +82,12 @@ def main(argv=None) -> int:
     import jaxpile
 
     jaxpile.configure(threads=True)  # one batch of silos: XLA's threads, as `jaxpile sweep`
-    from jaxpile import sweep
+    from jaxpile import sweeps
 
     mus = sorted(float(m) for m in args.mu.split(","))
     seeds = list(range(args.seeds))
     t0 = time.perf_counter()
-    rows = sweep.sweep("hopper", "hooke", points=[{"mu": m} for m in mus], seeds=seeds,
+    rows = sweeps.sweep("hopper", "hooke", points=[{"mu": m} for m in mus], seeds=seeds,
                        options={"n": args.n, "width": args.width, "orifice": args.orifice}, progress=False).rows
     table = []
     for mu in mus:

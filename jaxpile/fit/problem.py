@@ -1,0 +1,73 @@
+"""The pile a pathwise fit differentiates, as one named record: `problem(...)`
+builds it from a protocol that offers one (its spec's `pathwise`: the lattice,
+the pour), and its `profile` and `objective` are the differentiable profile and
+loss that `fit` minimises."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+from jaxpile.errors import InputError
+from jaxpile.fit.simulated import profile_objective, simulated_profile
+from jaxpile.protocols import PROTOCOLS
+
+
+class FitProblem(NamedTuple):
+    """A pile to differentiate, set up and ready to roll out.
+
+    Attributes:
+      simulator: the `Simulator`.
+      params: the law's parameters it was built with (the fit's start).
+      state: the state the differentiated rollout starts from.
+      steps: the rollout's length.
+      setting: how the base profile is read (`ProfileSetting`).
+      window: differentiate only the last `window` steps (None: all).
+      description: what was built, in words.
+    """
+
+    simulator: Any
+    params: Any
+    state: Any
+    steps: int
+    setting: Any
+    window: int | None
+    description: str
+
+    def profile(self, params=None):
+        """The base profile after the rollout with `params` (default: the
+        problem's), differentiable in them (`simulated_profile`)."""
+        return simulated_profile(self.simulator, self.params if params is None else params, self.state, self.steps,
+                                 self.setting, window=self.window)
+
+    def objective(self, target, **weights):
+        """`params -> loss` against `target` (`profile_objective`; `weights`:
+        horizontal_weight, dip_weight)."""
+        return profile_objective(self.simulator, self.state, self.steps, self.setting, target, window=self.window,
+                                 **weights)
+
+
+def problem(protocol: str, law: str | None = None, start: dict | None = None, *, size: int | None = None,
+            seed: int = 0, options: dict | None = None, bins: int | None = None, window: int = 2000,
+            progress=None) -> FitProblem:
+    """The pile a pathwise fit of `protocol` differentiates (the lattice: the
+    whole quasi-static loading of a `size`-layer pile; the pour: `window` steps
+    of relaxation of a heap of `size` disks poured with the starting values).
+
+    Args:
+      protocol: a protocol whose spec offers a pathwise fit ("lattice", "pour").
+      law: the law's name (default: the protocol's).
+      start: the law parameters to build with, as a dict (default: the protocol's setting).
+      size: the protocol's size (layers or disks; default its own).
+      seed, options, bins, window, progress: as the protocol's `pathwise.problem` reads them.
+    """
+    spec = PROTOCOLS.get(protocol)
+    if spec is None or spec.pathwise is None:
+        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
+        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
+                         "with an ensemble estimator (jaxpile.fit.ensemble_fit).")
+    size = spec.pathwise.default_size if size is None else size
+    return FitProblem(*spec.pathwise.problem(law or spec.default_law, dict(start or {}), size=size, seed=seed,
+                                             options=options, bins=bins, window=window, progress=progress))
+
+
+__all__ = ["FitProblem", "problem"]
