@@ -56,3 +56,16 @@ def test_compile_cache_folder_follows_the_environment_and_can_be_turned_off(tmp_
     assert compile_cache_dir({"XDG_CACHE_HOME": "/x"}, "/jax/dir") == "/jax/dir"
     assert compile_cache_dir({"XDG_CACHE_HOME": "/x"}) == os.path.join("/x", "jaxpile", "xla")
     assert compile_cache_dir({}).endswith(os.path.join(".cache", "jaxpile", "xla"))
+
+
+def test_a_sweep_names_the_law_s_n_apart_from_the_disk_count(tmp_path, capsys):
+    """The pour's disk count (`--n`) and the baxter law's exponent n share a
+    name: a bare `--vary n=` is refused with the spelling to use, and
+    `--vary law.n=` sweeps the law's (a dry run, nothing built)."""
+    common = ["sweep", "--protocol", "pour", "--n", "30", "--seeds", "1", "--dry-run", "--out", str(tmp_path / "s")]
+    assert main([*common, "--vary", "n=36,144"]) == 2
+    assert "--vary law.n=" in capsys.readouterr().err
+    assert main([*common, "--vary", "law.n=36,144"]) == 0
+    assert "n in [36.0, 144.0]" in capsys.readouterr().out
+    assert main([*common, "--vary", "law.width=1,2"]) == 2
+    assert "not a parameter of the law" in capsys.readouterr().err

@@ -57,6 +57,19 @@ def test_show_redraws_the_figures_without_running(finished_run, tmp_path, capsys
         assert (tmp_path / name).stat().st_size > 10_000  # a drawn figure, not an empty canvas
 
 
+def test_show_without_out_writes_beside_the_run_not_over_its_figures(finished_run, tmp_path, capsys):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    before = {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()}
+    assert "pile.png" in before
+    assert main(["show", str(run)]) == 0
+    assert f"wrote {run / 'shown'}/" in capsys.readouterr().out
+    assert {p.name: p.read_bytes() for p in run.iterdir() if p.is_file()} == before  # the run's own, untouched
+    assert (run / "shown" / "pile.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_show_of_a_folder_without_a_run_is_a_clear_error(tmp_path, capsys):
     assert main(["show", str(tmp_path)]) == 2
     assert "neither a finished" in capsys.readouterr().err

@@ -96,8 +96,9 @@ def _main(argv) -> int:
         elif args.command == "show":
             from jaxpile.cli.show import show
 
-            written = show(args.dir, args.out, checkpoint=args.checkpoint)
-            print(f"jaxpile: wrote {args.out or args.dir}/" + ", ".join(written))
+            out = args.out or os.path.join(args.dir, "shown")  # never over the run's own figures
+            written = show(args.dir, out, checkpoint=args.checkpoint)
+            print(f"jaxpile: wrote {out}/" + ", ".join(written))
         elif args.command == "compare":
             print(compare_table(args.dirs))
         elif args.command == "sweep":

@@ -113,7 +113,7 @@ def _show_parser(sub) -> argparse.ArgumentParser:
     show = sub.add_parser("show", help="re-draw the figures of a finished or checkpointed pile run, a sweep or a "
                                        "fit (no re-run)")
     show.add_argument("dir")
-    show.add_argument("--out", default=None, help="where to write the figures (default: DIR)")
+    show.add_argument("--out", default=None, help="where to write the figures (default: DIR/shown, beside the run's own)")
     show.add_argument("--checkpoint", action="store_true", help="draw the last checkpoint even if the run finished")
     return show
 
@@ -133,7 +133,8 @@ def _sweep_parser(sub) -> argparse.ArgumentParser:
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
     sweep.add_argument("--vary", action="append", metavar="NAME=V1,V2,...",
                        help="another law parameter, or a set-up option of the protocol (--vary orifice=4,6,8 "
-                            "for the hopper), to sweep (repeatable; the grid is the product)")
+                            "for the hopper), to sweep (repeatable; the grid is the product); law.NAME for a law "
+                            "parameter that shares an option's name (the baxter law's n in a pour: law.n)")
     sweep.add_argument("--seeds", type=int, default=4, help="random piles per grid point (seeds 0..N-1)")
     sweep.add_argument("--n", type=int, default=None, help="disks per pile (default: the protocol's)")
     sweep.add_argument("--option", action="append", metavar="NAME=VALUE", help="a set-up option (repeatable)")

@@ -161,7 +161,8 @@ def _fit(folder: str, out: str) -> list[str]:
 
 
 def show(folder: str, out: str | None = None, *, checkpoint: bool = False) -> list[str]:
-    """Draws the figures of the run in `folder` into `out` (default: `folder`):
+    """Draws the figures of the run in `folder` into `out` (default:
+    `folder/shown`, so the run's own figures stay as the run wrote them):
     `pile.png` and `profile.png` of a pile run (and `energy.png` of a sampled
     run's checkpoint), `sweep.png` of a sweep, `fit.png` of a fit. A finished
     pile run is drawn from its results, unless `checkpoint` asks for its last
@@ -169,7 +170,7 @@ def show(folder: str, out: str | None = None, *, checkpoint: bool = False) -> li
     file names written."""
     from jaxpile.engine import checkpoint as ckpt
 
-    out = folder if out is None else out
+    out = os.path.join(folder, "shown") if out is None else out
     if not os.path.isdir(folder):
         raise InputError(f"{folder} is not a folder; give one written by `jaxpile pile`, `sweep` or `fit` --out.")
     has = {name: os.path.exists(os.path.join(folder, name)) for name in ("sweep.json", "fit.json")}

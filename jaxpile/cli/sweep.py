@@ -23,7 +23,7 @@ def run_sweep(args) -> dict:
     from jaxpile.laws import get_law_module
 
     law = get_law_module(args.law or sw.spec_of(args.protocol).default_law).NAME
-    vary = _grid(args)
+    vary = _grid(args, get_law_module(law).PARAM_NAMES, sw.option_names(sw.spec_of(args.protocol)))
     if args.seeds < 1:
         raise InputError(f"--seeds must be >= 1; got {args.seeds}.")
     lawmod = get_law_module(law)
@@ -58,8 +58,11 @@ def run_sweep(args) -> dict:
     return result.info
 
 
-def _grid(args) -> dict:
-    """`{name: values}` swept: `--mu`, then each `--vary NAME=V1,V2,...`."""
+def _grid(args, law_names=(), option_names=()) -> dict:
+    """`{name: values}` swept: `--mu`, then each `--vary NAME=V1,V2,...`. A
+    name that is both a law parameter and a set-up option (the baxter law's
+    exponent n and a protocol's disk count n) is refused bare: `law.n` says
+    which (a sweep varies the law's)."""
     vary = {}
     if args.mu is not None:
         vary["mu"] = _parse_values("--mu", args.mu)
@@ -67,6 +70,14 @@ def _grid(args) -> dict:
         if "=" not in item:
             raise InputError(f"--vary takes NAME=V1,V2,...; got {item!r}.")
         name, text = (part.strip() for part in item.split("=", 1))
+        if name.startswith("law."):
+            name = name[len("law."):]
+            if name not in law_names:
+                raise InputError(f"--vary law.{name}: {name} is not a parameter of the law ({', '.join(law_names)}).")
+        elif name in law_names and name in option_names:
+            raise InputError(f"--vary {name} names both a law parameter and a set-up option ({name} is also the "
+                             f"{args.protocol} protocol's, e.g. its disk count --n): write --vary law.{name}=... to "
+                             "sweep the law's.")
         if name in vary:
             raise InputError(f"{name} is swept twice.")
         vary[name] = _parse_values(f"--vary {name}", text)
