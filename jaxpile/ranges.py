@@ -6,7 +6,7 @@ of its options (`protocols.spec.option`) and the command line `cli.FLAG_RANGES`
 (its numeric flags). One `Range` states the interval, whether it holds whole numbers only,
 and why a bound is where it is; `check` answers a value outside it with one
 line in one format, `"<name> must be <range>; got <value>."`, and the same
-table writes the docstrings, the `--help` text, the README's inputs section and
+table writes the docstrings, the `--help` text, the inputs table of docs/cli.md and
 the catalogue test's expectations. The property tests (tests/test_input_properties.py)
 draw values across and beyond each range.
 """

@@ -304,7 +304,7 @@ def test_smid_novosad_is_an_ensemble_target_of_the_central_dip(tmp_path, capsys)
 class ChaoticToyRunner(ToyRunner):
     """Piles whose statistics move with log mu by ~4 per-pile spreads plus
     noise that changes with mu as well as with the seed: common random numbers do not cancel it, as in a
-    silo's discharge (README, the hopper recovery)."""
+    silo's discharge (docs/fitting.md, the hopper recovery)."""
 
     def run(self, points, seeds, statistics, progress=None):
         mu = np.array([p["mu"] for p in points])[:, None]

@@ -269,7 +269,7 @@ def test_baxter_default_reading_is_the_one_the_audit_measured_and_the_pour_runs(
     """The readings of eqs. 3, 5, 6 and 13 measured in docs/baxter1997_audit.md:
     the contact-point arm, delta_F held at +-delta_max, the pair's damping mass
     is the default, and a pour runs it unless told otherwise. Changing the
-    default changes every 1997 number of the README: this test must fail then."""
+    default changes every 1997 number of docs/papers.md: this test must fail then."""
     from jaxpile.protocols import pour
 
     default = (("lever_arm", "contact-point"), ("slip", "hold"), ("damping_mass", "pair"))

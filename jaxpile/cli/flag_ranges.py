@@ -1,6 +1,6 @@
 """The valid range of every numeric flag (`jaxpile.ranges`), by command: shown
 in `--help`, checked before anything is set up, and listed with the laws' and
-protocols' ranges in `jaxpile pile --help` and README's table."""
+protocols' ranges in `jaxpile pile --help` and the docs' table (docs/cli.md)."""
 
 from __future__ import annotations
 
@@ -49,8 +49,8 @@ def check_flags(args) -> None:
 
 
 def ranges_markdown() -> str:
-    """The README's table of valid ranges, from the same tables the checks use
-    (tests/test_input_catalogue.py checks that the README holds it as it is)."""
+    """The table of valid ranges in docs/cli.md, from the same tables the checks use
+    (tests/test_input_catalogue.py checks that docs/cli.md holds it as it is)."""
     from jaxpile.laws import LAWS, get_law_module
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols.spec import ranges_of

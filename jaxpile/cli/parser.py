@@ -174,7 +174,7 @@ def _fit_parser(sub) -> argparse.ArgumentParser:
                            "ensemble-mean loss by central differences (default with --truth or a target.json), "
                            "Gaussian smoothing with antithetic pairs, or the pathwise gradient through the pour's "
                            "construction truncated to windows of --truncation-window steps (the base profile "
-                           "alone; measured biased on 40-disk heaps: README's estimator study)")
+                           "alone; measured biased on 40-disk heaps: docs/fitting.md)")
     _ensemble_fit_args(fitp)
     fitp.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
     fitp.add_argument("--params", required=True, metavar="NAME,NAME", help="the law parameters to fit")

@@ -14,8 +14,8 @@ Every ensemble is run with the same seeds at every theta (common random
 numbers): a difference between two thetas is then not buried under the
 difference between two packings.
 
-The gradient through a chaotic construction explodes (README, "Gradients:
-what works", long horizons), so the estimators here use the construction as a
+The gradient through a chaotic construction explodes (docs/gradients.md,
+long horizons), so the estimators here use the construction as a
 black box, batched:
 
 - `"central"`: central differences of the ensemble means at theta +- h e_i
@@ -29,7 +29,7 @@ black box, batched:
 - `"truncated"`: the pathwise gradient through the construction cut into
   windows (`estimators.truncated_pathwise` over `construction.Construction`:
   the pour, its base profile alone); for an optax optimiser. Wrong in sign
-  on 40-disk heaps in README's estimator study; there for trying elsewhere.
+  on 40-disk heaps in the estimator study (docs/fitting.md); there for trying elsewhere.
 
 The answer carries a confidence interval from the ensembles' own spread: near
 the optimum theta_hat is linear in the two ensemble means, so (the sandwich)
@@ -204,7 +204,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         `"truncated"`: the truncated pathwise gradient through the pour's
         construction (`construction.Construction`, windows of `window` steps,
         their sensitivities averaged); the base profile alone. Measured biased
-        on 40-disk heaps (README, the estimator study): for trying on others.
+        on 40-disk heaps (docs/fitting.md, the estimator study): for trying on others.
       optimizer: `"gauss-newton"` (central only) or an optax name (`adam`, `sgd`...).
       steps: iterations at most.
       lr: the optax learning rate (log units).
@@ -216,7 +216,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         of the fitted and the target piles). Off by default: the iterates
         wander by more than these standard errors, which leave out the
         finite-difference Jacobian's own noise, so on the pour recovery it
-        stopped early with an interval that missed the truth (README,
+        stopped early with an interval that missed the truth (docs/fitting.md,
         "Fitting built piles"; docs/performance.md, "Stopping an ensemble fit
         on its noise"). Every entry records `step_stderr` either way, to
         compare the steps with.

@@ -11,7 +11,7 @@ member b from the same seed at every theta, so that the difference between
 two thetas is not buried under the difference between two packings.
 
 - `pathwise`: jax.grad through the whole construction (the baseline; through a
-  chaotic pour it explodes: README, "Gradients: what works", long horizons).
+  chaotic pour it explodes: docs/gradients.md).
 - `central_differences`: (F(theta + h e_i) - F(theta - h e_i)) / 2h, 2d runs of
   the ensemble; the reference, and a usable estimator for one or two parameters.
 - `truncated_pathwise`: the construction cut into windows of W steps; each

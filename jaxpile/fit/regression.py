@@ -6,7 +6,7 @@ ensembles at theta and theta +- h differ by more than the parameter change
 explains, even with the same seeds: common random numbers do not cancel
 chaos. The last step is then one noisy step, and an interval built on one
 finite-difference Jacobian is too narrow (measured on the hopper:
-README, "Recovery").
+docs/fitting.md).
 
 Every ensemble of the fit is a point (theta_n, m_n) on the response of the
 ensemble means to the log-parameters. A straight line through all of them,
