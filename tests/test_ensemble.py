@@ -57,13 +57,24 @@ def test_batched_run_equals_each_member_alone_across_reallocation_and_freezing(b
     assert info.reallocations >= 1
     steps = np.asarray(out.step)
     assert sorted(set(steps.tolist())) == [300, 600]  # frozen at their own chunk boundary
+    alones = []
     for i, alone in enumerate(ensemble.members(small)):
         alone = sim.run(params[i], alone, STEPS, progress=False, until=lambda s: bool(until(s)))
         got = ensemble.member(out, i)
         assert int(got.step) == int(alone.step)
         np.testing.assert_allclose(got.particles.position, alone.particles.position, rtol=0, atol=1e-12)
         np.testing.assert_allclose(got.particles.velocity, alone.particles.velocity, rtol=0, atol=1e-9)
+        alones.append(alone)
     assert not bool(jnp.any(out.neighbors.did_buffer_overflow))
+    # a batch run by hand ends in each member's measurements, as each pile's own
+    measured = box.SPEC.measure_members(sim, params, out, protocols, n=30, **BOX)
+    options = box.SPEC.make_options(n=30, **BOX)
+    for i, m in enumerate(measured):
+        own = box.SPEC.measure(sim, params[i], alones[i], protocols[i], options)
+        assert set(m) == set(own)
+        for key, value in own.items():
+            if isinstance(value, float) and np.isfinite(value):
+                assert m[key] == pytest.approx(value, rel=1e-9, abs=1e-9), key
 
 
 def test_batch_wide_rebuild_decision_keeps_a_real_branch_under_vmap(batch):

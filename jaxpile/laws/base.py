@@ -108,6 +108,24 @@ class ContactLaw:
     options: tuple = ()
 
 
+def with_set(params_class):
+    """A law's `Params` with a documented `set` (jax-md's dataclasses give one
+    without a docstring)."""
+
+    def set(self, **values):
+        """A copy with `values` changed and every other parameter kept; this
+        one is unchanged (a pytree: traced values are welcome).
+
+            params = hooke.make_params(kn=1e4, mu=0.2)
+            stiffer = params.set(kn=2e4, mu=0.3)
+            jax.grad(lambda mu: loss(params.set(mu=mu)))(0.2)
+        """
+        return dataclasses.replace(self, **values)
+
+    params_class.set = set
+    return params_class
+
+
 def contact_result(in_contact, force, torque, history, normal, torque_j) -> PairForce:
     """A `PairForce` that is zero (and has zero history) outside contact."""
     return PairForce(

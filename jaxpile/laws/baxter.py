@@ -68,7 +68,7 @@ from jax_md import dataclasses
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
-                               validate_ranges, dot2,
+                               validate_ranges, with_set, dot2,
                                normal_and_distance, perp, safe_sqrt)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE, Range
 
@@ -84,6 +84,7 @@ RANGES = {
 """Each parameter's valid range (`jaxpile.ranges`); the paper uses n = 36 and 144, r0 = 1.047 and 1.2."""
 
 
+@with_set
 @dataclasses.dataclass
 class Params:
     """Parameters of eqs. 3-8.

@@ -50,7 +50,7 @@ from jax_md import dataclasses
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
-                               validate_ranges)
+                               validate_ranges, with_set)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
 Array = Any
@@ -64,6 +64,7 @@ OPTIONAL = WALL_NAMES + rolling_.PARAM_NAMES
 """The parameters that may be None (unset)."""
 
 
+@with_set
 @dataclasses.dataclass
 class Params:
     """Parameters of the `hooke` law (names as LAMMPS).

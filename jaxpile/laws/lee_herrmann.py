@@ -48,7 +48,7 @@ from jax_md import dataclasses
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
-                               validate_ranges, dot2,
+                               validate_ranges, with_set, dot2,
                                normal_and_distance, perp, safe_sqrt)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
@@ -63,6 +63,7 @@ OPTIONAL = WALL_NAMES + rolling_.PARAM_NAMES
 """The parameters that may be None (unset)."""
 
 
+@with_set
 @dataclasses.dataclass
 class Params:
     """Parameters of eqs. 2a-2b.

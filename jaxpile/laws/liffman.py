@@ -44,7 +44,7 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
-                               validate_ranges, dot2,
+                               validate_ranges, with_set, dot2,
                                normal_and_distance, perp)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
 
@@ -55,6 +55,7 @@ RANGES = {name: POSITIVE if name in ("ks", "well_width") else NON_NEGATIVE for n
 """Each parameter's valid range (`jaxpile.ranges`): K_s and the well width > 0, the rest >= 0."""
 
 
+@with_set
 @dataclasses.dataclass
 class Params:
     """Parameters of eqs. 25-33.

@@ -302,6 +302,26 @@ class ProtocolSpec:
         """One pile from set-up to measurements: `jaxpile.protocols.running.run(self, ...)`."""
         return run_protocol(self, law, size, **kwargs)
 
+    def measure_members(self, sim, params, state, setups, **options) -> list[dict]:
+        """Each member's measurements of a batch run by hand (an `Ensemble`
+        of this protocol's `set_up`s): `measure` on member k with its params
+        and set-up, `options` as the set-ups were made with (the size as `n`).
+
+            ens = jaxpile.ensemble.Ensemble(sim)
+            state = ens.run(params, ens.init(params, piles), steps, until=...)
+            angles = [m["repose_cumulative_parabola"] for m in box.SPEC.measure_members(sim, params, state, piles)]
+        """
+        from jaxpile.engine.batch import member
+
+        o = self.make_options(options)
+        if isinstance(params, (list, tuple)):
+            if len(params) != len(setups):
+                raise InputError(f"got {len(params)} params for {len(setups)} set-ups; give one per member.")
+            per_member = list(params)
+        else:
+            per_member = [params] * len(setups)
+        return [self.measure(sim, per_member[k], member(state, k), setups[k], o) for k in range(len(setups))]
+
 
 __all__ = ["Batch", "Option", "Options", "Pathwise", "Presentation", "ProtocolSpec", "declared", "option",
            "ranges_of"]
