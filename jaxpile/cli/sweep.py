@@ -51,6 +51,7 @@ def run_sweep(args) -> dict:
     by = next(iter(vary))
     summaries = {name: sw.summarise(result, by, name) for name in result.info["angles"]}
     io.write_json(os.path.join(out, "sweep.json"), plain({**result.info, "precision": args.precision,
+                                                          "argv": getattr(args, "argv", None),
                                                           "summary_by": by, "summaries": summaries}))
     sw.figure(result, by, path=os.path.join(out, "sweep.png"))
     _print_summary(result, by, summaries)

@@ -7,6 +7,11 @@ FOLDER/drop_dip_grid.csv (the dropped pile's central dip over (mu, mu_roll)), wr
 `benchmarks/studies/papers/gpu_rolling.sh` (`jaxpile sweep` rows), and writes
 FOLDER/rolling_summary.json (mean, standard error and count per point) and
 FOLDER/rolling.png. FOLDER defaults to benchmarks/results/rolling/gpu_h200.
+
+    python benchmarks/studies/papers/rolling_results.py --pour benchmarks/results/rolling/cpu_pour
+
+summarises a pour sweep over mu_roll instead (its sweep.csv, from `jaxpile sweep --protocol pour
+... --vary mu_roll=...`; the command is in its sweep.json) into pour_summary.json beside it.
 """
 
 from __future__ import annotations
@@ -49,10 +54,38 @@ def summarise(rows: list[dict], by: tuple, columns: tuple) -> list[dict]:
     return out
 
 
+POUR_COLUMNS = ("repose_mean", "central_dip", "flank_over_centre", "m_ratio", "height", "base_width")
+"""What a poured heap's row says about its shape: the angle, the dip and the M (`measure.poured_heap`)."""
+
+
+def pour_summary(folder: pathlib.Path) -> dict:
+    """mean +- s.e. of `POUR_COLUMNS` and the count of M-shaped heaps at each mu_roll of FOLDER/sweep.csv."""
+    rows = list(csv.DictReader(open(folder / "sweep.csv")))
+    record = json.load(open(folder / "sweep.json"))
+    points = summarise(rows, ("mu_roll",), POUR_COLUMNS)
+    for p in points:
+        p["m_shaped"] = sum(r["m_shaped"] == "True" for r in rows if _number(r["mu_roll"]) == p["mu_roll"])
+    command = record.get("argv") or (folder / "command.txt").read_text().split()
+    summary = {"how": "jaxpile " + " ".join(command[1:] if command[:1] == ["jaxpile"] else command)
+                      + ", summarised by benchmarks/studies/papers/rolling_results.py --pour",
+               "law": record["law"], "params": record["params"], "law_options": record.get("law_options"),
+               "options": record["options"], "points": points}
+    (folder / "pour_summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    for p in points:
+        cells = ", ".join(f"{c} {p[c]['mean']:+.3f} +- {p[c]['stderr']:.3f}" for c in POUR_COLUMNS)
+        print(f"pour mu_roll = {p['mu_roll']:g} ({p['repose_mean']['count']} heaps, {p['m_shaped']} M-shaped): {cells}")
+    return summary
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folder", nargs="?", default=str(DEFAULT))
-    folder = pathlib.Path(parser.parse_args(argv).folder)
+    parser.add_argument("--pour", default=None, help="a pour sweep's folder to summarise instead")
+    args = parser.parse_args(argv)
+    if args.pour is not None:
+        pour_summary(pathlib.Path(args.pour))
+        return
+    folder = pathlib.Path(args.folder)
     box = list(csv.DictReader(open(folder / "box_mu_roll.csv")))
     drop = list(csv.DictReader(open(folder / "drop_dip_grid.csv")))
     summary = {
