@@ -1,0 +1,100 @@
+"""The poured heap's mean base profile with its band, with and without rolling
+resistance: the check the central-dip statistic needs before anything is fitted
+to Smid and Novosad's dip (docs/rolling_resistance.md).
+
+    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300]
+
+runs `jaxpile.sweep` of the 1997 pour (baxter law, spins on, rolling sds with
+k_roll = 1000, gamma_roll = 30) over mu_roll times seeds, checkpointed every
+20 000 steps in DIR (rerun the same command to resume), and records each heap's
+base normal force, binned over its own base and normalised by its total, on a
+common x/B grid (`BINS` bins). Writes DIR/profiles.json (the rows with their
+profiles, the mean profile per mu_roll with its standard error band, the dip
+of the mean profile) and DIR/profiles.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+
+import numpy as np
+
+BINS = 15
+"""Bins over the base: odd, so one sits under the middle; ~20 substrate disks each on a 300-disk heap's base."""
+
+
+def heap_profile(sim, params, state, setup) -> dict:
+    """The heap's base normal force in `BINS` bins over its base, each bin's share of the total."""
+    from jaxpile.measure import poured_heap
+    from jaxpile.measure.heap import base_profile
+
+    m = poured_heap.measure(sim, params, state)
+    full = m["base_profile"]
+    forces = m["substrate_forces"]
+    profile = base_profile(forces, extent=(full.x_left, full.x_left + full.width), bins=BINS)
+    share = np.asarray(profile.force, float) / max(float(np.sum(profile.force)), 1e-300)
+    return {"profile": share.tolist(), "base_width_bins": float(full.width)}
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Mean profile and standard error band per mu_roll; the dip of the mean profile (1 - centre / min flank max)."""
+    out = {}
+    for mu_roll in sorted({r["mu_roll"] for r in rows}):
+        p = np.array([r["profile"] for r in rows if r["mu_roll"] == mu_roll and r.get("profile") is not None])
+        mean, se = p.mean(axis=0), p.std(axis=0, ddof=1) / math.sqrt(len(p))
+        centre = len(mean) // 2
+        dip = 1.0 - mean[centre] / min(mean[:centre].max(), mean[centre + 1:].max())
+        out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": float(dip)}
+    return out
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--seeds", type=int, default=16)
+    parser.add_argument("--mu-roll", default="0,0.3")
+    parser.add_argument("--n", type=int, default=300)
+    args = parser.parse_args(argv)
+    import jaxpile
+
+    jaxpile.configure(threads=True)  # a batch: XLA's threads, as `jaxpile sweep`
+
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "checkpoint.npz"
+    result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
+                           seeds=args.seeds, options={"n": args.n}, params={"k_roll": 1000.0, "gamma_roll": 30.0},
+                           rotation=True, law_options={"rolling": "sds"}, progress=False,
+                           checkpoint=(str(path), 20_000), resume=str(path) if path.exists() else None,
+                           extra_measure=heap_profile)
+    rows = [dict(r) for r in result.rows]
+    summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(argv or []),
+               "bins": BINS, "n": args.n, "settings": result.info.get("settings"), "by_mu_roll": summarise(rows),
+               "rows": rows}
+    (out / "profiles.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x = (np.arange(BINS) + 0.5) / BINS
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for key, s in summary["by_mu_roll"].items():
+        mean, se = np.array(s["mean"]), np.array(s["stderr"])
+        ax.plot(x, mean, marker="o", label=f"mu_roll = {key}: {s['heaps']} heaps, dip of mean {s['dip_of_mean']:+.2f}")
+        ax.fill_between(x, mean - se, mean + se, alpha=0.3)
+    ax.set(xlabel="x / B", ylabel="share of the base force per bin",
+           title=f"poured heaps ({args.n} disks, baxter, rolling sds): mean +- s.e.")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "profiles.png", dpi=120)
+    for key, s in summary["by_mu_roll"].items():
+        print(f"mu_roll = {key}: {s['heaps']} heaps, dip of the mean profile {s['dip_of_mean']:+.3f}")
+
+
+if __name__ == "__main__":
+    main()
