@@ -19,6 +19,7 @@ import argparse
 import json
 import math
 import pathlib
+import sys
 
 import numpy as np
 
@@ -71,7 +72,8 @@ def main(argv=None) -> None:
                            checkpoint=(str(path), 20_000), resume=str(path) if path.exists() else None,
                            extra_measure=heap_profile)
     rows = [dict(r) for r in result.rows]
-    summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(argv or []),
+    given = sys.argv[1:] if argv is None else argv
+    summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given),
                "bins": BINS, "n": args.n, "settings": result.info.get("settings"), "by_mu_roll": summarise(rows),
                "rows": rows}
     (out / "profiles.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
