@@ -109,25 +109,29 @@ def configure(*, float64: bool = True, multi_output_fusion: bool = True, threads
     """
     if float64:
         jax.config.update("jax_enable_x64", True)
-    wanted = {"vector_width": "xla_cpu_prefer_vector_width" not in _flags()}
     fusion = {"0": False, "1": True}.get(os.environ.get(_FUSION_ENV, ""), multi_output_fusion)
-    wanted["fusion"] = fusion and not multi_output_fusion_on() and "xla_backend_extra_options" not in _flags()
-    wanted["one_thread"] = not threads and "PJRT_NPROC" not in os.environ
     devices = host_devices if host_devices is not None else os.environ.get(_HOST_DEVICES_ENV)
-    if not any(wanted.values()) and devices is None:
-        return settings()
     if backend_started():
-        if any(wanted.values()) or devices is not None:
-            warnings.warn("jaxpile.configure() came after JAX had run: XLA's flags, its thread count and the host "
-                          "devices stay as JAX set them (call it right after `import jaxpile`); float64 is on.",
-                          stacklevel=2)
+        asked = _would_set(fusion, threads)
+        differ = [name for name, value in asked.items() if value != _in_force(name)]
+        if devices is not None and str(devices).strip() != str(jax.device_count()):
+            differ.append("host_devices")
+        if differ:
+            warnings.warn(f"jaxpile.configure() came after JAX had run: {', '.join(differ)} stay as JAX set them "
+                          "(call it right after `import jaxpile`)"
+                          + ("; float64 is on." if float64 else "."), stacklevel=2)
         return settings()
-    if wanted["vector_width"]:
+    _undo_ours()  # a call before JAX runs replaces an earlier call's choices (never the user's own)
+    asked = _would_set(fusion, threads)
+    if asked["vector_width"] and "xla_cpu_prefer_vector_width" not in _flags():
         _add_flag(_VECTOR_WIDTH)
-    if wanted["fusion"]:
+        _OURS["flags"].append(_VECTOR_WIDTH)
+    if asked["multi_output_fusion"] and "xla_backend_extra_options" not in _flags():
         _add_flag(_MULTI_OUTPUT_FUSION)
-    if wanted["one_thread"]:
+        _OURS["flags"].append(_MULTI_OUTPUT_FUSION)
+    if asked["one_thread"] and "PJRT_NPROC" not in os.environ:
         os.environ["PJRT_NPROC"] = "1"
+        _OURS["nproc"] = True
     if devices is not None:
         try:
             count = int(devices)
@@ -137,6 +141,36 @@ def configure(*, float64: bool = True, multi_output_fusion: bool = True, threads
         except (RuntimeError, ValueError) as error:  # not a number, or JAX already running: say so, carry on
             warnings.warn(f"host_devices={devices!r} ignored: {error}", stacklevel=2)
     return settings()
+
+
+_OURS = {"flags": [], "nproc": False}
+"""What configure itself put in the environment, which a later call (before JAX runs) may take back."""
+
+
+def _undo_ours() -> None:
+    for flag in _OURS["flags"]:
+        os.environ["XLA_FLAGS"] = " ".join(t for t in _flags().split() if t != flag)
+    if _OURS["nproc"] and os.environ.get("PJRT_NPROC") == "1":
+        del os.environ["PJRT_NPROC"]
+    _OURS.update(flags=[], nproc=False)
+
+
+def _would_set(fusion: bool, threads: bool) -> dict:
+    """What a call asks for, where the user's environment does not decide it."""
+    user_flags = " ".join(t for t in _flags().split() if t not in _OURS["flags"])
+    return {"vector_width": True if "xla_cpu_prefer_vector_width" not in user_flags else _in_force("vector_width"),
+            "multi_output_fusion": fusion if "xla_backend_extra_options" not in user_flags
+            else _in_force("multi_output_fusion"),
+            "one_thread": (not threads) if ("PJRT_NPROC" not in os.environ or _OURS["nproc"])
+            else _in_force("one_thread")}
+
+
+def _in_force(name: str):
+    if name == "vector_width":
+        return "xla_cpu_prefer_vector_width" in _flags()
+    if name == "multi_output_fusion":
+        return multi_output_fusion_on()
+    return os.environ.get("PJRT_NPROC") == "1"
 
 
 def _flag_value(name: str) -> str | None:
@@ -158,27 +192,36 @@ def settings() -> dict:
     level = _flag_value("xla_backend_optimization_level")
     width = _flag_value("xla_cpu_prefer_vector_width")
     threads = os.environ.get("PJRT_NPROC")
+    def number(text):
+        try:
+            return None if text is None else int(text)
+        except ValueError:  # as the environment has it, when it is not a count
+            return text
+
     return {
         "float64": bool(jax.config.jax_enable_x64),
         "multi_output_fusion": multi_output_fusion_on(),
         "fusion_emitters": emitters is None or emitters.lower() not in ("false", "0"),
-        "optimization_level": None if level is None else int(level),
-        "vector_width": None if width is None else int(width),
-        "xla_threads": None if threads is None else int(threads),
+        "optimization_level": number(level),
+        "vector_width": number(width),
+        "xla_threads": number(threads),
         "devices": jax.device_count() if backend_started() else None,
     }
 
 
-def differences(recorded: dict | None, current: dict | None = None) -> list[str]:
+def differences(recorded: dict | None, current: dict | None = None, *, batch: bool = False) -> list[str]:
     """The result-changing settings (`RESULT_SETTINGS`) in which a run's
     recorded settings differ from `current` (default: `settings()`), as
-    'name: recorded -> current'; empty when they agree or the record has none."""
+    'name: recorded -> current'; empty when they agree or a record lacks them.
+    The device count changes only a sharded batch's numbers: compared when
+    `batch`."""
     if not recorded:
         return []
     current = settings() if current is None else current
-    return [f"{k}: {recorded[k]} -> {current.get(k)}" for k in RESULT_SETTINGS
-            if k in recorded and recorded[k] != current.get(k)
-            and not (k == "devices" and None in (recorded[k], current.get(k)))]
+    names = [k for k in RESULT_SETTINGS if batch or k != "devices"]
+    return [f"{k}: {recorded[k]} -> {current[k]}" for k in names
+            if k in recorded and k in current and recorded[k] != current[k]
+            and not (k == "devices" and None in (recorded[k], current[k]))]
 
 
 __all__ = ["RESULT_SETTINGS", "backend_started", "configure", "differences", "multi_output_fusion_on", "settings"]

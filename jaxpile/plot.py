@@ -103,7 +103,7 @@ def sweep_figure(series: dict, xlabel: str, *, theory=None, ylabel: str = "angle
     with an optional theory curve.
 
     Args:
-      series: name -> `sweep.summarise` dict (`x`, `mean`, `stderr`, `count`).
+      series: name -> `jaxpile.summarise` dict (`x`, `mean`, `stderr`, `count`).
       theory: optional `(x, label, y)`.
     """
     fig, ax = plt.subplots(figsize=(7, 4.5))

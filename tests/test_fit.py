@@ -292,7 +292,7 @@ def test_profile_interpolation_is_jnp_interp_and_its_gradient_has_no_scatter():
     """profile_loss reads a profile between its points like jnp.interp, by a
     select instead of gathers: the gathers' derivative is a scatter-add, and
     XLA:CPU's multi-output fusion of two of them aborts the process in jax
-    0.10.2 (jaxpile.use_multi_output_fusion)."""
+    0.10.2 (jaxpile.configure turns it on)."""
     rng = np.random.default_rng(3)
     xp = np.concatenate([[0.0, 0.0], np.sort(rng.uniform(0, 1, 7)), [1.0]])  # a repeated point, as at a foot
     fp = rng.normal(size=xp.size)

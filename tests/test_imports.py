@@ -45,6 +45,9 @@ def test_import_changes_nothing_and_configure_sets_float64_and_the_commands_xla_
             "except jaxpile.InputError as e:\n"
             "    assert 'jaxpile.configure()' in str(e), e\n"
             "import numpy as np\n"
+            # a second call before JAX runs replaces the first's choices (never the user's own)
+            "s = jaxpile.configure(multi_output_fusion=False, threads=True)\n"
+            "assert not s['multi_output_fusion'] and 'PJRT_NPROC' not in os.environ, (s, os.environ.get('XLA_FLAGS'))\n"
             "s = jaxpile.configure()\n"
             "assert jax.config.jax_enable_x64 and s['float64'] and s['multi_output_fusion'] and s['vector_width'] == 512\n"
             "assert '--xla_cpu_prefer_vector_width=512' in os.environ['XLA_FLAGS'], os.environ['XLA_FLAGS']\n"

@@ -73,10 +73,22 @@ def test_readme_recipes_run_as_written_and_the_sweep_is_the_command_s_bit_for_bi
             if isinstance(value, (int, float)) and not isinstance(value, bool) and key != "wall_seconds":
                 text = cli_row[key]
                 a = None if text in ("", "None") else float(text)
-                assert (a is None and value is None) or a == value or (math.isnan(a) and math.isnan(value)), \
-                    (key, text, value)
+                same = a == value or (a is not None and value is not None and math.isnan(a) and math.isnan(value))
+                assert same, (key, text, value)
                 compared += 1
     assert compared >= 9 * 3, compared
     recorded = json.loads((out / "sweep.json").read_text())["settings"]
     keys = ("float64", "multi_output_fusion", "fusion_emitters")
     assert {k: recorded[k] for k in keys} == {k: ours["settings"][k] for k in keys} == dict.fromkeys(keys, True)
+
+
+def test_the_recipes_notebook_is_readme_s_recipes_with_their_outputs():
+    """notebooks/recipes.ipynb (tools/recipes_notebook.py: the docs' first tutorial) holds README's
+    blocks as its code cells, each run and stored with what it printed."""
+    import json
+
+    notebook = json.loads((README.parent / "notebooks" / "recipes.ipynb").read_text())
+    cells = [c for c in notebook["cells"] if c["cell_type"] == "code"]
+    assert ["".join(c["source"]) for c in cells] == [b.rstrip("\n") for b in python_blocks(README.read_text())], \
+        "README's recipes changed: run `python tools/recipes_notebook.py` and commit notebooks/recipes.ipynb"
+    assert all(any(o.get("output_type") == "stream" for o in c.get("outputs", [])) for c in cells)

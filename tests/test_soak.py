@@ -55,6 +55,9 @@ def pour_command(n: int, steps: int, every: int, out: str) -> list[str]:
 
 
 def main(argv=None) -> dict:
+    import jaxpile
+
+    jaxpile.configure()  # float64, as the pour's set-up below needs (the suite's conftest does it there)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=1_000_000)
     parser.add_argument("--n", type=int, default=100, help="disks poured")

@@ -46,11 +46,11 @@ def compare_table(dirs) -> str:
             raise InputError(f"{os.path.join(d, 'summary.json')} is not a finished {protocol} run's summary "
                              f"({type(err).__name__}: {err}); give folders written by 'jaxpile pile --out DIR'."
                              ) from None
-    first = next((s["settings"] for _, s in rows if isinstance(s.get("settings"), dict)), None)
-    for d, s in rows:
-        differ = config.differences(first, s.get("settings")) if isinstance(s.get("settings"), dict) else []
+    recorded = [(d, s["settings"]) for d, s in rows if isinstance(s.get("settings"), dict)]
+    for d, settings in recorded[1:]:
+        differ = config.differences(recorded[0][1], settings)
         if differ:
-            lines.append(f"note: {d} ran under other JAX/XLA settings than {rows[0][0]} ({'; '.join(differ)}): "
+            lines.append(f"note: {d} ran under other JAX/XLA settings than {recorded[0][0]} ({'; '.join(differ)}): "
                          "the same seed differs at round-off, grown by the dynamics (jaxpile.config).")
     lines.append(
         "dev N, dev H (lattice): largest deviation of the ground forces from Liffman et al. 1992 eqs. 42 and 44.\n"

@@ -289,7 +289,7 @@ def restore(path, template: SimState, law, params) -> SimState:
     if changed:
         raise InputError(f"{path} was written with other law parameters ({', '.join(changed)} differ); "
                          "resuming with other parameters is not the same run.")
-    differ = config.differences(meta.get("settings"))
+    differ = config.differences(meta.get("settings"), batch=meta.get("batch") is not None)
     if differ:
         warnings.warn(f"{path} was written under other JAX/XLA settings ({'; '.join(differ)}): the resumed run "
                       "goes on, and ends where an uninterrupted run under these settings would, not that one "

@@ -330,7 +330,7 @@ def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
     if differ:
         raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
                          "with the command that made it.")
-    settings_differ = config.differences(saved.get("settings"), record["settings"])
+    settings_differ = config.differences(saved.get("settings"), record["settings"], batch=True)
     if settings_differ:
         warnings.warn(f"{resume} was written under other JAX/XLA settings ({'; '.join(settings_differ)}): the "
                       "fit goes on, and its next iterations are those of a fit under these settings.", stacklevel=3)

@@ -123,7 +123,8 @@ def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
 
 
 class BaseForces(NamedTuple):
-    """Every contact between the pile and the ground, sorted by x.
+    """Every contact between the pile and the ground, sorted by x (numpy
+    arrays); under a trace, every disk, padding included (`base_forces`).
 
     Attributes:
       x: `[c]` contact x (the disk centre's x).
@@ -151,7 +152,9 @@ def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> 
     Eagerly: the contacts alone, sorted by x. Under `jax.grad`, `jax.vmap` or
     `jax.jit`, where how many disks touch the ground is not known: one entry
     per disk, in disk order, those off the ground with particle -1 and zero x
-    and forces, so sums, maxima and force-weighted means are the eager ones.
+    and forces, so sums, force-weighted means and the maximum normal force are
+    the eager ones (a maximum or minimum of the horizontal force, which takes
+    both signs, can be the padding's 0: mask with `particle >= 0`).
 
         load = lambda p: jaxpile.base_forces(sim, p, sim.rollout(p, state, 100)).normal.max()
         jax.grad(load)(params)

@@ -30,7 +30,7 @@ from jaxpile.protocols.runner import (
 )
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class PileRun:
     """One pile's run, as `ProtocolSpec.run` and `jaxpile.run` return it.
 

@@ -189,13 +189,11 @@ def main(argv=None) -> dict:
 
     import jaxpile
 
-    jaxpile.configure()  # float64 and the commands' XLA settings
-    from jaxpile import cli
+    jaxpile.configure(threads=True)  # float64, XLA's settings and its threads: batches, as `jaxpile fit` runs an ensemble fit
     from jaxpile.fit import estimators
     from jaxpile.fit import construction
     from jaxpile.fit import ensemble_fit as ef
 
-    cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
 
     estimator_names = list(dict.fromkeys(args.estimators.split(",")))  # each once
     if args.summarise_only and not args.resume:

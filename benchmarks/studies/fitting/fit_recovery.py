@@ -191,10 +191,8 @@ def main(argv=None) -> dict:
 
     import jaxpile
 
-    jaxpile.configure()  # float64 and the commands' XLA settings
-    from jaxpile import cli
+    jaxpile.configure(threads=True)  # float64, XLA's settings and its threads: batches, as `jaxpile fit` runs an ensemble fit
 
-    cli.threads_for_batches()  # batches of piles: XLA's threads, as `jaxpile fit` gives an ensemble fit
     from jaxpile.fit import ensemble_fit as ef
 
     case = CASES[args.case]
