@@ -120,6 +120,16 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
             repeats += 1
             repeat_seconds += seconds
         first_seen.add(digest)
+    # the step loops by module: where a test's pile differs from every other test's, it pays a compile of its own
+    steps = collections.defaultdict(lambda: {"compiles": 0, "seconds": 0.0, "distinct": set()})
+    step_modules = collections.defaultdict(set)
+    for worker, test, name, digest, seconds in programs:
+        if name == "jit__advance":
+            module = test.split("::")[0]
+            steps[module]["compiles"] += 1
+            steps[module]["seconds"] += seconds
+            steps[module]["distinct"].add(digest)
+            step_modules[digest].add(module)
     modules = collections.defaultdict(lambda: {"wall": 0.0, "compile": 0.0, "trace": 0.0})
     for nodeid, t in tests.items():
         module = modules[nodeid.split("::")[0]]
@@ -135,6 +145,10 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
         "programs_by_name": [
             {"name": n, "compiles": v["compiles"], "distinct": len(v["distinct"]), "seconds": round(v["seconds"], 1)}
             for n, v in sorted(by_name.items(), key=lambda kv: -kv[1]["seconds"])[:top]],
+        "step_programs_by_module": [
+            {"module": m, "compiles": v["compiles"], "distinct": len(v["distinct"]),
+             "own": sum(1 for d in v["distinct"] if len(step_modules[d]) == 1), "seconds": round(v["seconds"], 1)}
+            for m, v in sorted(steps.items(), key=lambda kv: -kv[1]["seconds"])],
         "modules": [{"module": m, **{k: round(x, 1) for k, x in v.items()}}
                     for m, v in sorted(modules.items(), key=lambda kv: -kv[1]["wall"])],
         "slowest_tests": [{"test": n, "wall": round(t["wall"], 1), "compile": round(t["compile"], 1),
@@ -159,6 +173,9 @@ def _print(summary: dict) -> None:
     print("\nprogram              compiles distinct  seconds")
     for p in summary["programs_by_name"][:12]:
         print(f"{p['name'][:20]:20s} {p['compiles']:8d} {p['distinct']:8d} {p['seconds']:8.1f}")
+    print("\nstep loops (jit__advance) by module: compiles, distinct, its own alone, seconds")
+    for p in summary["step_programs_by_module"][:15]:
+        print(f"{p['compiles']:4d} {p['distinct']:4d} {p['own']:4d} {p['seconds']:7.1f}  {p['module']}")
     print("\n  wall compile trace  test")
     for t in summary["slowest_tests"]:
         print(f"{t['wall']:6.1f} {t['compile']:7.1f} {t['trace']:5.1f}  {t['test']}")
