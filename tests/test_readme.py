@@ -4,14 +4,14 @@ comments say: the four recipes are what a newcomer pastes first."""
 
 import ast
 import math
-import os
 import pathlib
 import re
 import subprocess
 import sys
 
+from test_imports import clean_env
+
 README = pathlib.Path(__file__).resolve().parents[1] / "README.md"
-SUITE_SETTINGS = ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION", "JAXPILE_HOST_DEVICES")
 
 
 def python_blocks(text: str) -> list[str]:
@@ -46,7 +46,7 @@ def test_readme_recipes_run_as_written_and_the_sweep_is_the_command_s_bit_for_bi
     import json
 
     script = "\n".join(python_blocks(README.read_text())) + ROWS
-    env = {k: v for k, v in os.environ.items() if k not in SUITE_SETTINGS}
+    env = clean_env()  # a user's environment, without the suite's XLA settings
     done = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -63,13 +63,10 @@ def run_fit(args) -> dict:
 
 
 def _pathwise(protocol: str):
-    """The protocol's pathwise fit (`ProtocolSpec.pathwise`), when it offers one."""
-    spec = PROTOCOLS.get(protocol)
-    if spec is None or spec.pathwise is None:
-        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
-        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
-                         "with --estimator central or smoothing (an ensemble target: --truth or a target.json).")
-    return spec.pathwise
+    """The protocol's pathwise fit, or the refusal that names the ensemble estimators' flags."""
+    from jaxpile.fit.problem import pathwise_of
+
+    return pathwise_of(protocol, "--estimator central or smoothing (an ensemble target: --truth or a target.json)")
 
 
 def _pathwise_inputs(args) -> tuple:

@@ -46,6 +46,17 @@ class FitProblem(NamedTuple):
                                  **weights)
 
 
+def pathwise_of(protocol: str, remedy: str = "an ensemble estimator (jaxpile.fit.ensemble_fit)"):
+    """The protocol's pathwise fit (`ProtocolSpec.pathwise`), or `InputError`
+    naming the protocols that offer one and `remedy`."""
+    spec = PROTOCOLS.get(protocol)
+    if spec is None or spec.pathwise is None:
+        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
+        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
+                         f"with {remedy}.")
+    return spec.pathwise
+
+
 def problem(protocol: str, law: str | None = None, start: dict | None = None, *, size: int | None = None,
             seed: int = 0, options: dict | None = None, bins: int | None = None, window: int = 2000,
             progress=None) -> FitProblem:
@@ -60,14 +71,10 @@ def problem(protocol: str, law: str | None = None, start: dict | None = None, *,
       size: the protocol's size (layers or disks; default its own).
       seed, options, bins, window, progress: as the protocol's `pathwise.problem` reads them.
     """
-    spec = PROTOCOLS.get(protocol)
-    if spec is None or spec.pathwise is None:
-        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
-        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
-                         "with an ensemble estimator (jaxpile.fit.ensemble_fit).")
-    size = spec.pathwise.default_size if size is None else size
-    return FitProblem(*spec.pathwise.problem(law or spec.default_law, dict(start or {}), size=size, seed=seed,
+    pathwise = pathwise_of(protocol)
+    size = pathwise.default_size if size is None else size
+    return FitProblem(*pathwise.problem(law or PROTOCOLS[protocol].default_law, dict(start or {}), size=size, seed=seed,
                                              options=options, bins=bins, window=window, progress=progress))
 
 
-__all__ = ["FitProblem", "problem"]
+__all__ = ["FitProblem", "pathwise_of", "problem"]

@@ -20,6 +20,7 @@ import json
 import math
 import pathlib
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -41,14 +42,15 @@ def heap_profile(sim, params, state, setup) -> dict:
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Mean profile and standard error band per mu_roll; the dip of the mean profile (1 - centre / min flank max)."""
+    """Mean profile and standard error band per mu_roll; the dip of the mean profile (`heap.central_dip`)."""
+    from jaxpile.measure.heap import central_dip
+
     out = {}
     for mu_roll in sorted({r["mu_roll"] for r in rows}):
         p = np.array([r["profile"] for r in rows if r["mu_roll"] == mu_roll and r.get("profile") is not None])
         mean, se = p.mean(axis=0), p.std(axis=0, ddof=1) / math.sqrt(len(p))
-        centre = len(mean) // 2
-        dip = 1.0 - mean[centre] / min(mean[:centre].max(), mean[centre + 1:].max())
-        out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": float(dip)}
+        dip = central_dip(SimpleNamespace(force=mean))  # the rows' statistic, of the mean profile
+        out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": dip}
     return out
 
 
