@@ -4,6 +4,7 @@ it compiled.
 
     python tools/suite_profile.py                 # the whole suite, as `make test` runs it
     python tools/suite_profile.py tests/test_protocol_tilt.py -n 0
+    python tools/suite_profile.py --json /tmp/profile.json -n 2 --dist loadscope  # not the committed file
 
 runs pytest with this file as a plugin (each worker records its own tests) on a
 fresh, empty compile cache, as CI's clean clone does, then prints the slowest
@@ -20,6 +21,7 @@ import hashlib
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -67,10 +69,18 @@ class _Recorder:
             t0 = time.perf_counter()
             out = original(backend, computation, *args, **kwargs)
             self.programs.append((self.test, name, hashlib.sha1(text.encode()).hexdigest()[:16],
-                                  time.perf_counter() - t0))
+                                  time.perf_counter() - t0, _signature(text)))
             return out
 
         compiler.compile_or_get_cached = compile_or_get_cached
+
+
+def _signature(text: str) -> str:
+    """The argument shapes of a module's entry function: two programs with the
+    same shapes and different hashes differ by what the function closes over
+    (a law, a boundary, an option), not by the pile's size."""
+    match = re.search(r"func\.func public @main\((.*?)\) ->", text)
+    return " ".join(re.findall(r"tensor<([^>]*)>", match.group(1))) if match else ""
 
 
 _recorder = None
@@ -112,7 +122,7 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
         programs += [(r["worker"], *p) for p in r["programs"]]
     first_seen, repeats, repeat_seconds = set(), 0, 0.0
     by_name = collections.defaultdict(lambda: {"compiles": 0, "seconds": 0.0, "distinct": set()})
-    for worker, test, name, digest, seconds in programs:
+    for worker, test, name, digest, seconds, *_ in programs:
         by_name[name]["compiles"] += 1
         by_name[name]["seconds"] += seconds
         by_name[name]["distinct"].add(digest)
@@ -123,7 +133,12 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
     # the step loops by module: where a test's pile differs from every other test's, it pays a compile of its own
     steps = collections.defaultdict(lambda: {"compiles": 0, "seconds": 0.0, "distinct": set()})
     step_modules = collections.defaultdict(set)
-    for worker, test, name, digest, seconds in programs:
+    step_programs = {}  # digest -> where it was first compiled, its argument shapes, its seconds
+    for worker, test, name, digest, seconds, *signature in programs:
+        if name == "jit__advance" and digest not in step_programs:
+            step_programs[digest] = {"test": test, "seconds": round(seconds, 2),
+                                     "signature": signature[0] if signature else ""}
+    for worker, test, name, digest, seconds, *_ in programs:
         if name == "jit__advance":
             module = test.split("::")[0]
             steps[module]["compiles"] += 1
@@ -149,6 +164,8 @@ def summarise(records: list[dict], wall_seconds: float, top: int = 25) -> dict:
             {"module": m, "compiles": v["compiles"], "distinct": len(v["distinct"]),
              "own": sum(1 for d in v["distinct"] if len(step_modules[d]) == 1), "seconds": round(v["seconds"], 1)}
             for m, v in sorted(steps.items(), key=lambda kv: -kv[1]["seconds"])],
+        # every distinct step loop, to see which piles differ only by what they close over
+        "step_programs": sorted(step_programs.values(), key=lambda p: (p["signature"], p["test"])),
         "modules": [{"module": m, **{k: round(x, 1) for k, x in v.items()}}
                     for m, v in sorted(modules.items(), key=lambda kv: -kv[1]["wall"])],
         "slowest_tests": [{"test": n, "wall": round(t["wall"], 1), "compile": round(t["compile"], 1),
@@ -186,6 +203,9 @@ def _print(summary: dict) -> None:
 
 def main(argv: list[str]) -> int:
     root = pathlib.Path(__file__).resolve().parent.parent
+    out = None  # `--json PATH` first: a partial profile that leaves the committed one (the suite's order) alone
+    if argv[:1] == ["--json"]:
+        out, argv = pathlib.Path(argv[1]).resolve(), argv[2:]
     jobs = min(4, os.cpu_count() or 2)
     args = argv or ["-n", str(jobs), "--dist", "loadscope", "--no-loadscope-reorder"]  # as `make test`
     with tempfile.TemporaryDirectory() as records, tempfile.TemporaryDirectory() as cache:
@@ -212,9 +232,9 @@ def main(argv: list[str]) -> int:
     from machine import details  # benchmarks/machine.py
 
     summary["machine"] = details()
-    out = root / "benchmarks" / "results" / jax.default_backend() / "suite_profile.json"
+    out = out or root / "benchmarks" / "results" / jax.default_backend() / "suite_profile.json"
     write_json(out, summary)
-    print(f"\nwrote {out.relative_to(root)}")
+    print(f"\nwrote {out}")
     return rc
 
 
