@@ -81,3 +81,12 @@ def test_the_api_reference_documents_every_exported_name(site):
         if not where & ids:
             missing.append(name)
     assert not missing, f"jaxpile.__all__ names with no entry in docs/api/: {missing}"
+
+
+def test_the_tutorials_show_their_stored_outputs(site):
+    """The notebooks are rendered as stored (mkdocs-jupyter, execute: false): a paper tutorial's page shows
+    its figures and its closing table's verdicts without running anything."""
+    for name in ("liffman1992", "lee_herrmann1993", "baxter1997"):
+        page = next(site.rglob(f"{name}/index.html")).read_text()
+        assert "data:image/png;base64" in page, name
+        assert "verdict: " in page, name

@@ -43,3 +43,47 @@ for _path in NOTEBOOKS:
 
 def test_every_notebook_has_a_test_class():
     assert NOTEBOOKS and all(("TestNotebook_" + p.stem) in globals() for p in NOTEBOOKS)
+
+
+def _tool(name):
+    """A module of tools/ (not a package: the dev tools stay out of the install)."""
+    import importlib.util
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "tools" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+PAPERS = {"liffman1992": "1992", "lee_herrmann1993": "1993", "baxter1997": "1997"}
+
+
+def test_committed_notebooks_hold_the_outputs_of_their_code_and_judge_the_papers_from_ensembles():
+    """Each notebook is stored with its outputs (the docs site and GitHub show them), made from the code as
+    committed (tools/execute_notebooks.py records a hash of the code cells: edit a cell and run it again),
+    without an error; a paper notebook's closing table judges the paper's figures from the committed
+    ensembles (one verdict per row of the papers table), its own single piles shown and not judged."""
+    execute_notebooks = _tool("execute_notebooks")
+    import sys
+
+    sys.path.insert(0, str(execute_notebooks.ROOT / "benchmarks" / "studies" / "papers"))
+    import papers
+
+    for path in NOTEBOOKS:
+        nb = nbformat.read(path, as_version=4)
+        stored = nb.metadata.get("jaxpile", {})
+        assert stored.get("code_hash") == execute_notebooks.code_hash(nb), \
+            f"{path.name}: its outputs are not of its code; run `python tools/execute_notebooks.py {path.stem}`"
+        code = [c for c in nb.cells if c.cell_type == "code"]
+        assert all(c.execution_count is not None for c in code), path.name
+        assert not any(o.get("output_type") == "error" for c in code for o in c.outputs), path.name
+        closing = "".join(o.get("text", "") for o in code[-1].outputs)
+        if path.stem in PAPERS:
+            rows = papers.verdict_rows(PAPERS[path.stem])
+            assert closing.count("    verdict: ") == len(rows) > 0, path.name
+            for quantity, _, _, verdict in rows:
+                assert f"{quantity}\n" in closing and f"verdict: {verdict}\n" in closing, (path.name, quantity)
+            assert "this notebook's run" in closing
+        else:
+            assert "verdict" in closing, path.name

@@ -54,6 +54,33 @@ def _missing(study: str) -> str:
     return f"not run yet (`python benchmarks/studies/papers/papers.py --run --only {study}`)"
 
 
+def _se(stat: dict | None) -> float:
+    """A statistic's standard error, 0 for one without (a deterministic pile)."""
+    se = (stat or {}).get("stderr")
+    return se if se is not None and math.isfinite(se) else 0.0
+
+
+def _sign(difference: float, *errors: float, agree: str = "agrees", differ: str = "differs") -> str:
+    """A difference's verdict at two combined standard errors: `agree` when it
+    is above them, `differ` when below minus them, else not resolved."""
+    bound = 2.0 * math.hypot(*errors) if errors else 0.0
+    if difference > bound:
+        return agree
+    if difference < -bound:
+        return differ
+    return f"not resolved (within 2 s.e., {bound:.2g})"
+
+
+def _close(difference: float, *errors: float) -> str:
+    """Agreement with a value: the difference within two combined standard errors."""
+    bound = 2.0 * math.hypot(*errors)
+    return f"agrees (within 2 s.e., {bound:.2g})" if abs(difference) <= bound else f"differs (2 s.e.: {bound:.2g})"
+
+
+def _every(checks: list[bool], what: str) -> str:
+    return f"agrees ({what})" if all(checks) else f"differs ({sum(not c for c in checks)} of {len(checks)} not {what})"
+
+
 # ----------------------------------------------------------------- 1992
 LATTICE = RESULTS / "liffman_1992" / "lattice45_liffman.json"
 SLOPED = RESULTS / "liffman_1992" / "sloped30_n5490.json"
@@ -67,29 +94,36 @@ def rows_1992() -> list[list[str]]:
     rows.append(["1992", "45-layer lattice pile, max deviation of N, H from eqs. 42, 44 (no random input: one pile)",
                  "< 1%",
                  f"{100 * lat['max_rel_dev_normal']:.2f}%, {100 * lat['max_rel_dev_horizontal']:.2f}% (`liffman` law)"
-                 if lat else _missing("lattice")])
+                 if lat else _missing("lattice"),
+                 ("agrees" if max(lat["max_rel_dev_normal"], lat["max_rel_dev_horizontal"]) < 0.01 else "differs")
+                 if lat else "—"])
     slo = _load(SLOPED)
     if slo:
         dip = "a dip" if slo.get("central_normal_dip", 0) > 0.05 else "no dip"
         rows.append(["1992", "sloped pile 30°, 5490 disks (no random input: one pile): central N vs eq. 56",
                      "plateau, no dip",
-                     f"{100 * slo['central_normal_rel_dev']:+.1f}%, {dip}"])
+                     f"{100 * slo['central_normal_rel_dev']:+.1f}%, {dip}",
+                     "agrees" if dip == "no dip" and abs(slo["central_normal_rel_dev"]) < 0.05 else "differs"])
         rows.append(["1992", "the same: central slope of H vs eq. 57", "close, not equal",
-                     f"{100 * slo['central_slope_rel_dev']:+.0f}%"])
+                     f"{100 * slo['central_slope_rel_dev']:+.0f}%",
+                     "agrees (within 15%)" if abs(slo["central_slope_rel_dev"]) < 0.15 else "differs (beyond 15%)"])
     else:
         rows.append(["1992", "sloped pile 30°, 5490 disks: central N and H vs eqs. 56, 57", "plateau, no dip",
-                     _missing("sloped")])
+                     _missing("sloped"), "—"])
     piles = [json.loads(pathlib.Path(p).read_text()) for p in sorted(glob.glob(str(DROP / "seed*.json")))]
     if piles:
         import paper_ensembles as pe
 
         s = pe.summarise_drop(piles)
+        dip = s["central_dip"]
         rows.append(["1992", f"dropped pile, 968 disks (Fig. 20): central dip of the base normal force "
                              f"({len(piles)} of {PILES} piles)", "a slight depression; Smid–Novosad 20–30%",
-                     f"{_pm(s['central_dip'], 2, '')} (dip > 5% in {s['has_central_dip']} of {len(piles)})"])
+                     f"{_pm(dip, 2, '')} (dip > 5% in {s['has_central_dip']} of {len(piles)})",
+                     _sign(dip["mean"], _se(dip), agree="agrees: a depression", differ="differs: a central peak")
+                     + ("; Smid–Novosad's 20–30%: not reached" if dip["mean"] + 2 * _se(dip) < 0.2 else "")])
     else:
         rows.append(["1992", "dropped pile, 968 disks (Fig. 20): central dip", "a slight depression",
-                     _missing("drop")])
+                     _missing("drop"), "—"])
     return rows
 
 
@@ -100,7 +134,7 @@ TILT = RESULTS / "lee_herrmann_1993" / "tilt_n409" / "summary.json"
 def rows_1993() -> list[list[str]]:
     tilt = _load(TILT)
     if not tilt:
-        return [["1993", "θ_R, θ_T against μ (Figs. 3, 4, 7)", "", _missing("tilt")]]
+        return [["1993", "θ_R, θ_T against μ (Figs. 3, 4, 7)", "", _missing("tilt"), "—"]]
     s = tilt["summary"]
     mus = sorted(s, key=float)
     piles = min(s[m]["piles"] for m in mus)
@@ -110,15 +144,34 @@ def rows_1993() -> list[list[str]]:
 
     ms = ", ".join(f"{s[m]['theta_ms_theory']:.1f}" for m in mus) + "°"
     mu_text = f"μ = {mus[0]} … {mus[-1]}"
+
+    def below_ms(key):  # below theta_MS at every mu, judged at two standard errors
+        verdicts = {m: _sign(s[m]["theta_ms_theory"] - s[m][key]["mean"], _se(s[m][key])) for m in mus}
+        if all(v == "agrees" for v in verdicts.values()):
+            return "agrees (below by 2 s.e. at every μ)"
+        worst = [m for m, v in verdicts.items() if v != "agrees"]
+        kind = "differs" if any(verdicts[m] == "differs" for m in worst) else "not resolved"
+        return f"{kind} at μ = {', '.join(worst)} (elsewhere below by 2 s.e.)"
+
+    # the paper's 17.9 +- 1.8 deg is a mean and standard deviation over 20 piles: its standard error is 1.8 / sqrt(20)
+    at_02 = s.get("0.2", {}).get("theta_r")
+    paper_02 = _close(at_02["mean"] - 17.9, _se(at_02), 1.8 / math.sqrt(20)) if at_02 else "not run"
+    rises = _sign(s[mus[-1]]["theta_r"]["mean"] - s[mus[0]]["theta_r"]["mean"], _se(s[mus[-1]]["theta_r"]),
+                  _se(s[mus[0]]["theta_r"]), differ="differs: falls")
+    small = [abs(s[m]["theta_t"]["mean"] - s[m]["theta_t_theory"]["mean"]) < 3.0 for m in mus]
+    few = [0 < s[m]["theta_t"]["mean"] - 2 * _se(s[m]["theta_t"]) and s[m]["theta_t"]["mean"] < 10 for m in mus]
     return [
         ["1993", f"θ_R against {mu_text} (W = H = 4, 409 disks, method 3), {piles} piles each",
-         "θ_R < θ_MS; 17.9 ± 1.8° at μ = 0.2", f"{series('theta_r')} (θ_MS = arctan 3μ: {ms})"],
+         "θ_R < θ_MS; 17.9 ± 1.8° at μ = 0.2", f"{series('theta_r')} (θ_MS = arctan 3μ: {ms})",
+         f"below θ_MS: {below_ms('theta_r')}; rises with μ: {rises}; "
+         f"at μ = 0.2: {paper_02} ({at_02['mean'] - 17.9:+.1f}°)" if at_02 else "—"],
         ["1993", f"θ_T against {mu_text}, tilting 1e-3 °/step (Fig. 4), same piles", "a few degrees",
-         series("theta_t")],
+         series("theta_t"), _every(few, "between 0 and 10° by 2 s.e.")],
         ["1993", "the same against eq. 4 at each pile's θ_R (Fig. 7b)", "\"the difference is small\"",
-         f"eq. 4: {series('theta_t_theory')}"],
+         f"eq. 4: {series('theta_t_theory')}", _every(small, "within 3°")],
         ["1993", "θ_R + θ_T against θ_MS = arctan 3μ (Fig. 7a)", "below θ_MS (\"there is a difference\")",
-         f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)"],
+         f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)",
+         below_ms("theta_r_plus_theta_t")],
     ]
 
 
@@ -162,23 +215,39 @@ def _angles(s: dict) -> str:
             f"{_pm(s['angle_height_base'])} from height and base")
 
 
+def _m_verdict(shape: str, m_expected: bool) -> str:
+    if shape == "no clear M" or shape.startswith("one heap"):
+        return "not resolved (within 2 s.e. of 1)"
+    return "agrees" if (shape == "an M") == m_expected else "differs"
+
+
+HEAP_EXPECTS = {  # setting -> (an M expected, how its angle compares with the paper's law's: -1 flatter, 0 the same)
+    "hooke-k500": (False, None), "n144-r1.2": (False, None), "n144-r1.047": (False, None),
+    "poly10": (None, -1), "poly5": (None, -1), "mu0.2": (None, 0), "mu0.6": (None, 0),
+}
+
+
 def rows_1997() -> list[list[str]]:
     import baxter_readings as br
 
     rows = []
     paper = _heaps(1334).get("contact-point/hold", [])
+    base = None  # the paper's law's mid-flank angle, which the other settings are compared with
     if paper:
         s = br.summarise(paper)["contact-point/hold"]
+        base = s["angle"]["mid_flank"]
         rows.append(["1997", f"1334-disk heap (n = 36, r0 = 1.2 σ, S = 1.1 σ, dt = 1e-3), {len(paper)} heaps: "
                              "angle of repose", "35 ± 5°",
-                     f"{_angles(s)}: {35 - s['angle']['mid_flank']['mean']:.0f}° flatter than the paper's 35°; "
-                     "no reading of the printed law closes the gap (`docs/baxter1997_audit.md`)"])
+                     f"{_angles(s)}: {35 - base['mean']:.0f}° flatter than the paper's 35°; "
+                     "no reading of the printed law closes the gap (`docs/baxter1997_audit.md`)",
+                     "agrees" if 30 - 2 * _se(base) <= base["mean"] <= 40 + 2 * _se(base) else
+                     "differs (below 30° by more than 2 s.e.)" if base["mean"] < 30 else "differs (above 40°)"])
         m = _m_shape(s["flank_over_centre"])
         rows.append(["1997", "the same: base normal force", "M, flank maxima 20–30% above the centre",
                      f"{m}: mean force at x/B 0.2–0.4 and 0.6–0.8 over 0.4–0.6 is "
-                     f"{_pm(s['flank_over_centre'], 3, '')}"])
+                     f"{_pm(s['flank_over_centre'], 3, '')}", _m_verdict(m, True)])
     else:
-        rows.append(["1997", "1334-disk heap: angle of repose and base force", "35 ± 5°, M", _missing("heap")])
+        rows.append(["1997", "1334-disk heap: angle of repose and base force", "35 ± 5°, M", _missing("heap"), "—"])
     heaps = _heaps(1000)
     for name, (what, says) in HEAP_SETTINGS.items():
         mine = heaps.get(name)
@@ -187,8 +256,18 @@ def rows_1997() -> list[list[str]]:
         s = br.summarise(mine)[name]
         count = f"{len(mine)} heaps" if len(mine) >= PILES else f"{len(mine)} of {PILES} heaps"
         m = _m_shape(s["flank_over_centre"])
+        m_expected, angle_sign = HEAP_EXPECTS[name]
+        if m_expected is not None:
+            verdict = _m_verdict(m, m_expected)
+        elif base is None:
+            verdict = "— (no heaps of the paper's law to compare with)"
+        else:
+            a = s["angle"]["mid_flank"]
+            d = a["mean"] - base["mean"]
+            verdict = ((_sign(-d, _se(a), _se(base)) if angle_sign < 0 else _close(d, _se(a), _se(base)))
+                       + f": mid-flank angle {d:+.1f}° from the 1334-disk heaps'")
         rows.append(["1997", f"1000-disk heaps, {what} ({count})", says,
-                     f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}"])
+                     f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}", verdict])
     return rows
 
 
@@ -201,7 +280,8 @@ def rows_rolling() -> list[list[str]]:
     rolling resistance (`rolling_results.py`, from `gpu_rolling.sh`'s sweeps)."""
     s = _load(ROLLING)
     if s is None:
-        return [["beyond", "rolling resistance (sds)", "—", "not run yet (`bash benchmarks/studies/papers/gpu_rolling.sh`)"]]
+        return [["beyond", "rolling resistance (sds)", "—", "not run yet (`bash benchmarks/studies/papers/gpu_rolling.sh`)",
+                 "—"]]
     box = s["box"]["points"]
     angles = ", ".join(_pm(p["repose_cumulative_parabola"]) for p in box)
     rolls = ", ".join(f"{p['mu_roll']:g}" for p in box)
@@ -209,19 +289,27 @@ def rows_rolling() -> list[list[str]]:
     rows = [["beyond", f"1993 box (W = H = 4, 409 disks, hooke μ = 0.2, spins on) with rolling resistance sds, "
                        f"θ_R against μ_r = {rolls}, {count} piles each",
              "rises with μ_r and saturates (Zhou et al. 2001; Ai et al. 2011)",
-             f"{angles} (μ_r = 0: the disks roll off; `docs/rolling_resistance.md`)"]]
+             f"{angles} (μ_r = 0: the disks roll off; `docs/rolling_resistance.md`)",
+             "rises: " + _sign(box[-1]["repose_cumulative_parabola"]["mean"] - box[0]["repose_cumulative_parabola"]["mean"],
+                               _se(box[-1]["repose_cumulative_parabola"]), _se(box[0]["repose_cumulative_parabola"]),
+                               differ="differs: falls")]]
     drop = s["drop"]["points"]
     cells = "; ".join(f"μ = {p['mu']:g}, μ_r = {p['mu_roll']:g}: {_pm(p['central_dip'], 2, '')}" for p in drop)
+    best = max(drop, key=lambda p: p["central_dip"]["mean"])["central_dip"]
     rows.append(["beyond", f"1992 drop, 300 disks, hooke with rolling resistance sds: central dip over (μ, μ_r), "
                            f"{drop[0]['central_dip']['count']} piles each",
-                 "Smid–Novosad 20–30%; no dip without rolling resistance", cells])
+                 "Smid–Novosad 20–30%; no dip without rolling resistance", cells,
+                 f"the best, {_pm(best, 2, '')}, " + (
+                     "is in 20–30%" if 0.2 <= best["mean"] <= 0.3 else
+                     "is within 2 s.e. of 20–30%" if 0.2 - 2 * _se(best) <= best["mean"] <= 0.3 + 2 * _se(best) else
+                     "differs from 20–30%") + " (one central bin: see `docs/rolling_resistance.md`)"])
     return rows
 
 
 # ----------------------------------------------------------------- table
 def table() -> str:
     rows = rows_1992() + rows_1993() + rows_1997() + rows_rolling()
-    lines = ["| paper | quantity | paper | jaxpile |", "|---|---|---|---|"]
+    lines = ["| paper | quantity | paper | jaxpile | verdict |", "|---|---|---|---|---|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
     return "\n".join(lines) + "\n"
 
@@ -265,15 +353,20 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
 
 
 def notebook_section(paper: str, folder: str = ".") -> list[str]:
-    """A paper notebook's view of its ensembles at the paper's sizes: prints
-    the paper's rows of the papers table (docs/papers.md) and draws its ensemble figures
-    into `folder` (the notebooks' full-size numbers are these files, which a
-    committed command wrote; `make papers` runs what is missing). Returns the
-    figure paths."""
-    rows = {"1992": rows_1992, "1993": rows_1993, "1997": rows_1997}[paper]()
-    for _, quantity, says, ours in rows:
-        print(f"{quantity}\n    paper:   {says or '—'}\n    jaxpile: {ours}")
+    """A paper notebook's figures of its ensembles at the paper's sizes, drawn
+    into `folder` from the files a committed command wrote (`make papers` runs
+    what is missing); the notebook's closing table prints `verdict_rows`.
+    Returns the figure paths."""
     return figures(pathlib.Path(folder), (paper,))
+
+
+def verdict_rows(paper: str) -> list[tuple[str, str, str, str]]:
+    """A paper's rows of the papers table as `(quantity, paper, jaxpile,
+    verdict)`: each verdict judged at the paper's size from the committed
+    ensemble (mean and standard error over piles; a pile with no random input
+    is its own ensemble), for a notebook's closing table."""
+    rows = {"1992": rows_1992, "1993": rows_1993, "1997": rows_1997}[paper]()
+    return [tuple(r[1:]) for r in rows]
 
 
 # ------------------------------------------------------------------- runs
