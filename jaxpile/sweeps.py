@@ -33,6 +33,7 @@ import numpy as np
 
 from jaxpile import budget as memory
 from jaxpile import config
+from jaxpile import distributed
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError
 from jaxpile import ranges
@@ -205,7 +206,7 @@ def plan(protocol, law: str | None = None, *, vary: dict | None = None, seeds=4,
                                                   law_options)
         contact_law.validate(prm)  # names and values: a NaN mu in the last batch fails here, not after the first
         member_params.append(prm)
-    batch_size = len(members) if batch_size is None else int(batch_size)
+    batch_size = distributed.default_batch_size(len(members)) if batch_size is None else int(batch_size)
     if batch_size < 1:
         raise InputError(f"batch_size must be >= 1; got {batch_size}.")
     batches = []  # (first member, end): at most batch_size members, one set-up each
@@ -245,8 +246,9 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
       law_options: the law's readings beyond rotation, e.g. `{"rolling": "sds"}`.
       max_steps: step budget of the first stage (default: the protocol's;
         a later stage, e.g. the tilt, has its own).
-      batch_size: members per compiled batch (default: all at once).
-      devices: to shard each batch over (default: all `jax.devices()`).
+      batch_size: members per compiled batch (default: all at once; across
+        the processes of a distributed run, one batch a process).
+      devices: to shard each batch over (default: this process's, `jax.local_devices()`).
       progress: progress bars (default: when stderr is a terminal).
       checkpoint: `(path, every[, extra])` as in `Simulator.run`: the running
         batch is saved every `every` steps, with the rows of the batches
@@ -279,17 +281,19 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
         saved = _resumed(resume, planned, batch_size, devices_used)
         rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
-    n_particles = 0
-    for start, end in batches:
+    n_particles, particle_steps = 0, 0
+    for start, end in distributed.share(batches):  # all of them, unless other processes run some (`distributed`)
         if start < first:
             continue
         chunk, prms = members[start:end], member_params[start:end]
         stage_options = running.stage_options(spec, split(chunk[0][0])[1])  # this batch's set-up
         facts = dict(grid=planned, batch_size=batch_size, devices=devices_used, batch_start=start, rows=rows)
+        steps_before = info.steps
         state, setups, last_sim = _run_batch(
             chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
             checkpoint, facts, saved if resume is not None and start == first else None, resume, law_options)
         n_particles = int(state.particles.position.shape[1])
+        particle_steps += len(chunk) * n_particles * (info.steps - steps_before)
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}
@@ -298,13 +302,24 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
                 row.update(extra_measure(last_sim, prm, s, p))
             row["steps"] = int(s.step)
             rows.append(row)
+    processes = distributed.process_count()
+    if processes > 1:  # every process's rows, in member order, and its share of the work
+        rows = sorted(distributed.gather(rows), key=lambda row: row["member"])
+        work = distributed.gather([(n_particles, particle_steps, info.steps, info.wall_seconds, info.compile_seconds,
+                                    info.reallocations)])
+        n_particles = max(w[0] for w in work)
+        particle_steps, run_seconds = sum(w[1] for w in work), max(w[3] for w in work)
+        steps, compile_seconds, reallocations = max(w[2] for w in work), max(w[4] for w in work), sum(w[5] for w in work)
+    else:
+        run_seconds, steps, compile_seconds, reallocations = (info.wall_seconds, info.steps, info.compile_seconds,
+                                                              info.reallocations)
     record = {"protocol": spec.name, "law": law, "vary": vary, "seeds": sorted({s for _, s in members}),
               "params": params or {}, "options": options, "dt": dt, "members": len(members),
-              "batch_size": batch_size, "devices": devices_used, "n_particles": n_particles,
-              "batch_steps": info.steps, "compile_seconds": info.compile_seconds,
-              "run_seconds": info.wall_seconds, "total_seconds": time.perf_counter() - t0,
-              "neighbor_reallocations": info.reallocations,
-              "particle_steps_per_second": len(members) * n_particles * info.steps / max(info.wall_seconds, 1e-12),
+              "batch_size": batch_size, "devices": devices_used, "processes": processes, "n_particles": n_particles,
+              "batch_steps": steps, "compile_seconds": compile_seconds,
+              "run_seconds": run_seconds, "total_seconds": time.perf_counter() - t0,
+              "neighbor_reallocations": reallocations,
+              "particle_steps_per_second": particle_steps / max(run_seconds, 1e-12),
               "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {}),
               "settings": config.settings()}
     if points is not None:

@@ -50,6 +50,7 @@ from jaxpile.cli.xla_settings import (
     THREADED_PILE_DISKS,
     compile_cache_dir,
     configure_for,
+    join_processes,
     use_compile_cache,
     wants_xla_threads,
 )
@@ -88,6 +89,8 @@ def _main(argv) -> int:
                 args.out = args.resume  # the run goes on where it is now, even if its folder was moved
         check_flags(args)
         configure_for(args)
+        if getattr(args, "distributed", False):
+            join_processes(args)
         use_compile_cache()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
@@ -122,6 +125,7 @@ __all__ = [
     "compare_table",
     "compile_cache_dir",
     "configure_for",
+    "join_processes",
     "fit_runs_batches",
     "main",
     "merge_protocol_flags",

@@ -149,6 +149,10 @@ def _sweep_parser(sub) -> argparse.ArgumentParser:
                        help="save the running batch and the rows so far to OUT/checkpoint.npz every STEPS steps")
     sweep.add_argument("--resume", default=None, metavar="DIR",
                        help="continue the sweep saved in DIR (`jaxpile sweep --resume DIR`)")
+    sweep.add_argument("--distributed", action="store_true",
+                       help="run as one of several processes (jax.distributed; JAXPILE_COORDINATOR, "
+                            "JAXPILE_PROCESSES and JAXPILE_PROCESS_ID, or SLURM / Open MPI): each runs its share of "
+                            "the batches (default batch: the members over the processes), process 0 writes OUT")
     sweep.add_argument("--dry-run", action="store_true",
                        help="print the members, one member's set-up, the batch's memory estimate and the steps; "
                             "run nothing")

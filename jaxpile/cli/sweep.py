@@ -18,7 +18,7 @@ def run_sweep(args) -> dict:
     """`jaxpile sweep`: batched protocol runs over a parameter grid and seeds."""
     import jax.numpy as jnp
 
-    from jaxpile import io
+    from jaxpile import distributed, io
     from jaxpile import sweeps as sw
     from jaxpile.laws import get_law_module
 
@@ -45,6 +45,8 @@ def run_sweep(args) -> dict:
                           dt=args.dt, max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
                           progress=False if args.no_progress else None, checkpoint=spec, resume=resume,
                           rotation=args.rotation, law_options=law_options_of(args))
+    if result.info["processes"] > 1 and distributed.process_index() != 0:
+        return result.info  # process 0 writes the rows every process ran
     out = args.out
     os.makedirs(out, exist_ok=True)
     sw.write_csv(os.path.join(out, "sweep.csv"), result)

@@ -29,9 +29,9 @@ protocol are one compiled loop. What makes that work for DEM:
   each device advances its share, and the batch-wide rebuild decision becomes
   one small all-reduce per step. The batch is padded with copies of its last
   member to a multiple of the device count (the padding is dropped from the
-  results). On several hosts, start each process with
-  `jax.distributed.initialize()` and pass `devices=jax.devices()` (all
-  processes' devices): the same code then shards the batch across hosts.
+  results). A batch stays on its process's own devices (`jax.local_devices()`):
+  across processes and hosts a sweep runs whole batches on each
+  (`jaxpile.distributed`), so no step waits for the network.
 """
 
 from __future__ import annotations
@@ -77,17 +77,17 @@ class Ensemble:
     Args:
       sim: the simulator whose law, dt, schedule, integrator, driver and
         chunking every member shares.
-      devices: the devices to shard the batch over (default: all of
-        `jax.devices()`; one device: no sharding).
+      devices: the devices to shard the batch over (default: all of this
+        process's, `jax.local_devices()`; one device: no sharding).
     """
 
     def __init__(self, sim: Simulator, *, devices: Sequence | None = None):
         if not isinstance(sim, Simulator):
             raise InputError(f"Ensemble takes a Simulator; got {type(sim).__name__}.")
         self.sim = sim
-        self.devices = list(jax.devices() if devices is None else devices)
+        self.devices = list(jax.local_devices() if devices is None else devices)
         if not self.devices:
-            raise InputError("devices is empty; pass None for all of jax.devices().")
+            raise InputError("devices is empty; pass None for all of jax.local_devices().")
         self.step = make_step(sim.law, sim.dt, sim.schedule, sim.integrator, sim.hard_collisions, sim.driver,
                               axis_name=AXIS)
         self.mesh = Mesh(np.array(self.devices), (AXIS,)) if len(self.devices) > 1 else None
