@@ -18,7 +18,9 @@ with the share's size), whatever the process count.
 
 Without those three variables `initialize()` leaves the coordinator, the
 process count and the process's id to JAX's cluster detection (SLURM, Open
-MPI). On a CPU the processes' collectives go over gloo.
+MPI). On a CPU the processes' collectives go over gloo. Each process saves
+its own checkpoints (`folder_of`): a distributed sweep resumes on as many
+processes, each from its own.
 """
 
 from __future__ import annotations
@@ -113,6 +115,13 @@ def default_batch_size(members: int, processes: int | None = None) -> int:
     return math.ceil(members / (process_count() if processes is None else processes))
 
 
+def folder_of(out: str) -> str:
+    """Where this process keeps what is its own in a run's folder (its
+    checkpoints): `OUT/process-K-of-N`, or OUT itself on one process."""
+    count = process_count()
+    return out if count == 1 else os.path.join(out, f"process-{process_index()}-of-{count}")
+
+
 def gather(items: list) -> list:
     """Every process's `items` (picklable), concatenated in process order, on
     every process; `items` itself when the run is one process."""
@@ -131,4 +140,4 @@ def gather(items: list) -> list:
     return out
 
 
-__all__ = ["HEARTBEAT_SECONDS", "default_batch_size", "gather", "initialize", "process_count", "process_index", "share"]
+__all__ = ["HEARTBEAT_SECONDS", "default_batch_size", "folder_of", "gather", "initialize", "process_count", "process_index", "share"]

@@ -5,9 +5,11 @@ import csv
 import json
 import os
 import pathlib
+import signal
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -35,28 +37,69 @@ def _rows(folder):
         return [{k: v for k, v in row.items() if k != "wall_seconds"} for row in csv.DictReader(fh)]
 
 
-def test_a_sweep_on_two_processes_gives_the_rows_one_process_gives_for_the_same_batches(tmp_path):
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    """The sweep on one process in batches of 2: what the two processes run, one batch each."""
+    out = tmp_path_factory.mktemp("one")
+    one = _jaxpile([*SWEEP, "--batch-size", "2", "--out", str(out)])
+    _, err = one.communicate(timeout=600)
+    assert one.returncode == 0, err[-3000:]
+    return _rows(out)
+
+
+def _environment(process: int, port: int) -> dict:
+    return {distributed.COORDINATOR_ENV: f"localhost:{port}", distributed.PROCESSES_ENV: "2",
+            distributed.PROCESS_ID_ENV: str(process)}
+
+
+def test_a_sweep_on_two_processes_gives_the_rows_one_process_gives_for_the_same_batches(tmp_path, one_process):
     """`jaxpile sweep --distributed` on 2 processes (the coordinator's address, the count and each one's id
     from the environment): each runs one batch of 2 members, process 0 writes every row, in member order;
     `jaxpile sweep --batch-size 2` on one process gives the same rows to the last digit (a member's numbers
     depend on its batch only, and the CSV holds each number's exact repr)."""
     port = _free_port()
-    env = {distributed.COORDINATOR_ENV: f"localhost:{port}", distributed.PROCESSES_ENV: "2"}
-    procs = [_jaxpile([*SWEEP, "--distributed", "--out", str(tmp_path / f"p{k}")],
-                      **env, **{distributed.PROCESS_ID_ENV: str(k)}) for k in (0, 1)]
+    procs = [_jaxpile([*SWEEP, "--distributed", "--out", str(tmp_path / f"p{k}")], **_environment(k, port))
+             for k in (0, 1)]
     outs = [p.communicate(timeout=600) for p in procs]
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err[-3000:]
     assert "process 0 of 2" in outs[0][0] and "process 1 of 2" in outs[1][0]
     assert not (tmp_path / "p1").exists(), "only process 0 writes"
-    one = _jaxpile([*SWEEP, "--batch-size", "2", "--out", str(tmp_path / "one")])
-    out, err = one.communicate(timeout=600)
-    assert one.returncode == 0, err[-3000:]
-    both, alone = _rows(tmp_path / "p0"), _rows(tmp_path / "one")
+    both = _rows(tmp_path / "p0")
     assert [int(r["member"]) for r in both] == [0, 1, 2, 3]
-    assert both == alone
+    assert both == one_process
     record = json.loads((tmp_path / "p0" / "sweep.json").read_text())
     assert record["processes"] == 2 and record["batch_size"] == 2 and record["members"] == 4
+
+
+def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same_rows(tmp_path, one_process):
+    """Both processes checkpoint into their own folder of the run's (OUT/process-K-of-2); process 1 is
+    killed mid-batch and then process 0 (the job lost), and `jaxpile sweep --resume OUT --distributed` on
+    two processes ends with the rows of the uninterrupted run."""
+    from jaxpile.engine import checkpoint
+
+    out, port = tmp_path / "run", _free_port()
+    procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "1000", "--out", str(out)],
+                      **_environment(k, port)) for k in (0, 1)]
+    saved = out / "process-1-of-2" / "checkpoint.npz"
+    deadline = time.monotonic() + 600
+    while not saved.exists() and procs[1].poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    for p in (procs[1], procs[0]):
+        p.send_signal(signal.SIGKILL)
+        p.communicate(timeout=60)
+    assert not (out / "sweep.csv").exists()
+    last = max(int(r["steps"]) for r in one_process[2:])
+    assert checkpoint.read_metadata(str(saved))["step"] < last, "process 1 was killed after its batch ended"
+
+    port = _free_port()
+    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, port))
+             for k in (0, 1)]
+    outs = [p.communicate(timeout=600) for p in procs]
+    for p, (_, err) in zip(procs, outs):
+        assert p.returncode == 0, err[-3000:]
+    assert "resuming" in outs[1][0]
+    assert _rows(out) == one_process
 
 
 def test_the_batches_are_shared_in_contiguous_runs_the_first_processes_taking_the_remainder():
@@ -84,14 +127,9 @@ def test_the_environment_of_a_distributed_run_is_checked_in_one_line(monkeypatch
         distributed._from_environment()
 
 
-def test_a_distributed_sweep_refuses_checkpoints_before_it_joins(tmp_path):
-    done = subprocess.run([sys.executable, "-c", COMMAND, *SWEEP, "--distributed", "--checkpoint-every", "100",
-                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 2
-    assert done.stderr.strip().splitlines()[-1].startswith("jaxpile: error: --checkpoint-every and --resume")
-
-
 def test_the_docs_page_runs_the_commands_this_test_runs():
     text = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "distributed.md").read_text()
     assert f'SWEEP="{" ".join(SWEEP)}"' in text
     assert "jaxpile $SWEEP --distributed --out p0" in text and "jaxpile $SWEEP --batch-size 2 --out one" in text
+    assert "jaxpile $SWEEP --distributed --checkpoint-every 1000 --out run" in text
+    assert "jaxpile sweep --resume run --distributed" in text

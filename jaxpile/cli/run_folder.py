@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import os
 
+from jaxpile import distributed
 from jaxpile.engine import checkpoint
 from jaxpile.errors import InputError
 
@@ -46,12 +47,17 @@ def recorded_command(argv: list[str]) -> list[str]:
 def resume_argv(argv: list[str]) -> list[str]:
     """`pile|sweep --resume DIR [--no-progress]` -> the saved run's own command line
     plus `--resume DIR`: a resumed run takes every setting from its checkpoint."""
-    rest = [a for a in argv[1:] if a != "--no-progress"]
+    rest = [a for a in argv[1:] if a not in ("--no-progress", "--distributed")]
     if len(rest) != 2 or rest[0] != "--resume":
         raise InputError(f"resume a run with `jaxpile {argv[0]} --resume DIR` alone (its settings come from the "
-                         f"checkpoint; --no-progress may be added); got {' '.join(argv)!r}.")
+                         f"checkpoint; --no-progress and --distributed may be added); got {' '.join(argv)!r}.")
     folder = rest[1]
     path = checkpoint.in_folder(folder)
+    if path is None and "--distributed" in argv:  # every process's checkpoint records the same command
+        import glob
+
+        path = next(iter(sorted(glob.glob(os.path.join(glob.escape(folder), "process-*-of-*", "checkpoint.npz")))),
+                    None)
     if path is None:
         raise InputError(f"no checkpoint to resume in {folder} (expected {os.path.join(folder, 'checkpoint.npz')}; "
                          "runs write it with --checkpoint-every STEPS).")
@@ -70,14 +76,16 @@ def resume_point(args) -> tuple[str | None, int]:
     `(None, 0)` for a new run."""
     if args.resume is None:
         return None, 0
-    saved = checkpoint.in_folder(args.resume)
+    folder = distributed.folder_of(args.resume)  # a process of a distributed run resumes its own
+    saved = checkpoint.in_folder(folder)
     if saved is None:
-        raise InputError(f"no checkpoint to resume in {args.resume}.")
+        raise InputError(f"no checkpoint to resume in {folder}" + (
+            "" if folder == args.resume else " (resume a distributed sweep on as many processes)") + ".")
     meta = checkpoint.read_metadata(saved)
     rows = meta["extra"].get("rows")
     print(f"jaxpile: resuming {args.resume} at step {meta['step']}"
           + ("" if rows is None else f" ({len(rows)} members measured)"), flush=True)
-    return os.path.join(args.resume, "checkpoint.npz"), int(meta["step"])
+    return os.path.join(folder, "checkpoint.npz"), int(meta["step"])
 
 
 def checkpoint_spec(args):
@@ -88,7 +96,9 @@ def checkpoint_spec(args):
         return None
     if args.checkpoint_every < 1:
         raise InputError(f"--checkpoint-every must be >= 1 step; got {args.checkpoint_every}.")
-    path = os.path.join(args.out, "checkpoint.npz")
+    folder = distributed.folder_of(args.out)  # a process of a distributed run saves its own
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, "checkpoint.npz")
     if args.resume is None:
         args.stale_checkpoints = [stale for stale in [path, *checkpoint.stage_files(path)] if os.path.exists(stale)]
     return path, args.checkpoint_every, {"argv": args.argv}

@@ -46,11 +46,7 @@ def join_processes(args) -> tuple[int, int]:
     (`jaxpile.distributed.initialize`) before JAX computes anything. Returns
     `(process index, process count)`."""
     from jaxpile import distributed
-    from jaxpile.errors import InputError
 
-    if getattr(args, "checkpoint_every", None) is not None or getattr(args, "resume", None) is not None:
-        raise InputError("--checkpoint-every and --resume save and continue one process's batches; a "
-                         "--distributed sweep runs without them (run each share as its own sweep to checkpoint it).")
     index, count = distributed.initialize()
     print(f"jaxpile: process {index} of {count}", flush=True)
     return index, count
