@@ -304,7 +304,9 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
             rows.append(row)
     processes = distributed.process_count()
     if processes > 1:  # every process's rows, in member order, and its share of the work
+        gathering = time.perf_counter()
         rows = sorted(distributed.gather(rows), key=lambda row: row["member"])
+        gather_seconds = time.perf_counter() - gathering
         work = distributed.gather([(n_particles, particle_steps, info.steps, info.wall_seconds, info.compile_seconds,
                                     info.reallocations)])
         n_particles = max(w[0] for w in work)
@@ -322,6 +324,8 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
               "particle_steps_per_second": particle_steps / max(run_seconds, 1e-12),
               "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {}),
               "settings": config.settings()}
+    if processes > 1:
+        record["gather_seconds"] = gather_seconds  # the rows' gather, waiting for the slowest process included
     if points is not None:
         record["points"] = points
     return SweepResult(rows, record)

@@ -102,6 +102,31 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
     assert _rows(out) == one_process
 
 
+FIT = ["fit", "--protocol", "box", "--params", "mu", "--set", "mu=0.2", "--truth", "mu=0.35", "--ensemble", "2",
+       "--steps", "1", "--option", "width=1.2", "--option", "height=1.2", "--statistics", "repose_least_squares",
+       "--batch-size", "1", "--no-progress"]
+
+
+def test_an_ensemble_fit_on_two_processes_gives_the_values_of_one_process(tmp_path):
+    """`jaxpile fit ... --distributed`: the target's piles and every iteration's ensembles shared over two
+    processes in batches of one pile, each process taking the same Gauss-Newton step from the gathered
+    statistics; process 0 writes fit.json, and it holds the history one process writes for the same
+    batches, every number equal."""
+    port = _free_port()
+    procs = [_jaxpile([*FIT, "--distributed", "--out", str(tmp_path / "both")], **_environment(k, port))
+             for k in (0, 1)]
+    procs.append(_jaxpile([*FIT, "--out", str(tmp_path / "one")]))
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err[-3000:]
+    both, one = (json.loads((tmp_path / name / "fit.json").read_text()) for name in ("both", "one"))
+    untimed = [[{k: v for k, v in entry.items() if k != "seconds"} for entry in r["history"]] for r in (both, one)]
+    assert both["values"] == one["values"] and untimed[0] == untimed[1] and len(untimed[0]) == 1
+    assert both["values"]["mu"] > 0.2
+    assert (tmp_path / "both" / "process-1-of-2" / "fit_checkpoint.json").exists()
+    assert not (tmp_path / "both" / "process-1-of-2" / "fit.json").exists()
+
+
 def test_the_batches_are_shared_in_contiguous_runs_the_first_processes_taking_the_remainder():
     batches = [[k, k + 1] for k in range(7)]
     shares = [distributed.share(batches, 3, k) for k in range(3)]

@@ -83,14 +83,15 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     target.json), fits, and writes fit.json, target.json and fit.png to OUT;
     the history goes to OUT/fit_checkpoint.json after every iteration, and
     `--resume` continues from it."""
-    from jaxpile import io, sweeps
+    from jaxpile import distributed, io, sweeps
     from jaxpile.fit import ensemble_fit
     from jaxpile.laws import get_law_module
 
     a = sweeps.spec_of(args.protocol)
     law, names, start, fixed, options = _fit_inputs(args, a)
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None,
-                                 law_options=law_options_of(args) or None, rotation=args.rotation)
+                                 law_options=law_options_of(args) or None, rotation=args.rotation,
+                                 batch_size=args.batch_size)
     declared = args.target == "smid-novosad" and not args.resume
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
@@ -127,10 +128,13 @@ def run_ensemble_fit(args, estimator: str) -> dict:
               f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "
               f"{statistics.labels()}; runs nothing")
         return {"start": start, "statistics": statistics.labels(), "piles_per_iteration": per_iteration * b}
-    os.makedirs(args.out, exist_ok=True)
-    checkpoint = os.path.join(args.out, "fit_checkpoint.json")
+    writes = distributed.process_index() == 0  # of a distributed fit, process 0 writes OUT
+    folder = distributed.folder_of(args.out)  # every process keeps its own history (all the same)
+    os.makedirs(folder, exist_ok=True)
+    checkpoint = os.path.join(folder, "fit_checkpoint.json")
     target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint)
-    io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
+    if writes:
+        io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
           f"({estimator}, {optimizer}) to {target.source}", flush=True)
@@ -139,7 +143,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None)
-    return _write_results(args, names, target, result)
+    return _write_results(args, names, target, result) if writes else result.to_json()
 
 
 def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool, checkpoint: str):

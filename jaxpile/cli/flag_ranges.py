@@ -24,7 +24,8 @@ def _flag_ranges() -> dict:
                 "ensemble": Range(low=1, whole=True, unit="piles"), "target_seeds": SEED,
                 "difference_step": Range(low=0, high=1, low_open=True, why="log units"),
                 "lr": POSITIVE, "bins": Range(low=1, whole=True, unit="bins"), "window": STEPS,
-                "horizontal_weight": NON_NEGATIVE, "dip_weight": NON_NEGATIVE},
+                "horizontal_weight": NON_NEGATIVE, "dip_weight": NON_NEGATIVE,
+                "batch_size": Range(low=1, whole=True, unit="piles")},
     }
 
 

@@ -231,3 +231,9 @@ def _ensemble_fit_args(fitp) -> None:
                            "--bins, the base profile too")
     fitp.add_argument("--resume", action="store_true",
                       help="ensemble fits: continue the fit whose history is in OUT/fit_checkpoint.json")
+    fitp.add_argument("--batch-size", type=int, default=None, metavar="PILES",
+                      help="ensemble fits: piles per compiled batch (default: an iteration's piles at once; "
+                           "--distributed: one batch a process)")
+    fitp.add_argument("--distributed", action="store_true",
+                      help="ensemble fits: run as one of several processes (jax.distributed, as `jaxpile sweep "
+                           "--distributed`): each runs its share of an iteration's batches, process 0 writes OUT")

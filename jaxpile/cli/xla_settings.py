@@ -46,7 +46,11 @@ def join_processes(args) -> tuple[int, int]:
     (`jaxpile.distributed.initialize`) before JAX computes anything. Returns
     `(process index, process count)`."""
     from jaxpile import distributed
+    from jaxpile.errors import InputError
 
+    if args.command == "fit" and not fit_runs_batches(args):
+        raise InputError("--distributed shares an ensemble fit's batches over processes; a pathwise fit is one "
+                         "pile: run it without --distributed.")
     index, count = distributed.initialize()
     print(f"jaxpile: process {index} of {count}", flush=True)
     return index, count
