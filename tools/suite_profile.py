@@ -30,6 +30,7 @@ import time
 import pytest
 
 _RECORD_DIR = "JAXPILE_SUITE_PROFILE_DIR"
+_DUMP_DIR = "JAXPILE_SUITE_PROFILE_DUMP"  # where set: each step loop's StableHLO, named by its digest
 _COMPILE = "/jax/core/compile/backend_compile_duration"
 _TRACE = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration")
 
@@ -68,8 +69,10 @@ class _Recorder:
             text = computation.operation.get_asm(enable_debug_info=False)
             t0 = time.perf_counter()
             out = original(backend, computation, *args, **kwargs)
-            self.programs.append((self.test, name, hashlib.sha1(text.encode()).hexdigest()[:16],
-                                  time.perf_counter() - t0, _signature(text)))
+            digest = hashlib.sha1(text.encode()).hexdigest()[:16]
+            self.programs.append((self.test, name, digest, time.perf_counter() - t0, _signature(text)))
+            if os.environ.get(_DUMP_DIR) and name == "jit__advance":  # to diff two step loops of the same shapes
+                pathlib.Path(os.environ[_DUMP_DIR], f"{digest}.mlir").write_text(text)
             return out
 
         compiler.compile_or_get_cached = compile_or_get_cached
