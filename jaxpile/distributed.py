@@ -80,6 +80,9 @@ def initialize(timeout: int | None = None) -> tuple[int, int]:
                          "jaxpile.distributed.initialize() (or pass --distributed) first.")
     timeout = int(os.environ.get(TIMEOUT_ENV, 300)) if timeout is None else int(timeout)
     given = _from_environment()
+    if given:  # said first: a process that waits in vain is ended by JAX's runtime, which prints its own error
+        print(f"jaxpile: process {given['process_id']} of {given['num_processes']} joining at "
+              f"{given['coordinator_address']} (waiting at most {timeout} s for the others)", flush=True)
     jax.config.update("jax_cpu_collectives_implementation", "gloo")  # CPU processes reach each other over gloo
     try:
         jax.distributed.initialize(**given, initialization_timeout=timeout,

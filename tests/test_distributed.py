@@ -127,6 +127,18 @@ def test_an_ensemble_fit_on_two_processes_gives_the_values_of_one_process(tmp_pa
     assert not (tmp_path / "both" / "process-1-of-2" / "fit.json").exists()
 
 
+def test_a_process_whose_partner_never_joins_ends_after_the_timeout_instead_of_waiting():
+    """Process 0 of 2 alone, with a join timeout of 5 s: it says what it waits for, and JAX's runtime ends
+    it (an abort, with its own DEADLINE_EXCEEDED line) within the timeout and a margin: no hang."""
+    start = time.monotonic()
+    alone = _jaxpile([*SWEEP, "--distributed", "--out", "unused"], **_environment(0, _free_port()),
+                     **{distributed.TIMEOUT_ENV: "5"})
+    out, err = alone.communicate(timeout=120)
+    assert alone.returncode != 0 and time.monotonic() - start < 90
+    assert "process 0 of 2 joining at localhost:" in out and "waiting at most 5 s" in out
+    assert "DEADLINE_EXCEEDED" in err or "Deadline Exceeded" in err
+
+
 def test_the_batches_are_shared_in_contiguous_runs_the_first_processes_taking_the_remainder():
     batches = [[k, k + 1] for k in range(7)]
     shares = [distributed.share(batches, 3, k) for k in range(3)]
