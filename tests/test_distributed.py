@@ -104,12 +104,12 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
 
 FIT = ["fit", "--protocol", "box", "--params", "mu", "--set", "mu=0.2", "--truth", "mu=0.35", "--ensemble", "2",
        "--steps", "1", "--option", "width=1.2", "--option", "height=1.2", "--statistics", "repose_least_squares",
-       "--batch-size", "1", "--no-progress"]
+       "--batch-size", "2", "--no-progress"]
 
 
 def test_an_ensemble_fit_on_two_processes_gives_the_values_of_one_process(tmp_path):
     """`jaxpile fit ... --distributed`: the target's piles and every iteration's ensembles shared over two
-    processes in batches of one pile, each process taking the same Gauss-Newton step from the gathered
+    processes in batches of two piles, each process taking the same Gauss-Newton step from the gathered
     statistics; process 0 writes fit.json, and it holds the history one process writes for the same
     batches, every number equal."""
     port = _free_port()
