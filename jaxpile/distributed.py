@@ -12,7 +12,7 @@ shared by its members at every step (the neighbour-list rebuild,
 collective across the network at every step. Whole batches need none, and a
 member's numbers depend only on its own batch: N processes give bit for bit
 the rows one process gives for the same batches (`jaxpile sweep --batch-size`
-with the share's size), whatever the process count.
+with the same batch size), whatever the process count.
 
     JAXPILE_COORDINATOR=host0:12355 JAXPILE_PROCESSES=2 JAXPILE_PROCESS_ID=0 jaxpile sweep ... --distributed
 
@@ -25,12 +25,12 @@ processes, each from its own.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import pickle
 
 import jax
-import numpy as np
 
 from jaxpile.errors import InputError
 
@@ -125,22 +125,32 @@ def folder_of(out: str) -> str:
     return out if count == 1 else os.path.join(out, f"process-{process_index()}-of-{count}")
 
 
+GATHER_WAIT_MS = 7 * 24 * 3600 * 1000
+"""How long a process waits for the others' rows: their shares may end hours
+apart, and a process that dies ends the run through the heartbeat anyway."""
+
+_gathers = itertools.count()  # every process gathers in the same order, so the n-th gathers meet
+
+
 def gather(items: list) -> list:
     """Every process's `items` (picklable), concatenated in process order, on
-    every process; `items` itself when the run is one process."""
+    every process; `items` itself when the run is one process.
+
+    Through the coordination service's key-value store, not a collective: a
+    collective's first call waits only about 30 s for the processes to meet,
+    and a process that ends its share early may wait for the others far
+    longer (`GATHER_WAIT_MS`)."""
     if process_count() == 1:
         return list(items)
-    from jax.experimental import multihost_utils
+    from jax._src import distributed as runtime  # the client of `jax.distributed`; no public name for its store
 
-    data = np.frombuffer(pickle.dumps(list(items)), dtype=np.uint8)
-    sizes = np.asarray(multihost_utils.process_allgather(np.array([data.size], np.int64)))[:, 0]
-    padded = np.zeros(int(sizes.max()), np.uint8)
-    padded[:data.size] = data
-    everyone = np.asarray(multihost_utils.process_allgather(padded))
+    client = runtime.global_state.client
+    key = f"jaxpile/gather/{next(_gathers)}"
+    client.key_value_set_bytes(f"{key}/{process_index()}", pickle.dumps(list(items)))
     out = []
-    for row, size in zip(everyone, sizes):
-        out += pickle.loads(row[:int(size)].tobytes())
+    for k in range(process_count()):
+        out += pickle.loads(client.blocking_key_value_get_bytes(f"{key}/{k}", GATHER_WAIT_MS))
     return out
 
 
-__all__ = ["HEARTBEAT_SECONDS", "default_batch_size", "folder_of", "gather", "initialize", "process_count", "process_index", "share"]
+__all__ = ["GATHER_WAIT_MS", "HEARTBEAT_SECONDS", "default_batch_size", "folder_of", "gather", "initialize", "process_count", "process_index", "share"]

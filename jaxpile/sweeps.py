@@ -35,7 +35,7 @@ from jaxpile import budget as memory
 from jaxpile import config
 from jaxpile import distributed
 from jaxpile.engine import ensemble
-from jaxpile.errors import InputError
+from jaxpile.errors import InputError, SimulationError
 from jaxpile import ranges
 from jaxpile.ranges import COUNT, SEED
 from jaxpile.engine.simulate import RunInfo
@@ -276,33 +276,24 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
                                  devices, law_options).devices)
     rows, info = [], RunInfo()
     planned = [[point, seed] for point, seed in members]
+    processes = distributed.process_count()
     first, saved = 0, {}
-    if resume is not None:
-        saved = _resumed(resume, planned, batch_size, devices_used)
-        rows, first = list(saved["rows"]), int(saved["batch_start"])
     t0 = time.perf_counter()
     n_particles, particle_steps = 0, 0
-    for start, end in distributed.share(batches):  # all of them, unless other processes run some (`distributed`)
-        if start < first:
-            continue
-        chunk, prms = members[start:end], member_params[start:end]
-        stage_options = running.stage_options(spec, split(chunk[0][0])[1])  # this batch's set-up
-        facts = dict(grid=planned, batch_size=batch_size, devices=devices_used, batch_start=start, rows=rows)
-        steps_before = info.steps
-        state, setups, last_sim = _run_batch(
-            chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
-            checkpoint, facts, saved if resume is not None and start == first else None, resume, law_options)
-        n_particles = int(state.particles.position.shape[1])
-        particle_steps += len(chunk) * n_particles * (info.steps - steps_before)
-        for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
-            s = ensemble.member(state, k)
-            row = {"member": start + k, **point, "seed": seed}
-            row.update(running.member_row(chain[-1], last_sim, prm, s, p, stage_options[-1]))
-            if extra_measure is not None:
-                row.update(extra_measure(last_sim, prm, s, p))
-            row["steps"] = int(s.step)
-            rows.append(row)
-    processes = distributed.process_count()
+    try:
+        if resume is not None:
+            saved = _resumed(resume, planned, batch_size, devices_used)
+            rows, first = list(saved["rows"]), int(saved["batch_start"])
+        n_particles, particle_steps = _run_share(
+            spec, chain, law, dt, rotation, devices, members, member_params, batches, split, dtype, max_steps,
+            progress, info, checkpoint, saved, resume, first, rows, planned, batch_size, devices_used,
+            extra_measure, law_options)
+    except (InputError, SimulationError) as error:
+        if processes == 1:
+            raise
+        _fail_together(error)
+    if processes > 1:
+        _fail_together(None)  # every process learns whether another failed, before any waits for its rows
     if processes > 1:  # every process's rows, in member order, and its share of the work
         gathering = time.perf_counter()
         rows = sorted(distributed.gather(rows), key=lambda row: row["member"])
@@ -331,6 +322,50 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     return SweepResult(rows, record)
 
 
+def _run_share(spec, chain, law, dt, rotation, devices, members, member_params, batches, split, dtype, max_steps,
+               progress, info, checkpoint, saved, resume, first, rows, planned, batch_size, devices_used,
+               extra_measure, law_options) -> tuple[int, int]:
+    """Runs this process's batches (every batch on one process) from `first`
+    on, appending each member's row to `rows`. Returns the disks a pile and the
+    particle-steps run."""
+    n_particles, particle_steps = 0, 0
+    for start, end in distributed.share(batches):  # all of them, unless other processes run some (`distributed`)
+        if start < first:
+            continue
+        chunk, prms = members[start:end], member_params[start:end]
+        stage_options = running.stage_options(spec, split(chunk[0][0])[1])  # this batch's set-up
+        facts = dict(grid=planned, batch_size=batch_size, devices=devices_used, batch_start=start, rows=rows,
+                     process=distributed.process_index(), processes=distributed.process_count())
+        steps_before = info.steps
+        state, setups, last_sim = _run_batch(
+            chain, stage_options, law, dt, rotation, devices, chunk, prms, dtype, max_steps, progress, info,
+            checkpoint, facts, saved if resume is not None and start == first else None, resume, law_options)
+        n_particles = int(state.particles.position.shape[1])
+        particle_steps += len(chunk) * n_particles * (info.steps - steps_before)
+        for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
+            s = ensemble.member(state, k)
+            row = {"member": start + k, **point, "seed": seed}
+            row.update(running.member_row(chain[-1], last_sim, prm, s, p, stage_options[-1]))
+            if extra_measure is not None:
+                row.update(extra_measure(last_sim, prm, s, p))
+            row["steps"] = int(s.step)
+            rows.append(row)
+    return n_particles, particle_steps
+
+
+def _fail_together(error: Exception | None) -> None:
+    """Across processes: each says whether its share failed (None: it did
+    not), and every one raises the first failure, so that none waits for rows
+    a failed process will never send. A process's own error is raised as it is."""
+    failures = distributed.gather([None if error is None else (type(error).__name__, str(error))])
+    for k, failure in enumerate(failures):
+        if failure is not None:
+            if error is not None:
+                raise error
+            kind = SimulationError if failure[0] == "SimulationError" else InputError
+            raise kind(f"process {k} of {len(failures)} failed: {failure[1]}")
+
+
 def _resumed(resume, planned: list, batch_size: int, devices: int) -> dict:
     """What a sweep's checkpoint recorded, when it was written by this same sweep."""
     from jaxpile.engine import checkpoint as ckpt
@@ -339,6 +374,11 @@ def _resumed(resume, planned: list, batch_size: int, devices: int) -> dict:
     if saved.get("grid") != planned or saved.get("batch_size") != batch_size:
         raise InputError(f"{resume} was written by another sweep (other members or batch size); "
                          "resume it with the command that made it.")
+    here = (distributed.process_index(), distributed.process_count())
+    if (saved.get("process", 0), saved.get("processes", 1)) != here:
+        raise InputError(f"{resume} was saved by process {saved.get('process', 0)} of {saved.get('processes', 1)}, "
+                         f"this is process {here[0]} of {here[1]}: each process resumes its own checkpoint, on "
+                         "as many processes as the sweep started on.")
     if saved.get("devices") != devices:
         raise InputError(f"{resume} was written on {saved.get('devices')} device(s), this run has "
                          f"{devices}: the batch is padded to a multiple of the device count, so "

@@ -83,7 +83,8 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
                       **_environment(k, port)) for k in (0, 1)]
     saved = out / "process-1-of-2" / "checkpoint.npz"
     deadline = time.monotonic() + 600
-    while not saved.exists() and procs[1].poll() is None and time.monotonic() < deadline:
+    while not (saved.exists() and (out / "process-0-of-2" / "checkpoint.npz").exists()) \
+            and procs[1].poll() is None and time.monotonic() < deadline:
         time.sleep(0.02)
     for p in (procs[1], procs[0]):
         p.send_signal(signal.SIGKILL)
@@ -137,6 +138,26 @@ def test_a_process_whose_partner_never_joins_ends_after_the_timeout_instead_of_w
     assert alone.returncode != 0 and time.monotonic() - start < 90
     assert "process 0 of 2 joining at localhost:" in out and "waiting at most 5 s" in out
     assert "DEADLINE_EXCEEDED" in err or "Deadline Exceeded" in err
+
+
+def test_a_refusal_on_one_process_is_raised_on_every_process_instead_of_a_wait(tmp_path):
+    """Process 1 resumes a checkpoint that is not its own (process 0's, copied over its folder): it refuses,
+    and process 0, which runs its share, raises the same refusal, naming process 1, instead of waiting for
+    rows that will not come."""
+    out, port = tmp_path / "run", _free_port()
+    procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "100000", "--out", str(out)],
+                      **_environment(k, port)) for k in (0, 1)]
+    for p in procs:
+        _, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err[-3000:]
+    (out / "process-1-of-2" / "checkpoint.npz").write_bytes((out / "process-0-of-2" / "checkpoint.npz").read_bytes())
+    port = _free_port()
+    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, port))
+             for k in (0, 1)]
+    errs = [p.communicate(timeout=300)[1] for p in procs]
+    assert [p.returncode for p in procs] == [2, 2], errs
+    assert "was saved by process 0 of 2, this is process 1 of 2" in errs[1].strip().splitlines()[-1]
+    assert errs[0].strip().splitlines()[-1].startswith("jaxpile: error: process 1 of 2 failed: ")
 
 
 def test_the_batches_are_shared_in_contiguous_runs_the_first_processes_taking_the_remainder():

@@ -52,12 +52,12 @@ def resume_argv(argv: list[str]) -> list[str]:
         raise InputError(f"resume a run with `jaxpile {argv[0]} --resume DIR` alone (its settings come from the "
                          f"checkpoint; --no-progress and --distributed may be added); got {' '.join(argv)!r}.")
     folder = rest[1]
-    path = checkpoint.in_folder(folder)
-    if path is None and "--distributed" in argv:  # every process's checkpoint records the same command
-        import glob
-
-        path = next(iter(sorted(glob.glob(os.path.join(glob.escape(folder), "process-*-of-*", "checkpoint.npz")))),
-                    None)
+    spread = "--distributed" in argv
+    # a distributed run's processes each saved their own, all recording the same command
+    path = next(iter(_process_checkpoints(folder)), None) if spread else checkpoint.in_folder(folder)
+    if path is None and not spread and _process_checkpoints(folder):
+        raise InputError(f"{folder} holds a distributed sweep's checkpoints: resume it with `jaxpile {argv[0]} "
+                         f"--resume {folder} --distributed` on as many processes.")
     if path is None:
         raise InputError(f"no checkpoint to resume in {folder} (expected {os.path.join(folder, 'checkpoint.npz')}; "
                          "runs write it with --checkpoint-every STEPS).")
@@ -67,7 +67,16 @@ def resume_argv(argv: list[str]) -> list[str]:
     if saved[0] != argv[0]:
         raise InputError(f"{folder} holds a `jaxpile {saved[0]}` run: resume it with `jaxpile {saved[0]} --resume "
                          f"{folder}`.")
+    if spread and "--distributed" not in saved:
+        raise InputError(f"{path} is a one-process run's: resume it without --distributed.")
     return [*saved, "--resume", folder] + (["--no-progress"] if "--no-progress" in argv else [])
+
+
+def _process_checkpoints(folder: str) -> list[str]:
+    """The checkpoints a distributed run's processes saved in `folder` (`distributed.folder_of`)."""
+    import glob
+
+    return sorted(glob.glob(os.path.join(glob.escape(folder), "process-*-of-*", "checkpoint.npz")))
 
 
 def resume_point(args) -> tuple[str | None, int]:
@@ -78,9 +87,17 @@ def resume_point(args) -> tuple[str | None, int]:
         return None, 0
     folder = distributed.folder_of(args.resume)  # a process of a distributed run resumes its own
     saved = checkpoint.in_folder(folder)
+    if saved is None and folder != args.resume:
+        count = distributed.process_count()
+        if not any(path.endswith(f"-of-{count}{os.sep}checkpoint.npz") for path in _process_checkpoints(args.resume)):
+            raise InputError(f"no checkpoint of a sweep on {count} processes in {args.resume}: resume a "
+                             "distributed sweep on as many processes as it started on.")
+        # this process had saved nothing (no batch of its own, or stopped before its first save): its share anew
+        print(f"jaxpile: process {distributed.process_index()} has no checkpoint in {args.resume}: it runs its "
+              "share from the start", flush=True)
+        return None, 0
     if saved is None:
-        raise InputError(f"no checkpoint to resume in {folder}" + (
-            "" if folder == args.resume else " (resume a distributed sweep on as many processes)") + ".")
+        raise InputError(f"no checkpoint to resume in {folder}.")
     meta = checkpoint.read_metadata(saved)
     rows = meta["extra"].get("rows")
     print(f"jaxpile: resuming {args.resume} at step {meta['step']}"

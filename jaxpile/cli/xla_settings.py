@@ -51,6 +51,9 @@ def join_processes(args) -> tuple[int, int]:
     if args.command == "fit" and not fit_runs_batches(args):
         raise InputError("--distributed shares an ensemble fit's batches over processes; a pathwise fit is one "
                          "pile: run it without --distributed.")
+    if args.command == "fit" and getattr(args, "estimator", None) == "truncated":
+        raise InputError("--distributed shares an ensemble fit's batches over processes; the truncated "
+                         "estimator's rollouts are not batches of a sweep: run it without --distributed.")
     index, count = distributed.initialize()
     print(f"jaxpile: process {index} of {count}", flush=True)
     return index, count

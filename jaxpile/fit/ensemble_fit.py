@@ -70,7 +70,7 @@ import optax
 import jaxpile.fit.construction as construction
 import jaxpile.fit.estimators as estimators
 import jaxpile.fit.regression as regression
-from jaxpile import config, io
+from jaxpile import config, distributed, io
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Runner, Statistics
 from jaxpile.fit.ensemble_runs import fill_missing
@@ -330,6 +330,11 @@ def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
     if differ:
         raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
                          "with the command that made it.")
+    if distributed.process_count() > 1:  # each process saved its own history: they must all be at one iteration
+        lengths = distributed.gather([len(saved["history"])])
+        if len(set(lengths)) > 1:
+            raise InputError(f"the processes' checkpoints hold {', '.join(map(str, lengths))} iterations (a process "
+                             "stopped between saves): copy the longest fit_checkpoint.json over the others, and resume.")
     settings_differ = config.differences(saved.get("settings"), record["settings"], batch=True)
     if settings_differ:
         warnings.warn(f"{resume} was written under other JAX/XLA settings ({'; '.join(settings_differ)}): the "
