@@ -115,12 +115,13 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
     from jaxpile.protocols import running
 
     spec = sw.spec_of(args.protocol)
-    dt = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
-                 batch_size=args.batch_size, dtype=dtype, rotation=args.rotation,
-                 law_options=law_options_of(args)).dt
+    planned = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
+                      batch_size=args.batch_size, dtype=dtype, rotation=args.rotation,
+                      law_options=law_options_of(args))
+    dt = planned.dt
     first = running.stage_options(spec, options)[0]
     setup = running.member_setup(spec.chain()[0], law, 0, dt, first, dtype)
-    batch = members if args.batch_size is None else min(int(args.batch_size), members)
+    batch = min(planned.batch_size, members)  # of a --distributed sweep (joined by now): the members over the processes
     steps = spec.chain()[0].budget(setup, first) if args.max_steps is None else int(args.max_steps)
     report = dry_run_report(f"one {args.protocol} member", setup.particles, {}, args.precision,
                             {"max_steps": steps})
