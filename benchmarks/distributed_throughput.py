@@ -16,7 +16,6 @@ import argparse
 import json
 import os
 import pathlib
-import socket
 import subprocess
 import sys
 import tempfile
@@ -26,12 +25,6 @@ HERE = pathlib.Path(__file__).resolve().parent
 SWEEP = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--n", "72", "--width", "1.6", "--height", "1.6",
          "--mu", "0.1,0.2,0.3,0.5", "--seeds", "4", "--no-progress"]
 COMMAND = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
 
 
 def _start(core: int, args: list[str], env: dict) -> subprocess.Popen:
@@ -56,8 +49,9 @@ def one_process(folder: pathlib.Path) -> dict:
 
 
 def two_processes(folder: pathlib.Path) -> dict:
-    port = _port()
-    env = {"JAXPILE_COORDINATOR": f"localhost:{port}", "JAXPILE_PROCESSES": "2"}
+    from jaxpile import distributed
+
+    env = {"JAXPILE_COORDINATOR": distributed.local_coordinator(), "JAXPILE_PROCESSES": "2"}
     t0 = time.perf_counter()
     procs = [_start(k, ["--distributed", "--out", str(folder)], {**env, "JAXPILE_PROCESS_ID": str(k)}) for k in (0, 1)]
     _finish(procs)

@@ -93,6 +93,16 @@ def initialize(timeout: int | None = None) -> tuple[int, int]:
     return jax.process_index(), jax.process_count()
 
 
+def local_coordinator() -> str:
+    """`localhost:PORT` with a port free now: the coordinator of processes on
+    this one host (a test, a benchmark)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("localhost", 0))
+        return f"localhost:{s.getsockname()[1]}"
+
+
 def process_count() -> int:
     """The processes of this run (1 unless `initialize` joined others)."""
     return jax.process_count() if jax.distributed.is_initialized() else 1
@@ -153,4 +163,4 @@ def gather(items: list) -> list:
     return out
 
 
-__all__ = ["GATHER_WAIT_MS", "HEARTBEAT_SECONDS", "default_batch_size", "folder_of", "gather", "initialize", "process_count", "process_index", "share"]
+__all__ = ["GATHER_WAIT_MS", "HEARTBEAT_SECONDS", "default_batch_size", "folder_of", "gather", "local_coordinator", "initialize", "process_count", "process_index", "share"]

@@ -279,7 +279,7 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     processes = distributed.process_count()
     first, saved = 0, {}
     t0 = time.perf_counter()
-    n_particles, particle_steps = 0, 0
+    n_particles, particle_steps, failure = 0, 0, None
     try:
         if resume is not None:
             saved = _resumed(resume, planned, batch_size, devices_used)
@@ -291,15 +291,16 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     except (InputError, SimulationError) as error:
         if processes == 1:
             raise
-        _fail_together(error)
-    if processes > 1:
-        _fail_together(None)  # every process learns whether another failed, before any waits for its rows
-    if processes > 1:  # every process's rows, in member order, and its share of the work
+        failure = error
+    if processes > 1:  # one gather: whether each share failed, its rows and its work
         gathering = time.perf_counter()
-        rows = sorted(distributed.gather(rows), key=lambda row: row["member"])
+        shares = distributed.gather([(None if failure is None else (type(failure).__name__, str(failure)), rows,
+                                      (n_particles, particle_steps, info.steps, info.wall_seconds,
+                                       info.compile_seconds, info.reallocations))])
         gather_seconds = time.perf_counter() - gathering
-        work = distributed.gather([(n_particles, particle_steps, info.steps, info.wall_seconds, info.compile_seconds,
-                                    info.reallocations)])
+        _raise_first_failure([share[0] for share in shares], failure)  # none waits for rows that will not come
+        rows = sorted((row for share in shares for row in share[1]), key=lambda row: row["member"])
+        work = [share[2] for share in shares]
         n_particles = max(w[0] for w in work)
         particle_steps, run_seconds = sum(w[1] for w in work), max(w[3] for w in work)
         steps, compile_seconds, reallocations = max(w[2] for w in work), max(w[4] for w in work), sum(w[5] for w in work)
@@ -353,15 +354,14 @@ def _run_share(spec, chain, law, dt, rotation, devices, members, member_params, 
     return n_particles, particle_steps
 
 
-def _fail_together(error: Exception | None) -> None:
-    """Across processes: each says whether its share failed (None: it did
-    not), and every one raises the first failure, so that none waits for rows
-    a failed process will never send. A process's own error is raised as it is."""
-    failures = distributed.gather([None if error is None else (type(error).__name__, str(error))])
+def _raise_first_failure(failures: list, own: Exception | None) -> None:
+    """Across processes, each share's failure (None: it ran) as gathered:
+    every process raises the first, its own error as it is, another's named
+    by its process."""
     for k, failure in enumerate(failures):
         if failure is not None:
-            if error is not None:
-                raise error
+            if own is not None:
+                raise own
             kind = SimulationError if failure[0] == "SimulationError" else InputError
             raise kind(f"process {k} of {len(failures)} failed: {failure[1]}")
 

@@ -6,7 +6,6 @@ import json
 import os
 import pathlib
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -19,12 +18,6 @@ from jaxpile.errors import InputError
 SWEEP = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--n", "40", "--width", "1.2", "--height", "1.2",
          "--mu", "0.1,0.3", "--seeds", "2", "--no-progress"]
 COMMAND = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("localhost", 0))
-        return s.getsockname()[1]
 
 
 def _jaxpile(args, **env):
@@ -47,8 +40,8 @@ def one_process(tmp_path_factory):
     return _rows(out)
 
 
-def _environment(process: int, port: int) -> dict:
-    return {distributed.COORDINATOR_ENV: f"localhost:{port}", distributed.PROCESSES_ENV: "2",
+def _environment(process: int, coordinator: str) -> dict:
+    return {distributed.COORDINATOR_ENV: coordinator, distributed.PROCESSES_ENV: "2",
             distributed.PROCESS_ID_ENV: str(process)}
 
 
@@ -57,8 +50,8 @@ def test_a_sweep_on_two_processes_gives_the_rows_one_process_gives_for_the_same_
     from the environment): each runs one batch of 2 members, process 0 writes every row, in member order;
     `jaxpile sweep --batch-size 2` on one process gives the same rows to the last digit (a member's numbers
     depend on its batch only, and the CSV holds each number's exact repr)."""
-    port = _free_port()
-    procs = [_jaxpile([*SWEEP, "--distributed", "--out", str(tmp_path / f"p{k}")], **_environment(k, port))
+    coordinator = distributed.local_coordinator()
+    procs = [_jaxpile([*SWEEP, "--distributed", "--out", str(tmp_path / f"p{k}")], **_environment(k, coordinator))
              for k in (0, 1)]
     outs = [p.communicate(timeout=600) for p in procs]
     for p, (out, err) in zip(procs, outs):
@@ -78,9 +71,9 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
     two processes ends with the rows of the uninterrupted run."""
     from jaxpile.engine import checkpoint
 
-    out, port = tmp_path / "run", _free_port()
+    out, coordinator = tmp_path / "run", distributed.local_coordinator()
     procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "1000", "--out", str(out)],
-                      **_environment(k, port)) for k in (0, 1)]
+                      **_environment(k, coordinator)) for k in (0, 1)]
     saved = out / "process-1-of-2" / "checkpoint.npz"
     deadline = time.monotonic() + 600
     while not (saved.exists() and (out / "process-0-of-2" / "checkpoint.npz").exists()) \
@@ -93,8 +86,8 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
     last = max(int(r["steps"]) for r in one_process[2:])
     assert checkpoint.read_metadata(str(saved))["step"] < last, "process 1 was killed after its batch ended"
 
-    port = _free_port()
-    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, port))
+    coordinator = distributed.local_coordinator()
+    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, coordinator))
              for k in (0, 1)]
     outs = [p.communicate(timeout=600) for p in procs]
     for p, (_, err) in zip(procs, outs):
@@ -113,8 +106,8 @@ def test_an_ensemble_fit_on_two_processes_gives_the_values_of_one_process(tmp_pa
     processes in batches of two piles, each process taking the same Gauss-Newton step from the gathered
     statistics; process 0 writes fit.json, and it holds the history one process writes for the same
     batches, every number equal."""
-    port = _free_port()
-    procs = [_jaxpile([*FIT, "--distributed", "--out", str(tmp_path / "both")], **_environment(k, port))
+    coordinator = distributed.local_coordinator()
+    procs = [_jaxpile([*FIT, "--distributed", "--out", str(tmp_path / "both")], **_environment(k, coordinator))
              for k in (0, 1)]
     procs.append(_jaxpile([*FIT, "--out", str(tmp_path / "one")]))
     for p in procs:
@@ -132,7 +125,7 @@ def test_a_process_whose_partner_never_joins_ends_after_the_timeout_instead_of_w
     """Process 0 of 2 alone, with a join timeout of 5 s: it says what it waits for, and JAX's runtime ends
     it (an abort, with its own DEADLINE_EXCEEDED line) within the timeout and a margin: no hang."""
     start = time.monotonic()
-    alone = _jaxpile([*SWEEP, "--distributed", "--out", "unused"], **_environment(0, _free_port()),
+    alone = _jaxpile([*SWEEP, "--distributed", "--out", "unused"], **_environment(0, distributed.local_coordinator()),
                      **{distributed.TIMEOUT_ENV: "5"})
     out, err = alone.communicate(timeout=120)
     assert alone.returncode != 0 and time.monotonic() - start < 90
@@ -144,15 +137,15 @@ def test_a_refusal_on_one_process_is_raised_on_every_process_instead_of_a_wait(t
     """Process 1 resumes a checkpoint that is not its own (process 0's, copied over its folder): it refuses,
     and process 0, which runs its share, raises the same refusal, naming process 1, instead of waiting for
     rows that will not come."""
-    out, port = tmp_path / "run", _free_port()
+    out, coordinator = tmp_path / "run", distributed.local_coordinator()
     procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "100000", "--out", str(out)],
-                      **_environment(k, port)) for k in (0, 1)]
+                      **_environment(k, coordinator)) for k in (0, 1)]
     for p in procs:
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-3000:]
     (out / "process-1-of-2" / "checkpoint.npz").write_bytes((out / "process-0-of-2" / "checkpoint.npz").read_bytes())
-    port = _free_port()
-    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, port))
+    coordinator = distributed.local_coordinator()
+    procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, coordinator))
              for k in (0, 1)]
     errs = [p.communicate(timeout=300)[1] for p in procs]
     assert [p.returncode for p in procs] == [2, 2], errs

@@ -45,7 +45,7 @@ def run_sweep(args) -> dict:
                           dt=args.dt, max_steps=args.max_steps, batch_size=args.batch_size, dtype=dtype,
                           progress=False if args.no_progress else None, checkpoint=spec, resume=resume,
                           rotation=args.rotation, law_options=law_options_of(args))
-    if result.info["processes"] > 1 and distributed.process_index() != 0:
+    if distributed.process_index() != 0:
         return result.info  # process 0 writes the rows every process ran
     out = args.out
     os.makedirs(out, exist_ok=True)
