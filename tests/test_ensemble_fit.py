@@ -301,6 +301,33 @@ def test_smid_novosad_is_an_ensemble_target_of_the_central_dip(tmp_path, capsys)
                      "central", "--truth", "mu_roll=0.2", "--out", str(tmp_path)]) == 2  # two targets
 
 
+def test_smid_novosad_declares_the_dip_and_the_angle_of_repose_liffman1992_fig17(tmp_path, capsys):
+    """The declared pile holds the reported 32.6 deg angle of repose (Liffman et
+    al. 1992, text of Fig. 17) beside the dip: `--statistics
+    central_dip,repose_mean` fits a pour with rolling resistance to both; a
+    statistic Smid & Novosad did not report is refused before any pile runs."""
+    from jaxpile import cli, fit
+
+    both = ef.smid_novosad_target(["central_dip", "repose_mean"])
+    assert both.labels == ["central_dip", "repose_mean"] and both.members is None and both.setting is None
+    assert both.mean.tolist() == [0.25, fit.SMID_NOVOSAD_ANGLE_DEGREES] == [0.25, 32.6]
+    assert both.spread.tolist() == [ef.smid_novosad_target().spread[0], 1.0]
+    assert "32.6" in both.source and "Fig. 17" in both.source
+    assert ef.smid_novosad_target(["repose_mean"]).mean.tolist() == [32.6]
+    for bad in (["height"], [], ["central_dip", "central_dip"]):
+        with pytest.raises(InputError, match="declares central_dip, repose_mean"):
+            ef.smid_novosad_target(bad)
+    rolling = ["--rolling", "sds", "--rotation", "on", "--set", "k_roll=1000", "--set", "mu_roll=0.2"]
+    assert cli.main(["fit", "--protocol", "pour", "--params", "mu,mu_roll", "--target", "smid-novosad",
+                     "--statistics", "central_dip,repose_mean", "--estimator", "central", *rolling, "--ensemble", "2",
+                     "--dry-run",
+                     "--out", str(tmp_path)]) == 0
+    assert "statistics ['central_dip', 'repose_mean']" in capsys.readouterr().out
+    assert cli.main(["fit", "--protocol", "pour", "--params", "mu", "--target", "smid-novosad", "--statistics",
+                     "central_dip,height", "--estimator", "central", "--dry-run", "--out", str(tmp_path)]) == 2
+    assert "declares central_dip, repose_mean" in capsys.readouterr().err
+
+
 class ChaoticToyRunner(ToyRunner):
     """Piles whose statistics move with log mu by ~4 per-pile spreads plus
     noise that changes with mu as well as with the seed: common random numbers do not cancel it, as in a

@@ -96,6 +96,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
     statistics = _chosen_statistics(args, a, estimator, declared)
+    if declared:  # a statistic Smid & Novosad did not report is refused before any pile, dry runs too
+        ensemble_fit.smid_novosad_target(statistics.labels())
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
@@ -116,7 +118,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     # the start, the truth and the set-up, checked before any pile (the target's) is run, and by --dry-run
     for n in names:
         POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
-    for values in (start, truth or {}):
+    for values in (start, truth) if truth else (start,):  # a fitted parameter the law needs is in both
         sweeps.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options,
                    rotation=runner.rotation, law_options=runner.law_options)
     # 8: the smoothing's 4 antithetic pairs; 3: the truncated estimator's host run and two rollouts
@@ -165,7 +167,7 @@ def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool
         return ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
                                         target_seeds, statistics, progress=False)
     if declared:
-        return ensemble_fit.smid_novosad_target()
+        return ensemble_fit.smid_novosad_target(statistics.labels())
     if args.target and args.target.endswith(".json"):
         if not os.path.exists(args.target):
             raise InputError(f"--target {args.target}: no such file.")

@@ -2,10 +2,11 @@
 resistance: the check the central-dip statistic needs before anything is fitted
 to Smid and Novosad's dip (docs/rolling_resistance.md).
 
-    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300]
+    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5]
 
 runs `jaxpile.sweep` of the 1997 pour (baxter law, spins on, rolling sds with
-k_roll = 1000, gamma_roll = 30) over mu_roll times seeds, checkpointed every
+k_roll = 1000, gamma_roll = 30; sliding friction mu, the paper's 0.5 unless
+given) over mu_roll times seeds, checkpointed every
 20 000 steps in DIR (rerun the same command to resume), and records each heap's
 base normal force, binned over its own base and normalised by its total, on a
 common x/B grid (`BINS` bins). Writes DIR/profiles.json (the rows with their
@@ -60,6 +61,7 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", type=int, default=16)
     parser.add_argument("--mu-roll", default="0,0.3")
     parser.add_argument("--n", type=int, default=300)
+    parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
     args = parser.parse_args(argv)
     import jaxpile
 
@@ -69,14 +71,15 @@ def main(argv=None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "checkpoint.npz"
     result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
-                           seeds=args.seeds, options={"n": args.n}, params={"k_roll": 1000.0, "gamma_roll": 30.0},
+                           seeds=args.seeds, options={"n": args.n}, params={"k_roll": 1000.0, "gamma_roll": 30.0,
+                                                                        **({} if args.mu is None else {"mu": args.mu})},
                            rotation=True, law_options={"rolling": "sds"}, progress=False,
                            checkpoint=(str(path), 20_000), resume=str(path) if path.exists() else None,
                            extra_measure=heap_profile)
     rows = [dict(r) for r in result.rows]
     given = sys.argv[1:] if argv is None else argv
     summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given),
-               "bins": BINS, "n": args.n, "settings": result.info.get("settings"), "by_mu_roll": summarise(rows),
+               "bins": BINS, "n": args.n, "mu": args.mu, "settings": result.info.get("settings"), "by_mu_roll": summarise(rows),
                "rows": rows}
     (out / "profiles.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
 
@@ -92,7 +95,7 @@ def main(argv=None) -> None:
         ax.plot(x, mean, marker="o", label=f"mu_roll = {key}: {s['heaps']} heaps, dip of mean {s['dip_of_mean']:+.2f}")
         ax.fill_between(x, mean - se, mean + se, alpha=0.3)
     ax.set(xlabel="x / B", ylabel="share of the base force per bin",
-           title=f"poured heaps ({args.n} disks, baxter, rolling sds): mean +- s.e.")
+           title=f"poured heaps ({args.n} disks, baxter{'' if args.mu is None else f', mu = {args.mu}'}, rolling sds): mean +- s.e.")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "profiles.png", dpi=120)
