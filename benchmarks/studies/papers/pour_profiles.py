@@ -42,8 +42,24 @@ def heap_profile(sim, params, state, setup) -> dict:
     return {"profile": share.tolist(), "base_width_bins": float(full.width)}
 
 
+def centre_below_flanks(profiles: np.ndarray) -> dict:
+    """How far the centre bin sits below the flanks, with its standard error:
+    the flank bins are the mean profile's largest on each side of the centre,
+    and each heap gives (mean of its two flank bins - its centre bin); the mean
+    of that over the heaps, over the mean flank, is > 0 for an M. The
+    standard error is the heaps' (paired: a heap's bins move together). The
+    flank bins are chosen on the same heaps, which biases it up a little."""
+    mean, c = profiles.mean(axis=0), BINS // 2
+    left, right = int(np.argmax(mean[:c])), c + 1 + int(np.argmax(mean[c + 1:]))
+    flank = 0.5 * (profiles[:, left] + profiles[:, right])
+    drop = (flank - profiles[:, c]) / flank.mean()
+    return {"value": float(drop.mean()), "stderr": float(drop.std(ddof=1) / math.sqrt(len(drop))),
+            "flank_bins": [left, right], "centre_bin": c}
+
+
 def summarise(rows: list[dict]) -> dict:
-    """Mean profile and standard error band per mu_roll; the dip of the mean profile (`heap.central_dip`)."""
+    """Mean profile and standard error band per mu_roll; the dip of the mean
+    profile (`heap.central_dip`) and the centre below the flanks (`centre_below_flanks`)."""
     from jaxpile.measure.heap import central_dip
 
     out = {}
@@ -51,7 +67,12 @@ def summarise(rows: list[dict]) -> dict:
         p = np.array([r["profile"] for r in rows if r["mu_roll"] == mu_roll and r.get("profile") is not None])
         mean, se = p.mean(axis=0), p.std(axis=0, ddof=1) / math.sqrt(len(p))
         dip = central_dip(SimpleNamespace(force=mean))  # the rows' statistic, of the mean profile
-        out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": dip}
+        angle = np.array([r["repose_mean"] for r in rows
+                          if r["mu_roll"] == mu_roll and r.get("repose_mean") is not None])
+        out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": dip,
+                             "centre_below_flanks": centre_below_flanks(p),
+                             "repose_mean": {"mean": float(angle.mean()), "count": len(angle),
+                                             "stderr": float(angle.std(ddof=1) / math.sqrt(len(angle)))}}
     return out
 
 
@@ -62,12 +83,19 @@ def main(argv=None) -> None:
     parser.add_argument("--mu-roll", default="0,0.3")
     parser.add_argument("--n", type=int, default=300)
     parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
+    parser.add_argument("--summarise", action="store_true",
+                        help="rewrite DIR/profiles.json's summary and figure from its rows (runs nothing)")
     args = parser.parse_args(argv)
+    out = pathlib.Path(args.out)
+    if args.summarise:
+        summary = json.loads((out / "profiles.json").read_text())
+        summary["by_mu_roll"] = summarise(summary["rows"])
+        _write(out, summary, summary["n"], summary.get("mu"))
+        return
     import jaxpile
 
     jaxpile.configure(threads=True)  # a batch: XLA's threads, as `jaxpile sweep`
 
-    out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "checkpoint.npz"
     result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
@@ -79,8 +107,13 @@ def main(argv=None) -> None:
     rows = [dict(r) for r in result.rows]
     given = sys.argv[1:] if argv is None else argv
     summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given),
-               "bins": BINS, "n": args.n, "mu": args.mu, "settings": result.info.get("settings"), "by_mu_roll": summarise(rows),
-               "rows": rows}
+               "bins": BINS, "n": args.n, "mu": args.mu, "settings": result.info.get("settings"),
+               "by_mu_roll": summarise(rows), "rows": rows}
+    _write(out, summary, args.n, args.mu)
+
+
+def _write(out: pathlib.Path, summary: dict, n: int, mu: float | None) -> None:
+    """DIR/profiles.json and DIR/profiles.png, and the summary printed."""
     (out / "profiles.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
 
     import matplotlib
@@ -92,15 +125,20 @@ def main(argv=None) -> None:
     fig, ax = plt.subplots(figsize=(6, 4))
     for key, s in summary["by_mu_roll"].items():
         mean, se = np.array(s["mean"]), np.array(s["stderr"])
-        ax.plot(x, mean, marker="o", label=f"mu_roll = {key}: {s['heaps']} heaps, dip of mean {s['dip_of_mean']:+.2f}")
+        below = s["centre_below_flanks"]
+        ax.plot(x, mean, marker="o", label=f"mu_roll = {key}: {s['heaps']} heaps, centre {below['value']:+.2f} +- "
+                                           f"{below['stderr']:.2f} below the flanks")
         ax.fill_between(x, mean - se, mean + se, alpha=0.3)
     ax.set(xlabel="x / B", ylabel="share of the base force per bin",
-           title=f"poured heaps ({args.n} disks, baxter{'' if args.mu is None else f', mu = {args.mu}'}, rolling sds): mean +- s.e.")
+           title=f"poured heaps ({n} disks, baxter{'' if mu is None else f', mu = {mu}'}, rolling sds): mean +- s.e.")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(out / "profiles.png", dpi=120)
     for key, s in summary["by_mu_roll"].items():
-        print(f"mu_roll = {key}: {s['heaps']} heaps, dip of the mean profile {s['dip_of_mean']:+.3f}")
+        below = s["centre_below_flanks"]
+        print(f"mu_roll = {key}: {s['heaps']} heaps, dip of the mean profile {s['dip_of_mean']:+.3f}, centre "
+              f"{below['value']:+.3f} +- {below['stderr']:.3f} below the flanks, angle "
+              f"{s['repose_mean']['mean']:.1f} +- {s['repose_mean']['stderr']:.1f} deg")
 
 
 if __name__ == "__main__":
