@@ -37,9 +37,11 @@ from jaxpile.errors import InputError
 COORDINATOR_ENV, PROCESSES_ENV, PROCESS_ID_ENV = "JAXPILE_COORDINATOR", "JAXPILE_PROCESSES", "JAXPILE_PROCESS_ID"
 TIMEOUT_ENV = "JAXPILE_DISTRIBUTED_TIMEOUT"
 
-HEARTBEAT_SECONDS = 30
+HEARTBEAT_SECONDS = 90
 """How long the coordinator waits for a silent process before it ends the
-others with an error, rather than let them wait for it for ever."""
+others with an error, rather than let them wait for it for ever: long enough
+for a process starved of CPU on a loaded host (30 s was missed on an
+oversubscribed 2-core one), short beside any run worth several processes."""
 
 
 def _from_environment() -> dict:

@@ -5,6 +5,7 @@ import csv
 import json
 import os
 import pathlib
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,7 +16,7 @@ import pytest
 from jaxpile import distributed
 from jaxpile.errors import InputError
 
-SWEEP = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--n", "40", "--width", "1.2", "--height", "1.2",
+SWEEP = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--n", "20", "--width", "0.8", "--height", "0.8",
          "--mu", "0.1,0.3", "--seeds", "2", "--no-progress"]
 COMMAND = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
 
@@ -65,13 +66,13 @@ def test_a_sweep_on_two_processes_gives_the_rows_one_process_gives_for_the_same_
     assert record["processes"] == 2 and record["batch_size"] == 2 and record["members"] == 4
 
 
-def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same_rows(tmp_path, one_process):
-    """Both processes checkpoint into their own folder of the run's (OUT/process-K-of-2); process 1 is
-    killed mid-batch and then process 0 (the job lost), and `jaxpile sweep --resume OUT --distributed` on
-    two processes ends with the rows of the uninterrupted run."""
-    from jaxpile.engine import checkpoint
-
-    out, coordinator = tmp_path / "run", distributed.local_coordinator()
+@pytest.fixture(scope="module")
+def killed(tmp_path_factory, one_process):
+    """A distributed sweep that checkpoints every 1000 steps, each process into its own folder of the run's
+    (OUT/process-K-of-2), killed once both have saved: process 1 first, mid-batch, then process 0 (the job
+    lost). The tests resume copies of OUT. After the one-process sweep, as process 0 then finds most of its
+    programs compiled and saves well before process 1 (which compiles its own) ends its batch."""
+    out, coordinator = tmp_path_factory.mktemp("killed") / "run", distributed.local_coordinator()
     procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "1000", "--out", str(out)],
                       **_environment(k, coordinator)) for k in (0, 1)]
     saved = out / "process-1-of-2" / "checkpoint.npz"
@@ -82,6 +83,19 @@ def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same
     for p in (procs[1], procs[0]):
         p.send_signal(signal.SIGKILL)
         p.communicate(timeout=60)
+    assert saved.exists() and (out / "process-0-of-2" / "checkpoint.npz").exists(), "a process saved nothing"
+    return out
+
+
+def test_a_distributed_sweep_killed_mid_run_resumes_on_two_processes_to_the_same_rows(tmp_path, one_process, killed):
+    """Both processes checkpoint into their own folder of the run's (OUT/process-K-of-2); process 1 is
+    killed mid-batch and then process 0 (the job lost), and `jaxpile sweep --resume OUT --distributed` on
+    two processes ends with the rows of the uninterrupted run."""
+    from jaxpile.engine import checkpoint
+
+    out = tmp_path / "run"
+    shutil.copytree(killed, out)
+    saved = out / "process-1-of-2" / "checkpoint.npz"
     assert not (out / "sweep.csv").exists()
     last = max(int(r["steps"]) for r in one_process[2:])
     assert checkpoint.read_metadata(str(saved))["step"] < last, "process 1 was killed after its batch ended"
@@ -109,8 +123,9 @@ def test_an_ensemble_fit_on_two_processes_gives_the_values_of_one_process(tmp_pa
     coordinator = distributed.local_coordinator()
     procs = [_jaxpile([*FIT, "--distributed", "--out", str(tmp_path / "both")], **_environment(k, coordinator))
              for k in (0, 1)]
-    procs.append(_jaxpile([*FIT, "--out", str(tmp_path / "one")]))
-    for p in procs:
+    # one process after the two, not beside them: it loads what process 0 compiled from the compilation
+    # cache instead of compiling it a third time at once on the suite's two cores
+    for p in [*procs, _jaxpile([*FIT, "--out", str(tmp_path / "one")])]:
         _, err = p.communicate(timeout=600)
         assert p.returncode == 0, err[-3000:]
     both, one = (json.loads((tmp_path / name / "fit.json").read_text()) for name in ("both", "one"))
@@ -133,16 +148,12 @@ def test_a_process_whose_partner_never_joins_ends_after_the_timeout_instead_of_w
     assert "DEADLINE_EXCEEDED" in err or "Deadline Exceeded" in err
 
 
-def test_a_refusal_on_one_process_is_raised_on_every_process_instead_of_a_wait(tmp_path):
+def test_a_refusal_on_one_process_is_raised_on_every_process_instead_of_a_wait(tmp_path, killed):
     """Process 1 resumes a checkpoint that is not its own (process 0's, copied over its folder): it refuses,
     and process 0, which runs its share, raises the same refusal, naming process 1, instead of waiting for
     rows that will not come."""
-    out, coordinator = tmp_path / "run", distributed.local_coordinator()
-    procs = [_jaxpile([*SWEEP, "--distributed", "--checkpoint-every", "100000", "--out", str(out)],
-                      **_environment(k, coordinator)) for k in (0, 1)]
-    for p in procs:
-        _, err = p.communicate(timeout=600)
-        assert p.returncode == 0, err[-3000:]
+    out = tmp_path / "run"
+    shutil.copytree(killed, out)
     (out / "process-1-of-2" / "checkpoint.npz").write_bytes((out / "process-0-of-2" / "checkpoint.npz").read_bytes())
     coordinator = distributed.local_coordinator()
     procs = [_jaxpile(["sweep", "--resume", str(out), "--distributed", "--no-progress"], **_environment(k, coordinator))
