@@ -71,7 +71,7 @@ def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, prog
 
 SMID_NOVOSAD_ANGLE_SPREAD_DEGREES = 1.0
 """The declared angle's weight: one degree off counts as much as a dip 0.05 off
-(about a third of one poured heap's scatter in each, docs/rolling_resistance.md)."""
+(a quarter to a third of one poured heap's scatter in each, docs/rolling_resistance.md)."""
 
 
 def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:

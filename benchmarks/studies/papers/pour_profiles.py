@@ -67,8 +67,9 @@ def summarise(rows: list[dict]) -> dict:
         p = np.array([r["profile"] for r in rows if r["mu_roll"] == mu_roll and r.get("profile") is not None])
         mean, se = p.mean(axis=0), p.std(axis=0, ddof=1) / math.sqrt(len(p))
         dip = central_dip(SimpleNamespace(force=mean))  # the rows' statistic, of the mean profile
-        angle = np.array([r["repose_mean"] for r in rows
-                          if r["mu_roll"] == mu_roll and r.get("repose_mean") is not None])
+        angle = np.array([r["repose_mean"] for r in rows if r["mu_roll"] == mu_roll and r.get("repose_mean") is not None],
+                         float)
+        angle = angle[np.isfinite(angle)]  # a heap without a measured angle
         out[str(mu_roll)] = {"heaps": len(p), "mean": mean.tolist(), "stderr": se.tolist(), "dip_of_mean": dip,
                              "centre_below_flanks": centre_below_flanks(p),
                              "repose_mean": {"mean": float(angle.mean()), "count": len(angle),
