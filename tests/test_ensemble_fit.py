@@ -326,6 +326,11 @@ def test_smid_novosad_declares_the_dip_and_the_angle_of_repose_liffman1992_fig17
     assert cli.main(["fit", "--protocol", "pour", "--params", "mu", "--target", "smid-novosad", "--statistics",
                      "central_dip,height", "--estimator", "central", "--dry-run", "--out", str(tmp_path)]) == 2
     assert "declares central_dip, repose_mean" in capsys.readouterr().err
+    # resumed with the command that began it, a fit to the declared dip compares the dip again (not the
+    # protocol's own statistics, which its saved target does not hold)
+    assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad", "--estimator",
+                     "central", "--resume", "--dry-run", "--out", str(tmp_path)]) == 0
+    assert "statistics ['central_dip']" in capsys.readouterr().out
 
 
 class ChaoticToyRunner(ToyRunner):

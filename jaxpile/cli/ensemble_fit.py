@@ -95,7 +95,8 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     declared = args.target == "smid-novosad" and not args.resume
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
-    statistics = _chosen_statistics(args, a, estimator, declared)
+    # a resumed fit to the declared pile compares what it compared when it began (its target is the saved one)
+    statistics = _chosen_statistics(args, a, estimator, args.target == "smid-novosad")
     if declared:  # a statistic Smid & Novosad did not report is refused before any pile, dry runs too
         ensemble_fit.smid_novosad_target(statistics.labels())
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
