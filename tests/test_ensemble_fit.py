@@ -86,6 +86,20 @@ def test_gauss_newton_stops_once_its_step_is_inside_the_noise():
     assert abs(noisy.values["mu"] / 0.3137 - 1) < 0.05
 
 
+def test_the_figure_shows_each_statistic_against_its_target_in_units_of_its_spread():
+    """Statistics of different units on one axis (a dip of 0.25, an angle of 32.6 deg): each as
+    (mean - target) / spread, so the target sits at 0 +- 1 and a statistic 0.5 spreads off reads 0.5."""
+    runner = ToyRunner()
+    target = _target(runner)
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(8), statistics=STATS, steps=2, progress=False)
+    ax = ef.figure(result).axes[2]
+    target_y, start_y, fit_y = (line.get_ydata() for line in ax.lines[:3])
+    assert list(target_y) == [0.0, 0.0]
+    np.testing.assert_allclose(start_y, (result.start_mean - target.mean) / target.spread, rtol=1e-12)
+    np.testing.assert_allclose(fit_y, (result.fitted_mean - target.mean) / target.spread, rtol=1e-12)
+    assert abs(start_y[0]) > 5 and abs(fit_y[0]) < abs(start_y[0]) / 5  # the angle, 20 log(mu), moved in
+
+
 def test_smoothing_with_adam_moves_toward_the_truth_and_resume_replays_the_optax_state(tmp_path):
     target = _target(ToyRunner())
     kw = dict(seeds=range(8), statistics=STATS, estimator="smoothing", optimizer="adam", lr=0.1, pairs=2,
