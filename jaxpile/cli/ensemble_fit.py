@@ -92,11 +92,12 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None,
                                  law_options=law_options_of(args) or None, rotation=args.rotation,
                                  batch_size=args.batch_size)
-    declared = args.target == "smid-novosad" and not args.resume
+    smid_novosad = args.target == "smid-novosad"
+    declared = smid_novosad and not args.resume  # a resumed fit's target is the one it saved
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
-    # a resumed fit to the declared pile compares what it compared when it began (its target is the saved one)
-    statistics = _chosen_statistics(args, a, estimator, args.target == "smid-novosad")
+    # a resumed fit to the declared pile compares what it compared when it began
+    statistics = _chosen_statistics(args, a, estimator, smid_novosad)
     if declared:  # a statistic Smid & Novosad did not report is refused before any pile, dry runs too
         ensemble_fit.smid_novosad_target(statistics.labels())
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)

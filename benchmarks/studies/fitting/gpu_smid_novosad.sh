@@ -18,12 +18,7 @@ out=${1:?usage: gpu_smid_novosad.sh OUT [RECOVERY_SECONDS] [FIT_SECONDS] [SIZE]}
 recovery_s=${2:-280}
 fit_s=${3:-280}
 size=${4:-paper}
-mkdir -p "$out" .gpu_runs
-export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/.gpu_site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
-py=${PYTHON:-python3}
-log="$out/log.txt"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader >>"$log" 2>&1
-$py -c "import jax; print('jax', jax.__version__, jax.devices())" >>"$log" 2>&1
+. "$(dirname "$0")/../gpu_device.sh"  # OUT, .gpu_runs, py, log
 # the 1997 law (n = 36, r0 = 1.2, mu = 0.5) with the rolling spring of the committed heaps
 # (docs/rolling_resistance.md): k_roll = 1000, gamma_roll = 30; mu_roll fitted from 0.25
 common=(--protocol pour --law baxter --params mu_roll --rotation on --rolling sds --set k_roll=1000

@@ -14,12 +14,7 @@ out=${1:?usage: gpu_rolling.sh OUT [BOX_SECONDS] [DROP_SECONDS] [SIZE]}
 box_s=${2:-120}
 drop_s=${3:-360}
 size=${4:-paper}
-mkdir -p "$out" .gpu_runs
-export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD/.gpu_site:$PWD${PYTHONPATH:+:$PYTHONPATH}"
-py=${PYTHON:-python3}
-log="$out/log.txt"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader >>"$log" 2>&1
-$py -c "import jax; print('jax', jax.__version__, jax.devices())" >>"$log" 2>&1
+. "$(dirname "$0")/../gpu_device.sh"  # OUT, .gpu_runs, py, log
 # k_roll = 1000 mg/sigma (a rolling period of ~0.3 sqrt(sigma/g) for a pair of unit disks), gamma_roll = 30
 # (a third of critical for it): the slider's cap mu_roll R_eff |F_n| is what is varied.
 roll=(--rotation on --rolling sds --set k_roll=1000 --set gamma_roll=30)
