@@ -164,3 +164,22 @@ def test_the_machine_line_names_the_cpus_vector_instructions():
     assert machine.vector_isa(set()) is None
     isa = machine.details()["vector_isa"]
     assert (f"({isa})" in machine.describe()) if isa else "(" not in machine.describe().split(",")[0]
+
+
+def test_centre_below_flanks_reads_an_m_heap_by_heap_with_the_heaps_standard_error():
+    """benchmarks/studies/papers/pour_profiles.py: the flank bins are the mean profile's largest on each
+    side of the centre, and each heap gives (its two flank bins' mean - its centre bin) over the mean flank."""
+    import pour_profiles  # benchmarks/studies/papers, on the path above
+
+    bins, centre = pour_profiles.BINS, pour_profiles.BINS // 2
+    heaps = np.full((4, bins), 0.5)
+    heaps[:, 3], heaps[:, centre + 4] = 1.0, 1.0  # the flank maxima, off-centre on purpose
+    heaps[:, centre] = [0.7, 0.8, 0.8, 0.9]  # 0.2 below the flanks on average
+    heaps[0, 4] = 0.95  # a high bin beside a maximum is not a maximum of the mean
+    got = pour_profiles.centre_below_flanks(heaps)
+    assert got["flank_bins"] == [3, centre + 4] and got["centre_bin"] == centre
+    drop = 1.0 - heaps[:, centre]
+    assert got["value"] == pytest.approx(0.2) and got["stderr"] == pytest.approx(drop.std(ddof=1) / 2.0)
+    flat = np.full((3, bins), 0.5)
+    flat[:, centre] = 0.6  # a central peak reads negative
+    assert pour_profiles.centre_below_flanks(flat)["value"] == pytest.approx(-0.2)
