@@ -11,14 +11,18 @@ DEMO   ?= demo
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
 
+# --no-compile, then tools/compile_imported.py: bytecode for what jaxpile and its tests import, not for
+# all of jax-md's requirements (half of pip's time; docs/performance.md#the-install)
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[test]"
+	$(BIN)/python tools/compile_imported.py
 	touch $(STAMP)
 
 $(DOCS_STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[docs]"
+	$(BIN)/python -m pip install --quiet --no-compile -e ".[docs]"
+	$(BIN)/python tools/compile_imported.py
 	touch $(DOCS_STAMP)
 
 # The main job: the 1992 equilateral pile (45 layers, 1035 disks) relaxed with the hooke
