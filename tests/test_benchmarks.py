@@ -4,6 +4,7 @@ benchmark table of docs/performance.md from the results. No timings here: figure
 suite) and benchmarks/studies/ (the papers' ensembles, the fits' recoveries)."""
 
 import json
+import math
 import pathlib
 import sys
 
@@ -183,3 +184,33 @@ def test_centre_below_flanks_reads_an_m_heap_by_heap_with_the_heaps_standard_err
     flat = np.full((3, bins), 0.5)
     flat[:, centre] = 0.6  # a central peak reads negative
     assert pour_profiles.centre_below_flanks(flat)["value"] == pytest.approx(-0.2)
+
+
+def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_dip_there():
+    """benchmarks/studies/papers/pour_profiles.py: grid points at mu_roll = 0 and 0.3 whose angles (28.6 +- 1,
+    38.6 +- 2 deg) straddle the declared 32.6 meet it 0.4 of the way, at 0.12, where the dip is interpolated
+    too; the errors are the linear interpolation's, propagated from each point's standard error; the loss
+    is the declared target's; a point at another mu and a heap without an angle are left out."""
+    import pour_profiles  # benchmarks/studies/papers, on the path above
+
+    def summary(mu, mu_roll, angles, dips):
+        rows = [{"mu_roll": mu_roll, "repose_mean": a, "central_dip": d} for a, d in zip(angles, dips)]
+        return {"mu": mu, "rows": rows, "by_mu_roll": {str(mu_roll): {
+            "heaps": len(rows), "centre_below_flanks": {"value": 0.1, "stderr": 0.01}}}}
+
+    low = summary(None, 0.0, [27.6, 29.6, math.nan], [-0.05, 0.05, 0.0])  # 28.6 +- 1, 0.0 +- e0
+    high = summary(0.5, 0.3, [36.6, 40.6], [0.25, 0.35])  # 38.6 +- 2, 0.30 +- 0.05
+    other = summary(0.3, 0.15, [32.6, 32.6], [0.25, 0.25])
+    grid = pour_profiles.on_the_grid([high, other, low], mu=0.5)
+    assert list(grid["points"]) == ["0.0", "0.3"]
+    assert grid["points"]["0.0"]["repose_mean"] == pytest.approx([28.6, 1.0])
+    assert grid["points"]["0.3"]["loss"] == pytest.approx(((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2)
+    crossing = grid["crossing"]
+    assert crossing["between"] == [0.0, 0.3]
+    # t = (32.6 - a0) / (a1 - a0) = 0.4; dt/da0 = (32.6 - a1) / 100 = -0.06, dt/da1 = -(32.6 - a0) / 100 = -0.04
+    t_err = math.hypot(0.06 * 1.0, 0.04 * 2.0)
+    assert crossing["mu_roll"] == pytest.approx([0.12, 0.3 * t_err])
+    e0 = np.std([-0.05, 0.05, 0.0], ddof=1) / math.sqrt(3)
+    assert crossing["central_dip"] == pytest.approx([0.12, math.sqrt((0.6 * e0) ** 2 + (0.4 * 0.05) ** 2
+                                                                     + (0.3 * t_err) ** 2)])
+    assert pour_profiles.on_the_grid([low], mu=0.5)["crossing"] is None  # one point crosses nothing

@@ -3,6 +3,7 @@ resistance: the check the central-dip statistic needs before anything is fitted
 to Smid and Novosad's dip (docs/rolling_resistance.md).
 
     python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5]
+    python benchmarks/studies/papers/pour_profiles.py --grid RESULTS [RESULTS ...] --out DIR   # `on_the_grid`
 
 runs `jaxpile.sweep` of the 1997 pour (baxter law, spins on, rolling sds with
 k_roll = 1000, gamma_roll = 30; sliding friction mu, the paper's 0.5 unless
@@ -77,6 +78,57 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+def _mean_se(values) -> tuple[float, float]:
+    v = np.asarray([x for x in values if x is not None], float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(len(v)))
+
+
+def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
+    """Smid and Novosad's declared dip and angle against the grid of poured
+    heaps at sliding friction `mu` (`summaries`: profiles.json records; mu
+    None is the paper's 0.5). Per mu_roll: the per-heap means of
+    `central_dip` (the fit's statistic) and `repose_mean` with their standard
+    errors, the centre below the flanks, and the fit's loss there, the sum of
+    ((mean - target) / spread)^2 over the declared pair
+    (`smid_novosad_target`). Between the two grid points whose angles straddle
+    the reported angle, `crossing` is the mu_roll where the linearly
+    interpolated angle meets it and the interpolated dip there, with errors
+    propagated from the points' standard errors (points taken independent:
+    they share seeds, so this is a rough band)."""
+    from jaxpile.fit.ensemble_targets import smid_novosad_target
+
+    target = smid_novosad_target(("central_dip", "repose_mean"))
+    (dip_target, angle_target), (dip_spread, angle_spread) = target.mean, target.spread
+    points = {}
+    for summary in summaries:
+        if (0.5 if summary.get("mu") is None else summary["mu"]) != mu:
+            continue
+        for key, s in summary["by_mu_roll"].items():
+            rows = [r for r in summary["rows"] if str(r["mu_roll"]) == key]
+            dip, angle = _mean_se(r.get("central_dip") for r in rows), _mean_se(r.get("repose_mean") for r in rows)
+            loss = ((dip[0] - dip_target) / dip_spread) ** 2 + ((angle[0] - angle_target) / angle_spread) ** 2
+            points[float(key)] = {"heaps": s["heaps"], "central_dip": dip, "repose_mean": angle,
+                                  "centre_below_flanks": [s["centre_below_flanks"]["value"],
+                                                          s["centre_below_flanks"]["stderr"]], "loss": loss}
+    xs = sorted(points)
+    crossing = None
+    for x0, x1 in zip(xs, xs[1:]):
+        (a0, s0), (a1, s1) = points[x0]["repose_mean"], points[x1]["repose_mean"]
+        if (a0 - angle_target) * (a1 - angle_target) > 0 or a0 == a1:
+            continue
+        # x* = x0 + t (x1 - x0), t = (A - a0) / (a1 - a0): dt/da0 = (A - a1) / (a1 - a0)^2, dt/da1 = -(A - a0) / (a1 - a0)^2
+        t = (angle_target - a0) / (a1 - a0)
+        dt = math.hypot((angle_target - a1) * s0, (angle_target - a0) * s1) / (a1 - a0) ** 2
+        (d0, e0), (d1, e1) = points[x0]["central_dip"], points[x1]["central_dip"]
+        crossing = {"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
+                    "central_dip": [d0 + t * (d1 - d0),
+                                    math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]}
+        break
+    return {"mu": mu, "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
+            "points": {str(x): points[x] for x in xs}, "crossing": crossing}
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", required=True)
@@ -84,10 +136,27 @@ def main(argv=None) -> None:
     parser.add_argument("--mu-roll", default="0,0.3")
     parser.add_argument("--n", type=int, default=300)
     parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
+    parser.add_argument("--grid", nargs="+", metavar="RESULTS",
+                        help="the declared dip and angle against these runs' profiles.json at --mu (default 0.5): "
+                             "writes OUT/pour_grid.json (runs nothing)")
     parser.add_argument("--summarise", action="store_true",
                         help="rewrite DIR/profiles.json's summary and figure from its rows (runs nothing)")
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
+    if args.grid:
+        summaries = [json.loads((pathlib.Path(d) / "profiles.json").read_text()) for d in args.grid]
+        grid = on_the_grid(summaries, 0.5 if args.mu is None else args.mu)
+        given = sys.argv[1:] if argv is None else argv
+        grid["command"] = "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given)
+        (out / "pour_grid.json").write_text(json.dumps(grid, indent=1) + "\n")
+        for x, p in grid["points"].items():
+            print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}, angle "
+                  f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg, loss {p['loss']:.1f}")
+        c = grid["crossing"]
+        print("the angle does not cross the reported one on this grid" if c is None else
+              f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
+              f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f}")
+        return
     if args.summarise:
         summary = json.loads((out / "profiles.json").read_text())
         summary["by_mu_roll"] = summarise(summary["rows"])
