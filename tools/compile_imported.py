@@ -7,7 +7,7 @@ alone bring tens of thousands of lines jaxpile never imports (a materials
 library, symbolic algebra, plotting and data-frame packages), and compiling
 them was about half of a fresh install (docs/performance.md#the-install). The
 bytecode is only a cache: a module this leaves out still imports, parsed from
-its source.
+its source (in every process, where PYTHONDONTWRITEBYTECODE is set).
 
     .venv/bin/python tools/compile_imported.py   # with the python of the environment to compile
 """
@@ -21,11 +21,14 @@ import pathlib
 import sys
 import sysconfig
 
-# What the package, its commands, notebooks, docs build and test suite import at the top.
-ROOTS = ("jaxpile", "jaxpile.cli", "jaxpile.fit", "jaxpile.sweeps", "jaxpile.distributed", "jax.numpy",
-         "jax.scipy", "optax", "matplotlib.pyplot", "numpy", "pytest", "xdist", "hypothesis", "nbclient",
-         "nbformat", "ipykernel.kernelapp", "IPython", "importlinter", "mkdocs", "material", "mkdocstrings",
-         "mkdocstrings_handlers.python", "mkdocs_jupyter")
+# What the package, its commands, notebooks, docs build and test suite import, at the top and inside
+# functions (scipy.stats for an ensemble fit's interval, tqdm for progress), in the workers and in the
+# processes the suite starts (xdist's, the notebook kernels, the docs build).
+ROOTS = ("jaxpile", "jaxpile.cli", "jaxpile.fit", "jaxpile.fit.ensemble_fit", "jaxpile.sweeps",
+         "jaxpile.distributed", "jax.numpy", "jax.scipy", "scipy.stats", "tqdm.auto", "optax", "matplotlib.pyplot",
+         "numpy", "pytest", "xdist.plugin", "xdist.remote", "_hypothesis_pytestplugin", "hypothesis", "nbclient",
+         "nbformat", "ipykernel.kernelapp", "IPython", "importlinter", "mkdocs", "mkdocs.commands.build",
+         "material", "mkdocstrings", "mkdocstrings_handlers.python", "mkdocs_jupyter", "mkdocs_jupyter.plugin")
 WHOLE = ("jax", "jaxlib", "jax_md", "optax")
 
 
@@ -34,8 +37,8 @@ def main() -> int:
     for name in ROOTS:
         try:
             importlib.import_module(name)
-        except ImportError:
-            pass  # an extra that is not installed (the docs tools with `pip install .`)
+        except Exception:  # noqa: BLE001 - an extra not installed, or one that fails: bytecode is only a cache
+            pass
     # the engine's packages whole, for the submodules they import lazily (jax's on first use);
     # quiet=2: a file that does not compile (test data for another Python) is skipped, as pip skips it
     site = pathlib.Path(sysconfig.get_paths()["purelib"])
