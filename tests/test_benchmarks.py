@@ -190,22 +190,25 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     """benchmarks/studies/papers/pour_profiles.py: grid points at mu_roll = 0 and 0.3 whose angles (28.6 +- 1,
     38.6 +- 2 deg) straddle the declared 32.6 meet it 0.4 of the way, at 0.12, where the dip is interpolated
     too; the errors are the linear interpolation's, propagated from each point's standard error; the loss
-    is the declared target's; a point at another mu and a heap without an angle are left out."""
+    is the fit's (the mean of the weighted squared misses); records of one mu_roll are pooled; a point at
+    another mu, a heap without an angle and a point without any are left out."""
     import pour_profiles  # benchmarks/studies/papers, on the path above
 
-    def summary(mu, mu_roll, angles, dips):
+    def summary(mu, mu_roll, angles, dips, n=300):
         rows = [{"mu_roll": mu_roll, "repose_mean": a, "central_dip": d} for a, d in zip(angles, dips)]
-        return {"mu": mu, "rows": rows, "by_mu_roll": {str(mu_roll): {
-            "heaps": len(rows), "centre_below_flanks": {"value": 0.1, "stderr": 0.01}}}}
+        return {"mu": mu, "n": n, "bins": pour_profiles.BINS, "rows": rows, "by_mu_roll": {}}
 
     low = summary(None, 0.0, [27.6, 29.6, math.nan], [-0.05, 0.05, 0.0])  # 28.6 +- 1, 0.0 +- e0
-    high = summary(0.5, 0.3, [36.6, 40.6], [0.25, 0.35])  # 38.6 +- 2, 0.30 +- 0.05
+    high = summary(0.5, 0.3, [36.6], [0.25])  # pooled with the next: 38.6 +- 2, 0.30 +- 0.05
+    high_more = summary(0.5, 0.3, [40.6], [0.35])
     other = summary(0.3, 0.15, [32.6, 32.6], [0.25, 0.25])
-    grid = pour_profiles.on_the_grid([high, other, low], mu=0.5)
-    assert list(grid["points"]) == ["0.0", "0.3"]
-    assert grid["points"]["0.0"]["repose_mean"] == pytest.approx([28.6, 1.0])
-    assert grid["points"]["0.3"]["loss"] == pytest.approx(((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2)
-    crossing = grid["crossing"]
+    no_angle = summary(0.5, -0.1, [None, math.nan], [0.0, 0.0])
+    grid = pour_profiles.on_the_grid([high, other, no_angle, low, high_more], mu=0.5)
+    assert list(grid["points"]) == ["-0.1", "0.0", "0.3"]
+    assert grid["points"]["0.0"]["repose_mean"] == pytest.approx([28.6, 1.0, 2])
+    assert grid["points"]["0.3"]["heaps"] == 2
+    assert grid["points"]["0.3"]["loss"] == pytest.approx(0.5 * (((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2))
+    (crossing,) = grid["crossings"]
     assert crossing["between"] == [0.0, 0.3]
     # t = (32.6 - a0) / (a1 - a0) = 0.4; dt/da0 = (32.6 - a1) / 100 = -0.06, dt/da1 = -(32.6 - a0) / 100 = -0.04
     t_err = math.hypot(0.06 * 1.0, 0.04 * 2.0)
@@ -213,4 +216,8 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     e0 = np.std([-0.05, 0.05, 0.0], ddof=1) / math.sqrt(3)
     assert crossing["central_dip"] == pytest.approx([0.12, math.sqrt((0.6 * e0) ** 2 + (0.4 * 0.05) ** 2
                                                                      + (0.3 * t_err) ** 2)])
-    assert pour_profiles.on_the_grid([low], mu=0.5)["crossing"] is None  # one point crosses nothing
+    assert pour_profiles.on_the_grid([low], mu=0.5)["crossings"] == []  # one point crosses nothing
+    with pytest.raises(ValueError, match="mix heap sizes"):
+        pour_profiles.on_the_grid([low, summary(0.5, 0.3, [36.6], [0.25], n=100)])
+    with pytest.raises(ValueError, match="no results at mu = 0.7"):
+        pour_profiles.on_the_grid([low], mu=0.7)

@@ -78,55 +78,65 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
-def _mean_se(values) -> tuple[float, float]:
+def _mean_se(values) -> tuple[float, float, int]:
+    """Mean, standard error and count of the finite values (NaN for what fewer than two cannot give)."""
     v = np.asarray([x for x in values if x is not None], float)
     v = v[np.isfinite(v)]
-    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(len(v)))
+    mean = float(v.mean()) if len(v) else math.nan
+    return mean, float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan, len(v)
 
 
 def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     """Smid and Novosad's declared dip and angle against the grid of poured
-    heaps at sliding friction `mu` (`summaries`: profiles.json records; mu
-    None is the paper's 0.5). Per mu_roll: the per-heap means of
-    `central_dip` (the fit's statistic) and `repose_mean` with their standard
-    errors, the centre below the flanks, and the fit's loss there, the sum of
-    ((mean - target) / spread)^2 over the declared pair
-    (`smid_novosad_target`). Between the two grid points whose angles straddle
-    the reported angle, `crossing` is the mu_roll where the linearly
-    interpolated angle meets it and the interpolated dip there, with errors
-    propagated from the points' standard errors (points taken independent:
-    they share seeds, so this is a rough band)."""
+    heaps at sliding friction `mu` (`summaries`: profiles.json records of one
+    heap size and binning; mu None is the paper's 0.5; records of the same
+    mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
+    (the fit's statistic) and `repose_mean` with their standard errors and
+    counts, and the loss `jaxpile fit` would give there
+    (`ensemble_fit.objective_for` of the declared pair, `smid_novosad_target`).
+    `crossings`: between each two neighbouring grid points whose angles
+    straddle the reported angle, the mu_roll where the linearly interpolated
+    angle meets it and the interpolated dip there, with errors propagated from
+    the points' standard errors (points taken independent: they share seeds,
+    so this is a rough band)."""
+    from jaxpile.fit.ensemble_fit import objective_for
     from jaxpile.fit.ensemble_targets import smid_novosad_target
+    from jaxpile.fit.stats import weights
 
     target = smid_novosad_target(("central_dip", "repose_mean"))
-    (dip_target, angle_target), (dip_spread, angle_spread) = target.mean, target.spread
+    loss_of = objective_for(target, weights(target))
+    angle_target = float(target.mean[1])
+    chosen = [s for s in summaries if (0.5 if s.get("mu") is None else s["mu"]) == mu]
+    if not chosen:
+        raise ValueError(f"no results at mu = {mu}: the records hold mu = "
+                         f"{sorted({0.5 if s.get('mu') is None else s['mu'] for s in summaries})}")
+    if len({(s["n"], s["bins"]) for s in chosen}) > 1:
+        raise ValueError(f"the records mix heap sizes and binnings {sorted({(s['n'], s['bins']) for s in chosen})}: "
+                         "a grid is one set-up")
+    rows = {}
+    for summary in chosen:
+        for r in summary["rows"]:
+            rows.setdefault(float(r["mu_roll"]), []).append(r)
     points = {}
-    for summary in summaries:
-        if (0.5 if summary.get("mu") is None else summary["mu"]) != mu:
-            continue
-        for key, s in summary["by_mu_roll"].items():
-            rows = [r for r in summary["rows"] if str(r["mu_roll"]) == key]
-            dip, angle = _mean_se(r.get("central_dip") for r in rows), _mean_se(r.get("repose_mean") for r in rows)
-            loss = ((dip[0] - dip_target) / dip_spread) ** 2 + ((angle[0] - angle_target) / angle_spread) ** 2
-            points[float(key)] = {"heaps": s["heaps"], "central_dip": dip, "repose_mean": angle,
-                                  "centre_below_flanks": [s["centre_below_flanks"]["value"],
-                                                          s["centre_below_flanks"]["stderr"]], "loss": loss}
-    xs = sorted(points)
-    crossing = None
+    for x, heaps in sorted(rows.items()):
+        dip, angle = _mean_se(r.get("central_dip") for r in heaps), _mean_se(r.get("repose_mean") for r in heaps)
+        points[x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
+                     "loss": float(loss_of(np.array([dip[0], angle[0]])))}
+    xs, crossings = sorted(points), []
     for x0, x1 in zip(xs, xs[1:]):
-        (a0, s0), (a1, s1) = points[x0]["repose_mean"], points[x1]["repose_mean"]
-        if (a0 - angle_target) * (a1 - angle_target) > 0 or a0 == a1:
+        (a0, s0, _), (a1, s1, _) = points[x0]["repose_mean"], points[x1]["repose_mean"]
+        if not all(map(math.isfinite, (a0, a1))) or a0 == a1 or (a0 - angle_target) * (a1 - angle_target) > 0:
             continue
         # x* = x0 + t (x1 - x0), t = (A - a0) / (a1 - a0): dt/da0 = (A - a1) / (a1 - a0)^2, dt/da1 = -(A - a0) / (a1 - a0)^2
         t = (angle_target - a0) / (a1 - a0)
         dt = math.hypot((angle_target - a1) * s0, (angle_target - a0) * s1) / (a1 - a0) ** 2
-        (d0, e0), (d1, e1) = points[x0]["central_dip"], points[x1]["central_dip"]
-        crossing = {"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
-                    "central_dip": [d0 + t * (d1 - d0),
-                                    math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]}
-        break
-    return {"mu": mu, "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
-            "points": {str(x): points[x] for x in xs}, "crossing": crossing}
+        (d0, e0, _), (d1, e1, _) = points[x0]["central_dip"], points[x1]["central_dip"]
+        crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
+                          "central_dip": [d0 + t * (d1 - d0),
+                                          math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]})
+    return {"mu": mu, "n": chosen[0]["n"], "bins": chosen[0]["bins"],
+            "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
+            "points": {str(x): points[x] for x in xs}, "crossings": crossings}
 
 
 def main(argv=None) -> None:
@@ -144,18 +154,26 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
     if args.grid:
+        ignored = [f for f, given in (("--summarise", args.summarise), ("--seeds", args.seeds != 16),
+                                      ("--mu-roll", args.mu_roll != "0,0.3"), ("--n", args.n != 300)) if given]
+        if ignored:
+            parser.error(f"--grid runs nothing and reads its RESULTS: {', '.join(ignored)} does not apply")
         summaries = [json.loads((pathlib.Path(d) / "profiles.json").read_text()) for d in args.grid]
-        grid = on_the_grid(summaries, 0.5 if args.mu is None else args.mu)
+        try:
+            grid = on_the_grid(summaries, 0.5 if args.mu is None else args.mu)
+        except ValueError as error:
+            parser.error(str(error))
         given = sys.argv[1:] if argv is None else argv
         grid["command"] = "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given)
+        out.mkdir(parents=True, exist_ok=True)
         (out / "pour_grid.json").write_text(json.dumps(grid, indent=1) + "\n")
         for x, p in grid["points"].items():
             print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}, angle "
-                  f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg, loss {p['loss']:.1f}")
-        c = grid["crossing"]
-        print("the angle does not cross the reported one on this grid" if c is None else
-              f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
-              f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f}")
+                  f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps), loss {p['loss']:.1f}")
+        for c in grid["crossings"] or [None]:
+            print("the angle does not cross the reported one on this grid" if c is None else
+                  f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
+                  f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f}")
         return
     if args.summarise:
         summary = json.loads((out / "profiles.json").read_text())
