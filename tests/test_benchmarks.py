@@ -201,15 +201,22 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     low = summary(None, 0.0, [27.6, 29.6, math.nan], [-0.05, 0.05, 0.0])  # 28.6 +- 1, 0.0 +- e0
     high = summary(0.5, 0.3, [36.6], [0.25])  # pooled with the next: 38.6 +- 2, 0.30 +- 0.05
     high_more = summary(0.5, 0.3, [40.6], [0.35])
+    m_shape = np.full(pour_profiles.BINS, 0.5)
+    m_shape[3] = m_shape[-4] = 1.0
+    high["rows"][0]["profile"], high_more["rows"][0]["profile"] = m_shape.tolist(), (0.9 * m_shape).tolist()
     other = summary(0.3, 0.15, [32.6, 32.6], [0.25, 0.25])
     no_angle = summary(0.5, -0.1, [None, math.nan], [0.0, 0.0])
     grid = pour_profiles.on_the_grid([high, other, no_angle, low, high_more], mu=0.5)
     assert list(grid["points"]) == ["-0.1", "0.0", "0.3"]
     assert grid["points"]["0.0"]["repose_mean"] == pytest.approx([28.6, 1.0, 2])
     assert grid["points"]["0.3"]["heaps"] == 2
+    below = pour_profiles.centre_below_flanks(np.array([m_shape, 0.9 * m_shape]))  # the pooled heaps' profiles
+    assert grid["points"]["0.3"]["centre_below_flanks"] == pytest.approx([below["value"], below["stderr"], 2])
+    assert grid["points"]["0.0"]["centre_below_flanks"] is None  # no profiles: not read
     assert grid["points"]["0.3"]["loss"] == pytest.approx(0.5 * (((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2))
     (crossing,) = grid["crossings"]
     assert crossing["between"] == [0.0, 0.3]
+    assert crossing["centre_below_flanks"] is None  # one end has no profiles
     # t = (32.6 - a0) / (a1 - a0) = 0.4; dt/da0 = (32.6 - a1) / 100 = -0.06, dt/da1 = -(32.6 - a0) / 100 = -0.04
     t_err = math.hypot(0.06 * 1.0, 0.04 * 2.0)
     assert crossing["mu_roll"] == pytest.approx([0.12, 0.3 * t_err])

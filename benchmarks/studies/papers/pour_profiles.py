@@ -92,11 +92,12 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     heap size and binning; mu None is the paper's 0.5; records of the same
     mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
     (the fit's statistic) and `repose_mean` with their standard errors and
-    counts, and the loss `jaxpile fit` would give there
+    counts, the centre below the flanks of the pooled profiles
+    (`centre_below_flanks`), and the loss `jaxpile fit` would give there
     (`ensemble_fit.objective_for` of the declared pair, `smid_novosad_target`).
     `crossings`: between each two neighbouring grid points whose angles
     straddle the reported angle, the mu_roll where the linearly interpolated
-    angle meets it and the interpolated dip there, with errors propagated from
+    angle meets it and the interpolated dip (both readings) there, with errors propagated from
     the points' standard errors (points taken independent: they share seeds,
     so this is a rough band)."""
     from jaxpile.fit.ensemble_fit import objective_for
@@ -120,7 +121,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     points = {}
     for x, heaps in sorted(rows.items()):
         dip, angle = _mean_se(r.get("central_dip") for r in heaps), _mean_se(r.get("repose_mean") for r in heaps)
+        profiles = [r["profile"] for r in heaps if r.get("profile") is not None]
+        below = centre_below_flanks(np.asarray(profiles, float)) if len(profiles) > 1 else None
         points[x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
+                     "centre_below_flanks": None if below is None else [below["value"], below["stderr"], len(profiles)],
                      "loss": float(loss_of(np.array([dip[0], angle[0]])))}
     xs, crossings = sorted(points), []
     for x0, x1 in zip(xs, xs[1:]):
@@ -130,10 +134,14 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
         # x* = x0 + t (x1 - x0), t = (A - a0) / (a1 - a0): dt/da0 = (A - a1) / (a1 - a0)^2, dt/da1 = -(A - a0) / (a1 - a0)^2
         t = (angle_target - a0) / (a1 - a0)
         dt = math.hypot((angle_target - a1) * s0, (angle_target - a0) * s1) / (a1 - a0) ** 2
-        (d0, e0, _), (d1, e1, _) = points[x0]["central_dip"], points[x1]["central_dip"]
+        def between(key):
+            if points[x0][key] is None or points[x1][key] is None:
+                return None
+            (d0, e0), (d1, e1) = points[x0][key][:2], points[x1][key][:2]
+            return [d0 + t * (d1 - d0), math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]
+
         crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
-                          "central_dip": [d0 + t * (d1 - d0),
-                                          math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]})
+                          "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks")})
     return {"mu": mu, "n": chosen[0]["n"], "bins": chosen[0]["bins"],
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings}
@@ -148,7 +156,7 @@ def main(argv=None) -> None:
     parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
     parser.add_argument("--grid", nargs="+", metavar="RESULTS",
                         help="the declared dip and angle against these runs' profiles.json at --mu (default 0.5): "
-                             "writes OUT/pour_grid.json (runs nothing)")
+                             "writes OUT/pour_grid.json and OUT/pour_grid.png (runs nothing)")
     parser.add_argument("--summarise", action="store_true",
                         help="rewrite DIR/profiles.json's summary and figure from its rows (runs nothing)")
     args = parser.parse_args(argv)
@@ -167,13 +175,17 @@ def main(argv=None) -> None:
         grid["command"] = "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given)
         out.mkdir(parents=True, exist_ok=True)
         (out / "pour_grid.json").write_text(json.dumps(grid, indent=1) + "\n")
+        _grid_figure(grid, out / "pour_grid.png")
         for x, p in grid["points"].items():
-            print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}, angle "
+            below = "" if p["centre_below_flanks"] is None else f" (centre {p['centre_below_flanks'][0]:+.3f} below the flanks)"
+            print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}{below}, angle "
                   f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps), loss {p['loss']:.1f}")
         for c in grid["crossings"] or [None]:
             print("the angle does not cross the reported one on this grid" if c is None else
                   f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
-                  f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f}")
+                  f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f} "
+                  + ("" if c["centre_below_flanks"] is None else
+                     f"and the centre {c['centre_below_flanks'][0]:+.3f} +- {c['centre_below_flanks'][1]:.3f} below the flanks"))
         return
     if args.summarise:
         summary = json.loads((out / "profiles.json").read_text())
@@ -198,6 +210,46 @@ def main(argv=None) -> None:
                "bins": BINS, "n": args.n, "mu": args.mu, "settings": result.info.get("settings"),
                "by_mu_roll": summarise(rows), "rows": rows}
     _write(out, summary, args.n, args.mu)
+
+
+def _grid_figure(grid: dict, path: pathlib.Path) -> None:
+    """The angle and the two dip readings against mu_roll, with Smid and Novosad's and the crossings."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxpile.fit.targets import SMID_NOVOSAD_DIP_RANGE
+
+    x = np.array([float(k) for k in grid["points"]])
+    pts = list(grid["points"].values())
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
+    angle = np.array([p["repose_mean"][:2] for p in pts])
+    left.errorbar(x, angle[:, 0], yerr=angle[:, 1], fmt="o-", capsize=4, label="heaps: mean +- s.e.")
+    left.axhline(grid["target"]["repose_mean"][0], color="C2", label="Smid & Novosad: 32.6 deg")
+    right.axhspan(*SMID_NOVOSAD_DIP_RANGE, color="C2", alpha=0.2, label="Smid & Novosad: 20-30 %")
+    right.axhline(0, color="0.5", lw=0.8)
+    dip = np.array([p["central_dip"][:2] for p in pts])
+    right.errorbar(x, dip[:, 0], yerr=dip[:, 1], fmt="o-", capsize=4, label="central_dip, per heap (the fit's)")
+    if all(p["centre_below_flanks"] for p in pts):
+        below = np.array([p["centre_below_flanks"][:2] for p in pts])
+        right.errorbar(x + 0.004, below[:, 0], yerr=below[:, 1], fmt="s-", capsize=4,
+                       label="centre below the flanks, mean profile")
+    for c in grid["crossings"]:
+        for ax in (left, right):
+            ax.axvspan(c["mu_roll"][0] - c["mu_roll"][1], c["mu_roll"][0] + c["mu_roll"][1], color="C3", alpha=0.15)
+        left.plot([c["mu_roll"][0]], [grid["target"]["repose_mean"][0]], "x", color="C3", ms=10,
+                  label=f"meets it at mu_roll = {c['mu_roll'][0]:.2f} +- {c['mu_roll'][1]:.2f}")
+    left.set(xlabel="rolling friction mu_roll", ylabel="angle of repose (deg)")
+    right.set(xlabel="rolling friction mu_roll", ylabel="dip below the flanks")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"poured heaps of {grid['n']} disks, baxter law, mu = {grid['mu']:g}, rolling sds: "
+                 "the reported angle and dip against mu_roll")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def _write(out: pathlib.Path, summary: dict, n: int, mu: float | None) -> None:
