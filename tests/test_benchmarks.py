@@ -224,7 +224,10 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     assert crossing["central_dip"] == pytest.approx([0.12, math.sqrt((0.6 * e0) ** 2 + (0.4 * 0.05) ** 2
                                                                      + (0.3 * t_err) ** 2)])
     assert pour_profiles.on_the_grid([low], mu=0.5)["crossings"] == []  # one point crosses nothing
-    with pytest.raises(ValueError, match="mix heap sizes"):
+    with pytest.raises(ValueError, match="mix set-ups"):
         pour_profiles.on_the_grid([low, summary(0.5, 0.3, [36.6], [0.25], n=100)])
+    slower = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 3.224}  # a slower pour is another set-up
+    with pytest.raises(ValueError, match="mix set-ups"):
+        pour_profiles.on_the_grid([low, slower])
     with pytest.raises(ValueError, match="no results at mu = 0.7"):
         pour_profiles.on_the_grid([low], mu=0.7)

@@ -2,7 +2,7 @@
 resistance: the check the central-dip statistic needs before anything is fitted
 to Smid and Novosad's dip (docs/rolling_resistance.md).
 
-    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5]
+    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5] [--interval 1.612]
     python benchmarks/studies/papers/pour_profiles.py --grid RESULTS [RESULTS ...] --out DIR   # `on_the_grid`
 
 runs `jaxpile.sweep` of the 1997 pour (baxter law, spins on, rolling sds with
@@ -111,8 +111,9 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     if not chosen:
         raise ValueError(f"no results at mu = {mu}: the records hold mu = "
                          f"{sorted({0.5 if s.get('mu') is None else s['mu'] for s in summaries})}")
-    if len({(s["n"], s["bins"]) for s in chosen}) > 1:
-        raise ValueError(f"the records mix heap sizes and binnings {sorted({(s['n'], s['bins']) for s in chosen})}: "
+    set_ups = {(s["n"], s["bins"], s.get("interval")) for s in chosen}
+    if len(set_ups) > 1:
+        raise ValueError(f"the records mix set-ups (heap size, bins, release interval) {sorted(set_ups, key=str)}: "
                          "a grid is one set-up")
     rows = {}
     for summary in chosen:
@@ -154,6 +155,8 @@ def main(argv=None) -> None:
     parser.add_argument("--mu-roll", default="0,0.3")
     parser.add_argument("--n", type=int, default=300)
     parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
+    parser.add_argument("--interval", type=float, default=None,
+                        help="time between releases, sqrt(sigma/g) (default: the paper's 1.612): the pour's rate")
     parser.add_argument("--grid", nargs="+", metavar="RESULTS",
                         help="the declared dip and angle against these runs' profiles.json at --mu (default 0.5): "
                              "writes OUT/pour_grid.json and OUT/pour_grid.png (runs nothing)")
@@ -163,7 +166,8 @@ def main(argv=None) -> None:
     out = pathlib.Path(args.out)
     if args.grid:
         ignored = [f for f, given in (("--summarise", args.summarise), ("--seeds", args.seeds != 16),
-                                      ("--mu-roll", args.mu_roll != "0,0.3"), ("--n", args.n != 300)) if given]
+                                      ("--mu-roll", args.mu_roll != "0,0.3"), ("--n", args.n != 300),
+                                      ("--interval", args.interval is not None)) if given]
         if ignored:
             parser.error(f"--grid runs nothing and reads its RESULTS: {', '.join(ignored)} does not apply")
         summaries = [json.loads((pathlib.Path(d) / "profiles.json").read_text()) for d in args.grid]
@@ -199,7 +203,8 @@ def main(argv=None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "checkpoint.npz"
     result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
-                           seeds=args.seeds, options={"n": args.n}, params={"k_roll": 1000.0, "gamma_roll": 30.0,
+                           seeds=args.seeds, options={"n": args.n, **({} if args.interval is None else {"interval": args.interval})},
+                           params={"k_roll": 1000.0, "gamma_roll": 30.0,
                                                                         **({} if args.mu is None else {"mu": args.mu})},
                            rotation=True, law_options={"rolling": "sds"}, progress=False,
                            checkpoint=(str(path), 20_000), resume=str(path) if path.exists() else None,
@@ -207,7 +212,7 @@ def main(argv=None) -> None:
     rows = [dict(r) for r in result.rows]
     given = sys.argv[1:] if argv is None else argv
     summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given),
-               "bins": BINS, "n": args.n, "mu": args.mu, "settings": result.info.get("settings"),
+               "bins": BINS, "n": args.n, "mu": args.mu, "interval": args.interval, "settings": result.info.get("settings"),
                "by_mu_roll": summarise(rows), "rows": rows}
     _write(out, summary, args.n, args.mu)
 
