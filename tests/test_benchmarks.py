@@ -184,6 +184,14 @@ def test_centre_below_flanks_reads_an_m_heap_by_heap_with_the_heaps_standard_err
     flat = np.full((3, bins), 0.5)
     flat[:, centre] = 0.6  # a central peak reads negative
     assert pour_profiles.centre_below_flanks(flat)["value"] == pytest.approx(-0.2)
+    # noise that raises one bin in each heap: chosen on the same heaps it reads as an M, held out it does not
+    noisy = np.full((3, bins), 0.5)
+    noisy[0, 2] = noisy[1, 4] = noisy[2, centre + 2] = 0.8
+    assert pour_profiles.centre_below_flanks(noisy)["value"] > 0.05
+    held = pour_profiles.centre_below_flanks(noisy, held_out=True)
+    assert held["value"] == pytest.approx(0.0, abs=1e-12) and held["flank_bins"] is None
+    # where the heaps agree on their flanks, holding out changes nothing
+    assert pour_profiles.centre_below_flanks(heaps, held_out=True)["value"] == pytest.approx(got["value"])
 
 
 def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_dip_there():
@@ -212,6 +220,8 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     assert grid["points"]["0.3"]["heaps"] == 2
     below = pour_profiles.centre_below_flanks(np.array([m_shape, 0.9 * m_shape]))  # the pooled heaps' profiles
     assert grid["points"]["0.3"]["centre_below_flanks"] == pytest.approx([below["value"], below["stderr"], 2])
+    held = pour_profiles.centre_below_flanks(np.array([m_shape, 0.9 * m_shape]), held_out=True)
+    assert grid["points"]["0.3"]["centre_below_flanks_held_out"] == pytest.approx([held["value"], held["stderr"], 2])
     assert grid["points"]["0.0"]["centre_below_flanks"] is None  # no profiles: not read
     assert grid["points"]["0.3"]["loss"] == pytest.approx(0.5 * (((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2))
     (crossing,) = grid["crossings"]
@@ -229,5 +239,10 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     slower = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 3.224}  # a slower pour is another set-up
     with pytest.raises(ValueError, match="mix set-ups"):
         pour_profiles.on_the_grid([low, slower])
+    paper_rate = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 1.612}  # the paper's, named: the same set-up
+    assert list(pour_profiles.on_the_grid([low, paper_rate])["points"]) == ["0.0", "0.3"]
+    seeded = [{**summary(0.5, 0.3, [36.6], [0.25]), "rows": [{"mu_roll": 0.3, "seed": 0, "repose_mean": 36.6}]}] * 2
+    with pytest.raises(ValueError, match="seed 0 is in two records"):
+        pour_profiles.on_the_grid(seeded)
     with pytest.raises(ValueError, match="no results at mu = 0.7"):
         pour_profiles.on_the_grid([low], mu=0.7)

@@ -332,9 +332,12 @@ def rows_rolling_pour() -> list[list[str]]:
     at_angle = ""
     if POUR_GRID.exists():  # where the angle meets the reported one (`pour_profiles.on_the_grid`)
         grid = json.loads(POUR_GRID.read_text())
-        at_angle = "".join(f"; at the reported angle (μ = {grid['mu']:g}, μ_r ≈ {c['mu_roll'][0]:.2f} ± "
-                           f"{c['mu_roll'][1]:.2f}, interpolated) {c['centre_below_flanks'][0]:.2f} ± "
-                           f"{c['centre_below_flanks'][1]:.2f}" for c in grid["crossings"] if c["centre_below_flanks"])
+        for c in grid.get("crossings", []):
+            held = c.get("centre_below_flanks_held_out")  # flank bins chosen on the other heaps: unbiased
+            if held:
+                at_angle += (f"; at the reported angle (μ = {grid['mu']:g}, μ_r ≈ {c['mu_roll'][0]:.2f} ± "
+                             f"{c['mu_roll'][1]:.2f}, interpolated) {held[0]:.2f} ± {held[1]:.2f} with the flanks "
+                             f"chosen on the other heaps, {(0.2 - held[0]) / held[1]:.1f} s.e. below 20%")
     return [["beyond", "1997 pour, 300 disks, baxter (n = 36, r0 = 1.2) with rolling resistance sds: the centre "
                        "below the flanks of the mean base profile, 16 heaps each",
              "Smid–Novosad 20–30% at 32.6°", "; ".join(cells),

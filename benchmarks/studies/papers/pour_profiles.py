@@ -43,19 +43,32 @@ def heap_profile(sim, params, state, setup) -> dict:
     return {"profile": share.tolist(), "base_width_bins": float(full.width)}
 
 
-def centre_below_flanks(profiles: np.ndarray) -> dict:
+def centre_below_flanks(profiles: np.ndarray, held_out: bool = False) -> dict:
     """How far the centre bin sits below the flanks, with its standard error:
     the flank bins are the mean profile's largest on each side of the centre,
     and each heap gives (mean of its two flank bins - its centre bin); the mean
     of that over the heaps, over the mean flank, is > 0 for an M. The
-    standard error is the heaps' (paired: a heap's bins move together). The
-    flank bins are chosen on the same heaps, which biases it up a little."""
-    mean, c = profiles.mean(axis=0), BINS // 2
-    left, right = int(np.argmax(mean[:c])), c + 1 + int(np.argmax(mean[c + 1:]))
-    flank = 0.5 * (profiles[:, left] + profiles[:, right])
+    standard error is the heaps' (paired: a heap's bins move together).
+    Chosen on the same heaps, the flank bins are those the noise raised, which
+    biases the reading up: by 0.12 on a flat-topped 16-heap mean profile
+    (docs/rolling_resistance.md). `held_out` chooses each heap's flank bins
+    on the mean of the other heaps, which the heap's own noise cannot raise
+    (`flank_bins` is then None)."""
+    c = BINS // 2
+
+    def flanks(mean):
+        return int(np.argmax(mean[:c])), c + 1 + int(np.argmax(mean[c + 1:]))
+
+    if held_out:
+        pairs = [flanks(np.delete(profiles, i, axis=0).mean(axis=0)) for i in range(len(profiles))]
+        flank = np.array([0.5 * (p[left] + p[right]) for p, (left, right) in zip(profiles, pairs)])
+        bins = None
+    else:
+        left, right = flanks(profiles.mean(axis=0))
+        flank, bins = 0.5 * (profiles[:, left] + profiles[:, right]), [left, right]
     drop = (flank - profiles[:, c]) / flank.mean()
     return {"value": float(drop.mean()), "stderr": float(drop.std(ddof=1) / math.sqrt(len(drop))),
-            "flank_bins": [left, right], "centre_bin": c}
+            "flank_bins": bins, "centre_bin": c}
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -93,7 +106,8 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
     (the fit's statistic) and `repose_mean` with their standard errors and
     counts, the centre below the flanks of the pooled profiles
-    (`centre_below_flanks`), and the loss `jaxpile fit` would give there
+    (`centre_below_flanks`, its flank bins chosen on the same heaps and, held
+    out, on the others), and the loss `jaxpile fit` would give there
     (`ensemble_fit.objective_for` of the declared pair, `smid_novosad_target`).
     `crossings`: between each two neighbouring grid points whose angles
     straddle the reported angle, the mu_roll where the linearly interpolated
@@ -111,21 +125,28 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     if not chosen:
         raise ValueError(f"no results at mu = {mu}: the records hold mu = "
                          f"{sorted({0.5 if s.get('mu') is None else s['mu'] for s in summaries})}")
-    set_ups = {(s["n"], s["bins"], s.get("interval")) for s in chosen}
+    paper_interval = 1.612  # jaxpile.protocols.pour.PAPER_SETTING["interval"], where a run did not set it
+    set_ups = {(s["n"], s["bins"], paper_interval if s.get("interval") is None else s["interval"]) for s in chosen}
     if len(set_ups) > 1:
         raise ValueError(f"the records mix set-ups (heap size, bins, release interval) {sorted(set_ups, key=str)}: "
                          "a grid is one set-up")
-    rows = {}
+    rows, seen = {}, set()
     for summary in chosen:
         for r in summary["rows"]:
+            key = (float(r["mu_roll"]), r.get("seed"))
+            if r.get("seed") is not None and key in seen:
+                raise ValueError(f"mu_roll = {key[0]:g}, seed {key[1]} is in two records: a heap counts once")
+            seen.add(key)
             rows.setdefault(float(r["mu_roll"]), []).append(r)
     points = {}
     for x, heaps in sorted(rows.items()):
         dip, angle = _mean_se(r.get("central_dip") for r in heaps), _mean_se(r.get("repose_mean") for r in heaps)
         profiles = [r["profile"] for r in heaps if r.get("profile") is not None]
-        below = centre_below_flanks(np.asarray(profiles, float)) if len(profiles) > 1 else None
+        readings = [centre_below_flanks(np.asarray(profiles, float), held_out=h) if len(profiles) > 1 else None
+                    for h in (False, True)]
+        below, held = ([r["value"], r["stderr"], len(profiles)] if r else None for r in readings)
         points[x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
-                     "centre_below_flanks": None if below is None else [below["value"], below["stderr"], len(profiles)],
+                     "centre_below_flanks": below, "centre_below_flanks_held_out": held,
                      "loss": float(loss_of(np.array([dip[0], angle[0]])))}
     xs, crossings = sorted(points), []
     for x0, x1 in zip(xs, xs[1:]):
@@ -142,7 +163,8 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
             return [d0 + t * (d1 - d0), math.sqrt(((1 - t) * e0) ** 2 + (t * e1) ** 2 + ((d1 - d0) * dt) ** 2)]
 
         crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
-                          "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks")})
+                          "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks"),
+                          "centre_below_flanks_held_out": between("centre_below_flanks_held_out")})
     return {"mu": mu, "n": chosen[0]["n"], "bins": chosen[0]["bins"],
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings}
@@ -181,15 +203,18 @@ def main(argv=None) -> None:
         (out / "pour_grid.json").write_text(json.dumps(grid, indent=1) + "\n")
         _grid_figure(grid, out / "pour_grid.png")
         for x, p in grid["points"].items():
-            below = "" if p["centre_below_flanks"] is None else f" (centre {p['centre_below_flanks'][0]:+.3f} below the flanks)"
+            below = "" if p["centre_below_flanks_held_out"] is None else (
+                f" (centre {p['centre_below_flanks'][0]:+.3f}, held out {p['centre_below_flanks_held_out'][0]:+.3f} "
+                f"+- {p['centre_below_flanks_held_out'][1]:.3f} below the flanks)")
             print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}{below}, angle "
                   f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps), loss {p['loss']:.1f}")
         for c in grid["crossings"] or [None]:
             print("the angle does not cross the reported one on this grid" if c is None else
                   f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
                   f"{c['mu_roll'][1]:.3f}, where the dip is {c['central_dip'][0]:+.3f} +- {c['central_dip'][1]:.3f} "
-                  + ("" if c["centre_below_flanks"] is None else
-                     f"and the centre {c['centre_below_flanks'][0]:+.3f} +- {c['centre_below_flanks'][1]:.3f} below the flanks"))
+                  + ("" if c["centre_below_flanks_held_out"] is None else
+                     f"and the centre {c['centre_below_flanks_held_out'][0]:+.3f} +- "
+                     f"{c['centre_below_flanks_held_out'][1]:.3f} below the flanks (held out)"))
         return
     if args.summarise:
         summary = json.loads((out / "profiles.json").read_text())
@@ -202,6 +227,14 @@ def main(argv=None) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "checkpoint.npz"
+    # the run's set-up beside its checkpoint: a resume with another set-up (a pour rate, say) would go on with
+    # the saved heaps and label them with the new one
+    facts, record = {"n": args.n, "mu": args.mu, "interval": args.interval, "mu_roll": args.mu_roll,
+                     "seeds": args.seeds}, out / "run.json"
+    if path.exists() and record.exists() and json.loads(record.read_text()) != facts:
+        parser.error(f"{out} holds a run of {record.read_text().strip()}; this command asks for {json.dumps(facts)}: "
+                     "resume it with its own options, or choose another --out")
+    record.write_text(json.dumps(facts) + "\n")
     result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
                            seeds=args.seeds, options={"n": args.n, **({} if args.interval is None else {"interval": args.interval})},
                            params={"k_roll": 1000.0, "gamma_roll": 30.0,
@@ -236,10 +269,13 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     right.axhline(0, color="0.5", lw=0.8)
     dip = np.array([p["central_dip"][:2] for p in pts])
     right.errorbar(x, dip[:, 0], yerr=dip[:, 1], fmt="o-", capsize=4, label="central_dip, per heap (the fit's)")
-    if all(p["centre_below_flanks"] for p in pts):
-        below = np.array([p["centre_below_flanks"][:2] for p in pts])
-        right.errorbar(x + 0.004, below[:, 0], yerr=below[:, 1], fmt="s-", capsize=4,
-                       label="centre below the flanks, mean profile")
+    for key, shift, marker, label in (("centre_below_flanks", 0.004, "s-", "centre below the flanks, mean profile"),
+                                      ("centre_below_flanks_held_out", 0.008, "D-",
+                                       "the same, flanks chosen on the other heaps")):
+        have = [(xi + shift, *p[key][:2]) for xi, p in zip(x, pts) if p[key]]
+        if have:
+            xs, m, e = map(np.array, zip(*have))
+            right.errorbar(xs, m, yerr=e, fmt=marker, capsize=4, label=label)
     for c in grid["crossings"]:
         for ax in (left, right):
             ax.axvspan(c["mu_roll"][0] - c["mu_roll"][1], c["mu_roll"][0] + c["mu_roll"][1], color="C3", alpha=0.15)
