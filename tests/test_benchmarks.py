@@ -246,3 +246,28 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
         pour_profiles.on_the_grid(seeded)
     with pytest.raises(ValueError, match="no results at mu = 0.7"):
         pour_profiles.on_the_grid([low], mu=0.7)
+
+
+def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_options(tmp_path):
+    """`pour_profiles.py --grid RESULTS ... --out DIR` makes DIR, writes pour_grid.json and pour_grid.png
+    from the records, and refuses an option of a run beside it."""
+    import pour_profiles  # benchmarks/studies/papers, on the path above
+
+    rng = np.random.default_rng(0)
+    folders = []
+    for mu_roll, angle in ((0.0, 28.0), (0.3, 38.0)):
+        rows = [{"mu_roll": mu_roll, "seed": s, "repose_mean": angle + rng.normal(), "central_dip": rng.normal(0.1, 0.1),
+                 "profile": (0.5 + 0.1 * rng.random(pour_profiles.BINS)).tolist()} for s in range(4)]
+        folder = tmp_path / f"mu_roll{mu_roll}"
+        folder.mkdir()
+        (folder / "profiles.json").write_text(json.dumps({"mu": None, "n": 300, "bins": pour_profiles.BINS,
+                                                          "rows": rows, "by_mu_roll": {}}))
+        folders.append(str(folder))
+    out = tmp_path / "new" / "grid"
+    pour_profiles.main(["--grid", *folders, "--out", str(out)])
+    grid = json.loads((out / "pour_grid.json").read_text())
+    assert list(grid["points"]) == ["0.0", "0.3"] and len(grid["crossings"]) == 1
+    assert grid["command"].endswith(f"--out {out}")
+    assert (out / "pour_grid.png").stat().st_size > 10_000
+    with pytest.raises(SystemExit):
+        pour_profiles.main(["--grid", *folders, "--out", str(out), "--interval", "3.0"])
