@@ -92,11 +92,11 @@ def summarise(rows: list[dict]) -> dict:
 
 
 def _mean_se(values) -> tuple[float, float, int]:
-    """Mean, standard error and count of the finite values (NaN for what fewer than two cannot give)."""
-    v = np.asarray([x for x in values if x is not None], float)
-    v = v[np.isfinite(v)]
-    mean = float(v.mean()) if len(v) else math.nan
-    return mean, float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan, len(v)
+    """`baxter_readings.mean_stderr` of the finite values as (mean, stderr, count), NaN where it has None."""
+    from baxter_readings import mean_stderr
+
+    s = mean_stderr(values)
+    return tuple(math.nan if s[k] is None else float(s[k]) for k in ("mean", "stderr")) + (s["count"],)
 
 
 def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
@@ -117,6 +117,7 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     from jaxpile.fit.ensemble_fit import objective_for
     from jaxpile.fit.ensemble_targets import smid_novosad_target
     from jaxpile.fit.stats import weights
+    from jaxpile.protocols.pour import PAPER_SETTING
 
     target = smid_novosad_target(("central_dip", "repose_mean"))
     loss_of = objective_for(target, weights(target))
@@ -125,7 +126,7 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     if not chosen:
         raise ValueError(f"no results at mu = {mu}: the records hold mu = "
                          f"{sorted({0.5 if s.get('mu') is None else s['mu'] for s in summaries})}")
-    paper_interval = 1.612  # jaxpile.protocols.pour.PAPER_SETTING["interval"], where a run did not set it
+    paper_interval = PAPER_SETTING["interval"]  # where a run did not set it
     set_ups = {(s["n"], s["bins"], paper_interval if s.get("interval") is None else s["interval"]) for s in chosen}
     if len(set_ups) > 1:
         raise ValueError(f"the records mix set-ups (heap size, bins, release interval) {sorted(set_ups, key=str)}: "
@@ -187,9 +188,8 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
     if args.grid:
-        ignored = [f for f, given in (("--summarise", args.summarise), ("--seeds", args.seeds != 16),
-                                      ("--mu-roll", args.mu_roll != "0,0.3"), ("--n", args.n != 300),
-                                      ("--interval", args.interval is not None)) if given]
+        ignored = [f"--{name.replace('_', '-')}" for name in ("summarise", "seeds", "mu_roll", "n", "interval")
+                   if getattr(args, name) != parser.get_default(name)]
         if ignored:
             parser.error(f"--grid runs nothing and reads its RESULTS: {', '.join(ignored)} does not apply")
         summaries = [json.loads((pathlib.Path(d) / "profiles.json").read_text()) for d in args.grid]
