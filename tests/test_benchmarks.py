@@ -233,7 +233,17 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     e0 = np.std([-0.05, 0.05, 0.0], ddof=1) / math.sqrt(3)
     assert crossing["central_dip"] == pytest.approx([0.12, math.sqrt((0.6 * e0) ** 2 + (0.4 * 0.05) ** 2
                                                                      + (0.3 * t_err) ** 2)])
+    # every (mu, mu_roll) of the records, this mu's points among them, in (mu, mu_roll) order
+    assert [(p["mu"], p["mu_roll"]) for p in grid["every_point"]] == [(0.3, 0.15), (0.5, -0.1), (0.5, 0.0), (0.5, 0.3)]
+    assert grid["every_point"][0]["repose_mean"] == pytest.approx([32.6, 0.0, 2])
+    assert grid["every_point"][0]["central_dip"] == pytest.approx([0.25, 0.0, 2])
+    assert {k: v for k, v in grid["every_point"][3].items() if k not in ("mu", "mu_roll")} == grid["points"]["0.3"]
     assert pour_profiles.on_the_grid([low], mu=0.5)["crossings"] == []  # one point crosses nothing
+    with pytest.raises(ValueError, match="mix set-ups"):  # at another mu too: every point is read
+        pour_profiles.on_the_grid([low, summary(0.3, 0.3, [36.6], [0.25], n=100)])
+    same_seed = [{**summary(mu, 0.3, [36.6], [0.25]), "rows": [{"mu_roll": 0.3, "seed": 0, "repose_mean": 36.6}]}
+                 for mu in (0.3, 0.5)]  # one seed at two mu: two heaps
+    assert [p["heaps"] for p in pour_profiles.on_the_grid(same_seed)["every_point"]] == [1, 1]
     with pytest.raises(ValueError, match="mix set-ups"):
         pour_profiles.on_the_grid([low, summary(0.5, 0.3, [36.6], [0.25], n=100)])
     slower = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 3.224}  # a slower pour is another set-up
@@ -267,6 +277,7 @@ def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_o
     pour_profiles.main(["--grid", *folders, "--out", str(out)])
     grid = json.loads((out / "pour_grid.json").read_text())
     assert list(grid["points"]) == ["0.0", "0.3"] and len(grid["crossings"]) == 1
+    assert [p["mu_roll"] for p in grid["every_point"]] == [0.0, 0.3]
     assert grid["command"].endswith(f"--out {out}")
     assert (out / "pour_grid.png").stat().st_size > 10_000
     with pytest.raises(SystemExit):

@@ -102,8 +102,8 @@ def _mean_se(values) -> tuple[float, float, int]:
 def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     """Smid and Novosad's declared dip and angle against the grid of poured
     heaps at sliding friction `mu` (`summaries`: profiles.json records of one
-    heap size and binning; mu None is the paper's 0.5; records of the same
-    mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
+    set-up: heap size, binning and release interval; mu None is the paper's
+    0.5; records of the same mu and mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
     (the fit's statistic) and `repose_mean` with their standard errors and
     counts, the centre below the flanks of the pooled profiles
     (`centre_below_flanks`, its flank bins chosen on the same heaps and, held
@@ -113,7 +113,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     straddle the reported angle, the mu_roll where the linearly interpolated
     angle meets it and the interpolated dip (both readings) there, with errors propagated from
     the points' standard errors (points taken independent: they share seeds,
-    so this is a rough band)."""
+    so this is a rough band). `every_point`: the same readings at every
+    (mu, mu_roll) the records hold, at this mu or another: whether any of
+    them stands at the reported angle with the reported dip, whatever its
+    parameters."""
     from jaxpile.fit.ensemble_fit import objective_for
     from jaxpile.fit.ensemble_targets import smid_novosad_target
     from jaxpile.fit.stats import weights
@@ -122,33 +125,34 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     target = smid_novosad_target(("central_dip", "repose_mean"))
     loss_of = objective_for(target, weights(target))
     angle_target = float(target.mean[1])
-    chosen = [s for s in summaries if (0.5 if s.get("mu") is None else s["mu"]) == mu]
-    if not chosen:
-        raise ValueError(f"no results at mu = {mu}: the records hold mu = "
-                         f"{sorted({0.5 if s.get('mu') is None else s['mu'] for s in summaries})}")
+    mu_of = {id(s): _mu(s) for s in summaries}
+    if mu not in mu_of.values():
+        raise ValueError(f"no results at mu = {mu}: the records hold mu = {sorted(set(mu_of.values()))}")
     paper_interval = PAPER_SETTING["interval"]  # where a run did not set it
-    set_ups = {(s["n"], s["bins"], paper_interval if s.get("interval") is None else s["interval"]) for s in chosen}
+    set_ups = {(s["n"], s["bins"], paper_interval if s.get("interval") is None else s["interval"]) for s in summaries}
     if len(set_ups) > 1:
         raise ValueError(f"the records mix set-ups (heap size, bins, release interval) {sorted(set_ups, key=str)}: "
                          "a grid is one set-up")
     rows, seen = {}, set()
-    for summary in chosen:
+    for summary in summaries:
         for r in summary["rows"]:
-            key = (float(r["mu_roll"]), r.get("seed"))
+            key = (mu_of[id(summary)], float(r["mu_roll"]), r.get("seed"))
             if r.get("seed") is not None and key in seen:
-                raise ValueError(f"mu_roll = {key[0]:g}, seed {key[1]} is in two records: a heap counts once")
+                raise ValueError(f"mu = {key[0]:g}, mu_roll = {key[1]:g}, seed {key[2]} is in two records: "
+                                 "a heap counts once")
             seen.add(key)
-            rows.setdefault(float(r["mu_roll"]), []).append(r)
-    points = {}
-    for x, heaps in sorted(rows.items()):
+            rows.setdefault(key[:2], []).append(r)
+    every = {}
+    for (at_mu, x), heaps in sorted(rows.items()):
         dip, angle = _mean_se(r.get("central_dip") for r in heaps), _mean_se(r.get("repose_mean") for r in heaps)
         profiles = [r["profile"] for r in heaps if r.get("profile") is not None]
         readings = [centre_below_flanks(np.asarray(profiles, float), held_out=h) if len(profiles) > 1 else None
                     for h in (False, True)]
         below, held = ([r["value"], r["stderr"], len(profiles)] if r else None for r in readings)
-        points[x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
-                     "centre_below_flanks": below, "centre_below_flanks_held_out": held,
-                     "loss": float(loss_of(np.array([dip[0], angle[0]])))}
+        every[at_mu, x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
+                           "centre_below_flanks": below, "centre_below_flanks_held_out": held,
+                           "loss": float(loss_of(np.array([dip[0], angle[0]])))}
+    points = {x: point for (at_mu, x), point in every.items() if at_mu == mu}
     xs, crossings = sorted(points), []
     for x0, x1 in zip(xs, xs[1:]):
         (a0, s0, _), (a1, s1, _) = points[x0]["repose_mean"], points[x1]["repose_mean"]
@@ -166,9 +170,15 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
         crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
                           "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks"),
                           "centre_below_flanks_held_out": between("centre_below_flanks_held_out")})
-    return {"mu": mu, "n": chosen[0]["n"], "bins": chosen[0]["bins"],
+    return {"mu": mu, "n": summaries[0]["n"], "bins": summaries[0]["bins"],
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
-            "points": {str(x): points[x] for x in xs}, "crossings": crossings}
+            "points": {str(x): points[x] for x in xs}, "crossings": crossings,
+            "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
+
+
+def _mu(summary: dict) -> float:
+    """A record's sliding friction: None is the paper's 0.5."""
+    return 0.5 if summary.get("mu") is None else float(summary["mu"])
 
 
 def main(argv=None) -> None:
@@ -208,6 +218,13 @@ def main(argv=None) -> None:
                 f"+- {p['centre_below_flanks_held_out'][1]:.3f} below the flanks)")
             print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}{below}, angle "
                   f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps), loss {p['loss']:.1f}")
+        for p in grid["every_point"]:
+            if p["mu"] != grid["mu"]:
+                held = p["centre_below_flanks_held_out"]
+                print(f"mu = {p['mu']:g}, mu_roll = {p['mu_roll']:g}: dip {p['central_dip'][0]:+.3f} +- "
+                      f"{p['central_dip'][1]:.3f}" + ("" if held is None else
+                                                      f" (held out {held[0]:+.3f} +- {held[1]:.3f} below the flanks)")
+                      + f", angle {p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps)")
         for c in grid["crossings"] or [None]:
             print("the angle does not cross the reported one on this grid" if c is None else
                   f"the angle meets {grid['target']['repose_mean'][0]} deg at mu_roll = {c['mu_roll'][0]:.3f} +- "
@@ -256,12 +273,13 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     from jaxpile.fit.targets import SMID_NOVOSAD_DIP_RANGE
 
     x = np.array([float(k) for k in grid["points"]])
     pts = list(grid["points"].values())
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (left, right, both) = plt.subplots(1, 3, figsize=(15, 4.2))
     angle = np.array([p["repose_mean"][:2] for p in pts])
     left.errorbar(x, angle[:, 0], yerr=angle[:, 1], fmt="o-", capsize=4, label="heaps: mean +- s.e.")
     left.axhline(grid["target"]["repose_mean"][0], color="C2", label="Smid & Novosad: 32.6 deg")
@@ -283,7 +301,19 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
                   label=f"meets it at mu_roll = {c['mu_roll'][0]:.2f} +- {c['mu_roll'][1]:.2f}")
     left.set(xlabel="rolling friction mu_roll", ylabel="angle of repose (deg)")
     right.set(xlabel="rolling friction mu_roll", ylabel="dip below the flanks")
-    for ax in (left, right):
+    # every (mu, mu_roll): does any stand at the reported angle with the reported dip?
+    angle_target, angle_spread = grid["target"]["repose_mean"]
+    both.add_patch(Rectangle((angle_target - angle_spread, SMID_NOVOSAD_DIP_RANGE[0]), 2 * angle_spread,
+                             SMID_NOVOSAD_DIP_RANGE[1] - SMID_NOVOSAD_DIP_RANGE[0], color="C2", alpha=0.2,
+                             label="Smid & Novosad"))
+    both.axhline(0, color="0.5", lw=0.8)
+    for i, p in enumerate(q for q in grid["every_point"] if q["centre_below_flanks_held_out"]):
+        (a, ae, _), (d, de, _) = p["repose_mean"], p["centre_below_flanks_held_out"]
+        both.errorbar([a], [d], xerr=[ae], yerr=[de], fmt="D", capsize=4, color=f"C{i % 10}",
+                      label=f"mu = {p['mu']:g}, mu_roll = {p['mu_roll']:g}")
+    both.set(xlabel="angle of repose (deg)", ylabel="centre below the flanks (held out)", title="every (mu, mu_roll)")
+    both.autoscale_view()
+    for ax in (left, right, both):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle(f"poured heaps of {grid['n']} disks, baxter law, mu = {grid['mu']:g}, rolling sds: "
