@@ -9,6 +9,10 @@ from jaxpile import budget
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, drop, flux, lattice, pour, sloped
 
+# small boxes on purpose: the box's warning that a pile a layer or two deep means little
+# (tests/test_protocol_box.py checks it) is not what these tests read
+pytestmark = pytest.mark.filterwarnings("ignore:.*too few to stand as a pile:UserWarning")
+
 
 def test_estimate_is_linear_in_disks_and_batch_and_follows_the_measured_bytes():
     one = budget.estimate(10**6, "float64") - budget.FIXED_BYTES

@@ -14,6 +14,10 @@ from jaxpile.laws import baxter, get_law_module, hooke
 from jaxpile.protocols import box, pour
 from jaxpile.engine.simulate import Simulator
 
+# small boxes on purpose: the box's warning that a pile a layer or two deep means little
+# (tests/test_protocol_box.py checks it) is not what these tests read
+pytestmark = pytest.mark.filterwarnings("ignore:.*too few to stand as a pile:UserWarning")
+
 ONE = [[1.0, 0.5]]
 GROUND = jaxpile.make_boundaries()
 

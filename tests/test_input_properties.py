@@ -26,6 +26,10 @@ from jaxpile.laws import LAWS, get_law_module
 from jaxpile.protocols import PROTOCOLS, lattice
 from jaxpile.protocols.spec import ranges_of
 
+# small boxes on purpose: the box's warning that a pile a layer or two deep means little
+# (tests/test_protocol_box.py checks it) is not what these tests read
+pytestmark = pytest.mark.filterwarnings("ignore:.*too few to stand as a pile:UserWarning")
+
 PROPERTY = settings(database=None, deadline=None, suppress_health_check=list(HealthCheck))
 
 EDGES = [0, -0.0, -1, 1, 0.5, 1.0 - 1e-12, 1e-300, 5e-324, 1e300, 1e308, 10**30, 2**63, 2**64, -(10**30),

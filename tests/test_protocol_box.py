@@ -135,6 +135,22 @@ def test_protocol_is_a_pure_function_of_its_seed():
     assert a.driver is box.driver and a.protocol_state.removed_at == -1
 
 
+def test_a_box_a_layer_or_two_deep_warns_with_the_count_that_fills_it():
+    """Below a quarter of the disks that fill the box (`box.SPARSE_FILL`) the pile is a layer or two and its
+    angle means little: the set-up says so in one line, with the count that fills the box; at a quarter
+    and above it is quiet."""
+    import warnings
+
+    fills = paper1993.fill_count(1.6, 1.6)
+    sparse = math.ceil(box.SPARSE_FILL * fills) - 1
+    with pytest.warns(UserWarning, match=rf"^{sparse} disks fill the 1.6 x 1.6 box .* too few to stand as a pile; "
+                                         rf"the box takes {fills} \(leave n out\)"):
+        box.SPEC.set_up("lee-herrmann", sparse, width=1.6, height=1.6, seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        box.SPEC.set_up("lee-herrmann", sparse + 1, width=1.6, height=1.6, seed=0)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"n": 0}, "n must be"),
     ({"n": 2.5}, "n must be"),
