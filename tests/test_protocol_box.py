@@ -147,7 +147,7 @@ def test_a_box_a_layer_or_two_deep_warns_with_the_count_that_fills_it():
                                          rf"the box takes {fills} \(leave n out\)"):
         box.SPEC.set_up("lee-herrmann", sparse, width=1.6, height=1.6, seed=0)
     with warnings.catch_warnings():
-        warnings.simplefilter("error")
+        warnings.filterwarnings("error", message=".*too few to stand as a pile", category=UserWarning)
         box.SPEC.set_up("lee-herrmann", sparse + 1, width=1.6, height=1.6, seed=0)
 
 

@@ -191,8 +191,9 @@ def main(argv=None) -> None:
     parser.add_argument("--interval", type=float, default=None,
                         help="time between releases, sqrt(sigma/g) (default: the paper's 1.612): the pour's rate")
     parser.add_argument("--grid", nargs="+", metavar="RESULTS",
-                        help="the declared dip and angle against these runs' profiles.json at --mu (default 0.5): "
-                             "writes OUT/pour_grid.json and OUT/pour_grid.png (runs nothing)")
+                        help="the declared dip and angle against these runs' profiles.json, along mu_roll at --mu "
+                             "(default 0.5) and at every (mu, mu_roll) they hold: writes OUT/pour_grid.json and "
+                             "OUT/pour_grid.png (runs nothing)")
     parser.add_argument("--summarise", action="store_true",
                         help="rewrite DIR/profiles.json's summary and figure from its rows (runs nothing)")
     args = parser.parse_args(argv)
@@ -268,7 +269,8 @@ def main(argv=None) -> None:
 
 
 def _grid_figure(grid: dict, path: pathlib.Path) -> None:
-    """The angle and the two dip readings against mu_roll, with Smid and Novosad's and the crossings."""
+    """The angle and the two dip readings against mu_roll at the grid's mu, with Smid and Novosad's and the
+    crossings; and the held-out dip against the angle at every (mu, mu_roll) that has one."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -305,13 +307,15 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     angle_target, angle_spread = grid["target"]["repose_mean"]
     both.add_patch(Rectangle((angle_target - angle_spread, SMID_NOVOSAD_DIP_RANGE[0]), 2 * angle_spread,
                              SMID_NOVOSAD_DIP_RANGE[1] - SMID_NOVOSAD_DIP_RANGE[0], color="C2", alpha=0.2,
-                             label="Smid & Novosad"))
+                             label=f"Smid & Novosad: 20-30 %, {angle_target:g} deg (+- {angle_spread:g}: the fit's weight)"))
     both.axhline(0, color="0.5", lw=0.8)
+    unread = [q for q in grid["every_point"] if not q["centre_below_flanks_held_out"]]  # fewer than 2 profiles
     for i, p in enumerate(q for q in grid["every_point"] if q["centre_below_flanks_held_out"]):
         (a, ae, _), (d, de, _) = p["repose_mean"], p["centre_below_flanks_held_out"]
         both.errorbar([a], [d], xerr=[ae], yerr=[de], fmt="D", capsize=4, color=f"C{i % 10}",
                       label=f"mu = {p['mu']:g}, mu_roll = {p['mu_roll']:g}")
-    both.set(xlabel="angle of repose (deg)", ylabel="centre below the flanks (held out)", title="every (mu, mu_roll)")
+    both.set(xlabel="angle of repose (deg)", ylabel="centre below the flanks (held out)",
+             title="every (mu, mu_roll)" + (f" ({len(unread)} without profiles left out)" if unread else ""))
     both.autoscale_view()
     for ax in (left, right, both):
         ax.grid(alpha=0.3)
