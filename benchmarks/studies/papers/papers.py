@@ -324,11 +324,12 @@ def rows_rolling_pour() -> list[list[str]]:
     for path in POUR_PROFILES:
         s = json.loads(path.read_text())
         mu = 0.5 if s.get("mu") is None else s["mu"]  # the paper's, where the run did not set it
+        rate = "" if s.get("interval") is None else f", a disk every {s['interval']:g} (the paper's 1.612)"
         for mu_roll, point in s["by_mu_roll"].items():
             profiles = np.array([r["profile"] for r in s["rows"]
                                  if str(r["mu_roll"]) == mu_roll and r.get("profile") is not None], float)
             below = pour_profiles.centre_below_flanks(profiles, held_out=True)
-            cells.append(f"μ = {mu:g}, μ_r = {float(mu_roll):g}: {_pm({**below, 'mean': below['value']}, 2, '')}, "
+            cells.append(f"μ = {mu:g}, μ_r = {float(mu_roll):g}{rate}: {_pm({**below, 'mean': below['value']}, 2, '')}, "
                          f"θ {_pm(point['repose_mean'])}")
             if best is None or below["value"] > best[0]["value"]:
                 best = (below, point["repose_mean"])

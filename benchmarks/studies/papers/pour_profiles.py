@@ -281,7 +281,7 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
 
     x = np.array([float(k) for k in grid["points"]])
     pts = list(grid["points"].values())
-    fig, (left, right, both) = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, (left, right, both) = plt.subplots(1, 3, figsize=(18, 4.2))
     angle = np.array([p["repose_mean"][:2] for p in pts])
     left.errorbar(x, angle[:, 0], yerr=angle[:, 1], fmt="o-", capsize=4, label="heaps: mean +- s.e.")
     left.axhline(grid["target"]["repose_mean"][0], color="C2", label="Smid & Novosad: 32.6 deg")
@@ -319,7 +319,9 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     both.autoscale_view()
     for ax in (left, right, both):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+    left.legend(fontsize=7)
+    right.legend(fontsize=7)
+    both.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside: inside it hides points
     fig.suptitle(f"poured heaps of {grid['n']} disks, baxter law, mu = {grid['mu']:g}, rolling sds: "
                  "the reported angle and dip against mu_roll")
     fig.tight_layout()
