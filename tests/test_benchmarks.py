@@ -250,7 +250,10 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     slower = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 3.224}  # a slower pour is another set-up
     with pytest.raises(ValueError, match="mix set-ups"):
         pour_profiles.on_the_grid([low, slower])
-    paper_rate = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 1.612}  # the paper's, named: the same set-up
+    narrower = {**summary(0.5, 0.3, [36.6], [0.25]), "spread": 0.5}  # a narrower source is another set-up
+    with pytest.raises(ValueError, match="mix set-ups"):
+        pour_profiles.on_the_grid([low, narrower])
+    paper_rate = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 1.612, "spread": 3.0}  # the paper's: the same
     assert list(pour_profiles.on_the_grid([low, paper_rate])["points"]) == ["0.0", "0.3"]
     seeded = [{**summary(0.5, 0.3, [36.6], [0.25]), "rows": [{"mu_roll": 0.3, "seed": 0, "repose_mean": 36.6}]}] * 2
     with pytest.raises(ValueError, match="seed 0 is in two records"):
@@ -283,3 +286,5 @@ def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_o
     assert (out / "pour_grid.png").stat().st_size > 10_000
     with pytest.raises(SystemExit):
         pour_profiles.main(["--grid", *folders, "--out", str(out), "--interval", "3.0"])
+    with pytest.raises(SystemExit):
+        pour_profiles.main(["--grid", *folders, "--out", str(out), "--spread", "0.5"])

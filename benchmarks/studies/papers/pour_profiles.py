@@ -2,7 +2,7 @@
 resistance: the check the central-dip statistic needs before anything is fitted
 to Smid and Novosad's dip (docs/rolling_resistance.md).
 
-    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5] [--interval 1.612]
+    python benchmarks/studies/papers/pour_profiles.py --out DIR [--seeds 16] [--mu-roll 0,0.3] [--n 300] [--mu 0.5] [--interval 1.612] [--spread 3]
     python benchmarks/studies/papers/pour_profiles.py --grid RESULTS [RESULTS ...] --out DIR   # `on_the_grid`
 
 runs `jaxpile.sweep` of the 1997 pour (baxter law, spins on, rolling sds with
@@ -102,7 +102,7 @@ def _mean_se(values) -> tuple[float, float, int]:
 def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     """Smid and Novosad's declared dip and angle against the grid of poured
     heaps at sliding friction `mu` (`summaries`: profiles.json records of one
-    set-up: heap size, binning and release interval; mu None is the paper's
+    set-up: heap size, binning, release interval and spread; mu None is the paper's
     0.5; records of the same mu and mu_roll are pooled). Per mu_roll: the per-heap means of `central_dip`
     (the fit's statistic) and `repose_mean` with their standard errors and
     counts, the centre below the flanks of the pooled profiles
@@ -128,10 +128,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     mu_of = {id(s): _mu(s) for s in summaries}
     if mu not in mu_of.values():
         raise ValueError(f"no results at mu = {mu}: the records hold mu = {sorted(set(mu_of.values()))}")
-    paper_interval = PAPER_SETTING["interval"]  # where a run did not set it
-    set_ups = {(s["n"], s["bins"], paper_interval if s.get("interval") is None else s["interval"]) for s in summaries}
+    set_ups = {(s["n"], s["bins"], *(PAPER_SETTING[k] if s.get(k) is None else s[k] for k in ("interval", "spread")))
+               for s in summaries}  # the paper's interval and spread where a run did not set them
     if len(set_ups) > 1:
-        raise ValueError(f"the records mix set-ups (heap size, bins, release interval) {sorted(set_ups, key=str)}: "
+        raise ValueError(f"the records mix set-ups (heap size, bins, release interval, spread) {sorted(set_ups, key=str)}: "
                          "a grid is one set-up")
     rows, seen = {}, set()
     for summary in summaries:
@@ -190,6 +190,8 @@ def main(argv=None) -> None:
     parser.add_argument("--mu", type=float, default=None, help="sliding friction (default: the paper's 0.5)")
     parser.add_argument("--interval", type=float, default=None,
                         help="time between releases, sqrt(sigma/g) (default: the paper's 1.612): the pour's rate")
+    parser.add_argument("--spread", type=float, default=None,
+                        help="release x uniform in +-spread, sigma (default: the paper's 3): the source's width")
     parser.add_argument("--grid", nargs="+", metavar="RESULTS",
                         help="the declared dip and angle against these runs' profiles.json, along mu_roll at --mu "
                              "(default 0.5) and at every (mu, mu_roll) they hold: writes OUT/pour_grid.json and "
@@ -199,7 +201,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     out = pathlib.Path(args.out)
     if args.grid:
-        ignored = [f"--{name.replace('_', '-')}" for name in ("summarise", "seeds", "mu_roll", "n", "interval")
+        ignored = [f"--{name.replace('_', '-')}" for name in ("summarise", "seeds", "mu_roll", "n", "interval", "spread")
                    if getattr(args, name) != parser.get_default(name)]
         if ignored:
             parser.error(f"--grid runs nothing and reads its RESULTS: {', '.join(ignored)} does not apply")
@@ -248,13 +250,14 @@ def main(argv=None) -> None:
     # the run's set-up beside its checkpoint: a resume with another set-up (a pour rate, say) would go on with
     # the saved heaps and label them with the new one
     facts, record = {"n": args.n, "mu": args.mu, "interval": args.interval, "mu_roll": args.mu_roll,
-                     "seeds": args.seeds}, out / "run.json"
+                     "seeds": args.seeds, **({} if args.spread is None else {"spread": args.spread})}, out / "run.json"
     if path.exists() and record.exists() and json.loads(record.read_text()) != facts:
         parser.error(f"{out} holds a run of {record.read_text().strip()}; this command asks for {json.dumps(facts)}: "
                      "resume it with its own options, or choose another --out")
     record.write_text(json.dumps(facts) + "\n")
     result = jaxpile.sweep("pour", "baxter", vary={"mu_roll": [float(v) for v in args.mu_roll.split(",")]},
-                           seeds=args.seeds, options={"n": args.n, **({} if args.interval is None else {"interval": args.interval})},
+                           seeds=args.seeds, options={"n": args.n, **{k: getattr(args, k) for k in ("interval", "spread")
+                                                             if getattr(args, k) is not None}},
                            params={"k_roll": 1000.0, "gamma_roll": 30.0,
                                                                         **({} if args.mu is None else {"mu": args.mu})},
                            rotation=True, law_options={"rolling": "sds"}, progress=False,
@@ -263,7 +266,8 @@ def main(argv=None) -> None:
     rows = [dict(r) for r in result.rows]
     given = sys.argv[1:] if argv is None else argv
     summary = {"command": "python benchmarks/studies/papers/pour_profiles.py " + " ".join(given),
-               "bins": BINS, "n": args.n, "mu": args.mu, "interval": args.interval, "settings": result.info.get("settings"),
+               "bins": BINS, "n": args.n, "mu": args.mu, "interval": args.interval, "spread": args.spread,
+               "settings": result.info.get("settings"),
                "by_mu_roll": summarise(rows), "rows": rows}
     _write(out, summary, args.n, args.mu)
 
