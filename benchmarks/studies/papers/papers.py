@@ -324,8 +324,7 @@ def rows_rolling_pour() -> list[list[str]]:
     for path in POUR_PROFILES:
         s = json.loads(path.read_text())
         mu = 0.5 if s.get("mu") is None else s["mu"]  # the paper's, where the run did not set it
-        rate = "" if s.get("interval") is None else f", a disk every {s['interval']:g} (the paper's 1.612)"
-        rate += "" if s.get("spread") is None else f", released within ±{s['spread']:g} σ (the paper's ±3)"
+        rate = pour_profiles.set_up_label(s)
         for mu_roll, point in s["by_mu_roll"].items():
             profiles = np.array([r["profile"] for r in s["rows"]
                                  if str(r["mu_roll"]) == mu_roll and r.get("profile") is not None], float)

@@ -176,6 +176,15 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
             "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
 
 
+def set_up_label(summary: dict) -> str:
+    """What a record's pour changed from the paper's (its release interval, its source's width), for a label."""
+    from jaxpile.protocols.pour import PAPER_SETTING
+
+    return "".join(f", {what.format(summary[key])} (the paper's {PAPER_SETTING[key]:g})"
+                   for key, what in (("interval", "a disk every {:g}"), ("spread", "released within ±{:g} σ"))
+                   if summary.get(key) is not None)
+
+
 def _mu(summary: dict) -> float:
     """A record's sliding friction: None is the paper's 0.5."""
     return 0.5 if summary.get("mu") is None else float(summary["mu"])
