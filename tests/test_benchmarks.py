@@ -262,6 +262,46 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
         pour_profiles.on_the_grid([low], mu=0.7)
 
 
+def test_fit_along_the_grid_meets_both_targets_on_a_straight_line_and_recovers_each_point():
+    """benchmarks/studies/papers/pour_profiles.py `fit_along`: heaps whose dip and angle are straight lines
+    in mu_roll (0.1 + mu_roll, 28 + 30 mu_roll) give the weighted least-squares mu_roll of the declared pair
+    in the fit's weights (1 / 0.05^2, 1 / 1^2): (400 x 0.15 + 30 x 4.6) / (400 + 900) = 0.1523, where the
+    line reads 0.2523 and 32.57 deg, with no error and the fit's loss there; with noise about the line the
+    interval widens and holds that value. `recover_along` takes each grid point's even or odd seeds as the
+    target and fits from the others: on the exact line every truth comes back."""
+    import pour_profiles  # benchmarks/studies/papers, on the path above
+
+    from jaxpile.fit.ensemble_targets import smid_novosad_target
+    from jaxpile.fit.stats import weights
+
+    target = smid_novosad_target(("central_dip", "repose_mean"))
+    w = weights(target)
+    rng = np.random.default_rng(3)
+
+    def heaps(noise):
+        return {x: [{"seed": s, "central_dip": 0.1 + x + noise * 0.05 * rng.normal(),
+                     "repose_mean": 28 + 30 * x + noise * rng.normal()} for s in range(8)]
+                for x in (0.0, 0.1, 0.2)}
+
+    exact = heaps(0.0)
+    exact[0.1].append({"seed": 8, "central_dip": None, "repose_mean": 31.0})  # a heap without a dip: left out
+    fit = pour_profiles.fit_along(exact, target.mean, w)
+    best = (400 * 0.15 + 30 * 4.6) / 1300
+    assert fit["mu_roll"] == pytest.approx([best, 0.0], abs=1e-9)
+    assert fit["central_dip"][0] == pytest.approx(0.1 + best) and fit["repose_mean"][0] == pytest.approx(28 + 30 * best)
+    assert fit["loss"] == pytest.approx(0.5 * (400 * (0.1 + best - 0.25) ** 2 + (28 + 30 * best - 32.6) ** 2))
+    assert fit["heaps"] == 24 and fit["dof"] == 22 and fit["grid"] == [0.0, 0.1, 0.2]
+    assert fit["line"]["slope"] == pytest.approx([1.0, 30.0])
+    noisy = pour_profiles.fit_along(heaps(1.0), target.mean, w)
+    assert noisy["mu_roll"][1] > 0.005 and noisy["interval"][0] < best < noisy["interval"][1]
+    assert pour_profiles.fit_along({0.1: exact[0.1]}, target.mean, w) is None  # one grid point: no line
+    recovered = pour_profiles.recover_along(heaps(0.0), w)
+    assert [(r["truth"], r["target_half"]) for r in recovered] == [(x, h) for x in (0.0, 0.1, 0.2) for h in
+                                                                  ("even", "odd")]
+    assert all(r["fit"]["mu_roll"][0] == pytest.approx(r["truth"], abs=1e-9) for r in recovered)
+    assert all(r["target_heaps"] == 4 and r["fit"]["heaps"] == 12 for r in recovered)
+
+
 def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_options(tmp_path):
     """`pour_profiles.py --grid RESULTS ... --out DIR` makes DIR, writes pour_grid.json and pour_grid.png
     from the records, and refuses an option of a run beside it."""

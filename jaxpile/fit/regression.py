@@ -93,47 +93,86 @@ def _sampling(piles) -> np.ndarray | None:
     return np.atleast_2d(np.cov(p, rowvar=False)) / len(p)
 
 
-def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression | None:
-    """The inverse-regression estimate of a finished `ensemble_fit.fit` (its
-    result or `EnsembleFitResult.from_json` of its record), or None when the
-    fit ran too few ensembles (N < d + 2) or the line does not move with the
-    parameters. `w`: the fit's weights (default `ensemble_fit.weights` of its
-    target)."""
-    target = result.target
-    w = weights(target) if w is None else np.asarray(w, float)
-    thetas, means = ensembles_of(result, skip)
-    n, d = thetas.shape
+class Line(NamedTuple):
+    """`theta` `[d]`: where the least-squares line through the points best
+    meets the target; `cov` `[d, d]`: its sandwich covariance; `scatter` `[k]`:
+    the residual standard deviation of each statistic about the line; `dof`:
+    N - d - 1; `intercept` `[k]` and `jacobian` `[k, d]`: the line;
+    `residual` `[k, k]`: the residuals' covariance; `design_inverse`
+    `[d + 1, d + 1]`: (X^T X)^-1 of the design X = (1, x)."""
+
+    theta: np.ndarray
+    cov: np.ndarray
+    scatter: np.ndarray
+    dof: int
+    intercept: np.ndarray
+    jacobian: np.ndarray
+    residual: np.ndarray
+    design_inverse: np.ndarray
+
+    def predict(self, x) -> tuple[np.ndarray, np.ndarray]:
+        """`(mean [k], cov [k, k])` of the line at `x` `[d]`: its value and the
+        covariance of that value (the residual covariance times the leverage)."""
+        at = np.concatenate([[1.0], np.asarray(x, float)])
+        return self.intercept + self.jacobian @ at[1:], self.residual * float(at @ self.design_inverse @ at)
+
+
+def inverse(x, means, target_mean, w, sampling=()) -> Line | None:
+    """Inverse regression of points `(x [N, d], means [N, k])` onto a target
+    `target_mean` `[k]` in weights `w` `[k]`: the straight line
+    m(x) = a + J x by least squares, x* = (J^T W J)^-1 J^T W (t - a), and its
+    covariance (this module's docstring). `sampling`: `[k, k]` covariances
+    of the mismatch the points' residuals do not hold (the target's mean, the
+    means of the piles the points were averaged from). None when there are
+    too few points (N < d + 2) or the line does not move with x."""
+    x, means, w = np.asarray(x, float), np.asarray(means, float), np.asarray(w, float)
+    n, d = x.shape
     if n < d + 2:
         return None
-    x = np.hstack([np.ones((n, 1)), thetas])
-    xtx = x.T @ x
+    design = np.hstack([np.ones((n, 1)), x])
+    xtx = design.T @ design
     if np.linalg.matrix_rank(xtx) < d + 1:
         return None
-    coef = np.linalg.solve(xtx, x.T @ means)  # [d + 1, k]
+    coef = np.linalg.solve(xtx, design.T @ means)  # [d + 1, k]
     a, jac = coef[0], coef[1:].T  # [k], [k, d]
     hessian = (jac.T * w) @ jac
     if not np.all(np.isfinite(hessian)) or np.linalg.matrix_rank(hessian) < d:
         return None
     inv = np.linalg.inv(hessian)
-    theta = inv @ ((jac.T * w) @ (np.asarray(target.mean, float) - a))
-    resid = means - x @ coef
+    theta = inv @ ((jac.T * w) @ (np.asarray(target_mean, float) - a))
+    resid = means - design @ coef
     dof = n - d - 1
     residual = resid.T @ resid / dof
+    design_inverse = np.linalg.inv(xtx)
     at = np.concatenate([[1.0], theta])
-    c = residual * float(at @ np.linalg.solve(xtx, at))
-    for part in (_sampling(target.members), _sampling(result.fitted_members)):
+    c = residual * float(at @ design_inverse @ at)
+    for part in sampling:
         if part is not None:
             c = c + part
     jw = jac.T * w
-    cov = inv @ jw @ c @ jw.T @ inv
-    se = np.sqrt(np.clip(np.diag(cov), 0, None))
-    z = t_quantile(dof)
-    names = list(result.names)
+    return Line(theta, inv @ jw @ c @ jw.T @ inv, np.sqrt(np.clip(np.diag(residual), 0, None)), int(dof), a, jac,
+                residual, design_inverse)
+
+
+def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression | None:
+    """The inverse-regression estimate (`inverse`, over the log-parameters) of
+    a finished `ensemble_fit.fit` (its result or `EnsembleFitResult.from_json`
+    of its record), or None when the fit ran too few ensembles (N < d + 2) or
+    the line does not move with the parameters. `w`: the fit's weights
+    (default `ensemble_fit.weights` of its target)."""
+    target = result.target
+    w = weights(target) if w is None else np.asarray(w, float)
+    thetas, means = ensembles_of(result, skip)
+    line = inverse(thetas, means, target.mean, w, (_sampling(target.members), _sampling(result.fitted_members)))
+    if line is None:
+        return None
+    se = np.sqrt(np.clip(np.diag(line.cov), 0, None))
+    z = t_quantile(line.dof)
+    names, theta = list(result.names), line.theta
     return Regression({k: float(np.exp(theta[i])) for i, k in enumerate(names)},
                       {k: (float(np.exp(theta[i] - z * se[i])), float(np.exp(theta[i] + z * se[i])))
                        for i, k in enumerate(names)},
-                      {k: float(se[i]) for i, k in enumerate(names)}, int(n),
-                      np.sqrt(np.clip(np.diag(residual), 0, None)).tolist(), int(dof))
+                      {k: float(se[i]) for i, k in enumerate(names)}, len(thetas), line.scatter.tolist(), line.dof)
 
 
-__all__ = ["Regression", "ensembles_of", "estimate"]
+__all__ = ["Line", "Regression", "ensembles_of", "estimate", "inverse"]

@@ -113,7 +113,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     straddle the reported angle, the mu_roll where the linearly interpolated
     angle meets it and the interpolated dip (both readings) there, with errors propagated from
     the points' standard errors (points taken independent: they share seeds,
-    so this is a rough band). `every_point`: the same readings at every
+    so this is a rough band). `fit`: mu_roll fitted to the declared dip and
+    angle from every heap along mu_roll at this mu (`fit_along`), and
+    `recovery`: the same estimator recovering each grid point's mu_roll from
+    the other half of the seeds (`recover_along`). `every_point`: the same readings at every
     (mu, mu_roll) the records hold, at this mu or another: whether any of
     them stands at the reported angle with the reported dip, whatever its
     parameters."""
@@ -170,10 +173,81 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
         crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
                           "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks"),
                           "centre_below_flanks_held_out": between("centre_below_flanks_held_out")})
+    along = {x: heaps for (at_mu, x), heaps in rows.items() if at_mu == mu}
+    w = weights(target)
     return {"mu": mu, "n": summaries[0]["n"], "bins": summaries[0]["bins"],
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings,
+            "fit": fit_along(along, target.mean, w), "recovery": recover_along(along, w),
             "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
+
+
+def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
+    """mu_roll fitted to a target of (`central_dip`, `repose_mean`) from the
+    grid's heaps, each heap a point: the inverse regression
+    `jaxpile.fit.regression.inverse` of the two statistics on mu_roll (a
+    straight line, least squares), with weights `w` as `jaxpile fit` gives
+    them. What the fit would do with these ensembles, without running more:
+    the heaps at the grid points stand for the ensembles a Gauss-Newton fit
+    runs near its answer. `heaps`: {mu_roll: [rows]}; rows missing either
+    statistic are left out. `target_members` `[B, 2]`: the target's own heaps
+    (their sampling noise joins the interval), None for declared values.
+    The heaps of a seed share their initial draws across mu_roll, which the
+    line takes as independent. Returns mu_roll (estimate, standard error, the
+    95 % Student-t interval), the line's dip and angle there with their
+    standard errors, the loss there (`jaxpile fit`'s: the mean of the weighted
+    squared misses), the heaps, the degrees of freedom, the
+    residual scatter of each statistic and the line (intercept and slope of
+    each); None with fewer than two grid points."""
+    from jaxpile.fit import regression
+    from jaxpile.fit.stats import t_quantile
+
+    points = [(x, r["central_dip"], r["repose_mean"]) for x, rows in heaps.items() for r in rows
+              if all(r.get(k) is not None and math.isfinite(r[k]) for k in ("central_dip", "repose_mean"))]
+    if len({p[0] for p in points}) < 2:
+        return None
+    x, means = np.array([[p[0]] for p in points]), np.array([p[1:] for p in points])
+    sampling = None
+    if target_members is not None and len(target_members) > 1:
+        sampling = np.cov(np.asarray(target_members, float), rowvar=False) / len(target_members)
+    line = regression.inverse(x, means, target_mean, w, (sampling,))
+    if line is None:
+        return None
+    value, se = float(line.theta[0]), float(math.sqrt(max(line.cov[0, 0], 0.0)))
+    z = t_quantile(line.dof)
+    at, cov = line.predict(line.theta)
+    mismatch = (at - np.asarray(target_mean, float)) ** 2
+    return {"mu_roll": [value, se], "interval": [value - z * se, value + z * se],
+            "central_dip": [float(at[0]), float(math.sqrt(cov[0, 0]))],
+            "repose_mean": [float(at[1]), float(math.sqrt(cov[1, 1]))],
+            "loss": float(np.mean(np.asarray(w, float) * mismatch)), "heaps": len(points), "dof": line.dof,
+            "scatter": line.scatter.tolist(), "grid": sorted({p[0] for p in points}),
+            "line": {"intercept": line.intercept.tolist(), "slope": line.jacobian[:, 0].tolist()}}
+
+
+def recover_along(heaps: dict, w) -> list[dict]:
+    """`fit_along` checked on known values: for each grid mu_roll, the target is
+    the mean dip and angle of its heaps of one half of the seeds (even or
+    odd), fitted from the other half's heaps at every grid point. Each entry:
+    the truth, the half the target came from, the fit (`fit_along`), and
+    whether its interval holds the truth."""
+    seeds = sorted({r["seed"] for rows in heaps.values() for r in rows if r.get("seed") is not None})
+    halves = {"even": set(seeds[0::2]), "odd": set(seeds[1::2])}
+    out = []
+    for truth in sorted(heaps):
+        for name, half in halves.items():
+            members = np.array([[r["central_dip"], r["repose_mean"]] for r in heaps[truth] if r.get("seed") in half
+                                and all(r.get(k) is not None and math.isfinite(r[k])
+                                        for k in ("central_dip", "repose_mean"))])
+            others = {x: [r for r in rows if r.get("seed") is not None and r["seed"] not in half]
+                      for x, rows in heaps.items()}
+            if len(members) < 2:
+                continue
+            fit = fit_along(others, members.mean(axis=0), w, members)
+            if fit is not None:
+                out.append({"truth": truth, "target_half": name, "target_heaps": len(members), "fit": fit,
+                            "inside": bool(fit["interval"][0] < truth < fit["interval"][1])})
+    return out
 
 
 def set_up_label(summary: dict) -> str:
@@ -244,6 +318,16 @@ def main(argv=None) -> None:
                   + ("" if c["centre_below_flanks_held_out"] is None else
                      f"and the centre {c['centre_below_flanks_held_out'][0]:+.3f} +- "
                      f"{c['centre_below_flanks_held_out'][1]:.3f} below the flanks (held out)"))
+        fit = grid["fit"]
+        print("too few grid points along mu_roll for a fit" if fit is None else
+              f"fitted to both from {fit['heaps']} heaps: mu_roll = {fit['mu_roll'][0]:.3f} +- {fit['mu_roll'][1]:.3f} "
+              f"(95 %: {fit['interval'][0]:.3f}-{fit['interval'][1]:.3f}), where the line's dip is "
+              f"{fit['central_dip'][0]:+.3f} +- {fit['central_dip'][1]:.3f} and its angle {fit['repose_mean'][0]:.1f} "
+              f"+- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.1f})")
+        held = [r["inside"] for r in grid["recovery"]]
+        if held:
+            print(f"recovered from the other half of the seeds: {sum(held)} of {len(held)} intervals hold the truth "
+                  "(" + ", ".join(f"{r['truth']:g} -> {r['fit']['mu_roll'][0]:.3f}" for r in grid["recovery"]) + ")")
         return
     if args.summarise:
         summary = json.loads((out / "profiles.json").read_text())
@@ -314,6 +398,16 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
             ax.axvspan(c["mu_roll"][0] - c["mu_roll"][1], c["mu_roll"][0] + c["mu_roll"][1], color="C3", alpha=0.15)
         left.plot([c["mu_roll"][0]], [grid["target"]["repose_mean"][0]], "x", color="C3", ms=10,
                   label=f"meets it at mu_roll = {c['mu_roll'][0]:.2f} +- {c['mu_roll'][1]:.2f}")
+    fit = grid.get("fit")
+    if fit:  # the straight lines the fit drew through the heaps, and where they best meet both targets
+        span = np.array([min(fit["grid"]), max(fit["grid"])])
+        (m, e), (lo, hi) = fit["mu_roll"], fit["interval"]
+        for ax, i, key in ((right, 0, "central_dip"), (left, 1, "repose_mean")):
+            ax.plot(span, fit["line"]["intercept"][i] + fit["line"]["slope"][i] * span, "--", color="C4", lw=1)
+            ax.axvspan(lo, hi, color="C4", alpha=0.12)
+            ax.errorbar([m], [fit[key][0]], xerr=[e], yerr=[fit[key][1]], fmt="*", ms=12, color="C4", capsize=4,
+                        label=f"fit to both: mu_roll = {m:.3f} (95 %: {lo:.3f}-{hi:.3f})" if i == 1 else
+                        f"the fit's {key} there: {fit[key][0]:+.2f} +- {fit[key][1]:.2f}")
     left.set(xlabel="rolling friction mu_roll", ylabel="angle of repose (deg)")
     right.set(xlabel="rolling friction mu_roll", ylabel="dip below the flanks")
     # every (mu, mu_roll): does any stand at the reported angle with the reported dip?
