@@ -255,6 +255,80 @@ def test_a_deterministic_lattice_gives_back_its_stiffness_from_its_height():
     assert result.record["sensitivity"]["ks"] > 0
 
 
+class _Stopped(Exception):
+    """A fit stopped from outside (a session's end, a kill) right after a batch save."""
+
+
+def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uninterrupted_fit(tmp_path,
+                                                                                              monkeypatch, capsys):
+    """fit(batch_checkpoint=(path, every)): a fit stopped right after the first save of its first
+    iteration's batch (no iteration finished) resumes from its history, written before the first
+    iteration, and from that save, and ends with the uninterrupted fit's history and values; each batch's
+    save is removed when the batch is measured, and a fresh fit removes one left in its place."""
+    from jaxpile.engine import checkpoint as ckpt
+
+    runner = ef.Runner("lattice", "liffman", options={"layers": 4, "ramp_steps": 1000})
+    statistics = ef.Statistics(columns=("height",), bins=4)
+    target = ef.make_target(runner, {"ks": 13_700.0}, [7], statistics)
+    kw = dict(seeds=[0], statistics=statistics, steps=1, progress=False, interval=False)
+    whole = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw)
+
+    saves, save = [], ckpt.save
+
+    def save_then_stop(path, *args, **extra):
+        save(path, *args, **extra)
+        saves.append(path)
+        raise _Stopped
+
+    history, batch = str(tmp_path / "fit.json"), tmp_path / "batch.npz"
+    monkeypatch.setattr(ckpt, "save", save_then_stop)
+    with pytest.raises(_Stopped):
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200), **kw)
+    monkeypatch.setattr(ckpt, "save", save)
+    assert saves == [str(batch)] and ckpt.read_metadata(batch)["extra"]["batch_start"] == 0
+    from jaxpile import sweeps
+
+    resumes, sweep = [], sweeps.sweep
+    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
+    resumed = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
+                     batch_checkpoint=(str(batch), 200), **kw)
+    assert resumes == [str(batch), None]  # the iteration's batch from its save, the final one afresh
+    assert not batch.exists()
+    assert resumed.values == whole.values
+    def same(h):  # as JSON: NaN standard errors (one pile) compare equal
+        return json.dumps({k: v for k, v in h.items() if k != "seconds"})
+
+    assert [same(h) for h in resumed.history] == [same(h) for h in whole.history]
+    batch.write_bytes(b"another fit's batch")
+    again = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, batch_checkpoint=(str(batch), 200), **kw)
+    assert again.values == whole.values and not batch.exists()
+
+    # the command line: OUT/fit_batch.npz, and OUT/target_batch.npz for a target stopped before the fit began,
+    # which --resume continues
+    from jaxpile import cli
+
+    out = tmp_path / "cli"
+    argv = ["fit", "--protocol", "lattice", "--law", "liffman", "--layers", "4", "--ramp-steps", "1000", "--bins",
+            "4", "--statistics", "height", "--params", "ks", "--set", "ks=9000", "--truth", "ks=13700",
+            "--target-seeds", "7", "--estimator", "central", "--ensemble", "1", "--steps", "1",
+            "--checkpoint-every", "200", "--no-progress", "--out", str(out)]
+    saves.clear()
+    monkeypatch.setattr(ckpt, "save", save_then_stop)
+    with pytest.raises(_Stopped):
+        cli.main(argv)
+    monkeypatch.setattr(ckpt, "save", save)
+    assert saves == [str(out / "target_batch.npz")] and not (out / "fit_checkpoint.json").exists()
+    assert cli.main(argv + ["--resume"]) == 0
+    record = json.loads((out / "fit.json").read_text())
+    assert record["values"] == whole.values and not list(out.glob("*_batch.npz"))
+    capsys.readouterr()
+    assert cli.main(["fit", "--params", "ks", "--target", str(tmp_path / "profile.csv"), "--checkpoint-every",
+                     "200", "--out", str(tmp_path / "pathwise")]) == 2
+    assert "a pathwise fit runs one pile" in capsys.readouterr().err
+    assert cli.main(argv[:argv.index("--checkpoint-every")] + ["--checkpoint-every", "0", "--dry-run", "--out",
+                                                               str(tmp_path / "zero")]) == 2
+
+
 def test_missing_statistics_weights_and_resume_guards(tmp_path):
     """A pile missing a statistic at any point is left out of it at every
     point (common random numbers kept); each unit group is weighted by its own

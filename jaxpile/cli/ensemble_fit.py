@@ -81,8 +81,10 @@ def _fit_inputs(args, spec) -> tuple:
 def run_ensemble_fit(args, estimator: str) -> dict:
     """Builds the runner, the target (made here from `--truth`, or read from a
     target.json), fits, and writes fit.json, target.json and fit.png to OUT;
-    the history goes to OUT/fit_checkpoint.json after every iteration, and
-    `--resume` continues from it."""
+    the history goes to OUT/fit_checkpoint.json before the first iteration
+    and after every one, the running batch to OUT/fit_batch.npz (a target's
+    to OUT/target_batch.npz) every `--checkpoint-every` steps, and `--resume`
+    continues from them."""
     from jaxpile import distributed, io, sweeps
     from jaxpile.fit import ensemble_fit
     from jaxpile.laws import get_law_module
@@ -103,6 +105,11 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
+    if args.checkpoint_every is not None:
+        COUNT.check("--checkpoint-every", args.checkpoint_every, scalar=True)
+        if args.distributed:
+            raise InputError("--checkpoint-every saves one process's batch: a distributed fit resumes from its "
+                             "histories, at the end of an iteration (leave --checkpoint-every out).")
     truth = _values(args.truth, get_law_module(law).PARAM_NAMES, "--truth") if args.truth else None
     if truth is not None and set(truth) - set(names):
         raise InputError(f"--truth gives {sorted(set(truth) - set(names))}, which this fit does not fit "
@@ -136,7 +143,11 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     folder = distributed.folder_of(args.out)  # every process keeps its own history (all the same)
     os.makedirs(folder, exist_ok=True)
     checkpoint = os.path.join(folder, "fit_checkpoint.json")
-    target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint)
+    target_batch = None if args.checkpoint_every is None else (os.path.join(folder, "target_batch.npz"),
+                                                               args.checkpoint_every)
+    if args.resume and not os.path.exists(checkpoint) and target_batch and os.path.exists(target_batch[0]):
+        args.resume = False  # stopped while making its target, before the fit began: continue the target
+    target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint, target_batch)
     if writes:
         io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
@@ -146,13 +157,17 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               estimator=estimator, optimizer=optimizer, steps=steps, lr=args.lr,
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
-                              resume=checkpoint if args.resume else None)
+                              resume=checkpoint if args.resume else None,
+                              batch_checkpoint=None if args.checkpoint_every is None else
+                              (os.path.join(folder, "fit_batch.npz"), args.checkpoint_every))
     return _write_results(args, names, target, result) if writes else result.to_json()
 
 
-def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool, checkpoint: str):
+def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool, checkpoint: str,
+            target_batch=None):
     """The `EnsembleTarget`: the one saved in OUT/fit_checkpoint.json (`--resume`),
-    made here at `--truth` from `target_seeds`, the declared Smid-Novosad one,
+    made here at `--truth` from `target_seeds` (its batch saved to and
+    continued from `target_batch`, `(path, every)`), the declared Smid-Novosad one,
     or read from `--target target.json`."""
     from jaxpile import io
     from jaxpile.fit import ensemble_fit
@@ -167,7 +182,7 @@ def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool
         print(f"jaxpile: making the target: {len(target_seeds)} {args.protocol} piles at {truth} (seeds "
               f"{target_seeds[0]}..{target_seeds[-1]})", flush=True)
         return ensemble_fit.make_target(runner._replace(params={**fixed, **truth} if fixed else None), truth,
-                                        target_seeds, statistics, progress=False)
+                                        target_seeds, statistics, progress=False, batch_checkpoint=target_batch)
     if declared:
         return ensemble_fit.smid_novosad_target(statistics.labels())
     if args.target and args.target.endswith(".json"):

@@ -48,6 +48,9 @@ def run_fit(args) -> dict:
         raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
                          "smoothing.")
     _pathwise(args.protocol)  # refused here when the protocol offers no pathwise fit
+    if args.checkpoint_every is not None:
+        raise InputError("--checkpoint-every saves an ensemble fit's batches of piles: a pathwise fit runs one pile "
+                         "(use --estimator central or smoothing).")
     if args.rolling is not None or args.rotation is not None:
         raise InputError("a pathwise fit builds its pile with the protocol's own law readings: --rolling and "
                          "--rotation are for ensemble fits (--estimator central or smoothing).")

@@ -231,7 +231,11 @@ def _ensemble_fit_args(fitp) -> None:
                       help="ensemble fits: the per-pile measurements compared (default: the protocol's); with "
                            "--bins, the base profile too")
     fitp.add_argument("--resume", action="store_true",
-                      help="ensemble fits: continue the fit whose history is in OUT/fit_checkpoint.json")
+                      help="ensemble fits: continue the fit whose history is in OUT/fit_checkpoint.json (and the "
+                           "batch of piles in OUT/fit_batch.npz, where one was saved)")
+    fitp.add_argument("--checkpoint-every", type=int, default=None, metavar="STEPS",
+                      help="ensemble fits: save the running batch of piles to OUT/fit_batch.npz every STEPS steps, "
+                           "so that --resume continues an iteration that did not finish")
     fitp.add_argument("--batch-size", type=int, default=None, metavar="PILES",
                       help="ensemble fits: piles per compiled batch (default: an iteration's piles at once; "
                            "--distributed: one batch a process)")

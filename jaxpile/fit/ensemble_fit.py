@@ -43,9 +43,12 @@ with a Student-t quantile for its B - 1 degrees of freedom; for a
 deterministic pile, the nonlinear-least-squares covariance s^2 H^-1.
 tests/test_ensemble_fit.py checks each on a toy whose answer is known.
 
-A fit checkpoints its history to JSON after every iteration; `resume` replays
-it (optax states are rebuilt by replaying the recorded gradients, which makes
-the resumed fit step for step the uninterrupted one).
+A fit checkpoints its history to JSON before its first iteration and after
+every one; `resume` replays it (optax states are rebuilt by replaying the
+recorded gradients, which makes the resumed fit step for step the
+uninterrupted one). An iteration of paper-size piles on a CPU can outlast a
+working session: `batch_checkpoint` saves the running batch of piles as a
+sweep does, and a resumed fit continues that batch where it stopped.
 
 How the ensembles are built and what each pile contributes are in
 `ensemble_runs` (`Runner`, `Statistics`), the targets in `ensemble_targets`
@@ -73,7 +76,7 @@ import jaxpile.fit.regression as regression
 from jaxpile import config, distributed, io
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Runner, Statistics
-from jaxpile.fit.ensemble_runs import fill_missing
+from jaxpile.fit.ensemble_runs import fill_missing, run_saved
 from jaxpile.fit.ensemble_targets import EnsembleTarget, make_target, smid_novosad_target
 from jaxpile.fit.stats import t_quantile, weights
 from jaxpile.ranges import COUNT, POSITIVE
@@ -189,7 +192,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         lr: float = 0.1, step: float = 0.05, sigma: float = 0.05, pairs: int = 4, key: int = 0, window: int = 60,
         max_step: float = 0.3, tolerance: float = 1e-3, noise_stop: bool = False,
         progress: Callable | bool | None = True,
-        checkpoint: str | None = None, resume: str | None = None, interval: bool = True) -> EnsembleFitResult:
+        checkpoint: str | None = None, resume: str | None = None, interval: bool = True,
+        batch_checkpoint: tuple[str, int] | None = None) -> EnsembleFitResult:
     """Fits the law parameters `names` (positive; fitted as logs) so that the
     ensemble of `seeds` matches `target`.
 
@@ -222,10 +226,18 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         compare the steps with.
       progress: print a line per iteration (True), or a callable given each
         history entry.
-      checkpoint: a JSON path to write the history to after every iteration.
+      checkpoint: a JSON path to write the history to before the first
+        iteration and after every one.
       resume: a checkpoint JSON of this fit to continue from.
       interval: run the final central differences for the confidence
         interval (2d + 1 more ensembles); False: NaN interval.
+      batch_checkpoint: `(path, every)`: each batch of piles the runner runs
+        (an iteration's ensembles, the final ones) is saved to the `.npz`
+        `path` every `every` steps (`sweeps.sweep`'s checkpoint), continued
+        from it when the fit is resumed, and removed when the batch ends;
+        without `resume` a file left there is removed first. The central and
+        smoothing estimators' batches (the truncated estimator's rollouts are
+        not saved).
 
     Returns:
       `EnsembleFitResult` (the interval from a final central-difference
@@ -248,9 +260,17 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               "settings": config.settings()}
     if resume is not None:
         theta, opt_state, history = _replay(resume, record, theta, opt, opt_state)
+    elif checkpoint is not None:  # a fit stopped in its first iteration resumes from here
+        _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+    if batch_checkpoint is not None:
+        batch_path, every = str(batch_checkpoint[0]), batch_checkpoint[1]
+        COUNT.check("the batch checkpoint's interval", every, scalar=True)
+        if resume is None and os.path.exists(batch_path):  # another fit's batch
+            os.remove(batch_path)
+        batch_checkpoint = (batch_path, int(every))
     t0 = time.perf_counter()
     fitting = _Fitting(runner, names, seeds, statistics, target, w, objective_for(target, w), estimator, opt,
-                       step, sigma, pairs, key, window, max_step, tolerance, noise_stop)
+                       step, sigma, pairs, key, window, max_step, tolerance, noise_stop, batch_checkpoint)
     message = ""
     done = bool(history) and history[-1].get("converged", False)
     for it in range(len(history), steps):
@@ -406,14 +426,18 @@ class _Fitting(NamedTuple):
     max_step: float
     tolerance: float
     noise_stop: bool
+    batch_checkpoint: tuple[str, int] | None = None
 
     def params_of(self, theta) -> dict:
         return {n: float(v) for n, v in zip(self.names, np.exp(theta))}
 
     def run(self, thetas):
         """`(s, missing, info)`: the statistics `[m, B, k]` of the seeds at
-        each of the m `thetas` (one batched run), missing ones filled."""
-        s, info = self.runner.run([self.params_of(t) for t in thetas], self.seeds, self.statistics, progress=False)
+        each of the m `thetas` (one batched run), missing ones filled; the
+        batch saved as it runs and continued from its save (`fit`'s
+        `batch_checkpoint`)."""
+        s, info = run_saved(self.runner, [self.params_of(t) for t in thetas], self.seeds, self.statistics,
+                            self.batch_checkpoint, progress=False)
         s, missing = fill_missing(s)
         return s, missing, info
 

@@ -5,6 +5,7 @@ it (`Statistics`: columns of the sweep's row, the base profile)."""
 from __future__ import annotations
 
 import math
+import os
 from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
@@ -150,6 +151,21 @@ class Runner(NamedTuple):
         s = np.stack([_row_statistics(r, statistics) for r in rows]).reshape(len(points), len(seeds), -1)
         # the cost: the steps every pile ran (a batch also carries its finished piles, frozen)
         return s, {**result.info, "particle_steps": result.info["n_particles"] * sum(int(r["steps"]) for r in rows)}
+
+
+def run_saved(runner, points: Sequence[dict], seeds, statistics: Statistics, batch_checkpoint=None,
+              progress=None) -> tuple[np.ndarray, dict]:
+    """`runner.run`, its batch saved to `batch_checkpoint` `(path, every)`
+    every `every` steps as it runs (None: not saved), continued from a save
+    left at `path`, and the save removed once the batch is measured."""
+    if batch_checkpoint is None:
+        return runner.run(points, seeds, statistics, progress=progress)
+    path = batch_checkpoint[0]
+    out = runner.run(points, seeds, statistics, progress=progress, checkpoint=tuple(batch_checkpoint),
+                     resume=path if os.path.exists(path) else None)
+    if os.path.exists(path):  # the batch is measured: the next one starts afresh
+        os.remove(path)
+    return out
 
 
 def fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:

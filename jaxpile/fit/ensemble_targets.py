@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxpile.errors import InputError
-from jaxpile.fit.ensemble_runs import Runner, Statistics, fill_missing
+from jaxpile.fit.ensemble_runs import Runner, Statistics, fill_missing, run_saved
 from jaxpile.fit.targets import SMID_NOVOSAD_ANGLE_DEGREES, SMID_NOVOSAD_DIP_RANGE
 
 
@@ -57,10 +57,12 @@ class EnsembleTarget(NamedTuple):
                    record.get("truth"), record.get("seeds"), record.get("setting"))
 
 
-def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None) -> EnsembleTarget:
+def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None,
+                batch_checkpoint=None) -> EnsembleTarget:
     """A synthetic target: the ensemble of `seeds` at the law parameters
-    `truth` (use seeds the fit never sees)."""
-    s, _ = runner.run([truth], seeds, statistics, progress=progress)
+    `truth` (use seeds the fit never sees); its batch saved and continued as
+    `ensemble_runs.run_saved` does with `batch_checkpoint`."""
+    s, _ = run_saved(runner, [truth], seeds, statistics, batch_checkpoint, progress=progress)
     s, _ = fill_missing(s)
     members = s[0]
     spread = members.std(axis=0, ddof=1) if members.shape[0] > 1 else np.ones(members.shape[1])
