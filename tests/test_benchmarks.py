@@ -267,7 +267,7 @@ def test_fit_along_the_grid_meets_both_targets_on_a_straight_line_and_recovers_e
     in mu_roll (0.1 + mu_roll, 28 + 30 mu_roll) give the weighted least-squares mu_roll of the declared pair
     in the fit's weights (1 / 0.05^2, 1 / 1^2): (400 x 0.15 + 30 x 4.6) / (400 + 900) = 0.1523, where the
     line reads 0.2523 and 32.57 deg, with no error and the fit's loss there; with noise about the line the
-    interval widens and holds that value. `recover_along` takes each grid point's even or odd seeds as the
+    interval widens and holds that value, and the lack-of-fit test rejects a bent dip, not a straight one. `recover_along` takes each grid point's even or odd seeds as the
     target and fits from the others: on the exact line every truth comes back."""
     import pour_profiles  # benchmarks/studies/papers, on the path above
 
@@ -292,8 +292,16 @@ def test_fit_along_the_grid_meets_both_targets_on_a_straight_line_and_recovers_e
     assert fit["loss"] == pytest.approx(0.5 * (400 * (0.1 + best - 0.25) ** 2 + (28 + 30 * best - 32.6) ** 2))
     assert fit["heaps"] == 24 and fit["dof"] == 22 and fit["grid"] == [0.0, 0.1, 0.2]
     assert fit["line"]["slope"] == pytest.approx([1.0, 30.0])
+    assert fit["lack_of_fit"] == [None, None]  # no scatter at a grid point: nothing to test the line against
     noisy = pour_profiles.fit_along(heaps(1.0), target.mean, w)
     assert noisy["mu_roll"][1] > 0.005 and noisy["interval"][0] < best < noisy["interval"][1]
+    assert min(noisy["lack_of_fit"]) > 0.01  # straight lines: the test does not reject them
+    bent = heaps(1.0)
+    for x, rows in bent.items():  # the dip bends: 0.1 + x - 30 x (x - 0.2), up 0.3 in the middle
+        for r in rows:
+            r["central_dip"] -= 30 * x * (x - 0.2)
+    p_dip, p_angle = pour_profiles.fit_along(bent, target.mean, w)["lack_of_fit"]
+    assert p_dip < 1e-3 and p_angle > 0.01  # the angle still straight
     assert pour_profiles.fit_along({0.1: exact[0.1]}, target.mean, w) is None  # one grid point: no line
     recovered = pour_profiles.recover_along(heaps(0.0), w)
     assert [(r["truth"], r["target_half"]) for r in recovered] == [(x, h) for x in (0.0, 0.1, 0.2) for h in

@@ -86,7 +86,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     to OUT/target_batch.npz) every `--checkpoint-every` steps, and `--resume`
     continues from them."""
     from jaxpile import distributed, io, sweeps
-    from jaxpile.fit import ensemble_fit
+    from jaxpile.fit import ensemble_fit, ensemble_runs
     from jaxpile.laws import get_law_module
 
     a = sweeps.spec_of(args.protocol)
@@ -143,10 +143,14 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     folder = distributed.folder_of(args.out)  # every process keeps its own history (all the same)
     os.makedirs(folder, exist_ok=True)
     checkpoint = os.path.join(folder, "fit_checkpoint.json")
-    target_batch = None if args.checkpoint_every is None else (os.path.join(folder, "target_batch.npz"),
-                                                               args.checkpoint_every)
-    if args.resume and not os.path.exists(checkpoint) and target_batch and os.path.exists(target_batch[0]):
+    every, batches = args.checkpoint_every, [os.path.join(folder, f"{k}_batch.npz") for k in ("target", "fit")]
+    if args.resume and every is None:  # the batch a resumed fit left is continued, saved as often as it was
+        every = next((b["every"] for b in map(ensemble_runs.saved_batch, batches) if b), None)
+    target_batch = None if every is None else (batches[0], every)
+    if args.resume and truth is not None and not os.path.exists(checkpoint) and os.path.exists(batches[0]):
         args.resume = False  # stopped while making its target, before the fit began: continue the target
+    elif not args.resume and os.path.exists(batches[0]):
+        os.remove(batches[0])  # another command's target, stopped: this one makes its own
     target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint, target_batch)
     if writes:
         io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
@@ -158,8 +162,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None,
-                              batch_checkpoint=None if args.checkpoint_every is None else
-                              (os.path.join(folder, "fit_batch.npz"), args.checkpoint_every))
+                              batch_checkpoint=None if every is None else (batches[1], every))
     return _write_results(args, names, target, result) if writes else result.to_json()
 
 

@@ -265,6 +265,9 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     if batch_checkpoint is not None:
         batch_path, every = str(batch_checkpoint[0]), batch_checkpoint[1]
         COUNT.check("the batch checkpoint's interval", every, scalar=True)
+        if distributed.process_count() > 1:
+            raise InputError("batch_checkpoint saves one process's batch: a distributed fit resumes from its "
+                             "histories, at the end of an iteration.")
         if resume is None and os.path.exists(batch_path):  # another fit's batch
             os.remove(batch_path)
         batch_checkpoint = (batch_path, int(every))

@@ -4,8 +4,10 @@ it (`Statistics`: columns of the sweep's row, the base profile)."""
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import warnings
 from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
@@ -157,15 +159,41 @@ def run_saved(runner, points: Sequence[dict], seeds, statistics: Statistics, bat
               progress=None) -> tuple[np.ndarray, dict]:
     """`runner.run`, its batch saved to `batch_checkpoint` `(path, every)`
     every `every` steps as it runs (None: not saved), continued from a save
-    left at `path`, and the save removed once the batch is measured."""
+    left at `path` by this same batch, and the save removed once the batch is
+    measured. A save of another batch (other points, seeds, set-up or batch
+    size: a fit resumed with other settings) is removed with a warning, and
+    the batch starts afresh."""
     if batch_checkpoint is None:
         return runner.run(points, seeds, statistics, progress=progress)
-    path = batch_checkpoint[0]
-    out = runner.run(points, seeds, statistics, progress=progress, checkpoint=tuple(batch_checkpoint),
-                     resume=path if os.path.exists(path) else None)
+    path, every = str(batch_checkpoint[0]), int(batch_checkpoint[1])
+    batch = json.loads(json.dumps({"points": list(points), "seeds": [int(x) for x in seeds],
+                                   "statistics": statistics.labels(), "setting": runner.setting(),
+                                   "params": runner.params, "batch_size": runner.batch_size, "every": every},
+                                  default=float))
+    resume = path if os.path.exists(path) else None
+    saved = saved_batch(path) if resume is not None else None
+    if resume is not None and {k: v for k, v in (saved or {}).items() if k != "every"} != \
+            {k: v for k, v in batch.items() if k != "every"}:  # how often it was saved may change
+        warnings.warn(f"{path} holds another batch of piles than this one (a fit resumed with other settings): "
+                      "removed, and the batch starts afresh.", stacklevel=2)
+        os.remove(path)
+        resume = None
+    out = runner.run(points, seeds, statistics, progress=progress, checkpoint=(path, every, {"fit_batch": batch}),
+                     resume=resume)
     if os.path.exists(path):  # the batch is measured: the next one starts afresh
         os.remove(path)
     return out
+
+
+def saved_batch(path: str) -> dict | None:
+    """What `run_saved` recorded in the save at `path` (its points, seeds,
+    set-up and `every`), or None for a file it did not write."""
+    from jaxpile.engine import checkpoint
+
+    try:
+        return checkpoint.read_metadata(path)["extra"].get("fit_batch")
+    except Exception:  # not a checkpoint, or damaged: not a batch of this fit
+        return None
 
 
 def fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:

@@ -18,13 +18,15 @@ the target t, in the fit's weights W,
 
 is classical inverse regression, the calibration problem (Eisenhart 1939,
 Ann. Math. Statist. 10, 162; reviewed by Osborne 1991, Int. Statist. Rev.
-59, 309); the three papers fit no parameters. Its covariance is the sandwich
-H^-1 J^T W C W J H^-1 (H = J^T W J), where C, the covariance of the mismatch
-a + J theta* - t, adds three parts: the line's own noise at theta* (the
-residual covariance times the leverage x*^T (X^T X)^-1 x*, x* = (1, theta*)),
-the target's sampling noise (Sigma_t / B_t) and that of the fit's seeds
-(Sigma / B: the piles the whole line was built on), the same sandwich as
-`ensemble_fit.confidence` (Huber 1967, White 1982). The interval is Student-t
+59, 309); the three papers fit no parameters. Its covariance is the delta
+method through theta*'s equation J^T W (a + J theta* - t) = 0 (H = J^T W J):
+the line's own noise (its coefficients' covariance, the residual covariance
+times (X^T X)^-1) moves theta* through the line's level at theta* and, where
+the target is missed (r = a + J theta* - t not 0), through its slope, the
+term a fit that cannot reach its target needs; the target's sampling noise
+(Sigma_t / B_t) and that of the fit's seeds (Sigma / B: the piles the whole
+line was built on) enter as H^-1 J^T W (Sigma_t / B_t + Sigma / B) W J H^-1,
+the sandwich of `ensemble_fit.confidence` (Huber 1967, White 1982). The interval is Student-t
 with the residuals' N - d - 1 degrees of freedom. A straight line is the
 model: over iterates far apart on a curved response it is biased, so the
 estimate is for fits whose iterates stay near the answer (after the first
@@ -145,13 +147,17 @@ def inverse(x, means, target_mean, w, sampling=()) -> Line | None:
     residual = resid.T @ resid / dof
     design_inverse = np.linalg.inv(xtx)
     at = np.concatenate([[1.0], theta])
-    c = residual * float(at @ design_inverse @ at)
-    for part in sampling:
-        if part is not None:
-            c = c + part
+    # the line's noise moves x* through its level at x* and, where the target is missed (r != 0), through
+    # its slope: dx* = -H^-1 sum_k G_k db_k, G_k = w_k J_k at^T + w_k r_k [0 | I], Cov(db_k, db_l) =
+    # residual_kl (X^T X)^-1
+    miss = a + jac @ theta - np.asarray(target_mean, float)
+    pick = np.hstack([np.zeros((d, 1)), np.eye(d)])
+    g = [w[k] * (np.outer(jac[k], at) + miss[k] * pick) for k in range(len(w))]
+    line_part = sum(residual[k, m] * g[k] @ design_inverse @ g[m].T for k in range(len(w)) for m in range(len(w)))
     jw = jac.T * w
-    return Line(theta, inv @ jw @ c @ jw.T @ inv, np.sqrt(np.clip(np.diag(residual), 0, None)), int(dof), a, jac,
-                residual, design_inverse)
+    c = sum((part for part in sampling if part is not None), np.zeros_like(residual))
+    cov = inv @ (line_part + jw @ c @ jw.T) @ inv
+    return Line(theta, cov, np.sqrt(np.clip(np.diag(residual), 0, None)), int(dof), a, jac, residual, design_inverse)
 
 
 def estimate(result, w: np.ndarray | None = None, skip: int = 1) -> Regression | None:

@@ -5,7 +5,8 @@
 # at the paper's mu = 0.5: at mu_roll = 0.3, mu = 0.3 and 0.5 give the same angle and dip seed for
 # seed (-0.5 +- 1.3 deg, +0.06 +- 0.07; docs/rolling_resistance.md), so these statistics do not
 # constrain mu. Each fit is a `jaxpile fit --estimator central` that saves its history after every
-# Gauss-Newton iteration and is stopped at its time limit; a later call resumes it. What it wrote
+# Gauss-Newton iteration and its running batch every 20,000 steps, and is stopped at its time limit; a
+# later call resumes it where it stopped. What it wrote
 # comes back in OUT/smid_novosad.tgz, with OUT/log.txt: unpack it into .gpu_runs/ here and carry
 # .gpu_runs on the next call (a finished fit is skipped, a made target reused).
 #
@@ -13,7 +14,7 @@
 #
 # SPREAD: the pour's source, release x within +-SPREAD sigma (the paper's 3). Released within +-0.5 sigma,
 # the 300-disk heaps at mu_roll = 0.15 dip 21 +- 10 % below their flanks (docs/rolling_resistance.md); the
-# paper's source gives no significant dip at any mu_roll tried. A SPREAD other than 3 writes its fits to
+# paper's source gives no significant dip at the reported angle. A SPREAD other than 3 writes its fits to
 # .gpu_runs/recovery_spreadSPREAD and .gpu_runs/smid-novosad_spreadSPREAD.
 #
 # The device has JAX but not jax-md: copy the .venv's jax_md package into .gpu_site/ (git ignores it
@@ -29,14 +30,14 @@ spread=${5:-3}
 # (docs/rolling_resistance.md): k_roll = 1000, gamma_roll = 30; mu_roll fitted from 0.25
 common=(--protocol pour --law baxter --params mu_roll --rotation on --rolling sds --set k_roll=1000
         --set gamma_roll=30 --set mu=0.5 --set mu_roll=0.25 --statistics central_dip,repose_mean
-        --estimator central --difference-step 0.2 --steps 6 --no-progress)
+        --estimator central --difference-step 0.2 --steps 6 --checkpoint-every 20000 --no-progress)
 if [ "$size" = small ]; then
     common+=(--n 40 --ensemble 2 --steps 1)  # 40 disks: the smallest heap with an angle on every side
 else
     common+=(--n 300 --ensemble 16)
 fi
 suffix=
-if [ "$spread" != 3 ]; then
+if [ "$(printf '%g' "$spread")" != 3 ]; then
     common+=(--option "spread=$spread")
     suffix=_spread$spread
 fi
@@ -49,7 +50,7 @@ run_fit() {  # NAME SECONDS TARGET_ARGS...
         echo "== $name: finished in an earlier call ($dir/fit.json)" | tee -a "$log"
         return
     fi
-    if [ -f "$dir/fit_checkpoint.json" ]; then  # a history left by an earlier call: continue it
+    if [ -f "$dir/fit_checkpoint.json" ] || [ -f "$dir/target_batch.npz" ]; then  # left by an earlier call: continue
         target+=(--resume)
     elif [ -f "$dir/target.json" ] && [ "${target[0]}" = --truth ]; then  # a target made before its first iteration
         target=(--target "$dir/target.json")

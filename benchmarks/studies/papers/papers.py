@@ -308,8 +308,8 @@ def rows_rolling() -> list[list[str]]:
 
 POUR_PROFILES = sorted((RESULTS / "rolling").glob("cpu_pour_profiles*/profiles.json"))
 """The poured heaps' mean base profiles (`pour_profiles.py`), one folder a sliding friction."""
-POUR_GRID = RESULTS / "rolling" / "pour_grid.json"
-"""The declared dip and angle against those heaps (`pour_profiles.py --grid`)."""
+POUR_GRIDS = [RESULTS / "rolling" / "pour_grid.json", *sorted((RESULTS / "rolling").glob("*/pour_grid.json"))]
+"""The declared dip and angle against those heaps (`pour_profiles.py --grid`), one file a set-up of the pour."""
 
 
 def rows_rolling_pour() -> list[list[str]]:
@@ -338,14 +338,24 @@ def rows_rolling_pour() -> list[list[str]]:
     best, best_angle = best
     low, high = 0.2 - 2 * _se(best), 0.3 + 2 * _se(best)
     at_angle = ""
-    if POUR_GRID.exists():  # where the angle meets the reported one (`pour_profiles.on_the_grid`)
-        grid = json.loads(POUR_GRID.read_text())
-        for c in grid.get("crossings", []):
+    for path in (p for p in POUR_GRIDS if p.exists()):  # the declared pair against each set-up's grid
+        grid = json.loads(path.read_text())
+        label = pour_profiles.set_up_label(grid)
+        for c in grid.get("crossings", []):  # where the angle meets the reported one, interpolated
             held = c.get("centre_below_flanks_held_out")  # flank bins chosen on the other heaps: unbiased
             if held:
                 at_angle += (f"; at the reported angle (μ = {grid['mu']:g}, μ_r ≈ {c['mu_roll'][0]:.2f} ± "
-                             f"{c['mu_roll'][1]:.2f}, interpolated) {held[0]:.2f} ± {held[1]:.2f}, "
+                             f"{c['mu_roll'][1]:.2f}{label}, interpolated) {held[0]:.2f} ± {held[1]:.2f}, "
                              f"{(0.2 - held[0]) / held[1]:.1f} s.e. below 20%")
+        if fit := grid.get("fit"):  # μ_r fitted to both through the grid's heaps (`pour_profiles.fit_along`)
+            (d, de), (a, ae) = fit["central_dip"], fit["repose_mean"]
+            at_angle += (f"; fitted to dip and angle (μ = {grid['mu']:g}{label}, a line through {fit['heaps']} "
+                         f"heaps) μ_r = {fit['mu_roll'][0]:.3f} (95%: {fit['interval'][0]:.3f}–"
+                         f"{fit['interval'][1]:.3f}), where the per-heap dip is {d:.2f} ± {de:.2f} "
+                         f"({(0.2 - d) / de:.1f} s.e. below 20%) at θ {a:.1f} ± {ae:.1f}°" if d < 0.2 else
+                         f"; fitted to dip and angle (μ = {grid['mu']:g}{label}, a line through {fit['heaps']} "
+                         f"heaps) μ_r = {fit['mu_roll'][0]:.3f} (95%: {fit['interval'][0]:.3f}–"
+                         f"{fit['interval'][1]:.3f}), where the per-heap dip is {d:.2f} ± {de:.2f} at θ {a:.1f} ± {ae:.1f}°")
     return [["beyond", "1997 pour, 300 disks, baxter (n = 36, r0 = 1.2) with rolling resistance sds: the centre "
                        "below the flanks of the mean base profile (flank bins chosen on the other heaps), 16 heaps each",
              "Smid–Novosad 20–30% at 32.6°", "; ".join(cells),

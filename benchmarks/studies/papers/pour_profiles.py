@@ -109,7 +109,8 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     (`centre_below_flanks`, its flank bins chosen on the same heaps and, held
     out, on the others), and the loss `jaxpile fit` would give there
     (`ensemble_fit.objective_for` of the declared pair, `smid_novosad_target`).
-    `crossings`: between each two neighbouring grid points whose angles
+    `interval` and `spread`: the set-up's pour where it is not the paper's
+    (None where it is; `set_up_label` reads them). `crossings`: between each two neighbouring grid points whose angles
     straddle the reported angle, the mu_roll where the linearly interpolated
     angle meets it and the interpolated dip (both readings) there, with errors propagated from
     the points' standard errors (points taken independent: they share seeds,
@@ -176,6 +177,7 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     along = {x: heaps for (at_mu, x), heaps in rows.items() if at_mu == mu}
     w = weights(target)
     return {"mu": mu, "n": summaries[0]["n"], "bins": summaries[0]["bins"],
+            **{k: summaries[0].get(k) for k in ("interval", "spread")},  # the set-up's, None for the paper's
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings,
             "fit": fit_along(along, target.mean, w), "recovery": recover_along(along, w),
@@ -187,18 +189,24 @@ def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
     grid's heaps, each heap a point: the inverse regression
     `jaxpile.fit.regression.inverse` of the two statistics on mu_roll (a
     straight line, least squares), with weights `w` as `jaxpile fit` gives
-    them. What the fit would do with these ensembles, without running more:
-    the heaps at the grid points stand for the ensembles a Gauss-Newton fit
-    runs near its answer. `heaps`: {mu_roll: [rows]}; rows missing either
+    them. Like the regression `jaxpile fit` draws through its own ensembles,
+    but over mu_roll itself (the grid holds mu_roll = 0, which the fit's log
+    parameters cannot), one heap a point, and from ensembles already run. `heaps`: {mu_roll: [rows]}; rows missing either
     statistic are left out. `target_members` `[B, 2]`: the target's own heaps
     (their sampling noise joins the interval), None for declared values.
     The heaps of a seed share their initial draws across mu_roll, which the
-    line takes as independent. Returns mu_roll (estimate, standard error, the
+    line takes as independent: a positive correlation within a seed would
+    make the interval too narrow (on the committed heaps a bootstrap over
+    seeds gives the standard error a bootstrap over heaps gives). Returns mu_roll (estimate, standard error, the
     95 % Student-t interval), the line's dip and angle there with their
     standard errors, the loss there (`jaxpile fit`'s: the mean of the weighted
     squared misses), the heaps, the degrees of freedom, the
-    residual scatter of each statistic and the line (intercept and slope of
-    each); None with fewer than two grid points."""
+    residual scatter of each statistic, the line (intercept and slope of
+    each) and `lack_of_fit`: per statistic, the p-value of the straight line
+    against the grid points' own means (the pure-error F test; None with
+    fewer than three grid points): a small one says the statistic is not
+    straight in mu_roll, and the line's reading at the answer is the line's,
+    not the heaps'. None with fewer than two grid points."""
     from jaxpile.fit import regression
     from jaxpile.fit.stats import t_quantile
 
@@ -217,12 +225,27 @@ def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
     z = t_quantile(line.dof)
     at, cov = line.predict(line.theta)
     mismatch = (at - np.asarray(target_mean, float)) ** 2
+    levels = sorted({p[0] for p in points})
+    lack_of_fit = None  # per statistic, p of the line against the grid points' own means (pure-error F test)
+    if len(levels) > 2 and len(points) > len(levels):
+        from jax.scipy.special import betainc
+
+        group = np.array([levels.index(p[0]) for p in points])
+        own = np.array([means[group == g].mean(axis=0) for g in range(len(levels))])[group]
+        pure = np.sum((means - own) ** 2, axis=0)
+        lack = np.sum((means - line.intercept - x @ line.jacobian.T) ** 2, axis=0) - pure
+        d1, d2 = len(levels) - 2, len(points) - len(levels)
+        total = np.sum((means - means.mean(axis=0)) ** 2, axis=0)
+        lack_of_fit = [None if pk <= 1e-12 * tk else  # no scatter within a grid point: nothing to test against
+                       float(betainc(d2 / 2, d1 / 2, d2 / (d2 + d1 * (lk / d1) / (pk / d2))))
+                       for lk, pk, tk in zip(lack, pure, total)]
     return {"mu_roll": [value, se], "interval": [value - z * se, value + z * se],
             "central_dip": [float(at[0]), float(math.sqrt(cov[0, 0]))],
             "repose_mean": [float(at[1]), float(math.sqrt(cov[1, 1]))],
             "loss": float(np.mean(np.asarray(w, float) * mismatch)), "heaps": len(points), "dof": line.dof,
             "scatter": line.scatter.tolist(), "grid": sorted({p[0] for p in points}),
-            "line": {"intercept": line.intercept.tolist(), "slope": line.jacobian[:, 0].tolist()}}
+            "line": {"intercept": line.intercept.tolist(), "slope": line.jacobian[:, 0].tolist()},
+            "lack_of_fit": lack_of_fit}
 
 
 def recover_along(heaps: dict, w) -> list[dict]:
@@ -323,7 +346,9 @@ def main(argv=None) -> None:
               f"fitted to both from {fit['heaps']} heaps: mu_roll = {fit['mu_roll'][0]:.3f} +- {fit['mu_roll'][1]:.3f} "
               f"(95 %: {fit['interval'][0]:.3f}-{fit['interval'][1]:.3f}), where the line's dip is "
               f"{fit['central_dip'][0]:+.3f} +- {fit['central_dip'][1]:.3f} and its angle {fit['repose_mean'][0]:.1f} "
-              f"+- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.1f})")
+              f"+- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.1f})" + (
+                  "" if not fit["lack_of_fit"] else ", the line against the points' own means: p = "
+                  + ", ".join("-" if q is None else f"{q:.2g}" for q in fit["lack_of_fit"]) + " (dip, angle)"))
         held = [r["inside"] for r in grid["recovery"]]
         if held:
             print(f"recovered from the other half of the seeds: {sum(held)} of {len(held)} intervals hold the truth "
@@ -429,7 +454,7 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     left.legend(fontsize=7)
     right.legend(fontsize=7)
     both.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside: inside it hides points
-    fig.suptitle(f"poured heaps of {grid['n']} disks, baxter law, mu = {grid['mu']:g}, rolling sds: "
+    fig.suptitle(f"poured heaps of {grid['n']} disks{set_up_label(grid)}, baxter law, mu = {grid['mu']:g}, rolling sds: "
                  "the reported angle and dip against mu_roll")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
