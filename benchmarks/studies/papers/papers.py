@@ -346,7 +346,9 @@ def rows_rolling_pour() -> list[list[str]]:
             if held:
                 at_angle += (f"; at the reported angle (μ = {grid['mu']:g}, μ_r ≈ {c['mu_roll'][0]:.2f} ± "
                              f"{c['mu_roll'][1]:.2f}{label}, interpolated) {held[0]:.2f} ± {held[1]:.2f}, "
-                             f"{(0.2 - held[0]) / held[1]:.1f} s.e. below 20%")
+                             + ("in 20–30%" if 0.2 <= held[0] <= 0.3 else
+                                f"{(0.2 - held[0]) / held[1]:.1f} s.e. below 20%" if held[0] < 0.2 else
+                                f"{(held[0] - 0.3) / held[1]:.1f} s.e. above 30%"))
         if fit := grid.get("fit"):  # μ_r fitted to both through the grid's heaps (`pour_profiles.fit_along`)
             (d, de), (a, ae) = fit["central_dip"], fit["repose_mean"]
             at_angle += (f"; fitted to dip and angle (μ = {grid['mu']:g}{label}, a line through {fit['heaps']} "
