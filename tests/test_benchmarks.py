@@ -308,6 +308,15 @@ def test_fit_along_the_grid_meets_both_targets_on_a_straight_line_and_recovers_e
                                                                   ("even", "odd")]
     assert all(r["fit"]["mu_roll"][0] == pytest.approx(r["truth"], abs=1e-9) for r in recovered)
     assert all(r["target_heaps"] == 4 and r["fit"]["heaps"] == 12 for r in recovered)
+    # the dip read off the mean profile: each heap's held-out drop, whose mean is the held-out reading
+    m_shape = np.full(pour_profiles.BINS, 0.5)
+    m_shape[3] = m_shape[-4] = 1.0
+    rows = [{"seed": k, "profile": (m_shape * (1 + 0.1 * k)).tolist(), "repose_mean": 30.0} for k in range(4)]
+    drops = pour_profiles.profile_drops(rows + [{"seed": 9, "repose_mean": 31.0}])  # no profile: left out
+    held = pour_profiles.centre_below_flanks(np.array([r["profile"] for r in rows]), held_out=True)
+    assert [r["seed"] for r in drops] == [0, 1, 2, 3]
+    assert np.mean([r["centre_below_flanks_held_out"] for r in drops]) == pytest.approx(held["value"])
+    assert pour_profiles.profile_drops(rows[:2]) == []  # a held-out flank needs two other heaps
 
 
 def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_options(tmp_path):

@@ -349,15 +349,14 @@ def rows_rolling_pour() -> list[list[str]]:
                              + ("in 20–30%" if 0.2 <= held[0] <= 0.3 else
                                 f"{(0.2 - held[0]) / held[1]:.1f} s.e. below 20%" if held[0] < 0.2 else
                                 f"{(held[0] - 0.3) / held[1]:.1f} s.e. above 30%"))
-        if fit := grid.get("fit"):  # μ_r fitted to both through the grid's heaps (`pour_profiles.fit_along`)
-            (d, de), (a, ae) = fit["central_dip"], fit["repose_mean"]
-            at_angle += (f"; fitted to dip and angle (μ = {grid['mu']:g}{label}, a line through {fit['heaps']} "
-                         f"heaps) μ_r = {fit['mu_roll'][0]:.3f} (95%: {fit['interval'][0]:.3f}–"
-                         f"{fit['interval'][1]:.3f}), where the per-heap dip is {d:.2f} ± {de:.2f} "
-                         f"({(0.2 - d) / de:.1f} s.e. below 20%) at θ {a:.1f} ± {ae:.1f}°" if d < 0.2 else
-                         f"; fitted to dip and angle (μ = {grid['mu']:g}{label}, a line through {fit['heaps']} "
-                         f"heaps) μ_r = {fit['mu_roll'][0]:.3f} (95%: {fit['interval'][0]:.3f}–"
-                         f"{fit['interval'][1]:.3f}), where the per-heap dip is {d:.2f} ± {de:.2f} at θ {a:.1f} ± {ae:.1f}°")
+        for key, reading in (("fit", "the per-heap dip"), ("fit_profile", "the mean profile's dip (held out)")):
+            if fit := grid.get(key):  # μ_r fitted to both through the grid's heaps (`pour_profiles.fit_along`)
+                (d, de), (a, ae) = fit["central_dip"], fit["repose_mean"]
+                at_angle += (f"; fitted to dip and angle with {reading} (μ = {grid['mu']:g}{label}, a line through "
+                             f"{fit['heaps']} heaps) μ_r = {fit['mu_roll'][0]:.3f} (95%: {fit['interval'][0]:.3f}–"
+                             f"{fit['interval'][1]:.3f}), where the dip is {d:.2f} ± {de:.2f} ("
+                             + ("in 20–30%" if 0.2 <= d <= 0.3 else f"{(0.2 - d) / de:.1f} s.e. below 20%" if d < 0.2
+                                else f"{(d - 0.3) / de:.1f} s.e. above 30%") + f") at θ {a:.1f} ± {ae:.1f}°")
     return [["beyond", "1997 pour, 300 disks, baxter (n = 36, r0 = 1.2) with rolling resistance sds: the centre "
                        "below the flanks of the mean base profile (flank bins chosen on the other heaps), 16 heaps each",
              "Smid–Novosad 20–30% at 32.6°", "; ".join(cells),

@@ -54,6 +54,15 @@ def centre_below_flanks(profiles: np.ndarray, held_out: bool = False) -> dict:
     (docs/rolling_resistance.md). `held_out` chooses each heap's flank bins
     on the mean of the other heaps, which the heap's own noise cannot raise
     (`flank_bins` is then None)."""
+    drop, bins = heap_drops(profiles, held_out)
+    return {"value": float(drop.mean()), "stderr": float(drop.std(ddof=1) / math.sqrt(len(drop))),
+            "flank_bins": bins, "centre_bin": BINS // 2}
+
+
+def heap_drops(profiles: np.ndarray, held_out: bool = False) -> tuple[np.ndarray, list | None]:
+    """`(drops [heaps], flank_bins)`: each heap's (mean of its two flank bins -
+    its centre bin) over the mean flank, whose mean is `centre_below_flanks`;
+    the flank bins as there (None when `held_out`)."""
     c = BINS // 2
 
     def flanks(mean):
@@ -66,9 +75,7 @@ def centre_below_flanks(profiles: np.ndarray, held_out: bool = False) -> dict:
     else:
         left, right = flanks(profiles.mean(axis=0))
         flank, bins = 0.5 * (profiles[:, left] + profiles[:, right]), [left, right]
-    drop = (flank - profiles[:, c]) / flank.mean()
-    return {"value": float(drop.mean()), "stderr": float(drop.std(ddof=1) / math.sqrt(len(drop))),
-            "flank_bins": bins, "centre_bin": c}
+    return (flank - profiles[:, c]) / flank.mean(), bins
 
 
 def summarise(rows: list[dict]) -> dict:
@@ -117,7 +124,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     so this is a rough band). `fit`: mu_roll fitted to the declared dip and
     angle from every heap along mu_roll at this mu (`fit_along`), and
     `recovery`: the same estimator recovering each grid point's mu_roll from
-    the other half of the seeds (`recover_along`). `every_point`: the same readings at every
+    the other half of the seeds (`recover_along`); `fit_profile` and
+    `recovery_profile`: the same with the dip read off the mean profile
+    (each heap's share of the held-out centre below the flanks,
+    `profile_drops`). `every_point`: the same readings at every
     (mu, mu_roll) the records hold, at this mu or another: whether any of
     them stands at the reported angle with the reported dip, whatever its
     parameters."""
@@ -176,15 +186,18 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
                           "centre_below_flanks_held_out": between("centre_below_flanks_held_out")})
     along = {x: heaps for (at_mu, x), heaps in rows.items() if at_mu == mu}
     w = weights(target)
+    profiled = {x: profile_drops(heaps) for x, heaps in along.items()}
     return {"mu": mu, "n": summaries[0]["n"], "bins": summaries[0]["bins"],
             **{k: summaries[0].get(k) for k in ("interval", "spread")},  # the set-up's, None for the paper's
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings,
             "fit": fit_along(along, target.mean, w), "recovery": recover_along(along, w),
+            "fit_profile": fit_along(profiled, target.mean, w, dip="centre_below_flanks_held_out"),
+            "recovery_profile": recover_along(along, w, "centre_below_flanks_held_out", profile_drops),
             "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
 
 
-def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
+def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "central_dip") -> dict | None:
     """mu_roll fitted to a target of (`central_dip`, `repose_mean`) from the
     grid's heaps, each heap a point: the inverse regression
     `jaxpile.fit.regression.inverse` of the two statistics on mu_roll (a
@@ -206,12 +219,15 @@ def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
     against the grid points' own means (the pure-error F test; None with
     fewer than three grid points): a small one says the statistic is not
     straight in mu_roll, and the line's reading at the answer is the line's,
-    not the heaps'. None with fewer than two grid points."""
+    not the heaps'. None with fewer than two grid points. `dip`: the rows'
+    key of the dip read (`central_dip`, the fit's, or
+    `centre_below_flanks_held_out`, each heap's share of the mean profile's
+    reading: `profile_drops`)."""
     from jaxpile.fit import regression
     from jaxpile.fit.stats import t_quantile
 
-    points = [(x, r["central_dip"], r["repose_mean"]) for x, rows in heaps.items() for r in rows
-              if all(r.get(k) is not None and math.isfinite(r[k]) for k in ("central_dip", "repose_mean"))]
+    points = [(x, r[dip], r["repose_mean"]) for x, rows in heaps.items() for r in rows
+              if all(r.get(k) is not None and math.isfinite(r[k]) for k in (dip, "repose_mean"))]
     if len({p[0] for p in points}) < 2:
         return None
     x, means = np.array([[p[0]] for p in points]), np.array([p[1:] for p in points])
@@ -248,25 +264,41 @@ def fit_along(heaps: dict, target_mean, w, target_members=None) -> dict | None:
             "lack_of_fit": lack_of_fit}
 
 
-def recover_along(heaps: dict, w) -> list[dict]:
+def profile_drops(rows: list[dict]) -> list[dict]:
+    """The heaps of one grid point that have a profile, each with
+    `centre_below_flanks_held_out`: its own drop below the flanks chosen on
+    the other heaps (`heap_drops(held_out=True)`), whose mean over the heaps
+    is the mean profile's held-out reading. Each is scaled by the heaps' mean
+    flank, so the drops of one point are not quite independent."""
+    with_profile = [r for r in rows if r.get("profile") is not None]
+    if len(with_profile) < 3:  # a held-out flank needs two other heaps to be a choice
+        return []
+    drops, _ = heap_drops(np.asarray([r["profile"] for r in with_profile], float), held_out=True)
+    return [{**r, "centre_below_flanks_held_out": float(d)} for r, d in zip(with_profile, drops)]
+
+
+def recover_along(heaps: dict, w, dip: str = "central_dip", derive=None) -> list[dict]:
     """`fit_along` checked on known values: for each grid mu_roll, the target is
     the mean dip and angle of its heaps of one half of the seeds (even or
-    odd), fitted from the other half's heaps at every grid point. Each entry:
-    the truth, the half the target came from, the fit (`fit_along`), and
-    whether its interval holds the truth."""
+    odd), fitted from the other half's heaps at every grid point. `derive`:
+    what makes the `dip` key from one half's rows at one grid point
+    (`profile_drops`, read within the half so the halves share nothing);
+    None: the rows hold it. Each entry: the truth, the half the target came
+    from, the fit (`fit_along`), and whether its interval holds the truth."""
+    derive = derive or (lambda rows: rows)
     seeds = sorted({r["seed"] for rows in heaps.values() for r in rows if r.get("seed") is not None})
     halves = {"even": set(seeds[0::2]), "odd": set(seeds[1::2])}
     out = []
     for truth in sorted(heaps):
         for name, half in halves.items():
-            members = np.array([[r["central_dip"], r["repose_mean"]] for r in heaps[truth] if r.get("seed") in half
-                                and all(r.get(k) is not None and math.isfinite(r[k])
-                                        for k in ("central_dip", "repose_mean"))])
-            others = {x: [r for r in rows if r.get("seed") is not None and r["seed"] not in half]
+            members = np.array([[r[dip], r["repose_mean"]]
+                                for r in derive([r for r in heaps[truth] if r.get("seed") in half])
+                                if all(r.get(k) is not None and math.isfinite(r[k]) for k in (dip, "repose_mean"))])
+            others = {x: derive([r for r in rows if r.get("seed") is not None and r["seed"] not in half])
                       for x, rows in heaps.items()}
             if len(members) < 2:
                 continue
-            fit = fit_along(others, members.mean(axis=0), w, members)
+            fit = fit_along(others, members.mean(axis=0), w, members, dip)
             if fit is not None:
                 out.append({"truth": truth, "target_half": name, "target_heaps": len(members), "fit": fit,
                             "inside": bool(fit["interval"][0] < truth < fit["interval"][1])})
@@ -349,6 +381,14 @@ def main(argv=None) -> None:
               f"+- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.1f})" + (
                   "" if not fit["lack_of_fit"] else ", the line against the points' own means: p = "
                   + ", ".join("-" if q is None else f"{q:.2g}" for q in fit["lack_of_fit"]) + " (dip, angle)"))
+        fit = grid["fit_profile"]
+        if fit is not None:
+            print(f"the same with the dip read off the mean profile (held out): mu_roll = {fit['mu_roll'][0]:.3f} +- "
+                  f"{fit['mu_roll'][1]:.3f} (95 %: {fit['interval'][0]:.3f}-{fit['interval'][1]:.3f}), where the dip is "
+                  f"{fit['central_dip'][0]:+.3f} +- {fit['central_dip'][1]:.3f} and the angle "
+                  f"{fit['repose_mean'][0]:.1f} +- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.2f}); "
+                  f"{sum(r['inside'] for r in grid['recovery_profile'])} of {len(grid['recovery_profile'])} "
+                  "recoveries hold the truth")
         held = [r["inside"] for r in grid["recovery"]]
         if held:
             print(f"recovered from the other half of the seeds: {sum(held)} of {len(held)} intervals hold the truth "
@@ -403,7 +443,7 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
 
     x = np.array([float(k) for k in grid["points"]])
     pts = list(grid["points"].values())
-    fig, (left, right, both) = plt.subplots(1, 3, figsize=(18, 4.2))
+    fig, (left, right, both) = plt.subplots(1, 3, figsize=(18, 6.2))
     angle = np.array([p["repose_mean"][:2] for p in pts])
     left.errorbar(x, angle[:, 0], yerr=angle[:, 1], fmt="o-", capsize=4, label="heaps: mean +- s.e.")
     left.axhline(grid["target"]["repose_mean"][0], color="C2", label="Smid & Novosad: 32.6 deg")
@@ -433,6 +473,12 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
             ax.errorbar([m], [fit[key][0]], xerr=[e], yerr=[fit[key][1]], fmt="*", ms=12, color="C4", capsize=4,
                         label=f"fit to both: mu_roll = {m:.3f} (95 %: {lo:.3f}-{hi:.3f})" if i == 1 else
                         f"the fit's {key} there: {fit[key][0]:+.2f} +- {fit[key][1]:.2f}")
+    fit = grid.get("fit_profile")
+    if fit:  # the same fit with the dip read off the mean profile (held out)
+        (m, e), (d, de) = fit["mu_roll"], fit["central_dip"]
+        right.errorbar([m], [d], xerr=[e], yerr=[de], fmt="*", ms=12, color="C2", mec="k", capsize=4,
+                       label=f"fit with the held-out reading: mu_roll = {m:.3f} (95 %: {fit['interval'][0]:.3f}-"
+                             f"{fit['interval'][1]:.3f}), {d:+.2f} +- {de:.2f}")
     left.set(xlabel="rolling friction mu_roll", ylabel="angle of repose (deg)")
     right.set(xlabel="rolling friction mu_roll", ylabel="dip below the flanks")
     # every (mu, mu_roll): does any stand at the reported angle with the reported dip?
@@ -451,8 +497,8 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     both.autoscale_view()
     for ax in (left, right, both):
         ax.grid(alpha=0.3)
-    left.legend(fontsize=7)
-    right.legend(fontsize=7)
+    for ax in (left, right):  # below the axes: inside they hide the points
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16))
     both.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0))  # beside: inside it hides points
     fig.suptitle(f"poured heaps of {grid['n']} disks{set_up_label(grid)}, baxter law, mu = {grid['mu']:g}, rolling sds: "
                  "the reported angle and dip against mu_roll")
