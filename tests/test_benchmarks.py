@@ -255,6 +255,8 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
         pour_profiles.on_the_grid([low, narrower])
     paper_rate = {**summary(0.5, 0.3, [36.6], [0.25]), "interval": 1.612, "spread": 3.0}  # the paper's: the same
     assert list(pour_profiles.on_the_grid([low, paper_rate])["points"]) == ["0.0", "0.3"]
+    named = pour_profiles.on_the_grid([paper_rate, low])  # the paper's values named: labelled as the paper's
+    assert named["interval"] is None and named["spread"] is None and pour_profiles.set_up_label(named) == ""
     seeded = [{**summary(0.5, 0.3, [36.6], [0.25]), "rows": [{"mu_roll": 0.3, "seed": 0, "repose_mean": 36.6}]}] * 2
     with pytest.raises(ValueError, match="seed 0 is in two records"):
         pour_profiles.on_the_grid(seeded)

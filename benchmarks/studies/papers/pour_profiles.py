@@ -188,7 +188,8 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     w = weights(target)
     profiled = {x: profile_drops(heaps) for x, heaps in along.items()}
     return {"mu": mu, "n": summaries[0]["n"], "bins": summaries[0]["bins"],
-            **{k: summaries[0].get(k) for k in ("interval", "spread")},  # the set-up's, None for the paper's
+            **{k: None if summaries[0].get(k) in (None, PAPER_SETTING[k]) else summaries[0][k]
+               for k in ("interval", "spread")},  # the set-up's, None for the paper's
             "target": dict(zip(target.labels, zip(target.mean.tolist(), target.spread.tolist()))),
             "points": {str(x): points[x] for x in xs}, "crossings": crossings,
             "fit": fit_along(along, target.mean, w), "recovery": recover_along(along, w),
