@@ -27,7 +27,8 @@ from types import SimpleNamespace
 import numpy as np
 
 BINS = 15
-"""Bins over the base: odd, so one sits under the middle; ~20 substrate disks each on a 300-disk heap's base."""
+"""Bins over the base: odd, so one sits under the middle; about two substrate spacings each on a 300-disk
+heap's base (the pour's own profile, which gives the rows' `central_dip`, has about one per four)."""
 
 
 def heap_profile(sim, params, state, setup) -> dict:
