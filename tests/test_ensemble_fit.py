@@ -313,6 +313,28 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
         other = ef.fit(runner._replace(batch_size=1), ["ks"], {"ks": 9_000.0}, target, checkpoint=history,
                        resume=history, batch_checkpoint=(str(batch), 200), **kw)
     assert resumes == [None, None] and other.values == whole.values and not batch.exists()
+    # stopped in the final batch (the interval's, after the last iteration): the resume runs no iteration
+    # and continues that batch
+    calls = []
+
+    def save_in_final(path, *args, **extra):
+        save(path, *args, **extra)
+        if len(calls) == 2:
+            raise _Stopped
+
+    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: calls.append(k["resume"]) or sweep(*a, **k))
+    monkeypatch.setattr(ckpt, "save", save_in_final)
+    with pytest.raises(_Stopped):
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200),
+               **{**kw, "interval": True})
+    monkeypatch.setattr(ckpt, "save", save)
+    calls.clear()
+    final = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
+                   batch_checkpoint=(str(batch), 200), **{**kw, "interval": True})
+    assert calls == [str(batch)] and not batch.exists()
+    uninterrupted = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True})
+    assert final.values == uninterrupted.values and final.interval == uninterrupted.interval
+    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
 
     # the command line: OUT/fit_batch.npz, and OUT/target_batch.npz for a target stopped before the fit began,
     # which --resume continues
