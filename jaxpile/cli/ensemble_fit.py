@@ -143,15 +143,16 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     folder = distributed.folder_of(args.out)  # every process keeps its own history (all the same)
     os.makedirs(folder, exist_ok=True)
     checkpoint = os.path.join(folder, "fit_checkpoint.json")
-    every, batches = args.checkpoint_every, [os.path.join(folder, f"{k}_batch.npz") for k in ("target", "fit")]
+    target_save, fit_save = (os.path.join(folder, f"{k}_batch.npz") for k in ("target", "fit"))
+    every = args.checkpoint_every
     if args.resume and every is None:  # the batch a resumed fit left is continued, saved as often as it was
-        every = next((b["every"] for b in map(ensemble_runs.saved_batch, batches) if b), None)
-    target_batch = None if every is None else (batches[0], every)
-    if args.resume and truth is not None and not os.path.exists(checkpoint) and os.path.exists(batches[0]):
+        every = next((b["every"] for b in map(ensemble_runs.saved_batch, (target_save, fit_save)) if b), None)
+    if args.resume and truth is not None and not os.path.exists(checkpoint) and os.path.exists(target_save):
         args.resume = False  # stopped while making its target, before the fit began: continue the target
-    elif not args.resume and os.path.exists(batches[0]):
-        os.remove(batches[0])  # another command's target, stopped: this one makes its own
-    target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint, target_batch)
+    elif not args.resume and os.path.exists(target_save):
+        os.remove(target_save)  # another command's target, stopped: this one makes its own
+    target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint,
+                     None if every is None else (target_save, every))
     if writes:
         io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
@@ -162,7 +163,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None,
-                              batch_checkpoint=None if every is None else (batches[1], every))
+                              batch_checkpoint=None if every is None else (fit_save, every))
     return _write_results(args, names, target, result) if writes else result.to_json()
 
 

@@ -258,19 +258,21 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               "options": dict(runner.options or {}),
               "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean],
               "settings": config.settings()}
+    def save_history():
+        if checkpoint is not None:
+            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+
     if resume is not None:
         theta, opt_state, history = _replay(resume, record, theta, opt, opt_state)
-    elif checkpoint is not None:  # a fit stopped in its first iteration resumes from here
-        _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+    else:
+        save_history()  # a fit stopped in its first iteration resumes from here
     if batch_checkpoint is not None:
-        batch_path, every = str(batch_checkpoint[0]), batch_checkpoint[1]
-        COUNT.check("the batch checkpoint's interval", every, scalar=True)
+        COUNT.check("the batch checkpoint's interval", batch_checkpoint[1], scalar=True)
         if distributed.process_count() > 1:
             raise InputError("batch_checkpoint saves one process's batch: a distributed fit resumes from its "
                              "histories, at the end of an iteration.")
-        if resume is None and os.path.exists(batch_path):  # another fit's batch
-            os.remove(batch_path)
-        batch_checkpoint = (batch_path, int(every))
+        if resume is None and os.path.exists(batch_checkpoint[0]):  # another fit's batch
+            os.remove(batch_checkpoint[0])
     t0 = time.perf_counter()
     fitting = _Fitting(runner, names, seeds, statistics, target, w, objective_for(target, w), estimator, opt,
                        step, sigma, pairs, key, window, max_step, tolerance, noise_stop, batch_checkpoint)
@@ -290,8 +292,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
                   f"({entry['seconds']:.0f} s)", flush=True)
         elif callable(progress):
             progress(entry)
-        if checkpoint is not None:
-            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+        save_history()
         if entry["converged"] or message:
             break
     result = fitting.finish(theta, start, history, record, message, interval, steps, t0)

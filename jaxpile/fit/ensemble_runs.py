@@ -171,9 +171,11 @@ def run_saved(runner, points: Sequence[dict], seeds, statistics: Statistics, bat
                                    "params": runner.params, "batch_size": runner.batch_size, "every": every},
                                   default=float))
     resume = path if os.path.exists(path) else None
-    saved = saved_batch(path) if resume is not None else None
-    if resume is not None and {k: v for k, v in (saved or {}).items() if k != "every"} != \
-            {k: v for k, v in batch.items() if k != "every"}:  # how often it was saved may change
+
+    def which(record):  # the batch a save holds; how often it was saved may change on resume
+        return {k: v for k, v in (record or {}).items() if k != "every"}
+
+    if resume is not None and which(saved_batch(path)) != which(batch):
         warnings.warn(f"{path} holds another batch of piles than this one (a fit resumed with other settings): "
                       "removed, and the batch starts afresh.", stacklevel=2)
         os.remove(path)

@@ -152,8 +152,8 @@ def inverse(x, means, target_mean, w, sampling=()) -> Line | None:
     # residual_kl (X^T X)^-1
     miss = a + jac @ theta - np.asarray(target_mean, float)
     pick = np.hstack([np.zeros((d, 1)), np.eye(d)])
-    g = [w[k] * (np.outer(jac[k], at) + miss[k] * pick) for k in range(len(w))]
-    line_part = sum(residual[k, m] * g[k] @ design_inverse @ g[m].T for k in range(len(w)) for m in range(len(w)))
+    g = w[:, None, None] * (jac[:, :, None] * at + miss[:, None, None] * pick)  # [k, d, d + 1]
+    line_part = np.einsum("kl,kab,bc,lec->ae", residual, g, design_inverse, g)
     jw = jac.T * w
     c = sum((part for part in sampling if part is not None), np.zeros_like(residual))
     cov = inv @ (line_part + jw @ c @ jw.T) @ inv

@@ -199,6 +199,11 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
             "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
 
 
+def _reads(row: dict, dip: str) -> bool:
+    """Whether a heap's row has a finite dip (`dip`) and angle, the two statistics the grid's fit reads."""
+    return all(row.get(k) is not None and math.isfinite(row[k]) for k in (dip, "repose_mean"))
+
+
 def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "central_dip") -> dict | None:
     """mu_roll fitted to a target of (`central_dip`, `repose_mean`) from the
     grid's heaps, each heap a point: the inverse regression
@@ -228,8 +233,7 @@ def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "cent
     from jaxpile.fit import regression
     from jaxpile.fit.stats import t_quantile
 
-    points = [(x, r[dip], r["repose_mean"]) for x, rows in heaps.items() for r in rows
-              if all(r.get(k) is not None and math.isfinite(r[k]) for k in (dip, "repose_mean"))]
+    points = [(x, r[dip], r["repose_mean"]) for x, rows in heaps.items() for r in rows if _reads(r, dip)]
     if len({p[0] for p in points}) < 2:
         return None
     x, means = np.array([[p[0]] for p in points]), np.array([p[1:] for p in points])
@@ -294,8 +298,7 @@ def recover_along(heaps: dict, w, dip: str = "central_dip", derive=None) -> list
     for truth in sorted(heaps):
         for name, half in halves.items():
             members = np.array([[r[dip], r["repose_mean"]]
-                                for r in derive([r for r in heaps[truth] if r.get("seed") in half])
-                                if all(r.get(k) is not None and math.isfinite(r[k]) for k in (dip, "repose_mean"))])
+                                for r in derive([r for r in heaps[truth] if r.get("seed") in half]) if _reads(r, dip)])
             others = {x: derive([r for r in rows if r.get("seed") is not None and r["seed"] not in half])
                       for x, rows in heaps.items()}
             if len(members) < 2:
