@@ -223,7 +223,8 @@ def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "cent
     squared misses), the heaps, the degrees of freedom, the
     residual scatter of each statistic, the line (intercept and slope of
     each) and `lack_of_fit`: per statistic, the p-value of the straight line
-    against the grid points' own means (the pure-error F test; None with
+    against the grid points' own means (the pure-error lack-of-fit F test,
+    Draper & Smith, Applied Regression Analysis, 3rd ed. 1998, sec. 2.1; None with
     fewer than three grid points): a small one says the statistic is not
     straight in mu_roll, and the line's reading at the answer is the line's,
     not the heaps'. None with fewer than two grid points. `dip`: the rows'
