@@ -224,10 +224,14 @@ def test_on_the_grid_interpolates_where_the_angle_meets_smid_novosads_and_the_di
     held = pour_profiles.centre_below_flanks(np.array([m_shape, 0.9 * m_shape]), held_out=True)
     assert grid["points"]["0.3"]["centre_below_flanks_held_out"] == pytest.approx([held["value"], held["stderr"], 2])
     assert grid["points"]["0.0"]["centre_below_flanks"] is None  # no profiles: not read
+    # each heap's own dip in fixed windows (heap.dip_below_flanks): bins 3, 4, 10, 11 against bin 7
+    assert 1.0 - m_shape[7] / np.mean(m_shape[[3, 4, 10, 11]]) == pytest.approx(1 / 3)  # either scale
+    assert grid["points"]["0.3"]["dip_below_flanks"] == pytest.approx([1 / 3, 0.0, 2])
+    assert grid["points"]["0.0"]["dip_below_flanks"] is None
     assert grid["points"]["0.3"]["loss"] == pytest.approx(0.5 * (((0.30 - 0.25) / 0.05) ** 2 + 6.0 ** 2))
     (crossing,) = grid["crossings"]
     assert crossing["between"] == [0.0, 0.3]
-    assert crossing["centre_below_flanks"] is None  # one end has no profiles
+    assert crossing["centre_below_flanks"] is None and crossing["dip_below_flanks"] is None  # one end has none
     # t = (32.6 - a0) / (a1 - a0) = 0.4; dt/da0 = (32.6 - a1) / 100 = -0.06, dt/da1 = -(32.6 - a0) / 100 = -0.04
     t_err = math.hypot(0.06 * 1.0, 0.04 * 2.0)
     assert crossing["mu_roll"] == pytest.approx([0.12, 0.3 * t_err])
@@ -319,6 +323,10 @@ def test_fit_along_the_grid_meets_both_targets_on_a_straight_line_and_recovers_e
     assert [r["seed"] for r in drops] == [0, 1, 2, 3]
     assert np.mean([r["centre_below_flanks_held_out"] for r in drops]) == pytest.approx(held["value"])
     assert pour_profiles.profile_drops(rows[:2]) == []  # a held-out flank needs two other heaps
+    # each heap's own dip in fixed windows: the M reads 1 - 0.5 / ((1 + 0.5) / 2) whatever its scale
+    narrow = pour_profiles.narrow_dips(rows + [{"seed": 9, "repose_mean": 31.0}])
+    assert [r["seed"] for r in narrow] == [0, 1, 2, 3]
+    assert [r["dip_below_flanks"] for r in narrow] == pytest.approx([1 / 3] * 4)
 
 
 def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_options(tmp_path):
@@ -341,6 +349,7 @@ def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_o
     grid = json.loads((out / "pour_grid.json").read_text())
     assert list(grid["points"]) == ["0.0", "0.3"] and len(grid["crossings"]) == 1
     assert [p["mu_roll"] for p in grid["every_point"]] == [0.0, 0.3]
+    assert grid["fit_narrow"]["heaps"] == 8 and len(grid["recovery_narrow"]) == 4  # each heap's own dip
     assert grid["command"].endswith(f"--out {out}")
     assert (out / "pour_grid.png").stat().st_size > 10_000
     with pytest.raises(SystemExit):

@@ -441,8 +441,11 @@ def test_smid_novosad_declares_the_dip_and_the_angle_of_repose_liffman1992_fig17
     assert both.spread.tolist() == [ef.smid_novosad_target().spread[0], 1.0]
     assert "32.6" in both.source and "Fig. 17" in both.source
     assert ef.smid_novosad_target(["repose_mean"]).mean.tolist() == [32.6]
+    # the dip read in fixed narrow windows (heap.dip_below_flanks) is the same declared 0.25 +- 0.05
+    narrow = ef.smid_novosad_target(["dip_below_flanks", "repose_mean"])
+    assert narrow.mean.tolist() == both.mean.tolist() and narrow.spread.tolist() == both.spread.tolist()
     for bad in (["height"], [], ["central_dip", "central_dip"]):
-        with pytest.raises(InputError, match="declares central_dip, repose_mean"):
+        with pytest.raises(InputError, match="declares central_dip, dip_below_flanks, repose_mean"):
             ef.smid_novosad_target(bad)
     rolling = ["--rolling", "sds", "--rotation", "on", "--set", "k_roll=1000", "--set", "mu_roll=0.2"]
     assert cli.main(["fit", "--protocol", "pour", "--params", "mu,mu_roll", "--target", "smid-novosad",
@@ -452,7 +455,7 @@ def test_smid_novosad_declares_the_dip_and_the_angle_of_repose_liffman1992_fig17
     assert "statistics ['central_dip', 'repose_mean']" in capsys.readouterr().out
     assert cli.main(["fit", "--protocol", "pour", "--params", "mu", "--target", "smid-novosad", "--statistics",
                      "central_dip,height", "--estimator", "central", "--dry-run", "--out", str(tmp_path)]) == 2
-    assert "declares central_dip, repose_mean" in capsys.readouterr().err
+    assert "declares central_dip, dip_below_flanks, repose_mean" in capsys.readouterr().err
     # resumed with the command that began it, a fit to the declared dip compares the dip again (not the
     # protocol's own statistics, which its saved target does not hold)
     assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad", "--estimator",

@@ -249,6 +249,8 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
     (["fit", "--protocol", "pour", "--params", "n,n", "--truth", "n=30", "--ensemble", "2"], "twice"),
     (["fit", "--protocol", "tilt", "--params", "mu", "--truth", "mu=0.3", "--ensemble", "2", "--statistics", "theta"],
      "no column 'theta'"),  # the run found out only after the target ensemble had run
+    (["fit", "--protocol", "pour", "--params", "mu", "--truth", "mu=0.3", "--ensemble", "2", "--statistics",
+      "repose"], "no column 'repose'"),  # a computed row with declared columns (poured_heap.ROW_COLUMNS)
 ])
 def test_sweep_and_fit_dry_runs_refuse_what_their_runs_would(argv, says, tmp_path, capsys):
     """A dry run checks every member of the grid, the fit's start and truth and

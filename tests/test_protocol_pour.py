@@ -279,6 +279,63 @@ def test_m_shape_and_base_profile_on_synthetic_forces():
     assert heap.flank_over_centre(five(np.ones(5))) == 1.0
 
 
+def test_dip_below_flanks_reads_smid_novosad_dip_in_fixed_windows():
+    """`heap.dip_below_flanks`: 1 - the centre over the flanks in windows fixed
+    in advance (Smid & Novosad's dip, 20-30 % below the maximum, as Liffman et
+    al. 1992 report it): by hand on 15 bins; the declared M of
+    `fit.smid_novosad_target` (dip 0.25) reads a little under 0.25 (the flanks'
+    mean lies under their maxima); a narrow dip that the pour's default ~9 bins
+    average away still reads; no dip, a tent, a flat base read <= 0."""
+    from jaxpile import fit
+
+    def fifteen(values):
+        return heap.BaseProfile((np.arange(15) + 0.5) / 15, np.asarray(values, float), None, 0.0, 1.0)
+
+    bins = np.ones(15)
+    bins[[3, 4, 10, 11]] = [1.0, 1.2, 0.8, 1.0]  # the flank windows (x/B 0.20-0.33, 0.67-0.80): mean 1.0
+    bins[7] = 0.7  # the centre window (x/B 0.47-0.53); bins 6 and 8 beside it are read by no window
+    bins[[6, 8]] = [9.0, 9.0]
+    assert heap.dip_below_flanks(fifteen(bins)) == pytest.approx(0.3)
+    assert heap.dip_below_flanks(fifteen(np.ones(15))) == 0.0
+    assert math.isnan(heap.dip_below_flanks(fifteen(np.where(np.isin(np.arange(15), [3, 4, 10, 11]), 0.0, 1.0))))
+    assert math.isnan(heap.dip_below_flanks(heap.BaseProfile(np.array([0.1, 0.9]), np.ones(2), None, 0.0, 1.0)))
+
+    def forces(normal_of_u, points=2001):  # dense contacts along a base of length 10
+        u = (np.arange(points) + 0.5) / points
+        return analysis.SubstrateForces(x=10 * u, normal=normal_of_u(u), horizontal=0 * u, particle=0 * u,
+                                        substrate=0 * u)
+
+    target = fit.smid_novosad_target(2001, dip=0.25)
+    declared = heap.base_profile(forces(lambda u: np.interp(u, target.x_over_b, target.normal)), extent=(0.0, 10.0),
+                                 bins=heap.DIP_BINS)
+    assert 0.2 < heap.dip_below_flanks(declared) < 0.25
+    narrow = forces(lambda u: 1.0 - 0.3 * np.exp(-(((u - 0.5) / 0.03) ** 2)))  # a dip a twentieth of the base wide
+    assert heap.dip_below_flanks(heap.base_profile(narrow, extent=(0.0, 10.0), bins=heap.DIP_BINS)) > 0.2
+    assert heap.central_dip(heap.base_profile(narrow, extent=(0.0, 10.0), bins=9)) < 0.15
+    tent = forces(lambda u: 1.0 - np.abs(u - 0.5))
+    assert heap.dip_below_flanks(heap.base_profile(tent, extent=(0.0, 10.0), bins=heap.DIP_BINS)) < -0.2
+
+
+def test_a_poured_heap_reads_its_dip_below_flanks_when_its_base_is_wide_enough(baxter_heap, monkeypatch):
+    """The pour reads `dip_below_flanks` on a `heap.DIP_BINS`-bin profile of its
+    own base (summary, sweep row, headline) only when each bin is at least a
+    substrate spacing wide: the 48-disk test heap's base is not, and reads NaN;
+    on 5 bins it is, and the row holds 1 - the centre bin over its two neighbours."""
+    sim, params, protocol, state, info, m = baxter_heap
+    spacing = protocol.info["spacing"]
+    assert m["base_width"] < heap.DIP_BINS * spacing and "dip_profile" not in m
+    assert math.isnan(poured_heap.sweep_row(m)["dip_below_flanks"])
+    monkeypatch.setattr(poured_heap, "DIP_BINS", 5)
+    wide = poured_heap.measure(sim, params, state)
+    f = heap.base_profile(wide["substrate_forces"], extent=wide["extent"], bins=5).force
+    expected = 1.0 - f[2] / (0.5 * (f[1] + f[3]))
+    assert poured_heap.summary(wide)["dip_below_flanks"] == pytest.approx(expected, rel=1e-12)
+    assert poured_heap.sweep_row(wide)["dip_below_flanks"] == pytest.approx(expected, rel=1e-12)
+    assert "dip_below_flanks" in pour.SPEC.presentation.headline
+    # the row's columns, declared so that an ensemble fit refuses an unknown statistic before a heap is poured
+    assert tuple(poured_heap.sweep_row(m)) == tuple(poured_heap.sweep_row(wide)) == poured_heap.ROW_COLUMNS
+
+
 @pytest.mark.parametrize("law", ["lee-herrmann", "liffman"])
 def test_pours_with_every_law(law):
     """The other two laws with their pour settings: disks are released, fall and

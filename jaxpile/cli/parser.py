@@ -170,8 +170,9 @@ def _fit_parser(sub) -> argparse.ArgumentParser:
                       help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
                            "pile, pathwise gradients); or a target.json written by an ensemble fit; with "
                            "--estimator central|smoothing, smid-novosad is the central dip 0.25 as an ensemble "
-                           "target (the drop's and the pour's central_dip column; with --statistics "
-                           "central_dip,repose_mean the pour's angle 32.6 deg too)")
+                           "target (the drop's and the pour's central_dip column, or the pour's "
+                           "dip_below_flanks; with --statistics dip_below_flanks,repose_mean the pour's "
+                           "angle 32.6 deg too)")
     fitp.add_argument("--protocol", default="lattice", choices=sweep_protocols(),
                       help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
     fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing", "truncated"],

@@ -85,6 +85,10 @@ def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:
       `jaxpile.measure.heap.central_dip`; the drop and the pour measure it) at
       0.25, the middle of the reported 0.20-0.30 (`fit.SMID_NOVOSAD_DIP_RANGE`),
       with half that range, 0.05, as its spread;
+    - `dip_below_flanks` (1 - the centre over the flanks in fixed narrow
+      windows, `jaxpile.measure.heap.dip_below_flanks`; the pour measures it on
+      heaps whose base is at least 15 substrate spacings) at the same 0.25 with
+      the same spread: the reading that does not average a narrow dip away;
     - `repose_mean` (the pour's angle of repose, degrees) at the reported 32.6
       (`fit.SMID_NOVOSAD_ANGLE_DEGREES`), spread `SMID_NOVOSAD_ANGLE_SPREAD_DEGREES`.
 
@@ -94,6 +98,8 @@ def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:
     declared = {
         "central_dip": (0.5 * (low + high), 0.5 * (high - low),
                         f"central dip, {low:.2f}-{high:.2f} below the maximum", "Introduction"),
+        "dip_below_flanks": (0.5 * (low + high), 0.5 * (high - low),
+                             f"centre {low:.2f}-{high:.2f} below the flanks", "Introduction"),
         "repose_mean": (SMID_NOVOSAD_ANGLE_DEGREES, SMID_NOVOSAD_ANGLE_SPREAD_DEGREES,
                         f"angle of repose, {SMID_NOVOSAD_ANGLE_DEGREES} deg", "text of Fig. 17"),
     }
@@ -101,7 +107,7 @@ def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:
     unknown = [lab for lab in labels if lab not in declared]
     if not labels or unknown or len(set(labels)) != len(labels):
         raise InputError(f"Smid & Novosad's pile declares {', '.join(declared)} (each once); got {labels}: "
-                         "choose among them (--statistics central_dip,repose_mean).")
+                         "choose among them (--statistics dip_below_flanks,repose_mean).")
     return EnsembleTarget(labels, np.asarray([declared[lab][0] for lab in labels], float),
                           np.asarray([declared[lab][1] for lab in labels], float), None,
                           f"Smid & Novosad's {' and '.join(declared[lab][2] for lab in labels)} (Liffman et al. "

@@ -118,6 +118,38 @@ def flank_over_centre(profile: BaseProfile, flanks=FLANK_WINDOWS, centre=CENTRE_
     return 0.5 * (left + right) / middle if middle > 0 else float("nan")
 
 
+DIP_BINS = 15
+"""Bins of the profile `dip_below_flanks` reads: about two substrate spacings each under a 300-disk
+poured heap, narrow enough that the centre bin holds the dip instead of averaging it with the flanks
+(docs/rolling_resistance.md)."""
+DIP_FLANK_WINDOWS = ((0.2, 0.35), (0.65, 0.8))
+DIP_CENTRE_WINDOW = (0.45, 0.55)
+
+
+def dip_below_flanks(profile: BaseProfile, flanks=DIP_FLANK_WINDOWS, centre=DIP_CENTRE_WINDOW) -> float:
+    """1 - the centre's mean binned force over the flanks' (bins centred in
+    `centre`, and in either window of `flanks`): Smid & Novosad's dip, "20-30 %
+    below the maximum", read from one heap with windows fixed in advance.
+    `central_dip` compares the centre with the largest bin on each side, which
+    noise alone raises; `flank_over_centre`'s windows are a fifth of the base
+    wide, which averages a narrow dip away. On a `DIP_BINS`-bin profile the
+    centre window holds the middle bin alone (x/B 0.47-0.53) and the flank
+    windows two bins each (x/B 0.20-0.33, 0.67-0.80), about where the declared
+    maxima sit (`fit.smid_novosad_target`, x/B = 0.25, 0.75). The flanks' mean
+    lies a little below their maxima, so this reads no deeper than the
+    reported dip. NaN when a window holds no bin or the flanks carry nothing."""
+    x = np.asarray(profile.x_over_b, float)
+    f = np.asarray(profile.force, float)
+    in_flanks = np.zeros(x.shape, bool)
+    for lo, hi in flanks:
+        in_flanks |= (x >= lo) & (x <= hi)
+    in_centre = (x >= centre[0]) & (x <= centre[1])
+    if not in_flanks.any() or not in_centre.any():
+        return float("nan")
+    flank = float(f[in_flanks].mean())
+    return 1.0 - float(f[in_centre].mean()) / flank if flank > 0 else float("nan")
+
+
 class NormalProfile(NamedTuple):
     """The base normal force binned across the pile (Fig. 20(b)).
 

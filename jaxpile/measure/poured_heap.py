@@ -16,7 +16,8 @@ from jaxpile.errors import InputError
 from jaxpile.measure.forces import force_unit, substrate_forces
 from jaxpile.measure.surface import apex_x, mid_flank_angle, repose_angles, surface_profile, SurfaceProfile
 from jaxpile.measure.voidage import packing_fraction, voidage_map, voidage_map_bytes
-from jaxpile.measure.heap import base_profile, central_dip, flank_over_centre, m_shape, steepest_heap_height
+from jaxpile.measure.heap import (DIP_BINS, base_profile, central_dip, dip_below_flanks, flank_over_centre, m_shape,
+                                  steepest_heap_height)
 
 # -------------------------------------------------------------- measurements
 def heap_mask(state: SimState) -> np.ndarray:
@@ -45,7 +46,9 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
       `counts`: poured, in play (on the substrate), lost (fell off an end), still
         parked, and `strays` (in play but outside the heap's contiguous columns);
       `substrate_forces` (`SubstrateForces`), `base_profile` (`BaseProfile` over
-        the heap's base), `m_shape` (`MShape`);
+        the heap's base), `m_shape` (`MShape`), `dip_profile` (the same in
+        `heap.DIP_BINS` bins, which `heap.dip_below_flanks` reads; only when
+        each bin is at least a substrate spacing wide);
       `weight` (mg, of the disks in play), `substrate_normal_total` (mg) and
         `force_balance` = total / weight - 1 (zero at rest);
       `surface` (`surface.SurfaceProfile` of the disks in play, columns one
@@ -114,6 +117,8 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
         profile = base_profile(forces, extent=(x_left, x_right), bins=bins, spacing=spacing)
         out["base_profile"] = profile
         out["m_shape"] = m_shape(profile, m_threshold)
+        if width >= DIP_BINS * spacing:  # narrower bins hold a substrate disk or none: no reading
+            out["dip_profile"] = base_profile(forces, extent=(x_left, x_right), bins=DIP_BINS)
     top = float(np.max(pos[in_play, 1] + rad[in_play]))
     region = (x_left, x_right, base_y, top)
     out["voidage"] = voidage_map(pos[in_play], rad[in_play], voidage_cell, region=region)
@@ -141,6 +146,8 @@ def summary(measurements: dict) -> dict:
     if "m_shape" in m:
         out["m_shape"] = {k: (bool(v) if isinstance(v, (bool, np.bool_)) else float(v))
                           for k, v in m["m_shape"]._asdict().items()}
+    if "dip_profile" in m:
+        out["dip_below_flanks"] = dip_below_flanks(m["dip_profile"])
     if "base_profile" in m:
         prof = m["base_profile"]
         out["base_profile"] = {"x_over_b": prof.x_over_b.tolist(), "normalised": prof.normalised.tolist(),
@@ -148,9 +155,16 @@ def summary(measurements: dict) -> dict:
     return out
 
 
+ROW_COLUMNS = ("in_play", "lost", "force_balance", "height", "base_width", "angle_height_base",
+               "core_packing_fraction", "repose_left", "repose_right", "repose_mean", "m_ratio", "central_dip",
+               "flank_over_centre", "dip_below_flanks", "m_shaped")
+"""The keys of every `sweep_row`, whatever the heap (NaN where it cannot be read)."""
+
+
 def sweep_row(full: dict) -> dict:
     """A poured heap's sweep row (from `measure`'s dict): the flank angles,
-    the height and base, the M ratio, the central dip and the force balance."""
+    the height and base, the M ratio, the central dip, the dip below the
+    flanks and the force balance."""
     m = summary(full)
     out = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"], "force_balance": m["force_balance"]}
     for key in ("height", "base_width", "angle_height_base", "core_packing_fraction"):
@@ -165,6 +179,7 @@ def sweep_row(full: dict) -> dict:
     profile = full.get("base_profile")
     out["central_dip"] = float("nan") if profile is None else central_dip(profile)
     out["flank_over_centre"] = float("nan") if profile is None else flank_over_centre(profile)
+    out["dip_below_flanks"] = m.get("dip_below_flanks", float("nan"))  # Smid-Novosad's dip, windows fixed
     out["m_shaped"] = bool(ms.get("m_shaped", False))
     return out
 

@@ -70,7 +70,7 @@ from jaxpile.errors import InputError
 from jaxpile.measure.heap import ProfileSetting, steepest_heap_height, substrate_size
 
 # the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
-from jaxpile.measure.poured_heap import check_options, measure, report, sweep_row
+from jaxpile.measure.poured_heap import ROW_COLUMNS, check_options, measure, report, sweep_row
 from jaxpile.measure.theory import marginal_stability_overlay
 from jaxpile.protocols import drivers, geometry, outputs
 from jaxpile.protocols.base import Setup
@@ -496,7 +496,8 @@ def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options
 SPEC = ProtocolSpec(
     name="pour", options=PourOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(PAPER_SETTING["dt"]), finished=poured_and_at_rest, budget=step_budget,
-    measure=measure_heap, row=sweep_row, execute=pour_and_settle, report=report, check=check_options,
+    measure=measure_heap, row=sweep_row, row_columns=ROW_COLUMNS, execute=pour_and_settle, report=report,
+    check=check_options,
     default_law="baxter",
     presentation=Presentation(
         order=6, help="a heap poured onto a row of fixed disks (1997)",
@@ -504,7 +505,7 @@ SPEC = ProtocolSpec(
         headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
                   "angle_mid_flank.left", "angle_mid_flank.right",
                   "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
-                  "m_shape.ratio", "m_shape.m_shaped"),
+                  "m_shape.ratio", "m_shape.m_shaped", "dip_below_flanks"),
         base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
         summary=lambda measured: measured["summary"], figures=(outputs.heap_profile_figure,)),
     batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,

@@ -304,8 +304,11 @@ def member_row(spec, sim, params, state, p: Setup, options) -> dict:
 
 
 def row_columns(spec) -> frozenset | None:
-    """A row's columns where the spec names them (None: its row is computed)."""
-    return None if callable(spec.row) else frozenset(spec.row)
+    """A row's columns where the spec names them (None: its row is computed
+    and the spec does not declare its `row_columns`)."""
+    if not callable(spec.row):
+        return frozenset(spec.row)
+    return None if spec.row_columns is None else frozenset(spec.row_columns)
 
 
 __all__ = ["RUN_RANGES", "continue_pile", "continued_stages", "execute", "member_row", "member_setup", "on_pile", "row_columns",

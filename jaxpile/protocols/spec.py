@@ -217,7 +217,9 @@ class ProtocolSpec:
     - `budget(setup, options) -> steps`, the run's step budget (counted from
       the set-up's `info["start_step"]` for a continued protocol).
     - `measure(sim, params, state, setup, options) -> dict`: what a run reports.
-    - `row`: the keys of `measure` a sweep row carries, or `measured -> row`.
+    - `row`: the keys of `measure` a sweep row carries, or `measured -> row`;
+      `row_columns`, optional with the latter: the keys that row always holds,
+      so an ensemble fit refuses an unknown statistic before a pile runs.
     - `execute(sim, params, setup, options, *, progress, checkpoint, resume)
       -> (state, RunInfo, samples or None)`, optional: how one pile runs when
       it is not `finished` checked at each chunk's end (the pour: a loading
@@ -262,6 +264,7 @@ class ProtocolSpec:
     starts_from: ProtocolSpec | None = None
     pile_facts: Callable | None = None
     pathwise: Pathwise | None = None
+    row_columns: tuple | None = None
 
     def __post_init__(self):
         if not (isinstance(self.options, type) and issubclass(self.options, Options)):

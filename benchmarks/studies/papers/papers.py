@@ -349,7 +349,8 @@ def rows_rolling_pour() -> list[list[str]]:
                              + ("in 20–30%" if 0.2 <= held[0] <= 0.3 else
                                 f"{(0.2 - held[0]) / held[1]:.1f} s.e. below 20%" if held[0] < 0.2 else
                                 f"{(held[0] - 0.3) / held[1]:.1f} s.e. above 30%"))
-        for key, reading in (("fit", "the per-heap dip"), ("fit_profile", "the mean profile's dip (held out)")):
+        for key, reading in (("fit", "the per-heap dip"), ("fit_profile", "the mean profile's dip (held out)"),
+                             ("fit_narrow", "each heap's dip in fixed narrow windows")):
             if fit := grid.get(key):  # μ_r fitted to both through the grid's heaps (`pour_profiles.fit_along`)
                 (d, de), (a, ae) = fit["central_dip"], fit["repose_mean"]
                 at_angle += (f"; fitted to dip and angle with {reading} (μ = {grid['mu']:g}{label}, a line through "

@@ -128,7 +128,9 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
     the other half of the seeds (`recover_along`); `fit_profile` and
     `recovery_profile`: the same with the dip read off the mean profile
     (each heap's share of the held-out centre below the flanks,
-    `profile_drops`). `every_point`: the same readings at every
+    `profile_drops`); `fit_narrow` and `recovery_narrow`: the same with each
+    heap's own dip in fixed narrow windows (`dip_below_flanks`, `narrow_dips`;
+    also per point and at the crossings). `every_point`: the same readings at every
     (mu, mu_roll) the records hold, at this mu or another: whether any of
     them stands at the reported angle with the reported dip, whatever its
     parameters."""
@@ -164,8 +166,10 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
         readings = [centre_below_flanks(np.asarray(profiles, float), held_out=h) if len(profiles) > 1 else None
                     for h in (False, True)]
         below, held = ([r["value"], r["stderr"], len(profiles)] if r else None for r in readings)
+        narrow = _mean_se(r["dip_below_flanks"] for r in narrow_dips(heaps)) if profiles else None
         every[at_mu, x] = {"heaps": len(heaps), "central_dip": dip, "repose_mean": angle,
                            "centre_below_flanks": below, "centre_below_flanks_held_out": held,
+                           "dip_below_flanks": narrow,
                            "loss": float(loss_of(np.array([dip[0], angle[0]])))}
     points = {x: point for (at_mu, x), point in every.items() if at_mu == mu}
     xs, crossings = sorted(points), []
@@ -184,7 +188,8 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
 
         crossings.append({"between": [x0, x1], "mu_roll": [x0 + t * (x1 - x0), abs(x1 - x0) * dt],
                           "central_dip": between("central_dip"), "centre_below_flanks": between("centre_below_flanks"),
-                          "centre_below_flanks_held_out": between("centre_below_flanks_held_out")})
+                          "centre_below_flanks_held_out": between("centre_below_flanks_held_out"),
+                          "dip_below_flanks": between("dip_below_flanks")})
     along = {x: heaps for (at_mu, x), heaps in rows.items() if at_mu == mu}
     w = weights(target)
     profiled = {x: profile_drops(heaps) for x, heaps in along.items()}
@@ -196,6 +201,9 @@ def on_the_grid(summaries: list[dict], mu: float = 0.5) -> dict:
             "fit": fit_along(along, target.mean, w), "recovery": recover_along(along, w),
             "fit_profile": fit_along(profiled, target.mean, w, dip="centre_below_flanks_held_out"),
             "recovery_profile": recover_along(along, w, "centre_below_flanks_held_out", profile_drops),
+            "fit_narrow": fit_along({x: narrow_dips(heaps) for x, heaps in along.items()}, target.mean, w,
+                                    dip="dip_below_flanks"),
+            "recovery_narrow": recover_along(along, w, "dip_below_flanks", narrow_dips),
             "every_point": [{"mu": at_mu, "mu_roll": x, **point} for (at_mu, x), point in every.items()]}
 
 
@@ -230,7 +238,8 @@ def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "cent
     not the heaps'. None with fewer than two grid points. `dip`: the rows'
     key of the dip read (`central_dip`, the fit's, or
     `centre_below_flanks_held_out`, each heap's share of the mean profile's
-    reading: `profile_drops`)."""
+    reading: `profile_drops`; or `dip_below_flanks`, each heap's own reading
+    in fixed windows: `narrow_dips`); the result names it `central_dip`."""
     from jaxpile.fit import regression
     from jaxpile.fit.stats import t_quantile
 
@@ -269,6 +278,19 @@ def fit_along(heaps: dict, target_mean, w, target_members=None, dip: str = "cent
             "scatter": line.scatter.tolist(), "grid": sorted({p[0] for p in points}),
             "line": {"intercept": line.intercept.tolist(), "slope": line.jacobian[:, 0].tolist()},
             "lack_of_fit": lack_of_fit}
+
+
+def narrow_dips(rows: list[dict]) -> list[dict]:
+    """The heaps of one grid point that have a profile, each with
+    `dip_below_flanks` (`jaxpile.measure.heap.dip_below_flanks`: its centre bin
+    below its flank bins, windows fixed in advance) read off its own `BINS`-bin
+    profile: what the pour's sweep row reports on a heap of this size, for
+    records written before it did. Each heap's reading is its own."""
+    from jaxpile.measure.heap import BaseProfile, dip_below_flanks
+
+    x = (np.arange(BINS) + 0.5) / BINS
+    return [{**r, "dip_below_flanks": dip_below_flanks(BaseProfile(x, np.asarray(r["profile"], float), None, 0.0, 1.0))}
+            for r in rows if r.get("profile") is not None]
 
 
 def profile_drops(rows: list[dict]) -> list[dict]:
@@ -363,7 +385,9 @@ def main(argv=None) -> None:
             below = "" if p["centre_below_flanks_held_out"] is None else (
                 f" (centre {p['centre_below_flanks'][0]:+.3f}, held out {p['centre_below_flanks_held_out'][0]:+.3f} "
                 f"+- {p['centre_below_flanks_held_out'][1]:.3f} below the flanks)")
-            print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}{below}, angle "
+            narrow = "" if p["dip_below_flanks"] is None else (
+                f", {p['dip_below_flanks'][0]:+.3f} +- {p['dip_below_flanks'][1]:.3f} in fixed windows")
+            print(f"mu_roll = {x}: dip {p['central_dip'][0]:+.3f} +- {p['central_dip'][1]:.3f}{below}{narrow}, angle "
                   f"{p['repose_mean'][0]:.1f} +- {p['repose_mean'][1]:.1f} deg ({p['heaps']} heaps), loss {p['loss']:.1f}")
         for p in grid["every_point"]:
             if p["mu"] != grid["mu"]:
@@ -394,6 +418,14 @@ def main(argv=None) -> None:
                   f"{fit['central_dip'][0]:+.3f} +- {fit['central_dip'][1]:.3f} and the angle "
                   f"{fit['repose_mean'][0]:.1f} +- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.2f}); "
                   f"{sum(r['inside'] for r in grid['recovery_profile'])} of {len(grid['recovery_profile'])} "
+                  "recoveries hold the truth")
+        fit = grid["fit_narrow"]
+        if fit is not None:
+            print(f"the same with each heap's dip below its flanks (fixed windows): mu_roll = {fit['mu_roll'][0]:.3f} +- "
+                  f"{fit['mu_roll'][1]:.3f} (95 %: {fit['interval'][0]:.3f}-{fit['interval'][1]:.3f}), where the dip is "
+                  f"{fit['central_dip'][0]:+.3f} +- {fit['central_dip'][1]:.3f} and the angle "
+                  f"{fit['repose_mean'][0]:.1f} +- {fit['repose_mean'][1]:.1f} deg (loss {fit['loss']:.2f}); "
+                  f"{sum(r['inside'] for r in grid['recovery_narrow'])} of {len(grid['recovery_narrow'])} "
                   "recoveries hold the truth")
         held = [r["inside"] for r in grid["recovery"]]
         if held:
@@ -459,8 +491,9 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
     right.errorbar(x, dip[:, 0], yerr=dip[:, 1], fmt="o-", capsize=4, label="central_dip, per heap (the fit's)")
     for key, shift, marker, label in (("centre_below_flanks", 0.004, "s-", "centre below the flanks, mean profile"),
                                       ("centre_below_flanks_held_out", 0.008, "D-",
-                                       "the same, flanks chosen on the other heaps")):
-        have = [(xi + shift, *p[key][:2]) for xi, p in zip(x, pts) if p[key]]
+                                       "the same, flanks chosen on the other heaps"),
+                                      ("dip_below_flanks", 0.012, "^-", "dip_below_flanks, per heap (fixed windows)")):
+        have = [(xi + shift, *p[key][:2]) for xi, p in zip(x, pts) if p.get(key)]
         if have:
             xs, m, e = map(np.array, zip(*have))
             right.errorbar(xs, m, yerr=e, fmt=marker, capsize=4, label=label)
@@ -484,6 +517,12 @@ def _grid_figure(grid: dict, path: pathlib.Path) -> None:
         (m, e), (d, de) = fit["mu_roll"], fit["central_dip"]
         right.errorbar([m], [d], xerr=[e], yerr=[de], fmt="*", ms=12, color="C2", mec="k", capsize=4,
                        label=f"fit with the held-out reading: mu_roll = {m:.3f} (95 %: {fit['interval'][0]:.3f}-"
+                             f"{fit['interval'][1]:.3f}), {d:+.2f} +- {de:.2f}")
+    fit = grid.get("fit_narrow")
+    if fit:  # the same fit with each heap's dip in fixed windows
+        (m, e), (d, de) = fit["mu_roll"], fit["central_dip"]
+        right.errorbar([m], [d], xerr=[e], yerr=[de], fmt="*", ms=12, color="C3", mec="k", capsize=4,
+                       label=f"fit with dip_below_flanks: mu_roll = {m:.3f} (95 %: {fit['interval'][0]:.3f}-"
                              f"{fit['interval'][1]:.3f}), {d:+.2f} +- {de:.2f}")
     left.set(xlabel="rolling friction mu_roll", ylabel="angle of repose (deg)")
     right.set(xlabel="rolling friction mu_roll", ylabel="dip below the flanks")
