@@ -202,6 +202,32 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
     np.testing.assert_array_equal(a.neighbors.idx, b.neighbors.idx)
 
 
+def test_each_member_deciding_its_own_rebuilds_gives_the_batch_wide_decisions_states_bit_for_bit():
+    """`Ensemble(rebuilds="member")` (the pour's, on one CPU device) lets each
+    member rebuild its list only on its own steps, in a loop over the members;
+    `"batch"` (the default) rebuilds every member whenever one needs it, and a member that
+    did not move keeps its list. The lists, the contacts and every disk end the
+    same bit for bit (benchmarks/ensemble_rebuilds.py times the two)."""
+    from jaxpile.engine.ensemble import Ensemble
+    from jaxpile.protocols import pour
+
+    protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5, 6)]
+    params = [pour.law_params("hooke")] * 3
+    sim = pour.make_simulator("hooke", chunk_steps=1000)
+    assert Ensemble(sim).rebuilds == "batch" and jax.local_devices()[0].platform == "cpu"
+    assert pour.SPEC.batch.rebuilds == "member" and Ensemble(sim, rebuilds="member").rebuilds == "member"
+    states = {}
+    for rebuilds in ("batch", "member"):
+        ens = Ensemble(sim, rebuilds=rebuilds)
+        states[rebuilds] = ens.run(params, ens.init(params, protocols), 3000, progress=False)
+    a, b = states["batch"], states["member"]
+    assert np.all(np.asarray(a.protocol_state.poured) > 10)  # disks fell, landed and rebuilt lists out of phase
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    with pytest.raises(InputError, match="rebuilds must be"):
+        Ensemble(sim, rebuilds="each")
+
+
 def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():
     from jaxpile import sweeps
 

@@ -334,6 +334,22 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     assert calls == [str(batch)] and not batch.exists()
     uninterrupted = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True})
     assert final.values == uninterrupted.values and final.interval == uninterrupted.interval
+    # stopped in a later iteration (the second's batch): the resume takes the first from the history,
+    # continues the second's batch from its save and runs the final one
+    two = {**kw, "steps": 2}
+    calls.clear()
+    monkeypatch.setattr(ckpt, "save", save_in_final)  # stops at the first save of the second batch run
+    with pytest.raises(_Stopped):
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200), **two)
+    monkeypatch.setattr(ckpt, "save", save)
+    assert calls == [None, None] and len(json.loads(open(history).read())["history"]) == 1
+    calls.clear()
+    later = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
+                   batch_checkpoint=(str(batch), 200), **two)
+    assert calls == [str(batch), None] and not batch.exists()  # the second from its save, the final one afresh
+    both = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **two)
+    assert len(both.history) == 2 and later.values == both.values
+    assert [same(h) for h in later.history] == [same(h) for h in both.history]
     monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
 
     # the command line: OUT/fit_batch.npz, and OUT/target_batch.npz for a target stopped before the fit began,

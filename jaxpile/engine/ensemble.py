@@ -15,7 +15,15 @@ protocol are one compiled loop. What makes that work for DEM:
   rebuild runs only on steps where some member needs it, for the whole batch;
   members that did not move keep their lists, and the contact history is
   carried onto the new pairs inside the same branch.
-  `benchmarks/ensemble_throughput.py` measures the difference.
+  `benchmarks/ensemble_throughput.py` measures the difference. Where members
+  rebuild out of phase (poured heaps, each every ~8 steps while its disks
+  fall), an or over 16 of them rebuilds nearly every step, so there each
+  member decides for itself instead (`rebuilds="member"`, a protocol's
+  `Batch.rebuilds`): the single pile's cond in a loop over the members
+  (`jax.custom_batching.sequential_vmap`), the same lists bit for bit.
+  Measured on 2 CPU cores (docs/performance.md#who-decides-a-batchs-rebuilds):
+  16 poured heaps run 1.49x faster so; 8 settling boxes, whose members rebuild
+  together, 0.77x, so they keep the batch's decision.
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).
@@ -79,17 +87,27 @@ class Ensemble:
         chunking every member shares.
       devices: the devices to shard the batch over (default: all of this
         process's, `jax.local_devices()`; one device: no sharding).
+      rebuilds: who decides a neighbour-list rebuild: "batch" (the default:
+        once for the batch, every member rebuilt when any needs it) or
+        "member" (each its own, in a loop over the members: faster where the
+        members rebuild out of phase, as poured heaps do; see the module
+        notes). "member" applies on one CPU device; a GPU, or a batch sharded
+        over devices, decides for the batch (`rebuilds` says which is used).
     """
 
-    def __init__(self, sim: Simulator, *, devices: Sequence | None = None):
+    def __init__(self, sim: Simulator, *, devices: Sequence | None = None, rebuilds: str | None = None):
         if not isinstance(sim, Simulator):
             raise InputError(f"Ensemble takes a Simulator; got {type(sim).__name__}.")
         self.sim = sim
         self.devices = list(jax.local_devices() if devices is None else devices)
         if not self.devices:
             raise InputError("devices is empty; pass None for all of jax.local_devices().")
+        if rebuilds not in (None, "batch", "member"):
+            raise InputError(f"rebuilds must be 'batch' or 'member'; got {rebuilds!r}.")
+        one_cpu = len(self.devices) == 1 and self.devices[0].platform == "cpu"
+        self.rebuilds = "member" if rebuilds == "member" and one_cpu else "batch"
         self.step = make_step(sim.law, sim.dt, sim.schedule, sim.integrator, sim.hard_collisions, sim.driver,
-                              axis_name=AXIS)
+                              axis_name=AXIS, each_member=self.rebuilds == "member")
         self.mesh = Mesh(np.array(self.devices), (AXIS,)) if len(self.devices) > 1 else None
         if self.mesh is None:
             self._advance_jit = jax.jit(self._advance)

@@ -143,6 +143,7 @@ def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent
 
     if len(_PIECES) >= 4:  # a few configurations at a time: each holds compiled programs
         _PIECES.pop(next(iter(_PIECES)))
-    _PIECES[key] = pieces = _Pieces(sim, ensemble.Ensemble(sim), params, advance, stats,
+    runner = ensemble.Ensemble(sim, rebuilds=pour.SPEC.batch.rebuilds)
+    _PIECES[key] = pieces = _Pieces(sim, runner, params, advance, stats,
                                     jax.jit(advance, static_argnums=2))
     return pieces

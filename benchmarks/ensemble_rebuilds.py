@@ -1,0 +1,108 @@
+"""Who decides a batch's neighbour-list rebuild: the batch at once, or each member.
+
+A pour rebuilds a heap's list every ~8 steps while disks fall. In a batch whose
+rebuild is decided once (`Ensemble(rebuilds="batch")`: a `lax.pmax` of the
+members' needs, then one real branch), every member is rebuilt whenever *any*
+needs it, and with 16 heaps falling out of phase that is almost every step.
+With `rebuilds="member"` each member decides its own, in a loop over the
+members (`jax.custom_batching.sequential_vmap` around the single pile's cond),
+so a member rebuilds only on its own steps, at the price of running the
+members' rebuild branches one after another.
+
+This pours `--members` heaps of the fits' set-up (the 1997 pour, baxter law
+with rolling sds, spins on, the source narrowed to +-0.5 sigma; release from
+the paper's 100 sigma), runs them `--warm` steps, then times the next `--steps`
+steps with each decision, the two arms alternated `--repeats` times in one
+run, and checks that both end in the same state bit for bit. Prints
+particle-steps per second (the disks in play, the substrate row included) and
+the ratio, and how often the first heap alone rebuilds its list over the
+`--probe` steps after the warm ones; writes JSON.
+
+    python benchmarks/ensemble_rebuilds.py [--members 16] [--n 300] [--warm 60000] [--steps 20000]
+        [--repeats 2] [--probe 2000] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import numpy as np
+
+import jaxpile
+from jaxpile import io
+from jaxpile.engine.batch import member
+from jaxpile.engine.ensemble import Ensemble
+from jaxpile.protocols import pour
+from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
+
+# as the commands run: float64 and XLA's settings, multi-output fusion included
+# (jaxpile.config), unless JAXPILE_MULTI_OUTPUT_FUSION=0
+jaxpile.configure()
+
+ROLLING = {"k_roll": 1000.0, "gamma_roll": 30.0, "mu_roll": 0.14}
+"""The rolling spring of the committed heaps and a mu_roll near the fitted one (docs/rolling_resistance.md)."""
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--members", type=int, default=16)
+    parser.add_argument("--n", type=int, default=300, help="disks poured per heap")
+    parser.add_argument("--warm", type=int, default=60_000, help="steps run before the timed ones")
+    parser.add_argument("--steps", type=int, default=20_000, help="steps timed per arm and repeat")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--probe", type=int, default=2000, help="steps of the first heap counted for its rebuilds")
+    parser.add_argument("--out", default=None, help="JSON file for the figures")
+    args = parser.parse_args(argv)
+
+    law_options = {"rolling": "sds"}
+    _, _, params = pour.law_and_params("baxter", ROLLING, rotation=True, law_options=law_options)
+    sim = pour.make_simulator("baxter", rotation=True, law_options=law_options)
+    setups = [pour.SPEC.set_up("baxter", args.n, spread=0.5, seed=s) for s in range(args.members)]
+    params = [params] * args.members
+    arms = {name: Ensemble(sim, rebuilds=name) for name in ("batch", "member")}
+    start = arms["batch"].run(params, arms["batch"].init(params, setups), args.warm, progress=False)
+    in_play = int(np.asarray(start.particles.active).sum(axis=1).mean())
+    seconds = {name: [] for name in arms}
+    ends = {}
+    for _ in range(args.repeats):
+        for name, ens in arms.items():
+            ens.run(params, start, 1000, progress=False)  # compiled and warm before it is timed
+            t0 = time.perf_counter()
+            end = ens.run(params, start, args.steps, progress=False)
+            jax.block_until_ready(end.particles.position)
+            seconds[name].append(time.perf_counter() - t0)
+            ends[name] = end
+    first = member(start, 0)  # one heap alone, a step at a time: a rebuild moves its list's reference positions
+    step, rebuilds = jax.jit(sim.step), 0
+    for _ in range(args.probe):
+        moved = step(params[0], first)
+        rebuilds += not np.array_equal(np.asarray(moved.neighbors.reference_position),
+                                       np.asarray(first.neighbors.reference_position))
+        first = moved
+    same = all(np.array_equal(np.asarray(a), np.asarray(b))
+               for a, b in zip(jax.tree.leaves(ends["batch"]), jax.tree.leaves(ends["member"])))
+    work = args.members * in_play * args.steps
+    rate = {name: work / min(s) for name, s in seconds.items()}
+    out = {"machine": describe(), "members": args.members, "n": args.n, "in_play_mean": in_play,
+           "warm_steps": args.warm, "steps": args.steps, "repeats": args.repeats, "seconds": seconds,
+           "particle_steps_per_s": rate, "member_over_batch": rate["member"] / rate["batch"],
+           "bit_identical": same, "probe_steps": args.probe, "one_heap_rebuilds": rebuilds}
+    case = (f"{args.members} pours x {args.n} disks (baxter, rolling sds, narrow source), steps "
+            f"{args.warm}-{args.warm + args.steps}: rebuilds decided by each member vs by the batch")
+    out["table"] = [{"case": case, "jaxpile": rate["member"], "lammps": None, "ratio": None,
+                     "note": f"{out['member_over_batch']:.2f}x the batch-wide decision ({rate['batch']:.3g}); "
+                             f"bit-identical: {same}"}]
+    print(f"{case} ({out['machine']}), {in_play} disks in play a heap:")
+    for name in arms:
+        print(f"  {name:6s} {rate[name]:.3g} particle-steps/s (best of {', '.join(f'{s:.1f}' for s in seconds[name])} s)")
+    print(f"  each member over the batch: {out['member_over_batch']:.2f}x; the same states bit for bit: {same}")
+    print(f"  one heap alone rebuilds {rebuilds} times in {args.probe} steps (every {args.probe / max(rebuilds, 1):.1f})")
+    if args.out:
+        io.write_json(args.out, out)
+    return out
+
+
+if __name__ == "__main__":
+    main()
