@@ -6,8 +6,9 @@ times the same steps three ways:
 * `batch-wide`: `Ensemble(rebuilds="batch")` (the rebuild and history carry
   decided once for the batch with a `lax.pmax` over the vmap axis: real
   branches);
-* `each member`: `Ensemble(rebuilds="member")`, the default on one CPU device
-  (each member's own rebuilds, in a loop over the members);
+* `each member`: `Ensemble(rebuilds="member")` (each member's own rebuilds, in
+  a loop over the members; the pour's choice, on one CPU device: elsewhere the
+  batch decides, and the JSON's `each_member_mode` says which ran);
 * `naive vmap`: `jax.vmap` of the single-pile step (jax-md's per-member cond
   becomes a select: every member rebuilds its list and carries its history at
   every step);
@@ -97,7 +98,8 @@ def main(argv=None) -> dict:
         return jax.vmap(lambda p, s: lax.fori_loop(0, n, lambda _, x: sim.step(p, x), s))(params, state)
 
     t_naive = timed(naive, pb, state, n)
-    t_member = timed(jax.jit(ensemble.Ensemble(sim, rebuilds="member")._advance), pb, state, frozen, n)
+    by_member = ensemble.Ensemble(sim, rebuilds="member")
+    t_member = timed(jax.jit(by_member._advance), pb, state, frozen, n)
 
     singles = ensemble.members(state)
     single = jax.jit(sim._advance)
@@ -113,7 +115,7 @@ def main(argv=None) -> dict:
         "precision": args.precision, "compile_seconds": compile_seconds,
         "batch_wide_particle_steps_per_s": work / t_batch,
         "naive_vmap_particle_steps_per_s": work / t_naive,
-        "each_member_particle_steps_per_s": work / t_member,
+        "each_member_particle_steps_per_s": work / t_member, "each_member_mode": by_member.rebuilds,
         "serial_particle_steps_per_s": work / t_serial,
         "batch_wide_over_naive": t_naive / t_batch,
         "batch_wide_over_serial": t_serial / t_batch,

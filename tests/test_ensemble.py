@@ -202,27 +202,58 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
     np.testing.assert_array_equal(a.neighbors.idx, b.neighbors.idx)
 
 
-def test_each_member_deciding_its_own_rebuilds_gives_the_batch_wide_decisions_states_bit_for_bit():
-    """`Ensemble(rebuilds="member")` (the pour's, on one CPU device) lets each
-    member rebuild its list only on its own steps, in a loop over the members;
-    `"batch"` (the default) rebuilds every member whenever one needs it, and a member that
-    did not move keeps its list. The lists, the contacts and every disk end the
-    same bit for bit (benchmarks/ensemble_rebuilds.py times the two)."""
-    from jaxpile.engine.ensemble import Ensemble
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="each member decides on one CPU device only")
+def test_each_member_deciding_its_own_rebuilds_gives_the_batch_wide_decisions_states_bit_for_bit(batch,
+                                                                                                  monkeypatch):
+    """`Ensemble(rebuilds="member")` (the pour's, on one CPU device) runs the
+    single pile's rebuild decision in a loop over the members; `"batch"` (the
+    default) rebuilds every member whenever one needs it, and a member that
+    did not move keeps its list. The two end bit for bit the same: across a
+    re-allocation and with members frozen at different steps (the boxes), and
+    on three pours whose disks land out of phase. The step is traced with
+    each member's decision only in the member mode
+    (benchmarks/ensemble_rebuilds.py times the two)."""
+    from jaxpile.engine import neighbors as nb
+    from jaxpile.engine.ensemble import AXIS, Ensemble
     from jaxpile.protocols import pour
 
-    protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5, 6)]
-    params = [pour.law_params("hooke")] * 3
-    sim = pour.make_simulator("hooke", chunk_steps=1000)
-    assert Ensemble(sim).rebuilds == "batch" and jax.local_devices()[0].platform == "cpu"
-    assert pour.SPEC.batch.rebuilds == "member" and Ensemble(sim, rebuilds="member").rebuilds == "member"
-    states = {}
+    traced, update = [], nb.update_with_contacts
+
+    def recorded(neighbors, contacts, position, settings, axis_name=None, each_member=False):
+        traced.append((axis_name, each_member))
+        return update(neighbors, contacts, position, settings, axis_name, each_member)
+
+    monkeypatch.setattr(nb, "update_with_contacts", recorded)
+    sim, _, _, params, state = batch
+    small = ensemble.stack([ensemble.at_capacity(m, 2, m.neighbors.cell_list_capacity)
+                            for m in ensemble.members(state)])
+    split = _split(state)
+
+    def until(s):
+        return s.step >= jnp.where(s.particles.radius[0] > split, 300, 600)
+
+    ends = {}
     for rebuilds in ("batch", "member"):
+        traced.clear()
+        info = RunInfo()
         ens = Ensemble(sim, rebuilds=rebuilds)
-        states[rebuilds] = ens.run(params, ens.init(params, protocols), 3000, progress=False)
-    a, b = states["batch"], states["member"]
-    assert np.all(np.asarray(a.protocol_state.poured) > 10)  # disks fell, landed and rebuilt lists out of phase
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+        ends[rebuilds] = ens.run(params, small, STEPS, until=until, progress=False, info=info)
+        assert info.reallocations >= 1 and ens.rebuilds == rebuilds
+        assert (AXIS, rebuilds == "member") in traced and (AXIS, rebuilds != "member") not in traced
+    assert sorted(set(np.asarray(ends["member"].step).tolist())) == [300, 600]
+    for x, y in zip(jax.tree.leaves(ends["batch"]), jax.tree.leaves(ends["member"])):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+    protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5, 6)]
+    pour_params = [pour.law_params("hooke")] * 3
+    pour_sim = pour.make_simulator("hooke", chunk_steps=1000)
+    assert Ensemble(pour_sim).rebuilds == "batch" and pour.SPEC.batch.rebuilds == "member"
+    poured = {}
+    for rebuilds in ("batch", "member"):
+        ens = Ensemble(pour_sim, rebuilds=rebuilds)
+        poured[rebuilds] = ens.run(pour_params, ens.init(pour_params, protocols), 3000, progress=False)
+    assert np.all(np.asarray(poured["member"].protocol_state.poured) > 10)  # disks fell and landed
+    for x, y in zip(jax.tree.leaves(poured["batch"]), jax.tree.leaves(poured["member"])):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
     with pytest.raises(InputError, match="rebuilds must be"):
         Ensemble(sim, rebuilds="each")

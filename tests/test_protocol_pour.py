@@ -299,6 +299,8 @@ def test_dip_below_flanks_reads_smid_novosad_dip_in_fixed_windows():
     assert heap.dip_below_flanks(fifteen(np.ones(15))) == 0.0
     assert math.isnan(heap.dip_below_flanks(fifteen(np.where(np.isin(np.arange(15), [3, 4, 10, 11]), 0.0, 1.0))))
     assert math.isnan(heap.dip_below_flanks(heap.BaseProfile(np.array([0.1, 0.9]), np.ones(2), None, 0.0, 1.0)))
+    one_flank = heap.BaseProfile(np.array([0.3, 0.5, 0.9]), np.ones(3), None, 0.0, 1.0)  # no bin at x/B 0.65-0.8
+    assert math.isnan(heap.dip_below_flanks(one_flank))
 
     def forces(normal_of_u, points=2001):  # dense contacts along a base of length 10
         u = (np.arange(points) + 0.5) / points

@@ -20,10 +20,9 @@ protocol are one compiled loop. What makes that work for DEM:
   fall), an or over 16 of them rebuilds nearly every step, so there each
   member decides for itself instead (`rebuilds="member"`, a protocol's
   `Batch.rebuilds`): the single pile's cond in a loop over the members
-  (`jax.custom_batching.sequential_vmap`), the same lists bit for bit.
-  Measured on 2 CPU cores (docs/performance.md#who-decides-a-batchs-rebuilds):
-  16 poured heaps run 1.49x faster so; 8 settling boxes, whose members rebuild
-  together, 0.77x, so they keep the batch's decision.
+  (`jax.custom_batching.sequential_vmap`), the same lists bit for bit. Boxes,
+  whose members rebuild together, keep the batch's decision, which is faster
+  for them (docs/performance.md#who-decides-a-batchs-rebuilds).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).
@@ -104,7 +103,8 @@ class Ensemble:
             raise InputError("devices is empty; pass None for all of jax.local_devices().")
         if rebuilds not in (None, "batch", "member"):
             raise InputError(f"rebuilds must be 'batch' or 'member'; got {rebuilds!r}.")
-        one_cpu = len(self.devices) == 1 and self.devices[0].platform == "cpu"
+        # one CPU device, and the default backend too: an unsharded batch runs where jit puts it
+        one_cpu = len(self.devices) == 1 and self.devices[0].platform == "cpu" and jax.default_backend() == "cpu"
         self.rebuilds = "member" if rebuilds == "member" and one_cpu else "batch"
         self.step = make_step(sim.law, sim.dt, sim.schedule, sim.integrator, sim.hard_collisions, sim.driver,
                               axis_name=AXIS, each_member=self.rebuilds == "member")

@@ -140,12 +140,11 @@ def dip_below_flanks(profile: BaseProfile, flanks=DIP_FLANK_WINDOWS, centre=DIP_
     reported dip. NaN when a window holds no bin or the flanks carry nothing."""
     x = np.asarray(profile.x_over_b, float)
     f = np.asarray(profile.force, float)
-    in_flanks = np.zeros(x.shape, bool)
-    for lo, hi in flanks:
-        in_flanks |= (x >= lo) & (x <= hi)
+    windows = [(x >= lo) & (x <= hi) for lo, hi in flanks]
     in_centre = (x >= centre[0]) & (x <= centre[1])
-    if not in_flanks.any() or not in_centre.any():
+    if not in_centre.any() or not all(w.any() for w in windows):
         return float("nan")
+    in_flanks = np.logical_or.reduce(windows)
     flank = float(f[in_flanks].mean())
     return 1.0 - float(f[in_centre].mean()) / flank if flank > 0 else float("nan")
 

@@ -404,6 +404,12 @@ def step_budget(p: Setup, o: DropOptions) -> int:
     return int(p.info["n_particles"]) * int(p.info["max_interval_steps"]) + 1000 + int(o.relax_steps)
 
 
+ROW_COLUMNS = ("all_inserted", "max_speed", "base_contacts", "total_normal", "weight_balance", "total_horizontal",
+               "height", "base_width", "centre_x", "central_dip", "has_central_dip", "repose_angle_left",
+               "repose_angle_right")
+"""Every key a `row` may hold (a pile too small for a base profile has no `base_width` to `has_central_dip`)."""
+
+
 def row(m: dict) -> dict:
     """A sweep row: the measurements' plain numbers and flags."""
     return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k != "n_in"}
@@ -412,7 +418,8 @@ def row(m: dict) -> dict:
 SPEC = ProtocolSpec(
     name="drop", options=DropOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(SETTING["dt"]), finished=filled_and_at_rest, budget=step_budget,
-    measure=measure_pile, row=row, execute=fill_and_relax, report=report, default_law="liffman",
+    measure=measure_pile, row=row, row_columns=ROW_COLUMNS, execute=fill_and_relax, report=report,
+    default_law="liffman",
     presentation=Presentation(
         order=2, help="disks dropped one at a time (1992 Fig. 20)",
         flags={"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
@@ -426,6 +433,6 @@ SPEC = ProtocolSpec(
 relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 
 
-__all__ = ["PARK_SPACING", "SETTING", "SPEC", "DropOptions", "DropState", "driver_setting", "fill_and_relax",
-           "filled_and_at_rest", "law_and_params", "layout", "make_driver", "make_in_play", "measure_pile", "report",
-           "row", "setup", "simulator", "step_budget"]
+__all__ = ["PARK_SPACING", "ROW_COLUMNS", "SETTING", "SPEC", "DropOptions", "DropState", "driver_setting",
+           "fill_and_relax", "filled_and_at_rest", "law_and_params", "layout", "make_driver", "make_in_play",
+           "measure_pile", "report", "row", "setup", "simulator", "step_budget"]
