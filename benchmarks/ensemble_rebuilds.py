@@ -11,14 +11,15 @@ members' rebuild branches one after another.
 
 This pours `--members` heaps of the fits' set-up (the 1997 pour, baxter law
 with rolling sds, spins on, the source narrowed to +-0.5 sigma; release from
-the paper's 100 sigma), runs them `--warm` steps, then times the next `--steps`
+the paper's 100 sigma), or with `--protocol drop` drops them (Liffman et al.
+1992, its liffman law, disks dropped one at a time), runs them `--warm` steps, then times the next `--steps`
 steps with each decision, the two arms alternated `--repeats` times in one
 run, and checks that both end in the same state bit for bit. Prints
 particle-steps per second (the disks in play, the substrate row included) and
 the ratio, and how often the first heap alone rebuilds its list over the
 `--probe` steps after the warm ones; writes JSON.
 
-    python benchmarks/ensemble_rebuilds.py [--members 16] [--n 300] [--warm 60000] [--steps 20000]
+    python benchmarks/ensemble_rebuilds.py [--protocol pour|drop] [--members 16] [--n 300] [--warm 60000] [--steps 20000]
         [--repeats 2] [--probe 2000] [--out FILE]
 """
 
@@ -34,7 +35,7 @@ import jaxpile
 from jaxpile import io
 from jaxpile.engine.batch import member
 from jaxpile.engine.ensemble import Ensemble
-from jaxpile.protocols import pour
+from jaxpile.protocols import drop, pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 # as the commands run: float64 and XLA's settings, multi-output fusion included
@@ -47,6 +48,7 @@ ROLLING = {"k_roll": 1000.0, "gamma_roll": 30.0, "mu_roll": 0.14}
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--protocol", default="pour", choices=["pour", "drop"])
     parser.add_argument("--members", type=int, default=16)
     parser.add_argument("--n", type=int, default=300, help="disks poured per heap")
     parser.add_argument("--warm", type=int, default=60_000, help="steps run before the timed ones")
@@ -56,10 +58,20 @@ def main(argv=None) -> dict:
     parser.add_argument("--out", default=None, help="JSON file for the figures")
     args = parser.parse_args(argv)
 
-    law_options = {"rolling": "sds"}
-    _, _, params = pour.law_and_params("baxter", ROLLING, rotation=True, law_options=law_options)
-    sim = pour.make_simulator("baxter", rotation=True, law_options=law_options)
-    setups = [pour.SPEC.set_up("baxter", args.n, spread=0.5, seed=s) for s in range(args.members)]
+    if args.protocol == "pour":
+        law_options = {"rolling": "sds"}
+        _, _, params = pour.law_and_params("baxter", ROLLING, rotation=True, law_options=law_options)
+        sim = pour.make_simulator("baxter", rotation=True, law_options=law_options)
+        setups = [pour.SPEC.set_up("baxter", args.n, spread=0.5, seed=s) for s in range(args.members)]
+        what = f"{args.members} pours x {args.n} disks (baxter, rolling sds, narrow source)"
+    else:
+        spec, law = drop.SPEC, drop.SPEC.default_law
+        options = spec.make_options(n=args.n)
+        _, _, params = spec.law_and_params(law, None, None, None, {})
+        sim = spec.simulator(options, law=law, dt=spec.default_dt(law), rotation=None, integrator=None,
+                             chunk_steps=None, law_options={})
+        setups = [spec.set_up(law, args.n, seed=s) for s in range(args.members)]
+        what = f"{args.members} drops x {args.n} disks ({law})"
     params = [params] * args.members
     arms = {name: Ensemble(sim, rebuilds=name) for name in ("batch", "member")}
     start = arms["batch"].run(params, arms["batch"].init(params, setups), args.warm, progress=False)
@@ -85,12 +97,11 @@ def main(argv=None) -> dict:
                for a, b in zip(jax.tree.leaves(ends["batch"]), jax.tree.leaves(ends["member"])))
     work = args.members * in_play * args.steps
     rate = {name: work / min(s) for name, s in seconds.items()}
-    out = {"machine": describe(), "members": args.members, "n": args.n, "in_play_mean": in_play,
+    out = {"machine": describe(), "protocol": args.protocol, "members": args.members, "n": args.n, "in_play_mean": in_play,
            "warm_steps": args.warm, "steps": args.steps, "repeats": args.repeats, "seconds": seconds,
            "particle_steps_per_s": rate, "member_over_batch": rate["member"] / rate["batch"],
            "bit_identical": same, "probe_steps": args.probe, "one_heap_rebuilds": rebuilds}
-    case = (f"{args.members} pours x {args.n} disks (baxter, rolling sds, narrow source), steps "
-            f"{args.warm}-{args.warm + args.steps}: rebuilds decided by each member vs by the batch")
+    case = f"{what}, steps {args.warm}-{args.warm + args.steps}: rebuilds decided by each member vs by the batch"
     out["table"] = [{"case": case, "jaxpile": rate["member"], "lammps": None, "ratio": None,
                      "note": f"{out['member_over_batch']:.2f}x the batch-wide decision ({rate['batch']:.3g}); "
                              f"bit-identical: {same}"}]
