@@ -139,11 +139,11 @@ def _ensemble(spec, law, dt, rotation, options, devices, law_options=None) -> en
                tuple(sorted(read.items())), None if devices is None else tuple(devices))
         hash(key)
     except TypeError:  # an option that is a dict or a list: no reuse
-        return ensemble.Ensemble(build(), devices=devices, rebuilds=spec.batch.rebuilds)
+        return ensemble.Ensemble(build(), devices=devices, sequential=spec.batch.sequential)
     if key not in _ENSEMBLES:
         if len(_ENSEMBLES) >= 4:
             _ENSEMBLES.pop(next(iter(_ENSEMBLES)))
-        _ENSEMBLES[key] = ensemble.Ensemble(build(), devices=devices, rebuilds=spec.batch.rebuilds)
+        _ENSEMBLES[key] = ensemble.Ensemble(build(), devices=devices, sequential=spec.batch.sequential)
     return _ENSEMBLES[key]
 
 

@@ -202,26 +202,26 @@ def test_an_ensemble_of_pours_runs_on_blocks_of_the_poured_disks_bit_identical_t
     np.testing.assert_array_equal(a.neighbors.idx, b.neighbors.idx)
 
 
-@pytest.mark.skipif(jax.default_backend() != "cpu", reason="each member decides on one CPU device only")
-def test_each_member_deciding_its_own_rebuilds_gives_the_batch_wide_decisions_states_bit_for_bit(batch,
-                                                                                                  monkeypatch):
-    """`Ensemble(rebuilds="member")` (the pour's, on one CPU device) runs the
-    single pile's rebuild decision in a loop over the members; `"batch"` (the
-    default) rebuilds every member whenever one needs it, and a member that
-    did not move keeps its list. The two end bit for bit the same: across a
-    re-allocation and with members frozen at different steps (the boxes), and
-    on three pours whose disks land out of phase. The step is traced with
-    each member's decision only in the member mode
-    (benchmarks/ensemble_rebuilds.py times the two)."""
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="members run one after another on one CPU device only")
+def test_members_one_after_another_give_the_side_by_side_states_bit_for_bit(batch, monkeypatch):
+    """`Ensemble(sequential=True)` (the pour's, on one CPU device) advances the
+    members one after another inside each compiled chunk (`lax.map` of each
+    member's loop of the single pile's step, each deciding its own rebuilds);
+    the default runs them side by side (vmapped, the rebuild decided for the
+    batch, a member that did not move keeping its list). The two end bit for
+    bit the same: across a re-allocation and with members frozen at different
+    steps (the boxes), and on three pours whose disks land out of phase. The
+    step is traced for one pile only when the members run one after another
+    (benchmarks/ensemble_sequential.py times the two)."""
     from jaxpile.engine import neighbors as nb
     from jaxpile.engine.ensemble import AXIS, Ensemble
     from jaxpile.protocols import pour
 
     traced, update = [], nb.update_with_contacts
 
-    def recorded(neighbors, contacts, position, settings, axis_name=None, each_member=False):
-        traced.append((axis_name, each_member))
-        return update(neighbors, contacts, position, settings, axis_name, each_member)
+    def recorded(neighbors, contacts, position, settings, axis_name=None):
+        traced.append(axis_name)
+        return update(neighbors, contacts, position, settings, axis_name)
 
     monkeypatch.setattr(nb, "update_with_contacts", recorded)
     sim, _, _, params, state = batch
@@ -233,30 +233,30 @@ def test_each_member_deciding_its_own_rebuilds_gives_the_batch_wide_decisions_st
         return s.step >= jnp.where(s.particles.radius[0] > split, 300, 600)
 
     ends = {}
-    for rebuilds in ("batch", "member"):
+    for sequential in (False, True):
         traced.clear()
         info = RunInfo()
-        ens = Ensemble(sim, rebuilds=rebuilds)
-        ends[rebuilds] = ens.run(params, small, STEPS, until=until, progress=False, info=info)
-        assert info.reallocations >= 1 and ens.rebuilds == rebuilds
-        assert (AXIS, rebuilds == "member") in traced and (AXIS, rebuilds != "member") not in traced
-    assert sorted(set(np.asarray(ends["member"].step).tolist())) == [300, 600]
-    for x, y in zip(jax.tree.leaves(ends["batch"]), jax.tree.leaves(ends["member"])):
+        ens = Ensemble(sim, sequential=sequential)
+        ends[sequential] = ens.run(params, small, STEPS, until=until, progress=False, info=info)
+        assert info.reallocations >= 1 and ens.sequential == sequential
+        assert set(traced) == ({None} if sequential else {AXIS})
+    assert sorted(set(np.asarray(ends[True].step).tolist())) == [300, 600]
+    for x, y in zip(jax.tree.leaves(ends[False]), jax.tree.leaves(ends[True])):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
     protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5, 6)]
     pour_params = [pour.law_params("hooke")] * 3
     pour_sim = pour.make_simulator("hooke", chunk_steps=1000)
-    assert Ensemble(pour_sim).rebuilds == "batch" and pour.SPEC.batch.rebuilds == "member"
+    assert not Ensemble(pour_sim).sequential and pour.SPEC.batch.sequential
     poured = {}
-    for rebuilds in ("batch", "member"):
-        ens = Ensemble(pour_sim, rebuilds=rebuilds)
-        poured[rebuilds] = ens.run(pour_params, ens.init(pour_params, protocols), 3000, progress=False)
-    assert np.all(np.asarray(poured["member"].protocol_state.poured) > 10)  # disks fell and landed
-    for x, y in zip(jax.tree.leaves(poured["batch"]), jax.tree.leaves(poured["member"])):
+    for sequential in (False, True):
+        ens = Ensemble(pour_sim, sequential=sequential)
+        poured[sequential] = ens.run(pour_params, ens.init(pour_params, protocols), 3000, progress=False)
+    assert np.all(np.asarray(poured[True].protocol_state.poured) > 10)  # disks fell and landed
+    for x, y in zip(jax.tree.leaves(poured[False]), jax.tree.leaves(poured[True])):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    with pytest.raises(InputError, match="rebuilds must be"):
-        Ensemble(sim, rebuilds="each")
+    with pytest.raises(InputError, match="sequential must be"):
+        Ensemble(sim, sequential="yes")
 
 
 def test_pour_sweep_members_are_heaps_at_rest_carried_by_the_substrate():

@@ -15,14 +15,16 @@ protocol are one compiled loop. What makes that work for DEM:
   rebuild runs only on steps where some member needs it, for the whole batch;
   members that did not move keep their lists, and the contact history is
   carried onto the new pairs inside the same branch.
-  `benchmarks/ensemble_throughput.py` measures the difference. Where members
-  rebuild out of phase (poured heaps, each every ~8 steps while its disks
-  fall), an or over 16 of them rebuilds nearly every step, so there each
-  member decides for itself instead (`rebuilds="member"`, a protocol's
-  `Batch.rebuilds`): the single pile's cond in a loop over the members
-  (`jax.custom_batching.sequential_vmap`), the same lists bit for bit. Boxes,
-  whose members rebuild together, keep the batch's decision, which is faster
-  for them (docs/performance.md#who-decides-a-batchs-rebuilds).
+  `benchmarks/ensemble_throughput.py` measures the difference.
+* Members one after another. Where members rebuild out of phase (poured
+  heaps, each every ~8 steps while its disks fall), an or over 16 of them
+  rebuilds nearly every step. There `sequential=True` (a protocol's
+  `Batch.sequential`) advances the members one after another inside the same
+  compiled call (`lax.map` of each member's own loop of the single pile's
+  step): each rebuilds on its own steps, with the same arithmetic, so the
+  same states bit for bit. It applies on one CPU device; boxes, whose members
+  rebuild together, run faster side by side
+  (docs/performance.md#members-side-by-side-or-one-after-another).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).
@@ -86,28 +88,29 @@ class Ensemble:
         chunking every member shares.
       devices: the devices to shard the batch over (default: all of this
         process's, `jax.local_devices()`; one device: no sharding).
-      rebuilds: who decides a neighbour-list rebuild: "batch" (the default:
-        once for the batch, every member rebuilt when any needs it) or
-        "member" (each its own, in a loop over the members: faster where the
-        members rebuild out of phase, as poured heaps do; see the module
-        notes). "member" applies on one CPU device; a GPU, or a batch sharded
-        over devices, decides for the batch (`rebuilds` says which is used).
+      sequential: advance the members one after another inside each compiled
+        chunk, each with its own rebuilds, instead of side by side (vmapped,
+        the rebuild decided for the batch): faster where members rebuild out of
+        phase, as poured heaps do (see the module notes). It applies on one CPU
+        device; on a GPU, or sharded over devices, the members run side by side
+        (`sequential` says which is used).
     """
 
-    def __init__(self, sim: Simulator, *, devices: Sequence | None = None, rebuilds: str | None = None):
+    def __init__(self, sim: Simulator, *, devices: Sequence | None = None, sequential: bool = False):
         if not isinstance(sim, Simulator):
             raise InputError(f"Ensemble takes a Simulator; got {type(sim).__name__}.")
         self.sim = sim
         self.devices = list(jax.local_devices() if devices is None else devices)
         if not self.devices:
             raise InputError("devices is empty; pass None for all of jax.local_devices().")
-        if rebuilds not in (None, "batch", "member"):
-            raise InputError(f"rebuilds must be 'batch' or 'member'; got {rebuilds!r}.")
+        if not isinstance(sequential, bool):
+            raise InputError(f"sequential must be True or False; got {sequential!r}.")
         # one CPU device, and the default backend too: an unsharded batch runs where jit puts it
         one_cpu = len(self.devices) == 1 and self.devices[0].platform == "cpu" and jax.default_backend() == "cpu"
-        self.rebuilds = "member" if rebuilds == "member" and one_cpu else "batch"
+        self.sequential = sequential and one_cpu
+        # side by side: the rebuild decided for the batch (a real branch); one after another: each member's own
         self.step = make_step(sim.law, sim.dt, sim.schedule, sim.integrator, sim.hard_collisions, sim.driver,
-                              axis_name=AXIS, each_member=self.rebuilds == "member")
+                              axis_name=None if self.sequential else AXIS)
         self.mesh = Mesh(np.array(self.devices), (AXIS,)) if len(self.devices) > 1 else None
         if self.mesh is None:
             self._advance_jit = jax.jit(self._advance)
@@ -222,6 +225,8 @@ class Ensemble:
             new = lax.fori_loop(0, n_steps, lambda _, x: self.step(prm, x), s)
             return jax.tree.map(lambda a, b: jnp.where(stop, a, b), s, new)
 
+        if self.sequential:
+            return lax.map(lambda member: one(*member), (params, state, frozen))
         return jax.vmap(one, axis_name=AXIS)(params, state, frozen)
 
     def _compiled_advance(self, params, state, frozen, info: RunInfo):

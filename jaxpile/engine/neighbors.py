@@ -474,23 +474,12 @@ def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
 
 
 def update_with_contacts(neighbors, contacts, position: Array, settings: NeighborSettings,
-                         axis_name: str | None = None, each_member: bool = False):
+                         axis_name: str | None = None):
     """`update` and, when the list was rebuilt, the contacts re-laid on its
     half pairs, in one branch: the steps with no rebuild pay for neither. More
     pairs than the pair capacity raise the list's overflow flag. The contacts
     record the most pairs and the most neighbours of a disk any rebuild found
-    (`Contacts.demand`, `Contacts.slot_demand`): a re-allocation's sizes.
-
-    In a batch (`axis_name`), the rebuild is decided once for the batch, or,
-    with `each_member`, by each member in a loop over the members
-    (`jax.custom_batching.sequential_vmap`): a member then rebuilds only on its
-    own steps, not on every step some other member needs one. The lists are
-    the same either way; which is faster depends on the machine
-    (`jaxpile.engine.ensemble`)."""
-    if axis_name is not None and each_member:
-        one = jax.custom_batching.sequential_vmap(
-            lambda nbrs, cs, pos: update_with_contacts(nbrs, cs, pos, settings))
-        return one(neighbors, contacts, position)
+    (`Contacts.demand`, `Contacts.slot_demand`): a re-allocation's sizes."""
     own = needs_rebuild(neighbors, position, settings.skin)
 
     def rebuild():

@@ -41,7 +41,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
               integrator: str | Integrator = "velocity_verlet",
               hard_collisions: HardCollisions | None = None,
               driver: Callable | None = None,
-              axis_name: str | None = None, each_member: bool = False) -> Callable[[Any, SimState], SimState]:
+              axis_name: str | None = None) -> Callable[[Any, SimState], SimState]:
     """A pure, jittable `step(params, state) -> state`.
 
     Args:
@@ -66,8 +66,6 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
         `jaxpile.engine.ensemble`): the neighbour-list rebuild (with the history carried
         onto the new pairs) is then decided once for the whole batch, so it stays a real branch
         instead of running for every member at every step. None for one pile.
-      each_member: with `axis_name`, each member decides its own rebuilds in a
-        loop over the members instead (`neighbors.update_with_contacts`).
     """
     integ = get_integrator(integrator)
 
@@ -78,7 +76,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
 
         def forces_at(p: Particles, step_positions=None):
             neighbors, contacts = nb.update_with_contacts(state.neighbors, state.contacts, p.position,
-                                                          state.neighbor_settings, axis_name, each_member)
+                                                          state.neighbor_settings, axis_name)
             cf = evaluate(law, params, p, contacts, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)

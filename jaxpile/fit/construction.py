@@ -143,7 +143,7 @@ def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent
 
     if len(_PIECES) >= 4:  # a few configurations at a time: each holds compiled programs
         _PIECES.pop(next(iter(_PIECES)))
-    runner = ensemble.Ensemble(sim, rebuilds=pour.SPEC.batch.rebuilds)
+    runner = ensemble.Ensemble(sim, sequential=pour.SPEC.batch.sequential)
     _PIECES[key] = pieces = _Pieces(sim, runner, params, advance, stats,
                                     jax.jit(advance, static_argnums=2))
     return pieces

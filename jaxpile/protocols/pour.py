@@ -511,7 +511,7 @@ SPEC = ProtocolSpec(
     batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,
                 extent=heap_extent("substrate", "centre_x", "n_poured"),
                 fit_statistics={"columns": ("repose_mean",), "bins": 9},
-                simulator_options=frozenset(), rebuilds="member"),
+                simulator_options=frozenset(), sequential=True),
     pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=60))
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""

@@ -167,9 +167,9 @@ class Batch:
       deterministic: every seed builds the same pile: one seed is an ensemble.
       simulator_options: the options the simulator depends on (None: all);
         members whose options differ only in others share one compiled batch.
-      rebuilds: who decides a batch's neighbour-list rebuilds
-        (`engine.ensemble.Ensemble`): "member" where members rebuild out of
-        phase (heaps poured a disk at a time), "batch" otherwise.
+      sequential: a batch's members advance one after another on one CPU
+        device (`engine.ensemble.Ensemble`): where they rebuild their lists
+        out of phase (heaps poured a disk at a time).
     """
 
     angles: tuple
@@ -179,7 +179,7 @@ class Batch:
     fit_statistics: dict = field(default_factory=dict)
     deterministic: bool = False
     simulator_options: frozenset | None = None
-    rebuilds: str = "batch"
+    sequential: bool = False
 
 
 class Pathwise(NamedTuple):
