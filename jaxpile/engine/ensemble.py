@@ -23,7 +23,7 @@ protocol are one compiled loop. What makes that work for DEM:
   compiled call (`lax.map` of each member's own loop of the single pile's
   step): each rebuilds on its own steps, with the same arithmetic, so the
   same states bit for bit. It applies on one CPU device; boxes, whose members
-  rebuild together, run faster side by side
+  rebuild together, gain little from it and run side by side
   (docs/performance.md#members-side-by-side-or-one-after-another).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
