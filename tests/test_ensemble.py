@@ -42,9 +42,9 @@ def _split(state):
     return float(np.median(r0))
 
 
-def test_batched_run_equals_each_member_alone_across_reallocation_and_freezing(batch):
-    sim, ens, protocols, params, state = batch
-    # too few neighbour slots for anyone: the first chunk overflows and the batch re-allocates
+def _overflowing(state):
+    """`(batch, until)`: the batch with too few neighbour slots for anyone (its first chunk overflows and it
+    re-allocates), and members finishing at 300 or 600 steps (those whose first disk is the larger at 300)."""
     small = ensemble.stack([ensemble.at_capacity(m, 2, m.neighbors.cell_list_capacity)
                             for m in ensemble.members(state)])
     split = _split(state)
@@ -52,6 +52,12 @@ def test_batched_run_equals_each_member_alone_across_reallocation_and_freezing(b
     def until(s):
         return s.step >= jnp.where(s.particles.radius[0] > split, 300, 600)
 
+    return small, until
+
+
+def test_batched_run_equals_each_member_alone_across_reallocation_and_freezing(batch):
+    sim, ens, protocols, params, state = batch
+    small, until = _overflowing(state)
     info = RunInfo()
     out = ens.run(params, small, STEPS, until=until, progress=False, info=info)
     assert info.reallocations >= 1
@@ -225,13 +231,7 @@ def test_members_one_after_another_give_the_side_by_side_states_bit_for_bit(batc
 
     monkeypatch.setattr(nb, "update_with_contacts", recorded)
     sim, _, _, params, state = batch
-    small = ensemble.stack([ensemble.at_capacity(m, 2, m.neighbors.cell_list_capacity)
-                            for m in ensemble.members(state)])
-    split = _split(state)
-
-    def until(s):
-        return s.step >= jnp.where(s.particles.radius[0] > split, 300, 600)
-
+    small, until = _overflowing(state)
     ends = {}
     for sequential in (False, True):
         traced.clear()

@@ -106,16 +106,15 @@ def flank_over_centre(profile: BaseProfile, flanks=FLANK_WINDOWS, centre=CENTRE_
     carries the most. `m_shape`'s ratio and `central_dip` take maxima over noisy
     bins, which noise alone pushes towards an M. NaN when a window holds no bin
     or the centre carries nothing."""
-    x = np.asarray(profile.x_over_b, float)
-    f = np.asarray(profile.normalised, float)
-
-    def mean_in(lo, hi):
-        inside = (x >= lo) & (x <= hi)
-        return float(f[inside].mean()) if inside.any() else float("nan")
-
-    left, right = (mean_in(*w) for w in flanks)
-    middle = mean_in(*centre)
+    left, right, middle = _window_means(profile.x_over_b, profile.normalised, (*flanks, centre))
     return 0.5 * (left + right) / middle if middle > 0 else float("nan")
+
+
+def _window_means(x_over_b, values, windows) -> list[float]:
+    """The mean of `values` over the bins centred in each `(lo, hi)` window of x/B (NaN for an empty one)."""
+    x, v = np.asarray(x_over_b, float), np.asarray(values, float)
+    inside = [(x >= lo) & (x <= hi) for lo, hi in windows]
+    return [float(v[w].mean()) if w.any() else float("nan") for w in inside]
 
 
 DIP_BINS = 15
@@ -128,25 +127,21 @@ DIP_CENTRE_WINDOW = (0.45, 0.55)
 
 def dip_below_flanks(profile: BaseProfile, flanks=DIP_FLANK_WINDOWS, centre=DIP_CENTRE_WINDOW) -> float:
     """1 - the centre's mean binned force over the flanks' (bins centred in
-    `centre`, and in either window of `flanks`): Smid & Novosad's dip, "20-30 %
-    below the maximum", read from one heap with windows fixed in advance.
+    `centre`, and in either window of `flanks`): Smid & Novosad's dip, 20-30 %
+    below the maximum (as Liffman, Chan & Hughes 1992 report it, Introduction;
+    no equation), read from one heap with windows fixed in advance.
     `central_dip` compares the centre with the largest bin on each side, which
     noise alone raises; `flank_over_centre`'s windows are a fifth of the base
-    wide, which averages a narrow dip away. On a `DIP_BINS`-bin profile the
-    centre window holds the middle bin alone (x/B 0.47-0.53) and the flank
+    wide, which averages a narrow dip away. The flanks' force is the mean of
+    the two windows' means, as in `flank_over_centre`. On a `DIP_BINS`-bin
+    profile the centre window holds the middle bin alone (x/B 0.47-0.53) and the flank
     windows two bins each (x/B 0.20-0.33, 0.67-0.80), about where the declared
     maxima sit (`fit.smid_novosad_target`, x/B = 0.25, 0.75). The flanks' mean
     lies a little below their maxima, so this reads no deeper than the
     reported dip. NaN when a window holds no bin or the flanks carry nothing."""
-    x = np.asarray(profile.x_over_b, float)
-    f = np.asarray(profile.force, float)
-    windows = [(x >= lo) & (x <= hi) for lo, hi in flanks]
-    in_centre = (x >= centre[0]) & (x <= centre[1])
-    if not in_centre.any() or not all(w.any() for w in windows):
-        return float("nan")
-    in_flanks = np.logical_or.reduce(windows)
-    flank = float(f[in_flanks].mean())
-    return 1.0 - float(f[in_centre].mean()) / flank if flank > 0 else float("nan")
+    left, right, middle = _window_means(profile.x_over_b, profile.force, (*flanks, centre))
+    flank = 0.5 * (left + right)  # NaN when a window is empty
+    return 1.0 - middle / flank if flank > 0 else float("nan")
 
 
 class NormalProfile(NamedTuple):
