@@ -145,3 +145,23 @@ def test_horizontal_force_pushes_the_ground_outwards(hooke_30):
     assert np.all(base.horizontal[left] < 0) and np.all(base.horizontal[::-1][left] > 0)
     h_theory = theory.continuum_ground_horizontal_force(base.x, math.radians(30.0), m["base"])
     assert np.all(np.sign(h_theory[left]) == -1)
+
+
+# ---------------------------------------------------------------- sweep rows
+@pytest.mark.parametrize("spec, size, options", [(lattice.SPEC, 3, {}), (sloped.SPEC, 20, {"alpha_degrees": 30.0})])
+def test_the_1992_piles_declare_the_columns_of_their_rows(spec, size, options, tmp_path, capsys):
+    """A sweep row of the lattice or the sloped pile is every plain number its
+    measurement holds, in order, and the spec names them before a pile runs,
+    so an ensemble fit refuses a statistic the pile does not measure at once."""
+    from jaxpile.cli import main
+
+    p = spec.set_up("hooke", size, **options)
+    o = spec.make_options({spec.size: size, **options})
+    _, _, params = spec.law_and_params("hooke")
+    sim = spec.simulator(o, law="hooke", dt=spec.default_dt("hooke"))
+    measured = spec.measure(sim, params, sim.init(params, p.particles, p.boundaries, box=p.box), p, o)
+    plain = tuple(k for k, v in measured.items() if np.ndim(v) == 0 and not isinstance(v, str))
+    assert plain == spec.row
+    assert main(["fit", "--protocol", spec.name, "--params", "kn", "--truth", "kn=2e5", "--statistics", "repose",
+                 "--dry-run", "--out", str(tmp_path)]) == 2
+    assert "no column 'repose'" in capsys.readouterr().err

@@ -36,6 +36,14 @@ def _slope(x, y) -> float:
     return float(np.polyfit(x, y, 1)[0])
 
 
+# the keys of `compare_with_theory`'s dict, in its order (`weight_balance` where it is given `n_particles`)
+COMPARED = ("alpha_degrees", "base", "critical_distance", "base_contacts", "central_contacts", "total_normal",
+            "total_horizontal", "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev",
+            "central_normal_mean", "theory_central_normal", "central_normal_slope", "central_normal_dip", "max_normal",
+            "max_dev_normal", "max_dev_horizontal", "asymmetry_normal", "asymmetry_horizontal",
+            "central_normal_rel_dev", "weight_balance")
+
+
 def compare_with_theory(base_forces, alpha_degrees: float, base: float, *, n_particles: int | None = None) -> dict:
     """Base forces of a relaxed sloped pile against eqs. 54-59.
 

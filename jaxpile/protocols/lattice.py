@@ -249,7 +249,9 @@ def pathwise_dry_run(law, start: dict, *, size: int = 6, seed: int = 0, options:
 
 SPEC = loaded_pile.spec_of(
     "lattice", options=LatticeOptions, setup=setup, law_and_params=law_and_params, setting=PAPER_SETTING,
-    compare=_compare, report=_report, angles=("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
+    compare=_compare, compared=("base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal",
+                                "max_rel_dev_horizontal", "steps"),
+    report=_report, angles=("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
     presentation=Presentation(
         order=0, help="the 1992 equilateral pile (--layers)",
         flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",

@@ -62,15 +62,13 @@ def budget(p, o) -> int:
     return int(o.max_steps)
 
 
-def row(measured: dict) -> dict:
-    """A sweep row: the plain numbers of the comparison with theory, the
-    height, whether the pile is at rest and its fastest disk."""
-    return {k: v for k, v in measured.items() if np.ndim(v) == 0 and not isinstance(v, str)}
+# what `spec_of`'s measurement adds to the comparison with theory, last in a sweep row
+OWN_COLUMNS = ("height", "at_rest", "max_speed")
 
 
 def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callable, setting: dict,
-            compare: Callable, report: Callable, angles: tuple, presentation: Presentation, size: str = "n",
-            pathwise: Pathwise | None = None) -> ProtocolSpec:
+            compare: Callable, compared: tuple, report: Callable, angles: tuple, presentation: Presentation,
+            size: str = "n", pathwise: Pathwise | None = None) -> ProtocolSpec:
     """A 1992 static pile declared once.
 
     Args:
@@ -82,6 +80,9 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
       law_and_params: its law lookup (the 1992 setting).
       setting: its defaults (`dt`).
       compare: `(sim, params, state, setup) -> dict` against the paper's theory.
+      compared: the plain numbers of `compare`'s dict a sweep row carries (a
+        sweep row is these, then `OWN_COLUMNS`; declared, so an ensemble fit
+        refuses an unknown statistic before a pile runs).
       report: `(measured, setup, options, RunInfo, samples, seconds) -> dict`, one pile's output.
       angles: the sweep's summary columns.
       presentation: how the commands show it.
@@ -110,10 +111,11 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
 
     return ProtocolSpec(
         name=name, options=options, setup=setup, simulator=simulator, law_and_params=law_and_params,
-        default_dt=lambda law: float(setting["dt"]), finished=finished, budget=budget, measure=measure, row=row,
+        default_dt=lambda law: float(setting["dt"]), finished=finished, budget=budget, measure=measure,
+        row=(*compared, *OWN_COLUMNS),
         default_law="hooke", presentation=presentation, size=size, execute=execute, report=report,
         batch=Batch(angles=angles, unit="", extent=bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True),
         pathwise=pathwise)
 
 
-__all__ = ["budget", "execute", "finished", "relax", "row", "spec_of"]
+__all__ = ["OWN_COLUMNS", "budget", "execute", "finished", "relax", "spec_of"]

@@ -37,7 +37,7 @@ from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.errors import InputError
 
 # the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its name here (`sloped.compare_with_theory`)
-from jaxpile.measure.sloped_pile import check_alpha, check_base, compare_with_theory
+from jaxpile.measure.sloped_pile import COMPARED, check_alpha, check_base, compare_with_theory
 from jaxpile.protocols import lattice, loaded_pile, outputs
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
@@ -221,7 +221,7 @@ def _report(measured: dict, p: Setup, o: SlopedOptions, info, samples, seconds: 
 
 SPEC = loaded_pile.spec_of(
     "sloped", options=SlopedOptions, setup=setup, law_and_params=law_and_params, setting=SETTING,
-    compare=_compare, report=_report, angles=("central_normal_rel_dev", "central_slope_horizontal"),
+    compare=_compare, compared=COMPARED, report=_report, angles=("central_normal_rel_dev", "central_slope_horizontal"),
     presentation=Presentation(
         order=1, help="the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)",
         # --seed is taken and changes nothing: the pile is deterministic
