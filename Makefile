@@ -43,8 +43,8 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope --no-loadscope-reorder
 
 # The long correctness checks `make test` leaves out (tests marked soak): a pour killed and
-# resumed against the uninterrupted one (tests/test_soak.py), every protocol with every law
-# (tests/test_protocol_law_matrix.py).
+# resumed against the uninterrupted one (tests/test_soak.py), every protocol with every law and
+# every protocol's sweep under the commands' XLA settings (tests/test_protocol_law_matrix.py).
 soak: $(STAMP)
 	$(BIN)/python -m pytest -q -m soak
 

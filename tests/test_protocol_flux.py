@@ -29,8 +29,8 @@ def hooke_flux():
 def _check_counts(state, m):
     info = m["info"]
     counts = box.count_check(state)
-    assert counts["n_total"] == info["n_base"] + info["pool"]
-    assert counts["n_fixed"] == info["n_base"]
+    assert counts["n_total"] == info["n_base"] + info["pool"] + info["spare"]
+    assert counts["n_fixed"] == info["n_base"] and counts["n_unused"] == info["spare"]
     # every disk inserted is either in play or has left over the floor's end
     assert m["inserted"] - m["n_left"] == counts["n_in_play"]
     assert counts["n_in_play"] + counts["n_out_of_play"] == info["pool"]

@@ -3,7 +3,8 @@
 The unit tests cover each protocol with the laws its paper uses; this is the
 check that the others run too (too slow for the default suite: 28 runs, a
 compile each), marked `soak`: `make soak` (or `pytest -m soak`) runs it. Each
-(protocol, law) is one test: its `jaxpile pile` must exit 0.
+(protocol, law) is one test: its `jaxpile pile` must exit 0. So is each
+protocol's sweep of a small batch under the commands' XLA settings.
 
 Run by hand, it prints one row per (protocol, law): whether it ran, ended at
 rest, how many disks, its headline measurement and the wall time.
@@ -73,6 +74,39 @@ def run_one(protocol: str, law: str, out: str) -> tuple[int, dict, str, float]:
 def test_protocol_runs_with_law(protocol, law, tmp_path):
     rc, _, printed, _ = run_one(protocol, law, str(tmp_path / f"{protocol}_{law}"))
     assert rc == 0, (printed.strip().splitlines() or [""])[-1][:300]
+
+
+SWEEPS = {
+    "lattice": ["--n", "4", "--vary", "kn=1e5,2e5"],
+    "sloped": ["--n", "21", "--option", "alpha_degrees=45", "--option", "max_steps=40000", "--vary", "kn=1e5"],
+    "drop": ["--n", "6", "--vary", "mu_roll=0.1"],
+    "box": ["--n", "30", "--option", "width=1.2", "--option", "height=1.0", "--mu", "0.3"],
+    "tilt": ["--n", "30", "--option", "rate_degrees=0.05", "--mu", "0.3"],
+    "flux": ["--n", "4", "--option", "width=1.0", "--option", "max_time=0.2", "--mu", "0.3"],
+    "pour": ["--n", "12", "--option", "release_height=8", "--option", "substrate_disks=15", "--speed-tol", "1e-3",
+             "--mu", "0.3"],
+    "hopper": ["--n", "60", "--mu", "0.3"],
+}
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize("protocol", list(SWEEPS))
+def test_protocol_sweeps_a_batch_under_the_commands_settings(protocol, tmp_path):
+    """`jaxpile sweep` over four seeds in a user's environment: the batched
+    step compiled with XLA:CPU's multi-output fusion, as every command runs
+    (the suite itself runs without it), members whose set-ups drew different
+    piles stacked into one batch."""
+    import subprocess
+    import sys
+
+    from test_imports import clean_env
+
+    command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = ["sweep", "--protocol", protocol, *SWEEPS[protocol], "--seeds", "4", "--no-progress", "--out",
+            str(tmp_path)]
+    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(), capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
 
 
 def main_matrix(argv=None) -> int:

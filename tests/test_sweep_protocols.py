@@ -64,6 +64,44 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
     assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
 
 
+def test_a_set_up_holds_as_many_disks_for_every_seed():
+    """A batch stacks its members' arrays, so a protocol's disk count must
+    depend on its options alone: the flux floor lays as many of its drawn
+    disks as fit, and the rest wait with the pool (14 or 15 on this floor)."""
+    from jaxpile.protocols import PROTOCOLS
+
+    sizes = {"drop": 20, "box": 40, "flux": 6, "pour": 12, "hopper": 60}
+    options = {"box": {"width": 1.6, "height": 1.2}, "flux": {"width": 1.0}, "pour": {"release_height": 8}}
+    for name, size in sizes.items():
+        spec = PROTOCOLS[name]
+        counts = {int(spec.set_up(spec.default_law, size, seed=seed, **options.get(name, {})).particles.count)
+                  for seed in range(6)}
+        assert len(counts) == 1, (name, counts)
+
+
+def test_a_flux_sweep_over_seeds_runs_under_the_commands_settings(tmp_path):
+    """`jaxpile sweep --protocol flux` over two seeds in a user's environment:
+    the multi-output fusion on (as every command runs) and floors that drew
+    different numbers of disks. XLA:CPU aborted compiling that batch when the
+    driver recorded each insertion by two scatters at one index."""
+    import subprocess
+    import sys
+
+    from test_imports import clean_env
+
+    command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = ["sweep", "--protocol", "flux", "--n", "4", "--width", "1.0", "--max-time", "0.2", "--mu", "0.3",
+            "--seeds", "4", "--no-progress", "--out", str(tmp_path)]
+    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(), capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    import csv
+
+    with open(tmp_path / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["seed"]) for r in rows] == [0, 1, 2, 3] and all(1 <= int(r["inserted"]) <= 4 for r in rows), rows
+
+
 def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):
     """1993 Fig. 4 batched: each member builds its box pile (stage 1), then is
     tilted from where its pile settled, contact history kept (stage 2); its

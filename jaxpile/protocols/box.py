@@ -326,11 +326,14 @@ def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -
 
 
 def count_check(state: SimState) -> dict:
-    """Where every disk is: in play (active, movable), fixed, or out of play."""
+    """Where every disk is: in play (active, movable), fixed in play (a
+    floor), out of play (waiting, or gone), or never used (fixed and out of
+    play: a flux floor's spare draws)."""
     p = state.particles
     active, fixed = np.asarray(p.active), np.asarray(p.fixed)
     return {"n_total": int(active.size), "n_in_play": int(np.sum(active & ~fixed)),
-            "n_fixed": int(np.sum(fixed)), "n_out_of_play": int(np.sum(~active & ~fixed))}
+            "n_fixed": int(np.sum(active & fixed)), "n_out_of_play": int(np.sum(~active & ~fixed)),
+            "n_unused": int(np.sum(~active & fixed))}
 
 
 def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:

@@ -196,11 +196,14 @@ def _insert(state: SimState) -> SimState:
     # the first half kick of velocity Verlet is the free fall's
     p = p.set(force=jnp.where(hit[:, None], p.mass[:, None] * state.boundaries.gravity[None, :], p.force))
     in_play = jnp.sum(p.movable) - 1  # before this insertion
+    record = jnp.arange(ps.insert_step.shape[0]) == k
     ps = ps._replace(
         key=key,
         inserted=ps.inserted + 1,
-        insert_step=ps.insert_step.at[k].set(state.step),
-        in_play=ps.in_play.at[k].set(in_play.astype(ps.in_play.dtype)),
+        # selects, not scatters: in a batch XLA:CPU fuses two scatters at the same index into one
+        # multi-output fusion, which its emitters abort on (the commands turn that fusion on)
+        insert_step=jnp.where(record, state.step, ps.insert_step),
+        in_play=jnp.where(record, in_play.astype(ps.in_play.dtype), ps.in_play),
         profile=ps.profile.at[k].set(heights),
         quiet=jnp.zeros_like(ps.quiet),
         armed=jnp.zeros_like(ps.armed),
@@ -249,8 +252,10 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 
     Returns:
       `Setup` with `driver` and a `FluxState`: the base layer first
-      (`info["n_base"]` disks), then the pool, all parked and inactive; the
-      right wall is off.
+      (`info["n_base"]` disks), then the pool, parked and inactive, then the
+      disks drawn for the floor that did not fit on it (`info["spare"]`),
+      parked, fixed and never used, so that the disk count depends on the
+      options alone, not on the seed; the right wall is off.
 
     Raises:
       InputError: on a floor narrower than the largest disk, or a pile too
@@ -272,17 +277,21 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     base_radius = paper1993.gaussian_radii(base_count, rng, mean=mean, width=spread, low=low, high=high)
     base_x = base_layer(base_radius, width)
-    base_radius = base_radius[: base_x.size]
+    m = base_x.size
     pool_radius = paper1993.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
+    # the floor's draws it had no room for stay last, parked, fixed and out of play, so that every
+    # seed's set-up holds base_count + pool disks (a batch stacks its members' arrays)
+    spare = base_count - m
 
     s = u.scale
-    radius_all = np.concatenate([base_radius, pool_radius]) * s
-    base = np.stack([base_x, base_radius], axis=1) * s
+    radius_all = np.concatenate([base_radius[:m], pool_radius, base_radius[m:]]) * s
+    base = np.stack([base_x, base_radius[:m]], axis=1) * s
     spacing = boxes.PARK_SPACING * 2.0 * high * s
-    park = np.concatenate([base, geometry.parking_grid(pool, spacing, (2.0 * width + 4.0 * high) * s, spacing)])
-    m = base_x.size
-    fixed = np.arange(m + pool) < m if fixed_base else np.zeros(m + pool, bool)
-    active = np.arange(m + pool) < m
+    park = np.concatenate([base, geometry.parking_grid(pool + spare, spacing, (2.0 * width + 4.0 * high) * s,
+                                                           spacing)])
+    index = np.arange(base_count + pool)
+    fixed = (index < m if fixed_base else np.zeros(index.size, bool)) | (index >= m + pool)
+    active = index < m
     mass = None if u.sphere_density is None else 4.0 / 3.0 * math.pi * u.sphere_density * radius_all**3
     particles = make_particles(park, radius_all, mass=mass, fixed=fixed, active=active, dtype=dtype)
     dtype = particles.position.dtype
@@ -325,6 +334,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
         "n": int(m + pool),
         "n_base": int(m),
         "pool": pool,
+        "spare": int(spare),
         "fixed_base": bool(fixed_base),
         "width": width * s,
         "length_scale": s,
