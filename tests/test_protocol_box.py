@@ -109,6 +109,10 @@ def test_gaussian_radii_follow_the_1993_distribution():
     assert np.mean(r) == pytest.approx(0.1, abs=1e-3)
     assert np.mean(r**2) == pytest.approx(paper1993.mean_square_radius(), rel=2e-3)
     assert np.std(r) < 0.02  # the cut-offs narrow it
+    assert paper1993.mean_radius() == pytest.approx(0.1, abs=1e-15)  # a symmetric cut keeps the mean
+    lopsided = dict(mean=0.1, width=0.02, low=0.09, high=0.13)  # cut harder below: the mean moves up
+    draws = paper1993.gaussian_radii(50_000, np.random.default_rng(1), **lopsided)
+    assert paper1993.mean_radius(**lopsided) == pytest.approx(np.mean(draws), abs=3e-4) and np.mean(draws) > 0.105
     # the paper's "400 particle system" fills its 4 x 4 box
     assert 380 <= paper1993.fill_count(4.0, 4.0) <= 420
 

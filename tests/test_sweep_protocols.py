@@ -64,19 +64,25 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
     assert row["steady_mean"] == pytest.approx(alone["steady_mean"], rel=1e-3)
 
 
-def test_a_set_up_holds_as_many_disks_for_every_seed():
-    """A batch stacks its members' arrays, so a protocol's disk count must
-    depend on its options alone: the flux floor lays as many of its drawn
-    disks as fit, and the rest wait with the pool (14 or 15 on this floor)."""
+def test_a_set_up_has_the_same_shapes_for_every_seed():
+    """A batch stacks its members' arrays, so a protocol's set-up, its disks
+    and its protocol state, must have shapes that depend on its options alone.
+    The flux floor lays as many of its drawn disks as fit and keeps the rest
+    (14 or 15 laid on W = 1), and its surface columns come from the radius
+    law, not the draws (at W = 4, seeds 0-11 drew 19, 20 or 21 by their mean)."""
+    import jax
+
     from jaxpile.protocols import PROTOCOLS
 
-    sizes = {"drop": 20, "box": 40, "flux": 6, "pour": 12, "hopper": 60}
-    options = {"box": {"width": 1.6, "height": 1.2}, "flux": {"width": 1.0}, "pour": {"release_height": 8}}
-    for name, size in sizes.items():
+    cases = [("drop", 20, {}), ("box", 40, {"width": 1.6, "height": 1.2}), ("flux", 6, {"width": 1.0}),
+             ("flux", 50, {}), ("pour", 12, {"release_height": 8}), ("hopper", 60, {})]
+    for name, size, options in cases:
         spec = PROTOCOLS[name]
-        counts = {int(spec.set_up(spec.default_law, size, seed=seed, **options.get(name, {})).particles.count)
-                  for seed in range(6)}
-        assert len(counts) == 1, (name, counts)
+        shapes = set()
+        for seed in range(12):
+            p = spec.set_up(spec.default_law, size, seed=seed, **options)
+            shapes.add(tuple(jax.numpy.shape(x) for x in jax.tree.leaves((p.particles, p.protocol_state))))
+        assert len(shapes) == 1, (name, options, size)
 
 
 def test_a_flux_sweep_over_seeds_runs_under_the_commands_settings(tmp_path):

@@ -298,8 +298,8 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     boundaries = set_wall(make_boundaries(left=0.0, right=width * s, gravity=u.gravity, dtype=dtype),
                           RIGHT_WALL, active=False)
 
-    column_width_wanted = 2.0 * float(np.mean(radius_all))
-    columns = max(1, round(width * s / column_width_wanted))
+    # columns about a mean diameter wide, from the radius law (not the draws): the same for every seed
+    columns = max(1, round(width / (2.0 * paper1993.mean_radius(mean, spread, low, high))))
     hold = ranges.steps_of("hold_time", hold_time * u.time, dt)
     fall_steps = ranges.steps_of("the fall through gap", math.sqrt(2.0 * gap * s / u.gravity), dt, rounding=math.ceil) if gap > 0 else 0
     state = FluxState(

@@ -144,17 +144,27 @@ def gaussian_radii(n: int, rng: np.random.Generator, *, mean: float = 0.1, width
     return out[: int(n)]
 
 
-def mean_square_radius(mean: float = 0.1, width: float = 0.02, low: float = 0.07, high: float = 0.13) -> float:
-    """E[a^2] of the truncated Gaussian (exact), so pi E[a^2] is the mean disk area."""
+def _truncated_moments(mean: float, width: float, low: float, high: float) -> tuple[float, float]:
+    """The mean and variance of the Gaussian (mean, width) cut to [low, high] (exact)."""
     if width == 0:
-        return mean * mean
+        return mean, 0.0
     phi = lambda z: math.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
     cdf = lambda z: 0.5 * (1.0 + math.erf(z / math.sqrt(2.0)))
     a, b = (low - mean) / width, (high - mean) / width
     z = cdf(b) - cdf(a)
     shift = (phi(a) - phi(b)) / z
     var = width**2 * (1.0 + (a * phi(a) - b * phi(b)) / z - shift**2)
-    m = mean + width * shift
+    return mean + width * shift, var
+
+
+def mean_radius(mean: float = 0.1, width: float = 0.02, low: float = 0.07, high: float = 0.13) -> float:
+    """E[a] of the truncated Gaussian (exact): 0.1 for the paper's symmetric cut."""
+    return _truncated_moments(mean, width, low, high)[0]
+
+
+def mean_square_radius(mean: float = 0.1, width: float = 0.02, low: float = 0.07, high: float = 0.13) -> float:
+    """E[a^2] of the truncated Gaussian (exact), so pi E[a^2] is the mean disk area."""
+    m, var = _truncated_moments(mean, width, low, high)
     return var + m * m
 
 
