@@ -10,15 +10,17 @@ rebuilds only on its own steps.
 
 This pours `--members` heaps of the fits' set-up (the 1997 pour, baxter law
 with rolling sds, spins on, the source narrowed to +-0.5 sigma; release from
-the paper's 100 sigma), or with `--protocol drop` drops them (Liffman et al.
-1992, its liffman law, disks dropped one at a time), runs them `--warm` steps, then times the next `--steps`
+the paper's 100 sigma), or builds `--members` piles of another protocol with its
+own law and options (`--protocol drop`: Liffman et al. 1992, disks dropped one
+at a time; `flux`: Lee & Herrmann 1993, disks fed one at a time; `hopper`: a
+silo filled, then discharged), runs them `--warm` steps, then times the next `--steps`
 steps with each decision, the two arms alternated `--repeats` times in one
 run, and checks that both end in the same state bit for bit. Prints
 particle-steps per second (the disks in play, the substrate row included) and
 the ratio, and how often the first heap alone rebuilds its list over the
 `--probe` steps after the warm ones; writes JSON.
 
-    python benchmarks/ensemble_sequential.py [--protocol pour|drop] [--members 16] [--n 300] [--warm 60000]
+    python benchmarks/ensemble_sequential.py [--protocol pour|drop|flux|hopper] [--members 16] [--n 300] [--warm 60000]
         [--steps 20000] [--repeats 2] [--probe 2000] [--out FILE]
 """
 
@@ -34,7 +36,7 @@ import jaxpile
 from jaxpile import io
 from jaxpile.engine.batch import member
 from jaxpile.engine.ensemble import Ensemble
-from jaxpile.protocols import drop, pour
+from jaxpile.protocols import PROTOCOLS, pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 
 # as the commands run: float64 and XLA's settings, multi-output fusion included
@@ -47,7 +49,7 @@ ROLLING = {"k_roll": 1000.0, "gamma_roll": 30.0, "mu_roll": 0.14}
 
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--protocol", default="pour", choices=["pour", "drop"])
+    parser.add_argument("--protocol", default="pour", choices=["pour", "drop", "flux", "hopper"])
     parser.add_argument("--members", type=int, default=16)
     parser.add_argument("--n", type=int, default=300, help="disks poured per heap")
     parser.add_argument("--warm", type=int, default=60_000, help="steps run before the timed ones")
@@ -64,13 +66,14 @@ def main(argv=None) -> dict:
         setups = [pour.SPEC.set_up("baxter", args.n, spread=0.5, seed=s) for s in range(args.members)]
         what = f"{args.members} pours x {args.n} disks (baxter, rolling sds, narrow source)"
     else:
-        spec, law = drop.SPEC, drop.SPEC.default_law
+        spec = PROTOCOLS[args.protocol]
+        law = spec.default_law
         options = spec.make_options(n=args.n)
         _, _, params = spec.law_and_params(law, None, None, None, {})
         sim = spec.simulator(options, law=law, dt=spec.default_dt(law), rotation=None, integrator=None,
                              chunk_steps=None, law_options={})
         setups = [spec.set_up(law, args.n, seed=s) for s in range(args.members)]
-        what = f"{args.members} drops x {args.n} disks ({law})"
+        what = f"{args.members} {args.protocol} piles x {args.n} disks ({law})"
     params = [params] * args.members
     arms = {"side_by_side": Ensemble(sim), "one_after_another": Ensemble(sim, sequential=True)}
     start = arms["one_after_another"].run(params, arms["one_after_another"].init(params, setups), args.warm,
@@ -95,13 +98,16 @@ def main(argv=None) -> dict:
         first = moved
     same = all(np.array_equal(np.asarray(a), np.asarray(b))
                for a, b in zip(jax.tree.leaves(ends["side_by_side"]), jax.tree.leaves(ends["one_after_another"])))
+    apart = float(np.max(np.abs(np.asarray(ends["side_by_side"].particles.position)
+                                - np.asarray(ends["one_after_another"].particles.position))))
     work = args.members * in_play * args.steps
     rate = {name: work / min(s) for name, s in seconds.items()}
     out = {"machine": describe(), "protocol": args.protocol, "members": args.members, "n": args.n, "in_play_mean": in_play,
            "warm_steps": args.warm, "steps": args.steps, "repeats": args.repeats, "seconds": seconds,
            "particle_steps_per_s": rate, "sequential_used": arms["one_after_another"].sequential,
            "one_after_another_over_side_by_side": rate["one_after_another"] / rate["side_by_side"],
-           "bit_identical": same, "probe_steps": args.probe, "one_heap_rebuilds": rebuilds}
+           "bit_identical": same, "largest_position_difference": apart, "probe_steps": args.probe,
+           "one_heap_rebuilds": rebuilds}
     case = f"{what}, steps {args.warm}-{args.warm + args.steps}: members one after another vs side by side"
     ratio = out["one_after_another_over_side_by_side"]
     out["table"] = [{"case": case, "jaxpile": rate["one_after_another"], "lammps": None, "ratio": None,
@@ -109,7 +115,8 @@ def main(argv=None) -> dict:
     print(f"{case} ({out['machine']}), {in_play} disks in play a heap:")
     for name in arms:
         print(f"  {name:17s} {rate[name]:.3g} particle-steps/s (best of {', '.join(f'{s:.1f}' for s in seconds[name])} s)")
-    print(f"  one after another over side by side: {ratio:.2f}x; the same states bit for bit: {same}")
+    print(f"  one after another over side by side: {ratio:.2f}x; the same states bit for bit: {same}"
+          + ("" if same else f" (positions up to {apart:.2g} apart)"))
     print(f"  one heap alone rebuilds {rebuilds} times in {args.probe} steps (every {args.probe / max(rebuilds, 1):.1f})")
     if args.out:
         io.write_json(args.out, out)

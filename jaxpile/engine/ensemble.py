@@ -16,14 +16,17 @@ protocol are one compiled loop. What makes that work for DEM:
   members that did not move keep their lists, and the contact history is
   carried onto the new pairs inside the same branch.
   `benchmarks/ensemble_throughput.py` measures the difference.
-* Members one after another. Where members rebuild out of phase (poured
-  heaps, each every ~8 steps while its disks fall), an or over 16 of them
-  rebuilds nearly every step. There `sequential=True` (a protocol's
-  `Batch.sequential`) advances the members one after another inside the same
-  compiled call (`lax.map` of each member's own loop of the single pile's
-  step): each rebuilds on its own steps, with the same arithmetic, so the
-  same states bit for bit. It applies on one CPU device; boxes, whose members
-  rebuild together, gain little from it and run side by side
+* Members one after another. Where members act out of phase (poured heaps,
+  each rebuilding every ~8 steps while its disks fall; silos discharging;
+  piles fed a disk at a time, whose driver's `cond` is a select under vmap
+  and so runs every step), an or over 16 of them rebuilds nearly every step.
+  There `sequential=True` (a protocol's `Batch.sequential`) advances the
+  members one after another inside the same compiled call (`lax.map` of each
+  member's own loop of the single pile's step): each rebuilds, and runs its
+  driver's branch, on its own steps. XLA compiles the two programs apart, so
+  their states agree bit for bit where the docs page below says so, and at
+  round-off elsewhere. It applies on one CPU device; boxes and drops gain
+  little from it and run side by side
   (docs/performance.md#members-side-by-side-or-one-after-another).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is

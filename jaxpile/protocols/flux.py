@@ -412,7 +412,8 @@ SPEC = ProtocolSpec(
         figures=(outputs.angles_figure,)),
     batch=Batch(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
                 fit_statistics={"columns": ("steady_mean",)},
-                simulator_options=frozenset()))  # the simulator reads no option: set-ups share a compile
+                # the simulator reads no option: set-ups share a compile; piles fed out of phase
+                simulator_options=frozenset(), sequential=True))
 """The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the
 paper's rule, until it is at rest after the last, and measures the angle before each insertion (Fig. 5)."""
 

@@ -358,7 +358,8 @@ SPEC = ProtocolSpec(
         headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
         base_forces=outputs.substrate_base, figures=(discharge_figure,)),
     batch=Batch(angles=("flow_rate", "beverloo_c"), unit="disks / time", fit_statistics={"columns": ("flow_rate",)},
-                simulator_options=frozenset()))  # one simulator for every set-up: orifices share a compile
+                # one simulator for every set-up: orifices share a compile; silos discharge out of phase
+                simulator_options=frozenset(), sequential=True))
 """The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,
 lets it run out, and measures the flow rate against Beverloo's law."""
 

@@ -168,8 +168,10 @@ class Batch:
       simulator_options: the options the simulator depends on (None: all);
         members whose options differ only in others share one compiled batch.
       sequential: a batch's members advance one after another on one CPU
-        device (`engine.ensemble.Ensemble`): where they rebuild their lists
-        out of phase (heaps poured a disk at a time).
+        device (`engine.ensemble.Ensemble`): where they act out of phase
+        (heaps poured or fed a disk at a time, silos discharging), so that
+        side by side every member would rebuild its list, or run a driver's
+        branch, whenever any member needs to (docs/performance.md).
     """
 
     angles: tuple
