@@ -90,12 +90,14 @@ SWEEPS = {
 
 
 @pytest.mark.soak
+@pytest.mark.parametrize("devices", [1, 2])
 @pytest.mark.parametrize("protocol", list(SWEEPS))
-def test_protocol_sweeps_a_batch_under_the_commands_settings(protocol, tmp_path):
+def test_protocol_sweeps_a_batch_under_the_commands_settings(protocol, devices, tmp_path):
     """`jaxpile sweep` over four seeds in a user's environment: the batched
     step compiled with XLA:CPU's multi-output fusion, as every command runs
     (the suite itself runs without it), members whose set-ups drew different
-    piles stacked into one batch."""
+    piles stacked into one batch; on one CPU device (a protocol's members one
+    after another where it asks for it) and sharded over two (side by side)."""
     import subprocess
     import sys
 
@@ -104,8 +106,8 @@ def test_protocol_sweeps_a_batch_under_the_commands_settings(protocol, tmp_path)
     command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = ["sweep", "--protocol", protocol, *SWEEPS[protocol], "--seeds", "4", "--no-progress", "--out",
             str(tmp_path)]
-    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(), capture_output=True, text=True,
-                          timeout=900)
+    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(JAXPILE_HOST_DEVICES=str(devices)),
+                          capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-2000:]
 
 

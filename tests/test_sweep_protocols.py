@@ -67,9 +67,9 @@ def test_flux_sweep_members_feed_the_pile_as_the_flux_run():
 def test_a_set_up_has_the_same_shapes_for_every_seed():
     """A batch stacks its members' arrays, so a protocol's set-up, its disks
     and its protocol state, must have shapes that depend on its options alone.
-    The flux floor lays as many of its drawn disks as fit and keeps the rest
-    (14 or 15 laid on W = 1), and its surface columns come from the radius
-    law, not the draws (at W = 4, seeds 0-11 drew 19, 20 or 21 by their mean)."""
+    The flux floor lays as many of its drawn disks as fit (4 or 5 on W = 1)
+    and pads the rest, and its surface columns come from the radius law, not
+    the draws (at W = 4, seeds 0-11 drew 19, 20 or 21 by their mean)."""
     import jax
 
     from jaxpile.protocols import PROTOCOLS
@@ -85,27 +85,50 @@ def test_a_set_up_has_the_same_shapes_for_every_seed():
         assert len(shapes) == 1, (name, options, size)
 
 
-def test_a_flux_sweep_over_seeds_runs_under_the_commands_settings(tmp_path):
-    """`jaxpile sweep --protocol flux` over two seeds in a user's environment:
-    the multi-output fusion on (as every command runs) and floors that drew
-    different numbers of disks. XLA:CPU aborted compiling that batch when the
-    driver recorded each insertion by two scatters at one index."""
+FLUX_BATCH = """
+import json, sys
+import jaxpile
+settings = jaxpile.configure()
+import jax, numpy as np
+from jaxpile.engine.ensemble import Ensemble
+from jaxpile.protocols import flux
+
+law, spec = "lee-herrmann", flux.SPEC
+setups = [spec.set_up(law, 4, seed=seed, width=1.0) for seed in range(4)]
+_, _, params = spec.law_and_params(law, None, None, None, {})
+sim = spec.simulator(spec.make_options({"insertions": 4, "width": 1.0}), law=law, dt=spec.default_dt(law),
+                     rotation=None, integrator=None, chunk_steps=None, law_options={})
+ends = {}
+for sequential in (False, True):
+    ens = Ensemble(sim, sequential=sequential)
+    ends[sequential] = ens.run([params] * 4, ens.init([params] * 4, setups), 8000, progress=False)
+same = all(np.array_equal(np.asarray(a), np.asarray(b))
+           for a, b in zip(jax.tree.leaves(ends[False]), jax.tree.leaves(ends[True])))
+print(json.dumps({"fusion": settings["multi_output_fusion"], "same": same, "laid": [p.info["n_base"] for p in setups],
+                  "inserted": np.asarray(ends[True].protocol_state.inserted).tolist()}))
+"""
+"""Four flux piles as one batch, side by side and one after another, as a user's script runs them."""
+
+
+def test_a_batch_of_flux_piles_runs_side_by_side_under_the_commands_settings():
+    """A batch of flux piles in a user's environment (`jaxpile.configure()`:
+    XLA:CPU's multi-output fusion on, as every command runs; the suite itself
+    runs without it), their floors holding different numbers of disks: side
+    by side (vmapped, as on a GPU or sharded) it compiles, where XLA aborted
+    while the driver recorded each insertion by two scatters at one index, and
+    it ends bit for bit as one after another (`Batch.sequential`, the CPU's
+    way), though the insertion branch is a select in one and a cond in the other."""
     import subprocess
     import sys
 
     from test_imports import clean_env
 
-    command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
-    argv = ["sweep", "--protocol", "flux", "--n", "4", "--width", "1.0", "--max-time", "0.2", "--mu", "0.3",
-            "--seeds", "4", "--no-progress", "--out", str(tmp_path)]
-    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(), capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-c", FLUX_BATCH], env=clean_env(), capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    import csv
-
-    with open(tmp_path / "sweep.csv") as fh:
-        rows = list(csv.DictReader(fh))
-    assert [int(r["seed"]) for r in rows] == [0, 1, 2, 3] and all(1 <= int(r["inserted"]) <= 4 for r in rows), rows
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    assert out["fusion"] and len(set(out["laid"])) == 2, out  # 4 or 5 disks laid on the floor
+    assert all(k >= 2 for k in out["inserted"]) and out["same"], out
 
 
 def test_tilt_sweep_runs_two_stages_and_a_member_equals_the_tilt_run(tmp_path):

@@ -16,11 +16,12 @@ protocol are one compiled loop. What makes that work for DEM:
   members that did not move keep their lists, and the contact history is
   carried onto the new pairs inside the same branch.
   `benchmarks/ensemble_throughput.py` measures the difference.
-* Members one after another. Where members act out of phase (poured heaps,
-  each rebuilding every ~8 steps while its disks fall; silos discharging;
-  piles fed a disk at a time, whose driver's `cond` is a select under vmap
-  and so runs every step), an or over 16 of them rebuilds nearly every step.
-  There `sequential=True` (a protocol's `Batch.sequential`) advances the
+* Members one after another. Where members act out of phase, side by side
+  costs: poured heaps each rebuild every ~8 steps while their disks fall, so
+  an or over 16 of them rebuilds nearly every step (silos draining too); and
+  a driver's `cond` is a select under vmap, so a flux pile's insertion branch
+  runs at every step for every member. There `sequential=True` (a
+  protocol's `Batch.sequential`) advances the
   members one after another inside the same compiled call (`lax.map` of each
   member's own loop of the single pile's step): each rebuilds, and runs its
   driver's branch, on its own steps. XLA compiles the two programs apart, so

@@ -252,10 +252,10 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 
     Returns:
       `Setup` with `driver` and a `FluxState`: the base layer first
-      (`info["n_base"]` disks), then the pool, parked and inactive, then the
-      disks drawn for the floor that did not fit on it (`info["spare"]`),
-      parked, fixed and never used, so that the disk count depends on the
-      options alone, not on the seed; the right wall is off.
+      (`info["n_base"]` disks), then the pool, parked and inactive, then
+      padding for the floor disks that did not fit (`info["spare"]`), parked,
+      fixed and never used, so that the disk count (`info["n"]`) depends on
+      the options alone, not on the seed; the right wall is off.
 
     Raises:
       InputError: on a floor narrower than the largest disk, or a pile too
@@ -279,12 +279,13 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     base_x = base_layer(base_radius, width)
     m = base_x.size
     pool_radius = paper1993.gaussian_radii(pool, rng, mean=mean, width=spread, low=low, high=high)
-    # the floor's draws it had no room for stay last, parked, fixed and out of play, so that every
-    # seed's set-up holds base_count + pool disks (a batch stacks its members' arrays)
+    # padding, last, parked, fixed and out of play, so that every seed's set-up holds base_count + pool
+    # disks (a batch stacks its members' arrays); sized as the first floor disk, so the largest and
+    # smallest radii, which size the neighbour lists, are the disks' in play
     spare = base_count - m
 
     s = u.scale
-    radius_all = np.concatenate([base_radius[:m], pool_radius, base_radius[m:]]) * s
+    radius_all = np.concatenate([base_radius[:m], pool_radius, np.full(spare, base_radius[0])]) * s
     base = np.stack([base_x, base_radius[:m]], axis=1) * s
     spacing = boxes.PARK_SPACING * 2.0 * high * s
     park = np.concatenate([base, geometry.parking_grid(pool + spare, spacing, (2.0 * width + 4.0 * high) * s,
@@ -331,7 +332,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
         "protocol": "flux",
         "law": boxes.law_name(law),
         "insertions": insertions,
-        "n": int(m + pool),
+        "n": int(base_count + pool),
         "n_base": int(m),
         "pool": pool,
         "spare": int(spare),
@@ -403,7 +404,8 @@ def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
 SPEC = ProtocolSpec(
     name="flux", options=FluxOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=boxes.SPEC.default_dt, finished=boxes.settled, budget=boxes.max_time_budget, measure=measure,
-    row=("inserted", "steady_mean", "steady_std", "repose_cumulative_parabola", "at_rest", "settled_step", "n_left"),
+    row=("inserted", "steady_mean", "steady_std", "steady_max", "repose_cumulative_parabola", "at_rest", "settled_step",
+         "n_left"),
     default_law="lee-herrmann", size="insertions",
     presentation=Presentation(
         order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", flags={"seed": "seed"},
