@@ -2,13 +2,14 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,drop,heap,heap1000]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,flux,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
 wrote (the command is in the file): the 1992 lattice and sloped piles
 (`jaxpile pile`, summary.json), the 1993 tilt ensemble and the 1992 dropped
-piles (`paper_ensembles.py`, one JSON per pile), and the 1997 heaps
+piles (`paper_ensembles.py`, one JSON per pile), the 1993 flux piles
+(`jaxpile sweep`, sweep.csv), and the 1997 heaps
 (`baxter_readings.py`, one JSON per heap). A study with fewer piles than its
 target shows what it has ("k of 8"); one not run yet says how to run it.
 """
@@ -129,6 +130,11 @@ def rows_1992() -> list[list[str]]:
 
 # ----------------------------------------------------------------- 1993
 TILT = RESULTS / "lee_herrmann_1993" / "tilt_n409" / "summary.json"
+FLUX = RESULTS / "lee_herrmann_1993" / "flux_w4"
+"""The constant-flux piles (sec. 5, Fig. 5): `FLUX_SWEEP`'s sweep.csv, sweep.json and command.txt."""
+FLUX_SWEEP = ["sweep", "--protocol", "flux", "--n", "300", "--mu", "0.2", "--seeds", str(PILES),
+              "--checkpoint-every", "200000", "--no-progress"]
+"""Fig. 5's setting (W = 4, v_cut = 0.1 cm/s, the paper's law at mu = 0.2), 300 disks fed, one pile a seed."""
 
 
 def rows_1993() -> list[list[str]]:
@@ -172,7 +178,39 @@ def rows_1993() -> list[list[str]]:
         ["1993", "θ_R + θ_T against θ_MS = arctan 3μ (Fig. 7a)", "below θ_MS (\"there is a difference\")",
          f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)",
          below_ms("theta_r_plus_theta_t")],
+        row_flux(at_02),
     ]
+
+
+def row_flux(theta_r: dict | None) -> list[str]:
+    """Fig. 5: the angle of a pile fed one disk whenever it rests, read before each
+    insertion (method 3) over the second half of the insertions: its mean level,
+    its spread about that level (the figure's dotted lines) and its largest value,
+    against the box pile's θ_R at the same μ (the paper: the largest angle a pile
+    reaches before it avalanches is above θ_R)."""
+    import csv
+
+    from baxter_readings import mean_stderr
+
+    quantity = "flux pile (Fig. 5): W = 4, μ = 0.2, 300 disks fed, the angle before each insertion (second half)"
+    paper = "noisy level; its largest above θ_R (θ_MS > θ_R)"
+    if not (FLUX / "sweep.csv").exists():
+        return ["1993", quantity, paper, _missing("flux"), "—"]
+    with open(FLUX / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+
+    def stat(key):
+        return mean_stderr([float(r[key]) for r in rows if r[key] not in ("", "None", "nan")])
+
+    level, spread, largest = stat("steady_mean"), stat("steady_std"), stat("steady_max")
+    fed = sum(int(r["inserted"]) == 300 for r in rows)
+    jaxpile = (f"level {_pm(level)} (spread about it {_pm(spread)}), largest {_pm(largest)}; "
+               f"{fed} of {len(rows)} piles fed all 300; θ_R (box, μ = 0.2) {_pm(theta_r)}; θ_MS = arctan 0.6 = 31.0°")
+    if theta_r is None:
+        return ["1993", f"{quantity}, {len(rows)} piles", paper, jaxpile, "— (no box θ_R at μ = 0.2)"]
+    verdict = ("largest above θ_R: " + _sign(largest["mean"] - theta_r["mean"], _se(largest), _se(theta_r))
+               + "; level above θ_R: " + _sign(level["mean"] - theta_r["mean"], _se(level), _se(theta_r)))
+    return ["1993", f"{quantity}, {len(rows)} piles", paper, jaxpile, verdict]
 
 
 # ----------------------------------------------------------------- 1997
@@ -456,6 +494,12 @@ def run(studies: list[str]) -> None:
 
         pe.main(["tilt", "--seeds", str(PILES), "--checkpoint-every", "20000",
                  "--figure", str(ROOT / "docs" / "lee_herrmann1993_tilt_ensemble.png")])
+    if "flux" in studies and not (FLUX / "sweep.csv").exists():
+        jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
+        resumed = (FLUX / "checkpoint.npz").exists()
+        argv = ["sweep", "--resume", str(FLUX)] if resumed else [*FLUX_SWEEP, "--out", str(FLUX)]
+        subprocess.run([jaxpile, *argv], check=True)
+        (FLUX / "command.txt").write_text("jaxpile " + " ".join(FLUX_SWEEP) + f" --out {FLUX.relative_to(ROOT)}\n")
     if "drop" in studies:
         import paper_ensembles as pe
 
@@ -472,7 +516,7 @@ def run(studies: list[str]) -> None:
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(HEAP_SETTINGS), "--workers", "1"])
 
 
-STUDIES = ("lattice", "sloped", "tilt", "drop", "heap", "heap1000")
+STUDIES = ("lattice", "sloped", "tilt", "flux", "drop", "heap", "heap1000")
 
 
 def main(argv=None) -> int:
