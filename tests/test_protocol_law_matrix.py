@@ -98,17 +98,11 @@ def test_protocol_sweeps_a_batch_under_the_commands_settings(protocol, devices, 
     (the suite itself runs without it), members whose set-ups drew different
     piles stacked into one batch; on one CPU device (a protocol's members one
     after another where it asks for it) and sharded over two (side by side)."""
-    import subprocess
-    import sys
-
-    from test_imports import clean_env
+    from test_imports import clean_env, python
 
     command = "import sys; from jaxpile.cli import main; sys.exit(main(sys.argv[1:]))"
-    argv = ["sweep", "--protocol", protocol, *SWEEPS[protocol], "--seeds", "4", "--no-progress", "--out",
-            str(tmp_path)]
-    done = subprocess.run([sys.executable, "-c", command, *argv], env=clean_env(JAXPILE_HOST_DEVICES=str(devices)),
-                          capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stderr[-2000:]
+    python(command, clean_env(JAXPILE_HOST_DEVICES=str(devices)), "sweep", "--protocol", protocol, *SWEEPS[protocol],
+           "--seeds", "4", "--no-progress", "--out", str(tmp_path))
 
 
 def main_matrix(argv=None) -> int:

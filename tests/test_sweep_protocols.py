@@ -118,15 +118,9 @@ def test_a_batch_of_flux_piles_runs_side_by_side_under_the_commands_settings():
     while the driver recorded each insertion by two scatters at one index, and
     it ends bit for bit as one after another (`Batch.sequential`, the CPU's
     way), though the insertion branch is a select in one and a cond in the other."""
-    import subprocess
-    import sys
+    from test_imports import clean_env, python
 
-    from test_imports import clean_env
-
-    done = subprocess.run([sys.executable, "-c", FLUX_BATCH], env=clean_env(), capture_output=True, text=True,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr[-2000:]
-    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out = json.loads(python(FLUX_BATCH, clean_env()).stdout.strip().splitlines()[-1])
     assert out["fusion"] and len(set(out["laid"])) == 2, out  # 4 or 5 disks laid on the floor
     assert all(k >= 2 for k in out["inserted"]) and out["same"], out
 
