@@ -136,6 +136,35 @@ def test_papers_table_is_the_one_the_results_give():
     assert "| 1993 | θ_T against" in papers.table()
 
 
+def test_the_cli_fit_row_says_whether_the_recovery_held_its_truth(tmp_path, monkeypatch):
+    """papers.py's row for `jaxpile fit --target smid-novosad` (issue 50): the fitted value with
+    both intervals, the dip and angle of the fitted heaps as mean +- s.e., and whether every
+    interval of the recovery holds its truth; no row until both runs have written fit.json."""
+    import papers
+
+    def fit(value, interval, line, truth=None):
+        members = [[0.2, 32.0], [0.3, 33.0], [0.25, 32.5], [0.35, 33.5]]  # dip 0.275 +- 0.032, angle 32.75 +- 0.32
+        return {"names": ["mu_roll"], "values": {"mu_roll": value}, "interval": {"mu_roll": interval},
+                "start": {"mu_roll": 0.1}, "params": {"mu": 0.5}, "seeds": [0, 1, 2, 3],
+                "history": [{"theta": [-2.0], "next_theta": [-2.05], "step_stderr": [0.1]}],
+                "target": {"labels": ["dip_below_flanks", "repose_mean"], "truth": truth and {"mu_roll": truth}},
+                "fitted_members": members,
+                "regression": {"values": {"mu_roll": line[0]}, "interval": {"mu_roll": line[1]}, "points": 9}}
+
+    monkeypatch.setattr(papers, "CLI_FIT", tmp_path)
+    write = lambda run, record: (tmp_path / run).mkdir(exist_ok=True) or (tmp_path / run / "fit.json").write_text(
+        json.dumps(record))
+    write("smid_novosad", fit(0.144, [0.114, 0.183], (0.141, [0.106, 0.187])))
+    assert papers.rows_rolling_fit() == []  # the recovery has not ended
+    write("recovery", fit(0.105, [0.062, 0.179], (0.121, [0.064, 0.229]), truth=0.13))
+    (row,) = papers.rows_rolling_fit()
+    assert "μ_r = 0.144 (95%: 0.114–0.183), through all 9 ensembles 0.141 (0.106–0.187)" in row[3]
+    assert "the last step 0.5 s.e." in row[3] and "dip 0.28 ± 0.03, θ 32.8 ± 0.3°" in row[3]
+    assert row[4].startswith("dip in 20–30% and angle agrees") and "the recovery's intervals hold the truth" in row[4]
+    write("recovery", fit(0.105, [0.062, 0.179], (0.121, [0.064, 0.125]), truth=0.13))  # the line's misses it
+    assert "the recovery missed the truth" in papers.rows_rolling_fit()[0][4]
+
+
 def test_recovery_table_is_the_one_the_results_give():
     """benchmarks/studies/fitting/fit_recovery.py writes the recovery table of docs/fitting.md
     (issue 17) from the committed results JSON: the page must hold exactly that table."""

@@ -341,7 +341,7 @@ def rows_rolling() -> list[list[str]]:
                      "is in 20–30%" if 0.2 <= best["mean"] <= 0.3 else
                      "is within 2 s.e. of 20–30%" if 0.2 - 2 * _se(best) <= best["mean"] <= 0.3 + 2 * _se(best) else
                      "differs from 20–30%") + " (one central bin: see `docs/rolling_resistance.md`)"])
-    return rows + rows_rolling_pour()
+    return rows + rows_rolling_pour() + rows_rolling_fit()
 
 
 POUR_PROFILES = sorted((RESULTS / "rolling").glob("cpu_pour_profiles*/profiles.json"))
@@ -403,6 +403,61 @@ def rows_rolling_pour() -> list[list[str]]:
                  "is in 20–30%" if 0.2 <= best["value"] <= 0.3 else
                  "is within 2 s.e. of 20–30%" if low <= best["value"] <= high else "differs from 20–30%")
              + at_angle + " (`docs/rolling_resistance.md`)"]]
+
+
+CLI_FIT = RESULTS / "rolling" / "cli_fit"
+"""`jaxpile fit` of mu_roll to the Smid–Novosad pair at 300 disks and its recovery of a known
+mu_roll (their commands in `smid_novosad.cmd` and `recovery.cmd` beside them)."""
+
+
+def _fitted(fit: dict, name: str) -> str:
+    """`name`'s fitted value with its 95 % interval, Gauss-Newton's and the
+    line's through every ensemble (`jaxpile.fit.regression`) where there is one."""
+    lo, hi = fit["interval"][name]
+    text = f"{fit['values'][name]:.3f} (95%: {lo:.3f}–{hi:.3f})"
+    line = fit.get("regression")
+    if line:
+        lo, hi = line["interval"][name]
+        text += f", through all {line['points']} ensembles {line['values'][name]:.3f} ({lo:.3f}–{hi:.3f})"
+    return text
+
+
+def _holds(fit: dict, name: str, truth: float) -> bool:
+    """Whether every interval the fit reports holds `truth`."""
+    intervals = [fit["interval"][name]] + ([fit["regression"]["interval"][name]] if fit.get("regression") else [])
+    return all(lo <= truth <= hi for lo, hi in intervals)
+
+
+def rows_rolling_fit() -> list[list[str]]:
+    """Beyond the papers: `jaxpile fit --target smid-novosad` of mu_roll on 300-disk
+    pours, after its recovery of a known mu_roll from a synthetic target."""
+    import numpy as np
+
+    fit, recovery = _load(CLI_FIT / "smid_novosad" / "fit.json"), _load(CLI_FIT / "recovery" / "fit.json")
+    if fit is None or recovery is None:
+        return []
+    name = fit["names"][0]
+    members = np.asarray(fit["fitted_members"], float)
+    mean, se = members.mean(axis=0), members.std(axis=0, ddof=1) / np.sqrt(len(members))
+    there = dict(zip(fit["target"]["labels"], zip(mean, se)))
+    (dip, dip_se), (angle, angle_se) = there["dip_below_flanks"], there["repose_mean"]
+    last = fit["history"][-1]  # the last Gauss-Newton step against its own standard error
+    moved = abs(last["next_theta"][0] - last["theta"][0]) / last["step_stderr"][0]
+    truth = recovery["target"]["truth"][name]
+    held = _holds(recovery, name, truth)
+    verdict = (("dip " + ("in 20–30%" if 0.2 <= dip <= 0.3 else
+                          "within 2 s.e. of 20–30%" if 0.2 - 2 * dip_se <= dip <= 0.3 + 2 * dip_se else
+                          "outside 20–30%")
+                + f" and angle {_close(angle - 32.6, angle_se)} with 32.6°")
+               + ("; the recovery's intervals hold the truth" if held else "; the recovery missed the truth"))
+    return [["beyond", f"`jaxpile fit --target smid-novosad` of μ_r: 1997 pour, 300 disks, baxter (μ = "
+                       f"{fit['params']['mu']:g}) with rolling sds, narrow source, {len(fit['seeds'])} heaps a point, "
+                       f"{len(fit['history'])} Gauss–Newton iterations",
+             "Smid–Novosad 20–30% at 32.6°",
+             f"μ_r = {_fitted(fit, name)}, from {fit['start'][name]:g}, the last step {moved:.1f} s.e.; there dip {dip:.2f} ± {dip_se:.2f}, "
+             f"θ {angle:.1f} ± {angle_se:.1f}°; recovery of μ_r = {truth:g} from "
+             f"{recovery['start'][name]:g}: {_fitted(recovery, name)}",
+             verdict + " (`docs/rolling_resistance.md`)"]]
 
 
 # ----------------------------------------------------------------- table
