@@ -20,6 +20,8 @@ pytestmark = pytest.mark.filterwarnings("ignore:.*too few to stand as a pile:Use
 
 ONE = [[1.0, 0.5]]
 GROUND = jaxpile.make_boundaries()
+NO_WALLS = GROUND.set(wall_normal=GROUND.wall_normal[:0], wall_offset=GROUND.wall_offset[:0],
+                      wall_active=GROUND.wall_active[:0])
 
 PYTHON = {
     "negative radius": (lambda: jaxpile.make_particles(ONE, -0.5), "radius must be positive"),
@@ -46,6 +48,19 @@ PYTHON = {
     "unknown integrator": (lambda: Simulator(hooke.law(), 1e-4, integrator="rk4"), "unknown integrator 'rk4'"),
     "no disks to pour": (lambda: pour.SPEC.set_up(size=0), "positive whole number of disks"),
     "no disks in the box": (lambda: box.SPEC.set_up(size=0), "n must be"),
+    # what the law, its model or the set-up does not use is refused, not ignored
+    "a rolling parameter without a rolling model": (
+        lambda: hooke.law().validate(hooke.make_params(k_roll=1000.0)), "k_roll is set, but the law has no rolling"),
+    "a pile given a rolling parameter without a rolling model": (
+        lambda: jaxpile.run("box", "lee-herrmann", 72, rotation=True, params={"mu_roll": 0.1}),
+        "mu_roll is set, but the law has no rolling"),
+    "a sweep over a parameter that does not act": (
+        lambda: jaxpile.sweep("box", "lee-herrmann", vary={"mu_roll": [0.1, 0.2]}, seeds=1, rotation=True),
+        "mu_roll is set, but the law has no rolling"),
+    "a wall parameter for a set-up without walls": (
+        lambda: Simulator(hooke.law(), 1e-4).init(hooke.make_params(wall_mu=0.5), jaxpile.make_particles(ONE, 0.5),
+                                                  NO_WALLS),
+        "wall_mu set, but this set-up has no walls"),
 }
 
 
@@ -70,6 +85,14 @@ CLI = {
     "dt above the stability limit": (["pile", "--layers", "3", "--dt", "10"], "above the stability limit"),
     "flag the protocol does not use": (["pile", "--protocol", "box", "--layers", "3"], "--layers is for the lattice"),
     "negative friction in a sweep": (["sweep", "--protocol", "box", "--mu", "-0.1"], "mu must be >= 0"),
+    "a rolling parameter without --rolling": (["pile", "--protocol", "box", "--rotation", "on", "--set", "k_roll=1000"],
+                                              "k_roll is set, but the law has no rolling"),
+    "a sweep over a parameter that does not act": (
+        ["sweep", "--protocol", "box", "--rotation", "on", "--vary", "mu_roll=0.1,0.2", "--seeds", "1"],
+        "mu_roll is set, but the law has no rolling"),
+    "a fit over a parameter that does not act": (
+        ["fit", "--protocol", "box", "--rotation", "on", "--params", "mu_roll", "--truth", "mu_roll=0.2", "--ensemble",
+         "2"], "mu_roll is set, but the law has no rolling"),
 }
 
 

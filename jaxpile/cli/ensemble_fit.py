@@ -63,6 +63,14 @@ def _fit_inputs(args, spec) -> tuple:
         raise InputError(f"--params names a parameter twice; got {args.params!r}.")
     given = _values(args.set, lawmod.PARAM_NAMES, "--set")
     _, _, defaults = spec.law_and_params(law, None, None, None)
+    unset = [n for n in names if n not in given and getattr(defaults, n) is None]
+    # the law as the flags build it judges every parameter fitted or held: one it does not use is refused
+    trial = {**given, **{n: 1.0 for n in unset}}
+    _, contact_law, trial_params = spec.law_and_params(law, trial, args.rotation, None, law_options_of(args) or None)
+    contact_law.validate(trial_params)
+    if unset:
+        raise InputError(f"--params {unset[0]}: the {law} law has no default for it; give its start with "
+                         f"--set {unset[0]}=VALUE.")
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
     fixed = {k: v for k, v in given.items() if k not in names}
     options = parse_options(args.option)

@@ -189,6 +189,17 @@ def max_speed(state: SimState) -> Array:
     return jnp.max(jnp.where(p.movable, speed, 0.0), initial=0.0)
 
 
+def check_walls_used(law_name: str, params, boundaries: Boundaries) -> None:
+    """Refuses a wall parameter (`wall_*`) set for a set-up without walls: it would act on nothing."""
+    if boundaries.wall_normal.shape[0]:
+        return
+    named = [name for name, value in vars(params).items() if name.startswith("wall_") and value is not None]
+    if named:
+        raise InputError(f"{law_name} parameter(s) {', '.join(named)} set, but this set-up has no walls (its base, "
+                         "if any, is fixed disks, which take the disk parameters): they would act on nothing; "
+                         "leave them unset.")
+
+
 def _is_concrete(tree) -> bool:
     return not any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves(tree))
 
@@ -359,6 +370,7 @@ class Simulator:
         history, on the host. `start(params, state)` finishes it (it is pure, so
         an ensemble maps it over its members in one call)."""
         self.check_params(params, particles)
+        check_walls_used(self.law.name, params, boundaries)
         check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
         neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles))

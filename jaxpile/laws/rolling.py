@@ -118,8 +118,8 @@ def check_mode(law_name: str, rolling, rotation: bool) -> None:
 
 
 def validators(law_name: str, validate_law) -> dict:
-    """`{model: validate}` for a law: its own `validate_law` for no rolling, and for
-    each model that check followed by the parameters the model needs (`validate`).
+    """`{model: validate}` for a law: its own `validate_law` followed by what the
+    model needs and refuses (`validate`; no model refuses every rolling parameter).
     One function per model, so equal laws hash alike (a jit closing over them compiles once)."""
 
     def with_model(model):
@@ -128,13 +128,19 @@ def validators(law_name: str, validate_law) -> dict:
             validate(law_name, p, model)
         return check
 
-    return {None: validate_law, **{model: with_model(model) for model in MODES}}
+    return {model: with_model(model) for model in (None, *MODES)}
 
 
 def validate(law_name: str, params, rolling) -> None:
-    """Raises `InputError` when `rolling` is on and a parameter it needs is None,
-    or one it does not use is set."""
+    """Raises `InputError` when a parameter `rolling` needs is None, or one it
+    does not use is set (without a model, every rolling parameter: set, it would
+    act on nothing)."""
     if rolling is None:
+        for name in PARAM_NAMES:
+            if getattr(params, name, None) is not None:
+                raise InputError(f"{law_name} parameter {name} is set, but the law has no rolling resistance, so it "
+                                 "would act on nothing: choose a model (rolling='sds' or 'constant'; the command's "
+                                 "--rolling) or leave it unset.")
         return
     for name in NEEDS[rolling]:
         if getattr(params, name) is None:
