@@ -1,10 +1,14 @@
 """The `jaxpile pile` command writes everything it promises, at a small size."""
 
 import json
+import os
+import signal
+import socket
+import subprocess
 
 import numpy as np
 
-from jaxpile.cli import main
+from jaxpile.cli import main, run_folder
 from jaxpile.io import load_arrays, read_csv
 
 
@@ -31,12 +35,49 @@ def test_pile_command_writes_summary_csv_state_and_figures(tmp_path, capsys):
     assert "dev N" in capsys.readouterr().out
 
 
-def test_pile_command_with_gear_and_hard_collisions(tmp_path):
-    """The 1992 law with the 1993 integrator and the 1992 hard-collision switch, from the CLI."""
+def _lock_of(process, folder, command="jaxpile pile --protocol pour --out x"):
+    """A lock in `folder` as a run in `process` (a child of the test) would have written it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    record = {"pid": process.pid, "host": socket.gethostname(), "since": "2026-01-01 00:00:00", "command": command,
+              "process_start": run_folder._process_start(process.pid)}
+    (folder / run_folder.LOCK_NAME).write_text(json.dumps(record))
+    return record
+
+
+def test_a_folder_a_live_run_writes_is_refused_in_one_line_naming_that_run(tmp_path, capsys):
+    """Two runs into one --out at once: the second is refused (pile, sweep, fit),
+    naming the first's command and process, and the first's lock is left as it was."""
+    live = subprocess.Popen(["sleep", "120"])
+    try:
+        out = tmp_path / "busy"
+        record = _lock_of(live, out)
+        for argv in (["pile", "--layers", "3"], ["sweep", "--protocol", "box", "--mu", "0.2", "--seeds", "1"],
+                     ["fit", "--protocol", "box", "--params", "mu", "--truth", "mu=0.3", "--ensemble", "2"]):
+            assert main([*argv, "--no-progress", "--out", str(out)]) == 2, argv
+            err = capsys.readouterr().err
+            assert len(err.strip().splitlines()) == 1, err
+            assert f"in use by a running `{record['command']}` (process {live.pid}" in err, err
+        assert json.loads((out / run_folder.LOCK_NAME).read_text()) == record
+        assert sorted(p.name for p in out.iterdir()) == [run_folder.LOCK_NAME]  # nothing else written there
+    finally:
+        live.kill()
+        live.wait()
+
+
+def test_pile_command_with_gear_and_hard_collisions(tmp_path, capsys):
+    """The 1992 law with the 1993 integrator and the 1992 hard-collision switch,
+    from the CLI, into a folder a run killed with SIGKILL left locked: the lock
+    is taken over with a note, held while the pile runs, and gone at the end."""
     out = tmp_path / "gear"
+    killed = subprocess.Popen(["sleep", "120"])
+    _lock_of(killed, out)
+    os.kill(killed.pid, signal.SIGKILL)  # not reaped yet: a zombie, which is no live run either
     rc = main(["pile", "--layers", "3", "--law", "liffman", "--integrator", "gear", "--hard-collisions", "0.5,0.3",
                "--dt", "5e-4", "--ramp-steps", "4000", "--max-steps", "60000", "--no-progress", "--out", str(out)])
+    killed.wait()
     assert rc == 0
+    assert f"left locked by a run that did not end (process {killed.pid}" in capsys.readouterr().out
+    assert not (out / run_folder.LOCK_NAME).exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["integrator"] == "gear" and summary["hard_collisions"] == {"restitution": 0.5, "mu": 0.3}
     assert summary["at_rest"] and summary["max_rel_dev_normal"] < 0.01

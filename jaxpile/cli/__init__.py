@@ -34,6 +34,7 @@ one module a command: `pile` (with `pile_outputs`), `sweep`, `fit` (with
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import warnings
@@ -44,7 +45,7 @@ from jaxpile.cli.flag_ranges import FLAG_RANGES, check_flags, ranges_markdown
 from jaxpile.cli.parser import build_parser, sweep_protocols
 from jaxpile.cli.pile import run_protocol
 from jaxpile.cli.protocol_flags import merge_protocol_flags, protocol_flags
-from jaxpile.cli.run_folder import check_out_folder, recorded_command, resume_argv
+from jaxpile.cli.run_folder import check_out_folder, in_use, recorded_command, resume_argv
 from jaxpile.cli.sweep import run_sweep
 from jaxpile.cli.xla_settings import (
     THREADED_PILE_DISKS,
@@ -94,20 +95,10 @@ def _main(argv) -> int:
         use_compile_cache()
         if getattr(args, "out", None) is not None:
             check_out_folder(args.out)
-        if args.command == "pile":
-            run_protocol(args)
-        elif args.command == "show":
-            from jaxpile.cli.show import show
-
-            out = args.out or os.path.join(args.dir, "shown")  # never over the run's own figures
-            written = show(args.dir, out, checkpoint=args.checkpoint)
-            print(f"jaxpile: wrote {out}/" + ", ".join(written))
-        elif args.command == "compare":
-            print(compare_table(args.dirs))
-        elif args.command == "sweep":
-            run_sweep(args)
-        elif args.command == "fit":
-            run_fit(args)
+        holds = (args.command in ("pile", "sweep", "fit") and getattr(args, "out", None) is not None
+                 and not getattr(args, "dry_run", False))
+        with in_use(args.out, argv) if holds else contextlib.nullcontext():
+            _run(args)
     except (InputError, SimulationError) as err:
         print(f"jaxpile: error: {err}", file=sys.stderr)
         return 2
@@ -116,6 +107,24 @@ def _main(argv) -> int:
         print(f"jaxpile: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
     return 0
+
+
+def _run(args) -> None:
+    """The command itself, once its flags are checked."""
+    if args.command == "pile":
+        run_protocol(args)
+    elif args.command == "show":
+        from jaxpile.cli.show import show
+
+        out = args.out or os.path.join(args.dir, "shown")  # never over the run's own figures
+        written = show(args.dir, out, checkpoint=args.checkpoint)
+        print(f"jaxpile: wrote {out}/" + ", ".join(written))
+    elif args.command == "compare":
+        print(compare_table(args.dirs))
+    elif args.command == "sweep":
+        run_sweep(args)
+    elif args.command == "fit":
+        run_fit(args)
 
 
 __all__ = [

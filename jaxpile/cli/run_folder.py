@@ -1,11 +1,15 @@
-"""A run's output folder: refused before anything runs when it cannot be one,
-and the checkpoints `pile` and `sweep` keep there: what they record, resuming
-from them, and an earlier run's removed when a new one starts."""
+"""A run's output folder: refused before anything runs when it cannot be one
+or another live run writes it, and the checkpoints `pile` and `sweep` keep
+there: what they record, resuming from them, and an earlier run's removed when
+a new one starts."""
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import socket
+import time
 
 from jaxpile import distributed
 from jaxpile.engine import checkpoint
@@ -141,3 +145,122 @@ def replacing_earlier(args):
     with observing(drop):
         yield
     drop()
+
+
+LOCK_NAME = ".jaxpile.lock"
+"""The file a running `pile`, `sweep` or `fit` holds in its folder: its process, host and command."""
+
+
+def _process_start(pid: int) -> str | None:
+    """This boot's id and the process's start (clock ticks since boot), which
+    tell a live process from a later one given the same id; None where /proc
+    does not say."""
+    try:
+        with open("/proc/sys/kernel/random/boot_id") as fh:
+            boot = fh.read().strip()
+        with open(f"/proc/{pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        return f"{boot}:{fields[19]}"  # field 22 of stat, the 20th after the command's name
+    except (OSError, IndexError):
+        return None
+
+
+def _alive(holder: dict) -> bool:
+    """Whether the run that wrote a lock is still running: on this host, its
+    process exists and is the one that wrote it; on another host this process
+    cannot tell, so it is taken to be."""
+    if holder.get("host") != socket.gethostname():
+        return True
+    pid = holder.get("pid")
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process: alive
+        pass
+    if _state(pid) == "Z":  # killed, not yet reaped by its parent
+        return False
+    started = holder.get("process_start")
+    return started is None or _process_start(pid) in (None, started)
+
+
+def _state(pid: int) -> str | None:
+    """The process's state letter in /proc (Z: a zombie), or None."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return None
+
+
+def _read_lock(path: str) -> dict:
+    try:
+        with open(path) as fh:
+            holder = json.load(fh)
+        return holder if isinstance(holder, dict) else {}
+    except (OSError, ValueError):  # half-written by a run killed as it started, or not ours: stale
+        return {}
+
+
+def _take(path: str, out: str, record: dict) -> None:
+    """Creates the lock at `path` (atomically), taking over one a dead run left."""
+    for _ in range(3):
+        try:
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            holder = _read_lock(path)
+            if _alive(holder):
+                where = "" if holder.get("host") == socket.gethostname() else \
+                    f" (on another host: if that run has ended, remove {path})"
+                raise InputError(f"{out} is in use by a running `{holder.get('command', 'jaxpile')}` (process "
+                                 f"{holder.get('pid')} on {holder.get('host')}, since {holder.get('since')}){where}; "
+                                 "wait for it to end or give another --out.")
+            print(f"jaxpile: {out} was left locked by a run that did not end (process {holder.get('pid')} on "
+                  f"{holder.get('host')}, since {holder.get('since')}): taking it over", flush=True)
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(path)
+            continue
+        with os.fdopen(fd, "w") as fh:
+            json.dump(record, fh)
+        return
+    raise InputError(f"{out} is being taken by another run at this moment; give another --out.")
+
+
+@contextlib.contextmanager
+def in_use(out: str, argv: list[str]):
+    """Holds OUT for this run (`LOCK_NAME` in it) while the block runs: a second
+    run into a folder a live run holds is refused in one line naming it, and a
+    lock left by a run that was killed is taken over with a note. A process of
+    a distributed run holds its own folder (`distributed.folder_of`), the
+    first process OUT as well. A folder this created and the run left empty
+    (a refusal) is removed again."""
+    folders = [distributed.folder_of(out)]
+    if folders[0] != out and distributed.process_index() == 0:
+        folders.insert(0, out)
+    pid = os.getpid()
+    record = {"pid": pid, "host": socket.gethostname(), "process_start": _process_start(pid),
+              "since": time.strftime("%Y-%m-%d %H:%M:%S"), "command": " ".join(["jaxpile", *argv])}
+    held, made = [], []
+    try:
+        for folder in folders:
+            missing = []
+            parent = os.path.abspath(folder)
+            while not os.path.exists(parent):
+                missing.append(parent)
+                parent = os.path.dirname(parent)
+            os.makedirs(folder, exist_ok=True)
+            made.extend(missing)
+            path = os.path.join(folder, LOCK_NAME)
+            _take(path, out, record)
+            held.append(path)
+        yield
+    finally:
+        for path in held:
+            if _read_lock(path).get("pid") == pid:
+                with contextlib.suppress(FileNotFoundError):
+                    os.remove(path)
+        for folder in sorted(made, key=len, reverse=True):  # the deepest first
+            with contextlib.suppress(OSError):  # not empty: the run wrote there
+                os.rmdir(folder)
