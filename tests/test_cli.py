@@ -110,3 +110,20 @@ def test_a_sweep_names_the_law_s_n_apart_from_the_disk_count(tmp_path, capsys):
     assert "n in [36.0, 144.0]" in capsys.readouterr().out
     assert main([*common, "--vary", "law.width=1,2"]) == 2
     assert "not a parameter of the law" in capsys.readouterr().err
+
+
+def test_ctrl_c_leaves_one_line_saying_what_resumes_the_run(tmp_path, capsys, monkeypatch):
+    """An interrupted command (KeyboardInterrupt mid-run) exits 130 with one line, no traceback, and
+    says whether a checkpoint can resume it; the folder's lock is released."""
+    import jaxpile.cli as cli
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "run_protocol", interrupted)
+    out = tmp_path / "stopped"
+    assert main(["pile", "--layers", "3", "--no-progress", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "jaxpile: interrupted; nothing was saved to resume (--checkpoint-every STEPS saves a run " \
+                          "as it goes)", err
+    assert not (out / run_folder.LOCK_NAME).exists()

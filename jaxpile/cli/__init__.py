@@ -55,6 +55,7 @@ from jaxpile.cli.xla_settings import (
     use_compile_cache,
     wants_xla_threads,
 )
+from jaxpile import distributed
 from jaxpile.errors import InputError, SimulationError
 
 
@@ -106,7 +107,26 @@ def _main(argv) -> int:
         where = f"{err.filename}: " if err.filename else ""
         print(f"jaxpile: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line saying what is saved, not JAX's traceback
+        print(f"jaxpile: interrupted{_what_resumes(locals().get('args'))}", file=sys.stderr)
+        return 130
     return 0
+
+
+def _what_resumes(args) -> str:
+    """What an interrupted command leaves to resume from, as the end of its one line."""
+    command, out = getattr(args, "command", None), getattr(args, "out", None)
+    if command not in ("pile", "sweep", "fit") or out is None or getattr(args, "dry_run", False):
+        return ""
+    from jaxpile.engine import checkpoint
+
+    if command == "fit":
+        saved = os.path.exists(os.path.join(out, "fit_checkpoint.json"))
+        return (f"; the same command with --resume continues the fit from {out}" if saved else
+                "; the fit saved nothing to resume (an ensemble fit saves after each iteration)")
+    if checkpoint.in_folder(distributed.folder_of(out)) is not None:
+        return f"; `jaxpile {command} --resume {out}` continues from its last checkpoint"
+    return "; nothing was saved to resume (--checkpoint-every STEPS saves a run as it goes)"
 
 
 def _run(args) -> None:
