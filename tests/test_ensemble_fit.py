@@ -369,7 +369,9 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     assert saves == [str(out / "target_batch.npz")] and not (out / "fit_checkpoint.json").exists()
     resumes.clear()  # --resume continues the target's save without --checkpoint-every (saved as often as before)
     plain = argv[:argv.index("--checkpoint-every")] + argv[argv.index("--checkpoint-every") + 2:]
+    capsys.readouterr()
     assert cli.main(plain + ["--resume"]) == 0
+    assert "jaxpile: resuming the target's piles in" in capsys.readouterr().out  # --resume says what it resumes
     assert resumes[0] == str(out / "target_batch.npz") and resumes[1:] == [None, None]
     record = json.loads((out / "fit.json").read_text())
     assert record["values"] == whole.values and not list(out.glob("*_batch.npz"))

@@ -157,6 +157,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         every = next((b["every"] for b in map(ensemble_runs.saved_batch, (target_save, fit_save)) if b), None)
     if args.resume and truth is not None and not os.path.exists(checkpoint) and os.path.exists(target_save):
         args.resume = False  # stopped while making its target, before the fit began: continue the target
+        print(f"jaxpile: resuming the target's piles in {args.out} (stopped before the fit began)", flush=True)
     elif not args.resume and os.path.exists(target_save):
         os.remove(target_save)  # another command's target, stopped: this one makes its own
     target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint,
@@ -188,6 +189,12 @@ def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool
         if not os.path.exists(checkpoint):
             raise InputError(f"--resume: {checkpoint} does not exist (no ensemble fit was saved in {args.out}).")
         saved = io.read_json(checkpoint, "an ensemble fit's checkpoint")
+        history = saved.get("history") if isinstance(saved, dict) else None
+        if isinstance(history, list):
+            last = history[-1].get("values") if history and isinstance(history[-1], dict) else None
+            done = f"after {len(history)} iteration(s)" + (f", last at {last}" if last else "") if history else \
+                "before its first iteration ended"
+            print(f"jaxpile: resuming the fit in {args.out} {done}", flush=True)
         return ensemble_fit.EnsembleTarget.from_json(saved.get("target") if isinstance(saved, dict) else None,
                                                      f"the target in {checkpoint}")
     if truth is not None:
