@@ -6,7 +6,7 @@ STAMP  := $(VENV)/.installed
 DOCS_STAMP := $(VENV)/.installed-docs
 DEMO   ?= demo
 
-.PHONY: demo test soak bench papers docs clean
+.PHONY: demo test test-isa soak bench papers docs clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -41,6 +41,17 @@ JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$
 # Each module (or test class) on one worker, the costliest first (tests/conftest.py).
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope --no-loadscope-reorder
+
+# The suite as CPUs with other instruction sets run it: XLA compiles here the code it would compile
+# there (--xla_cpu_max_isa), which differs at round-off, as another CPU's does. One full suite per
+# level, one after another (docs/testing.md#on-any-cpu). ISAS="AVX AVX512" picks others.
+ISAS ?= SSE4_2 AVX2
+test-isa: $(STAMP)
+	@for isa in $(ISAS); do \
+		echo "== make test with XLA_FLAGS=--xla_cpu_max_isa=$$isa"; \
+		XLA_FLAGS="$$XLA_FLAGS --xla_cpu_max_isa=$$isa" $(BIN)/python -m pytest -q -n $(JOBS) --dist loadscope \
+			--no-loadscope-reorder || exit 1; \
+	done
 
 # The long correctness checks `make test` leaves out (tests marked soak): a pour killed and
 # resumed against the uninterrupted one (tests/test_soak.py), every protocol with every law and

@@ -18,7 +18,8 @@ from jaxpile.engine.simulate import Simulator, gravity_ramp
 
 BENCHMARKS = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
 # the suite (benchmarks/) and the studies (benchmarks/studies/papers, benchmarks/studies/fitting)
-sys.path[:0] = [str(BENCHMARKS), str(BENCHMARKS / "studies" / "papers"), str(BENCHMARKS / "studies" / "fitting")]
+sys.path[:0] = [str(BENCHMARKS), str(BENCHMARKS / "studies" / "papers"), str(BENCHMARKS / "studies" / "fitting"),
+                 str(BENCHMARKS / "studies" / "reproducibility")]
 import lammps_peer as peer  # noqa: E402
 import run_all  # noqa: E402
 import vs_lammps  # noqa: E402
@@ -385,3 +386,14 @@ def test_pour_profiles_grid_command_writes_its_json_and_figure_and_refuses_run_o
         pour_profiles.main(["--grid", *folders, "--out", str(out), "--interval", "3.0"])
     with pytest.raises(SystemExit):
         pour_profiles.main(["--grid", *folders, "--out", str(out), "--spread", "0.5"])
+
+
+def test_the_instruction_set_table_is_the_one_the_results_give():
+    """benchmarks/studies/reproducibility/isa_box.py writes docs/testing.md's table of one box
+    ensemble at several instruction sets from its committed JSON: the page holds exactly that table,
+    and every pile it ran was measurable (README's recipe promises three piles a friction)."""
+    import isa_box
+
+    assert isa_box.rewrite_page(check=True), "run `python benchmarks/studies/reproducibility/isa_box.py --table`"
+    record = json.loads(isa_box.RESULT.read_text())
+    assert all(sum(r["summary"]["missing"]) == 0 for r in record["results"].values())

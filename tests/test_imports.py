@@ -18,8 +18,16 @@ OURS = ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION", "JAXPILE_HOST_
 
 
 def clean_env(**extra) -> dict:
-    """The environment without the suite's XLA settings (tests/conftest.py), as a user's shell has it."""
-    return {k: v for k, v in os.environ.items() if k not in OURS} | extra
+    """The environment without the suite's XLA settings (tests/conftest.py), as a user's shell has it.
+
+    An instruction set the suite was told to compile for (`--xla_cpu_max_isa`,
+    `make test-isa`) stays: it stands for the user's CPU, not a setting of ours
+    (unless `extra` gives XLA_FLAGS of its own: then those are the user's, as given)."""
+    env = {k: v for k, v in os.environ.items() if k not in OURS} | extra
+    isa = [t for t in os.environ.get("XLA_FLAGS", "").split() if t.startswith("--xla_cpu_max_isa=")]
+    if isa and "XLA_FLAGS" not in extra:
+        env["XLA_FLAGS"] = (env.get("XLA_FLAGS", "") + " " + isa[-1]).strip()
+    return env
 
 
 def python(code, env, *args):

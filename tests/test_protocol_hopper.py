@@ -76,9 +76,9 @@ def test_dead_zone_angles_read_each_side_of_the_orifice_from_the_wall_to_its_edg
 
 @pytest.fixture(scope="module")
 def narrow_and_wide():
-    """Three silos of one width (one compiled simulator): D = 3.5 (which clogs
-    with this seed), 4.5 and 7.5."""
-    return {d: hopper.SPEC.run("hooke", 60, **{**SMALL, "orifice": d}) for d in (3.5, 4.5, 7.5)}
+    """Three silos of one width (one compiled simulator): D = 2.5 (which clogs:
+    an arch of two or three disks), 4.5 and 7.5."""
+    return {d: hopper.SPEC.run("hooke", 60, **{**SMALL, "orifice": d}) for d in (2.5, 4.5, 7.5)}
 
 
 def test_the_silo_fills_opens_at_rest_and_every_disk_is_counted_once(narrow_and_wide):
@@ -100,9 +100,11 @@ def test_a_wider_orifice_flows_faster_as_beverloo_says(narrow_and_wide):
 
 
 def test_a_narrow_orifice_clogs_and_is_flagged(narrow_and_wide):
-    """In 2D an orifice of a few diameters jams with an arch (here after 3 disks):
-    the run stops after `clog_time` without flow, with disks over the orifice."""
-    state, m = narrow_and_wide[3.5]
+    """In 2D an orifice of a few diameters jams with an arch: the run stops after
+    `clog_time` without flow, with disks over the orifice. At 2.5 diameters a
+    2D silo clogs within a few disks on any seed (the mean avalanche grows
+    exponentially with D; at 3.5 it is tens of disks, and one seed's clog is luck)."""
+    state, m = narrow_and_wide[2.5]
     assert m["clogged"] and m["at_rest"] and m["discharged"] < 10 and math.isnan(m["flow_rate"])
     assert m["stopped_step"] - m["opened_step"] < 30_000  # not the whole budget
     assert not narrow_and_wide[7.5][1]["clogged"]

@@ -132,7 +132,7 @@ def apex_x(profile: SurfaceProfile) -> float:
 
 
 def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=None,
-                  apex: float | None = None) -> ReposeAngles:
+                  apex: float | None = None, fill_gaps: bool = False) -> ReposeAngles:
     """The angle of repose of a surface profile by Lee & Herrmann's three methods.
 
     Lee & Herrmann measure the single slope of a pile leaning on the left wall of
@@ -142,7 +142,9 @@ def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=
     column, or the tied top columns, belong to their side).
 
     Empty columns at either end of the selection (beyond the toe of the heap)
-    are dropped; an empty column inside it is an error.
+    are dropped; an empty column inside it is an error, or with `fill_gaps`
+    takes the straight line between its filled neighbours (a column of a
+    single layer resting on the ground can hold no disk centre).
 
     Args:
       profile: from `surface_profile`.
@@ -150,9 +152,10 @@ def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=
       x_range: optional `(x_lo, x_hi)`: only columns with centres in it, e.g. to
         leave out the rounded apex and the toe.
       apex: the apex x used by `flank`; default `apex_x(profile)`.
+      fill_gaps: interpolate empty columns inside the selection instead of refusing them.
 
     Raises:
-      InputError: on an unknown flank, fewer than 3 non-empty columns, or a gap.
+      InputError: on an unknown flank, fewer than 3 non-empty columns, or a gap (without `fill_gaps`).
     """
     x = np.asarray(profile.x, dtype=np.float64)
     h = np.asarray(profile.height, dtype=np.float64)
@@ -173,6 +176,8 @@ def repose_angles(profile: SurfaceProfile, *, flank: str | None = None, x_range=
         x, h = x[filled[0]: filled[-1] + 1], h[filled[0]: filled[-1] + 1]
     if filled.size < 3:
         raise InputError(f"the angle of repose needs at least 3 non-empty columns; the selection has {filled.size}.")
+    if fill_gaps:
+        h = _fill_gaps(h)
     if np.isnan(h).any():
         gap = float(x[np.isnan(h)][0])
         raise InputError(f"empty column at x = {gap:g} inside the selection; "

@@ -290,17 +290,20 @@ def setup(o: BoxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 def repose(state: SimState, width: float, *, x_min: float = 0.0) -> dict:
     """The angle of repose (degrees) of the active disks over [x_min, x_min + W]
     by the three methods of Lee & Herrmann 1993, sec. 3 (columns one mean
-    diameter wide); NaN with the reason under `repose_error` when the surface
-    cannot be measured (fewer than 3 columns, or an empty column inside)."""
+    diameter wide; h(x) the highest disk centre in a column, an empty column
+    between filled ones the line between its neighbours, as the flux's recorded
+    surfaces, and counted in `surface_gaps`); NaN with the reason under
+    `repose_error` when the surface cannot be measured (fewer than 3 columns)."""
     try:
         profile = analysis.surface_profile_of(state, x_min=x_min, width=width)
-        angles = analysis.repose_angles(profile)
+        angles = analysis.repose_angles(profile, fill_gaps=True)
     except InputError as error:
         nan = float("nan")
         return {"repose_endpoints": nan, "repose_least_squares": nan, "repose_cumulative_parabola": nan,
                 "repose_error": str(error)}
     return {"repose_endpoints": angles.endpoints, "repose_least_squares": angles.least_squares,
             "repose_cumulative_parabola": angles.cumulative_parabola,
+            "surface_gaps": int(np.isnan(profile.height[(angles.x[0] <= profile.x) & (profile.x <= angles.x[-1])]).sum()),
             "surface_x": profile.x.tolist(), "surface_height": profile.height.tolist()}
 
 
