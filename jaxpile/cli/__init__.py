@@ -79,6 +79,7 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     os.environ.setdefault("MPLBACKEND", "Agg")  # figures go to files; never open a window
+    args = None  # until the flags are parsed
     try:
         argv = [t for a in argv for t in (a.split("=", 1) if a.startswith("--resume=") else [a])]
         if argv[:1] in (["pile"], ["sweep"]) and "--resume" in argv:
@@ -108,7 +109,7 @@ def _main(argv) -> int:
         print(f"jaxpile: error: {where}{err.strerror or err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C: one line saying what is saved, not JAX's traceback
-        print(f"jaxpile: interrupted{_what_resumes(locals().get('args'))}", file=sys.stderr)
+        print(f"jaxpile: interrupted{_what_resumes(args)}", file=sys.stderr)
         return 130
     return 0
 
@@ -121,7 +122,7 @@ def _what_resumes(args) -> str:
     from jaxpile.engine import checkpoint
 
     if command == "fit":
-        saved = os.path.exists(os.path.join(out, "fit_checkpoint.json"))
+        saved = os.path.exists(os.path.join(distributed.folder_of(out), "fit_checkpoint.json"))
         return (f"; the same command with --resume continues the fit from {out}" if saved else
                 "; the fit saved nothing to resume (an ensemble fit saves after each iteration)")
     if checkpoint.in_folder(distributed.folder_of(out)) is not None:

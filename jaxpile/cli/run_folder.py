@@ -151,24 +151,31 @@ LOCK_NAME = ".jaxpile.lock"
 """The file a running `pile`, `sweep` or `fit` holds in its folder: its process, host and command."""
 
 
+def _stat(pid: int) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command's name (the state first), or None."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
 def _process_start(pid: int) -> str | None:
     """This boot's id and the process's start (clock ticks since boot), which
     tell a live process from a later one given the same id; None where /proc
     does not say."""
+    fields = _stat(pid)
     try:
         with open("/proc/sys/kernel/random/boot_id") as fh:
-            boot = fh.read().strip()
-        with open(f"/proc/{pid}/stat") as fh:
-            fields = fh.read().rsplit(")", 1)[1].split()
-        return f"{boot}:{fields[19]}"  # field 22 of stat, the 20th after the command's name
-    except (OSError, IndexError):
+            return f"{fh.read().strip()}:{fields[19]}"  # field 22 of stat, the 20th after the name
+    except (OSError, IndexError, TypeError):
         return None
 
 
 def _alive(holder: dict) -> bool:
     """Whether the run that wrote a lock is still running: on this host, its
-    process exists and is the one that wrote it; on another host this process
-    cannot tell, so it is taken to be."""
+    process exists, is not a zombie (killed, not yet reaped) and is the one
+    that wrote it; on another host this process cannot tell, so it is taken to be."""
     if holder.get("host") != socket.gethostname():
         return True
     pid = holder.get("pid")
@@ -180,19 +187,11 @@ def _alive(holder: dict) -> bool:
         return False
     except PermissionError:  # another user's process: alive
         pass
-    if _state(pid) == "Z":  # killed, not yet reaped by its parent
+    fields = _stat(pid)
+    if fields and fields[0] == "Z":
         return False
     started = holder.get("process_start")
     return started is None or _process_start(pid) in (None, started)
-
-
-def _state(pid: int) -> str | None:
-    """The process's state letter in /proc (Z: a zombie), or None."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return None
 
 
 def _read_lock(path: str) -> dict:

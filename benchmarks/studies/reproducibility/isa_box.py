@@ -18,11 +18,11 @@ import argparse
 import json
 import os
 import pathlib
-import platform
 import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[3]
+sys.path.insert(0, str(ROOT / "benchmarks"))  # machine
 RESULT = ROOT / "benchmarks" / "results" / "reproducibility" / "isa_box.json"
 PAGE = ROOT / "docs" / "testing.md"
 BEGIN, END = "<!-- isa_box table: begin -->", "<!-- isa_box table: end -->"
@@ -51,16 +51,6 @@ def run_level(level: str) -> dict:
         env["XLA_FLAGS"] = f"--xla_cpu_max_isa={level}"
     done = subprocess.run([sys.executable, "-c", ONE_LEVEL], env=env, capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def cpu_name() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def table(record: dict) -> str:
@@ -95,16 +85,16 @@ def main() -> None:
     parser.add_argument("--table", action="store_true", help="rewrite docs/testing.md's table from the JSON only")
     args = parser.parse_args()
     if not args.table:
-        import jax
+        from machine import details
 
         results = {}
         for level in LEVELS:
             print(f"isa_box: {level} ...", flush=True)
             results[level] = run_level(level)
             print(f"isa_box: {level}: {results[level]['summary']}", flush=True)
-        flags = open("/proc/cpuinfo").read() if os.path.exists("/proc/cpuinfo") else ""
-        default = "AVX-512" if " avx512f" in flags else "AVX2" if " avx2" in flags else "this CPU's"
-        record = {"cpu": cpu_name(), "default_isa": default, "jax": jax.__version__, "mu": list(MU), "seeds": SEEDS,
+        machine = details()  # after the levels: it starts JAX in this process, which runs no pile
+        record = {"cpu": machine["processor"], "default_isa": machine["vector_isa"] or "this CPU's",
+                  "jax": machine["jax_version"], "mu": list(MU), "seeds": SEEDS,
                   "options": OPTIONS, "levels": list(LEVELS), "results": results,
                   "command": "python benchmarks/studies/reproducibility/isa_box.py"}
         RESULT.parent.mkdir(parents=True, exist_ok=True)
