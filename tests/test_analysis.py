@@ -105,6 +105,21 @@ def test_three_methods_agree_on_a_rough_polydisperse_surface(angle):
     np.testing.assert_allclose(angles, angle, atol=0.5)
 
 
+def test_an_empty_column_inside_a_straight_surface_is_refused_or_filled_with_its_neighbours_line():
+    """Lee & Herrmann 1993 sec. 3's h(x) has no value in a cell that holds no disk centre: refused, or with
+    `fill_gaps` (the box's reading) the line between its neighbours, which keeps a straight surface's angle
+    exact by all three methods."""
+    pos, r = stepped_heap(30.0, columns=20)
+    hole = (pos[:, 0] > 7.0) & (pos[:, 0] < 8.0)  # every disk of the eighth column
+    prof = analysis.surface_profile(pos[~hole], r, x_min=0.0, width=20.0)
+    assert np.isnan(prof.height[7])
+    with pytest.raises(jaxpile.InputError, match="empty column at x = 7.5"):
+        analysis.repose_angles(prof)
+    res = analysis.repose_angles(prof, fill_gaps=True)
+    for got in (res.endpoints, res.least_squares, res.cumulative_parabola):
+        assert got == pytest.approx(30.0, abs=1e-6)
+
+
 def test_angle_of_a_close_packed_heap_cut_at_30_degrees():
     """A hexagonal packing cut by a 30 degree line: a staircase surface, not a straight one."""
     pos = hex_lattice(60, 80)
