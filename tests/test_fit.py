@@ -68,7 +68,7 @@ def _contacts(load):
 
 def test_base_load_on_the_ground_matches_analysis_base_forces(sim, relaxed_scene):
     params, state = relaxed_scene
-    ref = analysis.base_forces(sim, params, state)
+    ref = analysis.base_forces(sim, params, state, base="ground")
     load = fit.base_load(sim, params, state, base="ground")
     assert load.x.shape == (state.particles.count,)  # fixed shape: one entry per disk
     x, normal, horizontal = _contacts(load)
@@ -105,6 +105,23 @@ def test_base_load_on_a_substrate_matches_analysis_substrate_forces(sim, relaxed
     weight_mg = mass[11:].sum() / np.r_[mass[:6], mass[11:]].mean()
     assert weight_mg < 9.5  # (the heap's disks are lighter than the mean)
     assert float(jnp.sum(load.weight * load.normal)) == pytest.approx(weight_mg, rel=1e-2)
+
+
+def test_base_forces_read_what_the_pile_stands_on_the_ground_and_the_fixed_disks(sim, relaxed_scene):
+    """The default reading: the movable disks' contacts with the ground and with fixed disks, both."""
+    params, state = relaxed_scene
+    both = analysis.base_forces(sim, params, state)
+    ground = analysis.base_forces(sim, params, state, base="ground")
+    substrate = analysis.substrate_forces(sim, params, state)
+    assert both.x.size == ground.x.size + substrate.x.size == 11
+    order = np.lexsort((np.r_[ground.normal, substrate.normal], np.r_[ground.x, substrate.x]))
+    np.testing.assert_allclose(np.sort(both.x), np.r_[ground.x, substrate.x][order], atol=1e-12)
+    np.testing.assert_array_equal(np.sort(both.particle), np.sort(np.r_[ground.particle, substrate.particle]))
+    mass = np.asarray(state.particles.mass)
+    movable = np.r_[mass[:6], mass[11:]]
+    assert both.normal.sum() == pytest.approx(movable.sum() / movable.mean(), rel=1e-2)  # all 16 disks' weight
+    load = fit.base_load(sim, params, state, base="pile")
+    assert load.x.shape == (state.particles.count + state.neighbors.idx.size,)
 
 
 def test_base_load_refuses_an_unknown_base(sim, relaxed_scene):

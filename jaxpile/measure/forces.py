@@ -19,8 +19,9 @@ from jaxpile.errors import InputError
 
 Array = Any
 
-BASES = ("ground", "substrate")
-"""What `base_load` can measure: a flat wall (the ground), or the fixed base disks."""
+BASES = ("ground", "substrate", "pile")
+"""What `base_load` can measure: a flat wall (the ground), the fixed base disks,
+or whatever the pile stands on (both: its movable disks' contacts with either)."""
 
 
 class BaseLoad(NamedTuple):
@@ -75,11 +76,14 @@ def base_load(sim, params, state: SimState, *, base: str = "ground", wall: int =
       base: `"ground"`: a wall (`wall`, default the ground), one entry per disk,
         x the disk centre's x. `"substrate"`: the fixed base disks (the poured heap
         of Baxter et al. 1997), one entry per neighbour slot `[n * k]`, "normal"
-        along -g (+y when gravity is off).
+        along -g (+y when gravity is off). `"pile"`: what the pile stands on,
+        the movable disks' contacts with the wall `wall` (where the set-up has
+        it) followed by their contacts with fixed disks, `[n + n * k]`: a wall
+        floor, a row of fixed disks, or both, without saying which.
 
     Returns:
-      `BaseLoad` of `[n]` (ground) or `[n * k]` (substrate) arrays, forces in mg
-      (`traced_force_unit`).
+      `BaseLoad` of `[n]` (ground), `[n * k]` (substrate) or `[n + n * k]`
+      (pile) arrays, forces in mg (`traced_force_unit`).
 
     Raises:
       InputError: on an unknown `base`.
@@ -93,6 +97,13 @@ def base_load(sim, params, state: SimState, *, base: str = "ground", wall: int =
 def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
     """`base_load` from the contact forces `cf`: one compiled program (inlined
     when traced), not ~40 primitives each compiled op by op for each shape."""
+    if base == "pile":
+        parts = [_base_load_from(cf, state, "substrate", wall)]
+        if state.boundaries.wall_normal.shape[0] > wall:  # a static shape: the set-up has this wall
+            ground = _base_load_from(cf, state, "ground", wall)
+            on = ground.weight * state.particles.movable  # a fixed disk on the floor is part of the base
+            parts.insert(0, BaseLoad(ground.x * on, ground.normal * on, ground.horizontal * on, on))
+        return BaseLoad(*(jnp.concatenate(fields) for fields in zip(*parts)))
     p = state.particles
     unit = traced_force_unit(state)
     if base == "ground":
@@ -146,28 +157,57 @@ def force_unit(state: SimState) -> float:
     return float(traced_force_unit(state))
 
 
-def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND) -> BaseForces:
-    """Forces at every disk-ground contact (in mg), eagerly or under a trace.
+def base_forces(sim: Simulator, params, state: SimState, wall: int = GROUND, *, base: str = "pile") -> BaseForces:
+    """Forces at every contact of the pile with its base (in mg), eagerly or
+    under a trace: by default whatever the pile stands on, a wall floor (the
+    box, the lattice) or a row of fixed disks (the poured heap, the flux pile,
+    the silo), its movable disks' contacts with either (`base_load`'s
+    `"pile"`); `base="ground"` or `"substrate"` reads one of them alone.
 
-    Eagerly: the contacts alone, sorted by x. Under `jax.grad`, `jax.vmap` or
-    `jax.jit`, where how many disks touch the ground is not known: one entry
-    per disk, in disk order, those off the ground with particle -1 and zero x
-    and forces, so sums, force-weighted means and the maximum normal force are
-    the eager ones (a maximum or minimum of the horizontal force, which takes
-    both signs, can be the padding's 0: mask with `particle >= 0`).
+    Eagerly: the contacts alone, sorted by x (none while the pile is in the
+    air). Under `jax.grad`, `jax.vmap` or `jax.jit`, where how many disks touch
+    the base is not known: one entry per possible contact (each disk on the
+    ground, then each neighbour slot), those that are not a contact with
+    particle -1 and zero x and forces, so sums, force-weighted means and the
+    maximum normal force are the eager ones (a maximum or minimum of the
+    horizontal force, which takes both signs, can be the padding's 0: mask with
+    `particle >= 0`).
 
         load = lambda p: jaxpile.base_forces(sim, p, sim.rollout(p, state, 100)).normal.max()
         jax.grad(load)(params)
+
+    Raises:
+      InputError: eagerly, for a set-up with no base to read: no active wall
+        `wall` and no fixed disk (for `base="pile"`), or none of the one named.
     """
-    load = base_load(sim, params, state, base="ground", wall=wall)
+    load = base_load(sim, params, state, base=base, wall=wall)
+    n = state.particles.count
+    slots = np.arange(state.neighbors.idx.size) // max(state.neighbors.idx.shape[1], 1)
+    ids = {"ground": np.arange(n), "substrate": slots, "pile": np.concatenate(
+        [np.arange(n)] * (state.boundaries.wall_normal.shape[0] > wall) + [slots])}[base]
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((load, params, state))):
-        particle = jnp.where(load.weight > 0, jnp.arange(load.x.shape[0]), -1)
-        return BaseForces(x=load.x, normal=load.normal, horizontal=load.horizontal, particle=particle)
-    ids = np.flatnonzero(np.asarray(load.weight) > 0)
-    x = np.asarray(load.x)[ids]
-    order = np.argsort(x)
-    return BaseForces(x=x[order], normal=np.asarray(load.normal)[ids][order],
-                      horizontal=np.asarray(load.horizontal)[ids][order], particle=ids[order])
+        return BaseForces(x=load.x, normal=load.normal, horizontal=load.horizontal,
+                          particle=jnp.where(load.weight > 0, jnp.asarray(ids), -1))
+    _check_has_base(state, base, wall)
+    keep = np.flatnonzero(np.asarray(load.weight) > 0)
+    x = np.asarray(load.x)[keep]
+    order = np.argsort(x, kind="stable")
+    return BaseForces(x=x[order], normal=np.asarray(load.normal)[keep][order],
+                      horizontal=np.asarray(load.horizontal)[keep][order], particle=ids[keep][order])
+
+
+def _check_has_base(state: SimState, base: str, wall: int) -> None:
+    """Refuses to read a base the set-up does not have (an empty answer would
+    look like a pile in the air)."""
+    b, p = state.boundaries, state.particles
+    floor = b.wall_normal.shape[0] > wall and bool(np.asarray(b.wall_active)[wall])
+    fixed = bool(np.any(np.asarray(p.fixed) & np.asarray(p.active)))
+    if (base == "ground" and not floor) or (base == "substrate" and not fixed) or not (floor or fixed):
+        has = "neither an active floor wall nor fixed disks" if not (floor or fixed) else \
+            ("no active wall {wall}" if base == "ground" else "no fixed disks")
+        raise InputError(f"this set-up has {has.format(wall=wall)}, so it has no {'' if base == 'pile' else base + ' '}"
+                         "base whose forces could be read" + ("" if base == "pile" else
+                                                            "; leave base out to read what the pile stands on") + ".")
 
 
 class SubstrateForces(NamedTuple):
