@@ -114,8 +114,9 @@ def test_a_pathwise_fit_keeps_one_thread_and_an_ensemble_fit_runs_batches():
 
     from jaxpile.cli import fit_runs_batches
 
-    args = dict(estimator=None, truth=None, target="profile.csv", resume=None)
+    args = dict(estimator=None, truth=None, target="profile.csv", resume=None, protocol="lattice")
     assert not fit_runs_batches(Namespace(**args))
+    assert fit_runs_batches(Namespace(**{**args, "protocol": "pour"}))  # a random pile: its ensemble mean
     assert fit_runs_batches(Namespace(**{**args, "target": "target.json"}))
     assert fit_runs_batches(Namespace(**{**args, "truth": ["mu=0.3"]}))
     assert fit_runs_batches(Namespace(**{**args, "estimator": "smoothing"}))

@@ -1,5 +1,6 @@
-"""`jaxpile fit` with an ensemble target (`--truth` or a target.json): the
-command-line side of `jaxpile.fit.ensemble_fit`."""
+"""`jaxpile fit` with an ensemble target (a measurement, `--truth`, the
+declared Smid-Novosad pile or a target.json): the command-line side of
+`jaxpile.fit.ensemble_fit`."""
 
 from __future__ import annotations
 
@@ -37,6 +38,26 @@ def _chosen_statistics(args, spec, estimator: str, declared: bool):
         return ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
                                                 else spec.batch.fit_statistics.get("bins") or 9))
     return _statistics(args, spec)
+
+
+def _measurement(args):
+    """The measurement `--target` names (`fit.measured.load_measurement`: a CSV
+    profile, or a .json/.toml of scalars and a profile), or None for another
+    target (smid-novosad, a target.json an ensemble fit wrote, none)."""
+    from jaxpile import io
+    from jaxpile.fit import measured
+
+    path = args.target
+    if not path or path == "smid-novosad":
+        return None
+    if not os.path.exists(path):
+        raise InputError(f"--target {path!r} is neither smid-novosad nor an existing file (a measurement .csv, "
+                         ".json or .toml, or the target.json of an ensemble fit).")
+    if path.lower().endswith(".json") and os.path.isfile(path):
+        record = io.read_json(path, "a target (a measurement, or the target.json or fit.json of an ensemble fit)")
+        if isinstance(record, dict) and ("labels" in record or "target" in record):
+            return None  # an ensemble fit's target
+    return measured.load_measurement(path, args.normalised_by)
 
 
 def _values(items, known, flag) -> dict:
@@ -106,8 +127,18 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     declared = smid_novosad and not args.resume  # a resumed fit's target is the one it saved
     if declared and args.truth:
         raise InputError("--target smid-novosad and --truth are two targets: give one.")
-    # a resumed fit to the declared pile compares what it compared when it began
-    statistics = _chosen_statistics(args, a, estimator, smid_novosad)
+    measurement = _measurement(args)
+    if measurement is not None:  # it says what each pile must report: its scalars and its profile's points
+        if args.truth:
+            raise InputError("--target FILE (a measurement) and --truth are two targets: give one.")
+        if args.statistics is not None or args.bins is not None:
+            raise InputError(f"{args.target} says what is compared (its scalars and its profile's points): leave "
+                             "--statistics and --bins out.")
+        from jaxpile.fit import measured
+
+        statistics = measured.statistics_of(measurement, a)
+    else:  # a resumed fit to the declared pile compares what it compared when it began
+        statistics = _chosen_statistics(args, a, estimator, smid_novosad)
     if declared:  # a statistic Smid & Novosad did not report is refused before any pile, dry runs too
         ensemble_fit.smid_novosad_target(statistics.labels())
     b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
@@ -161,7 +192,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     elif not args.resume and os.path.exists(target_save):
         os.remove(target_save)  # another command's target, stopped: this one makes its own
     target = _target(args, runner, truth, fixed, target_seeds, statistics, declared, checkpoint,
-                     None if every is None else (target_save, every))
+                     None if every is None else (target_save, every), measurement)
     if writes:
         io.write_json(os.path.join(args.out, "target.json"), plain(target.to_json()))
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
@@ -172,16 +203,17 @@ def run_ensemble_fit(args, estimator: str) -> dict:
                               step=args.difference_step, window=args.truncation_window,
                               progress=not args.no_progress, checkpoint=checkpoint,
                               resume=checkpoint if args.resume else None,
-                              batch_checkpoint=None if every is None else (fit_save, every))
+                              batch_checkpoint=None if every is None else (fit_save, every),
+                              identifiability="warn" if args.fit_anyway else "refuse")
     return _write_results(args, names, target, result) if writes else result.to_json()
 
 
 def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool, checkpoint: str,
-            target_batch=None):
+            target_batch=None, measurement=None):
     """The `EnsembleTarget`: the one saved in OUT/fit_checkpoint.json (`--resume`),
     made here at `--truth` from `target_seeds` (its batch saved to and
     continued from `target_batch`, `(path, every)`), the declared Smid-Novosad one,
-    or read from `--target target.json`."""
+    the `measurement`'s, or read from `--target target.json`."""
     from jaxpile import io
     from jaxpile.fit import ensemble_fit
 
@@ -204,20 +236,25 @@ def _target(args, runner, truth, fixed, target_seeds, statistics, declared: bool
                                         target_seeds, statistics, progress=False, batch_checkpoint=target_batch)
     if declared:
         return ensemble_fit.smid_novosad_target(statistics.labels())
+    if measurement is not None:
+        from jaxpile.fit import measured
+
+        return measured.target_of(measurement, statistics)
     if args.target and args.target.endswith(".json"):
         if not os.path.exists(args.target):
             raise InputError(f"--target {args.target}: no such file.")
         record = io.read_json(args.target, "a target (target.json or fit.json of an ensemble fit)")
         return ensemble_fit.EnsembleTarget.from_json(record.get("target", record) if isinstance(record, dict)
                                                      else record, args.target)
-    raise InputError("an ensemble fit needs --truth NAME=VALUE, --target target.json or --target smid-novosad.")
+    raise InputError("an ensemble fit needs a target: --target FILE (a measurement: a CSV profile, or a .json/.toml "
+                     "of scalars), --target smid-novosad, --target target.json, or --truth NAME=VALUE.")
 
 
 def _write_results(args, names: list, target, result) -> dict:
     """Writes fit.json and fit.png to OUT and prints each fitted value with its
     95 % interval (and the regression through every ensemble, where there is one)."""
     from jaxpile import io
-    from jaxpile.fit import ensemble_fit
+    from jaxpile.fit import ensemble_fit, verdict
 
     record = result.to_json()
     if target.truth:
@@ -225,10 +262,17 @@ def _write_results(args, names: list, target, result) -> dict:
                                            for n, (lo, hi) in result.interval.items() if n in target.truth}
     io.write_json(os.path.join(args.out, "fit.json"), plain(record))
     ensemble_fit.figure(result, path=os.path.join(args.out, "fit.png"))
+    judged = result.record["verdict"]
+    if args.no_progress:  # else the fit printed them as it went
+        for line in verdict.first_pass_lines(result.record["first_pass"]["report"]):
+            print(f"first pass: {line}")
+        for line in verdict.verdict_lines(judged):
+            print(f"verdict: {line}")
+    trust = "" if judged["interval_trusted"] else " (not to be trusted: see the verdict)"
     for n in names:
         lo, hi = result.interval[n]
         truth = f" (truth {target.truth[n]:.5g})" if target.truth and n in target.truth else ""
-        print(f"jaxpile: {n} = {result.values[n]:.5g}, 95% interval [{lo:.5g}, {hi:.5g}]{truth}")
+        print(f"jaxpile: {n} = {result.values[n]:.5g}, 95% interval [{lo:.5g}, {hi:.5g}]{truth}{trust}")
     line = result.record.get("regression")
     if line is not None:  # in a chaotic protocol the honest one (jaxpile.fit.regression)
         print("jaxpile: through all " + f"{line['points']} ensembles: " + ", ".join(

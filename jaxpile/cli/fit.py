@@ -19,14 +19,19 @@ from jaxpile.protocols import PROTOCOLS
 
 
 def _ensemble_target(args) -> bool:
-    """Whether a `fit` aims at an ensemble target (--truth, a target.json, --resume)."""
-    return bool(args.truth or (args.target or "").endswith(".json") or args.resume)
+    """Whether a `fit` aims at an ensemble target (--truth, a .json/.toml target
+    or measurement, --resume)."""
+    return bool(args.truth or (args.target or "").lower().endswith((".json", ".toml")) or args.resume)
 
 
 def fit_estimator(args) -> str:
-    """The gradient a `fit` uses: `--estimator`, else central differences for an
-    ensemble target and the pathwise gradient through one pile otherwise."""
-    return args.estimator or ("central" if _ensemble_target(args) else "pathwise")
+    """The gradient a `fit` uses: `--estimator`; else the pathwise gradient
+    through one pile for a profile (a CSV, smid-novosad) on a protocol that
+    offers one (its piles deterministic), and central differences of the
+    ensemble mean otherwise."""
+    spec = PROTOCOLS.get(args.protocol)
+    pathwise = spec is not None and spec.pathwise is not None and not _ensemble_target(args)
+    return args.estimator or ("pathwise" if pathwise else "central")
 
 
 def fit_runs_batches(args) -> bool:
@@ -45,8 +50,8 @@ def run_fit(args) -> dict:
 
         return run_ensemble_fit(args, estimator)
     if _ensemble_target(args):
-        raise InputError("--truth, --resume and a target.json are for ensemble fits: use --estimator central or "
-                         "smoothing.")
+        raise InputError("--truth, --resume and a .json/.toml target are for ensemble fits: use --estimator "
+                         "central or smoothing.")
     _pathwise(args.protocol)  # refused here when the protocol offers no pathwise fit
     if args.checkpoint_every is not None:
         raise InputError("--checkpoint-every saves an ensemble fit's batches of piles: a pathwise fit runs one pile "
@@ -69,7 +74,8 @@ def _pathwise(protocol: str):
     """The protocol's pathwise fit, or the refusal that names the ensemble estimators' flags."""
     from jaxpile.fit.problem import pathwise_of
 
-    return pathwise_of(protocol, "--estimator central or smoothing (an ensemble target: --truth or a target.json)")
+    return pathwise_of(protocol, f"jaxpile fit --protocol {protocol} --target FILE --estimator central "
+                                 "--ensemble 8 (the ensemble mean of its piles fitted to the measurement)")
 
 
 def _pathwise_inputs(args) -> tuple:
@@ -90,7 +96,7 @@ def _pathwise_inputs(args) -> tuple:
     if args.target == "smid-novosad":
         target = fit.smid_novosad_target()
     elif os.path.exists(args.target):
-        target = fit.load_profile_csv(args.target)  # a folder or unreadable file: one line from there
+        target = fit.load_profile_csv(args.target, args.normalised_by)  # a folder, unreadable file: one line there
     else:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     optimizer = _optimizer(args.optimizer, args.lr)

@@ -167,17 +167,19 @@ def _fit_parser(sub) -> argparse.ArgumentParser:
     fitp = sub.add_parser("fit", help="fit law parameters to a target base-force profile or to an ensemble's "
                                       "statistics (gradients + optax, or Gauss-Newton on ensemble means)")
     fitp.add_argument("--target", default=None, metavar="FILE|smid-novosad",
-                      help="a CSV (columns x/B, normal/max[, horizontal/max]) or the Smid-Novosad features (one "
-                           "pile, pathwise gradients); or a target.json written by an ensemble fit; with "
-                           "--estimator central|smoothing, smid-novosad is the central dip 0.25 as an ensemble "
-                           "target (the drop's and the pour's central_dip column, or the pour's "
-                           "dip_below_flanks; with --statistics dip_below_flanks,repose_mean the pour's "
-                           "angle 32.6 deg too)")
+                      help="what to fit to: a measurement (a CSV base profile: x/B, normal/max or normal/weight, "
+                           "optionally stderr, horizontal/max, horizontal_stderr; or a .json/.toml of scalars "
+                           "such as angle_of_repose with their errors, and a profile: docs/calibrate.md), whose "
+                           "points the ensemble mean of the protocol's piles is read at; smid-novosad (the "
+                           "declared dip 0.25, with --statistics dip_below_flanks,repose_mean the angle 32.6 deg "
+                           "too); or a target.json written by an ensemble fit. On the deterministic lattice a CSV "
+                           "or smid-novosad is fitted through one pile (pathwise) unless --estimator says otherwise")
     fitp.add_argument("--protocol", default="lattice", choices=sweep_protocols(),
-                      help="the pile; pathwise fits: lattice and pour; ensemble fits: every protocol")
+                      help="the pile; pathwise fits: the deterministic lattice; ensemble fits: every protocol")
     fitp.add_argument("--estimator", default=None, choices=["pathwise", "central", "smoothing", "truncated"],
-                      help="the gradient: pathwise through one pile (default with a CSV target), or of the "
-                           "ensemble-mean loss by central differences (default with --truth or a target.json), "
+                      help="the gradient: pathwise through one pile (default on the lattice with a CSV or "
+                           "smid-novosad), or of the ensemble-mean loss by central differences (the default "
+                           "otherwise), "
                            "Gaussian smoothing with antithetic pairs, or the pathwise gradient through the pour's "
                            "construction truncated to windows of --truncation-window steps (the base profile "
                            "alone; measured biased on 40-disk heaps: docs/fitting.md)")
@@ -228,6 +230,12 @@ def _ensemble_fit_args(fitp) -> None:
                            "never sees (a recovery test)")
     fitp.add_argument("--target-seeds", type=int, default=10_000, metavar="FIRST",
                       help="ensemble fits: the target's seeds are FIRST .. FIRST + B - 1 (the fit's: 0 .. B - 1)")
+    fitp.add_argument("--normalised-by", default=None, choices=["max", "weight"],
+                      help="a measured profile's scale when its header says neither (normal/max, normal/weight): "
+                           "by its largest value, or per unit x/B by the pile's weight")
+    fitp.add_argument("--fit-anyway", action="store_true",
+                      help="ensemble fits: fit even when the first pass finds a parameter the target cannot "
+                           "identify at this size (said, not refused)")
     fitp.add_argument("--statistics", default=None, metavar="COLUMN,COLUMN",
                       help="ensemble fits: the per-pile measurements compared (default: the protocol's); with "
                            "--bins, the base profile too")

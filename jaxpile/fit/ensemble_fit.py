@@ -73,6 +73,7 @@ import optax
 import jaxpile.fit.construction as construction
 import jaxpile.fit.estimators as estimators
 import jaxpile.fit.regression as regression
+import jaxpile.fit.verdict as verdict
 from jaxpile import config, distributed, io
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Runner, Statistics
@@ -173,12 +174,15 @@ def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target:
         g = piles @ jw.T  # [B, d]
         return np.atleast_2d(np.cov(g, rowvar=False)) / len(piles)
 
-    if not spread(members) and not spread(target.members):
+    error = None if target.error is None else np.nan_to_num(np.asarray(target.error, float))
+    if not spread(members) and not spread(target.members) and error is None:
         r = np.asarray(members, float).mean(axis=0) - target.mean
         dof = max(len(r) - d, 1)
         return float(np.sum(w * r ** 2)) / dof * inv, float(dof)
+    measured = np.zeros_like(hessian) if error is None else (jw * error ** 2) @ jw.T  # a measurement's own error
     sizes = [len(p) for p in (members, target.members) if spread(p)]
-    return inv @ (projected(members) + projected(target.members)) @ inv, float(min(sizes) - 1)
+    dof = float(min(sizes) - 1) if sizes else math.inf  # a measurement's stated errors are taken as known
+    return inv @ (projected(members) + projected(target.members) + measured) @ inv, dof
 
 
 def _optimiser(name: str, lr: float):
@@ -193,7 +197,7 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         max_step: float = 0.3, tolerance: float = 1e-3, noise_stop: bool = False,
         progress: Callable | bool | None = True,
         checkpoint: str | None = None, resume: str | None = None, interval: bool = True,
-        batch_checkpoint: tuple[str, int] | None = None) -> EnsembleFitResult:
+        batch_checkpoint: tuple[str, int] | None = None, identifiability: str = "refuse") -> EnsembleFitResult:
     """Fits the law parameters `names` (positive; fitted as logs) so that the
     ensemble of `seeds` matches `target`.
 
@@ -231,6 +235,12 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
       resume: a checkpoint JSON of this fit to continue from.
       interval: run the final central differences for the confidence
         interval (2d + 1 more ensembles); False: NaN interval.
+      identifiability: the first pass (`verdict.first_pass`, on the first
+        central differences' ensembles, before any step) judges whether each
+        parameter moves the statistics beyond their noise: `"refuse"` raises
+        `InputError` with its numbers when one does not, `"warn"` says so and
+        fits regardless. It also measures the errors a target lacks (a
+        measurement without standard errors: one pile's spread at the start).
       batch_checkpoint: `(path, every)`: each batch of piles the runner runs
         (an iteration's ensembles, the final ones) is saved to the `.npz`
         `path` every `every` steps (`sweeps.sweep`'s checkpoint), continued
@@ -241,11 +251,12 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
 
     Returns:
       `EnsembleFitResult` (the interval from a final central-difference
-      Jacobian at the fitted values).
+      Jacobian at the fitted values; its record's `first_pass` and `verdict`).
     """
     statistics, names, seeds, steps = _checked(runner, names, start, target, seeds, statistics, estimator,
                                                optimizer, steps, window)
-    w = weights(target)
+    if identifiability not in ("refuse", "warn"):
+        raise InputError(f"identifiability is refuse or warn; got {identifiability!r}.")
     theta = np.log(np.array([float(start[n]) for n in names]))
     opt = None if optimizer == "gauss-newton" else _optimiser(optimizer, lr)
     opt_state = None if opt is None else opt.init(jnp.asarray(theta))
@@ -258,12 +269,14 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               "options": dict(runner.options or {}),
               "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean],
               "settings": config.settings()}
+    passed: dict = {}
+
     def save_history():
         if checkpoint is not None:
-            _write_json(checkpoint, {**record, "history": history, "target": target.to_json()})
+            _write_json(checkpoint, {**record, "history": history, "target": target.to_json(), **passed})
 
     if resume is not None:
-        theta, opt_state, history = _replay(resume, record, theta, opt, opt_state)
+        theta, opt_state, history, passed = _replay(resume, record, theta, opt, opt_state)
     else:
         save_history()  # a fit stopped in its first iteration resumes from here
     if batch_checkpoint is not None:
@@ -274,8 +287,29 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         if resume is None and os.path.exists(batch_checkpoint[0]):  # another fit's batch
             os.remove(batch_checkpoint[0])
     t0 = time.perf_counter()
-    fitting = _Fitting(runner, names, seeds, statistics, target, w, objective_for(target, w), estimator, opt,
-                       step, sigma, pairs, key, window, max_step, tolerance, noise_stop, batch_checkpoint)
+    fitting = _Fitting(runner, names, seeds, statistics, target, weights(target), None, estimator, opt, step, sigma,
+                       pairs, key, window, max_step, tolerance, noise_stop, batch_checkpoint, {}, progress is True)
+    if not passed:
+        passed = {"first_pass": _first_pass(fitting, theta, progress)}
+    first = passed["first_pass"]
+    target = fitting.target if first.get("error") is None else target._replace(
+        spread=np.asarray(first["spread"], float), error=np.asarray(first["error"], float))
+    w = weights(target)
+    fitting = fitting._replace(target=target, w=w, objective=objective_for(target, w))
+    if first.get("statistics") is not None and estimator == "central" and not history:
+        fitting.cache[estimators.central_points(theta, step).tobytes()] = np.asarray(first["statistics"], float)
+    save_history()
+    lines = verdict.first_pass_lines(first["report"])
+    if progress is True:
+        for line in lines:
+            print(f"first pass: {line}", flush=True)
+    if identifiability == "refuse" and not first["report"]["identifiable"]:
+        report = first["report"]
+        bad = {n: p["ratio"] for n, p in report["parameters"].items() if p["identifiable"] is False}
+        raise InputError(f"the target cannot identify {', '.join(bad)} at {report['disks']} disks (the first pass: "
+                         + ", ".join(f"{n} moves the statistics by {r:.1f}x their noise" for n, r in bad.items())
+                         + f", {verdict.IDENTIFIABLE_RATIO:g}x needed); use more disks, other statistics (an angle, "
+                         "the profile) or a larger ensemble, or fit regardless (--fit-anyway, identifiability='warn').")
     message = ""
     done = bool(history) and history[-1].get("converged", False)
     for it in range(len(history), steps):
@@ -295,7 +329,11 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         save_history()
         if entry["converged"] or message:
             break
+    record["first_pass"] = {k: v for k, v in first.items() if k != "statistics"}
     result = fitting.finish(theta, start, history, record, message, interval, steps, t0)
+    if progress is True:
+        for line in verdict.verdict_lines(record["verdict"]):
+            print(f"verdict: {line}", flush=True)
     # the same answer from a line through every ensemble run (`regression`): the honest one in chaos
     estimate = regression.estimate(result, w)
     record["regression"] = None if estimate is None else estimate.to_json()
@@ -342,9 +380,10 @@ def _checked(runner: Runner, names, start: dict, target: EnsembleTarget, seeds, 
 
 
 def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
-    """`(theta, opt_state, history)` after the iterations of the checkpoint
-    `resume`, which this fit (`record`) must have written: the optax state is
-    a function of the gradients seen, so it is rebuilt by replaying them."""
+    """`(theta, opt_state, history, passed)` after the iterations of the
+    checkpoint `resume`, which this fit (`record`) must have written: the optax
+    state is a function of the gradients seen, so it is rebuilt by replaying
+    them; `passed`: the saved first pass, if it ended."""
     saved = io.read_json(resume, "an ensemble fit's checkpoint")
     if not isinstance(saved, dict) or not isinstance(saved.get("history"), list):
         raise InputError(f"{resume} is not an ensemble fit's checkpoint (no history in it).")
@@ -369,7 +408,41 @@ def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
         if opt is not None:
             _, opt_state = opt.update(jnp.asarray(entry["gradient"]), opt_state, jnp.asarray(entry["theta"]))
         history.append(entry)
-    return theta, opt_state, history
+    return theta, opt_state, history, ({"first_pass": saved["first_pass"]} if saved.get("first_pass") else {})
+
+
+def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
+    """The first central differences' ensembles at `theta`, run once (the
+    central estimator's first iteration reuses them): the errors a target
+    lacks, taken as one pile's spread there, and `verdict.first_pass`."""
+    t1 = time.perf_counter()
+    if progress is True:
+        print("first pass: is each parameter identifiable at this size?", flush=True)
+    s, missing, info = fitting.run(estimators.central_points(theta, fitting.step))
+    target, out = fitting.target, {"statistics": s.tolist(), "particle_steps": int(info["particle_steps"]),
+                                   "missing": missing}
+    unknown = ~np.isfinite(np.asarray(target.spread, float))
+    if unknown.any():
+        if s.shape[1] < 2:
+            raise InputError("the target gives no standard errors for "
+                             f"{', '.join(np.asarray(target.labels)[unknown][:3])}, and one pile cannot measure a "
+                             "spread: fit an ensemble of 2 or more piles (--ensemble), or give the errors (a stderr "
+                             "column).")
+        pile = s[0].std(axis=0, ddof=1)
+        error = np.asarray(target.error if target.error is not None else target.spread, float)
+        target = target._replace(spread=np.where(unknown, pile, target.spread),
+                                 error=np.where(np.isfinite(error), error, pile))
+        out.update(spread=target.spread.tolist(), error=target.error.tolist(),
+                   errors_from_piles=[lab for lab, u in zip(target.labels, unknown) if u])
+        if progress is True:
+            print(f"first pass: the target gives no errors for {int(unknown.sum())} of its {len(unknown)} "
+                  "statistics: each is taken as one simulated pile's spread at the start (the measurement as "
+                  "one heap)", flush=True)
+    options = fitting.runner.options or {}
+    disks = int(options.get("n") or options.get("layers") or info.get("n_particles", 0))
+    out["report"] = verdict.first_pass(s, fitting.step, weights(target), target, fitting.names, disks)
+    out["seconds"] = time.perf_counter() - t1
+    return out
 
 
 def _central_jacobian(s: np.ndarray, step: float) -> np.ndarray:
@@ -431,6 +504,8 @@ class _Fitting(NamedTuple):
     tolerance: float
     noise_stop: bool
     batch_checkpoint: tuple[str, int] | None = None
+    cache: dict | None = None  # statistics already run, by their thetas' bytes (the first pass's)
+    show: bool = False  # a line before each batch, and the sweep's progress bar in a terminal
 
     def params_of(self, theta) -> dict:
         return {n: float(v) for n, v in zip(self.names, np.exp(theta))}
@@ -440,8 +515,16 @@ class _Fitting(NamedTuple):
         each of the m `thetas` (one batched run), missing ones filled; the
         batch saved as it runs and continued from its save (`fit`'s
         `batch_checkpoint`)."""
-        s, info = run_saved(self.runner, [self.params_of(t) for t in thetas], self.seeds, self.statistics,
-                            self.batch_checkpoint, progress=False)
+        thetas = np.asarray(thetas, float)
+        ran = (self.cache or {}).pop(thetas.tobytes(), None)
+        if ran is not None:
+            s, info = ran, {"particle_steps": 0, "total_seconds": 0.0}
+        else:
+            if self.show:
+                print(f"  running {len(thetas)} ensemble(s) of {len(self.seeds)} piles ({len(thetas) * len(self.seeds)} "
+                      "piles in one batch)", flush=True)
+            s, info = run_saved(self.runner, [self.params_of(t) for t in thetas], self.seeds, self.statistics,
+                                self.batch_checkpoint, progress=None if self.show else False)
         s, missing = fill_missing(s)
         return s, missing, info
 
@@ -533,15 +616,18 @@ class _Fitting(NamedTuple):
         # moves them is not determined by this target, whatever its interval says
         sensitivity = np.sqrt(np.sum(w[:, None] * jac ** 2, axis=0))
         converged = bool(history) and bool(history[-1]["converged"])
+        judged = verdict.verdict(history, jac, w, s[0], target, names, converged, message, steps)
         record.update({"final_points": final_points.tolist(), "final_point_means": s.mean(axis=1).tolist(),
                        "final_loss": float(self.objective(jnp.asarray(s[0].mean(axis=0)))),
                        "final_loss_stderr": estimators.loss_stderr(s[0], self.objective),
                        "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
-                       "interval_dof": dof, "interval_quantile": z, "converged": converged,
+                       "interval_dof": dof, "interval_quantile": z, "converged": judged["converged"],
+                       "verdict": judged,
                        "message": message or ("" if converged or self.opt is not None else
                                               f"not converged in {steps} iterations: the interval is at the last one"),
                        "fit_seconds": time.perf_counter() - t0,
-                       "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"])})
+                       "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"]
+                                             + record.get("first_pass", {}).get("particle_steps", 0))})
         first = history[0]["mean"] if history and history[0].get("mean") is not None else None
         start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
         return EnsembleFitResult(names, self.params_of(theta), {n: float(start[n]) for n in names}, bounds,
@@ -596,11 +682,12 @@ def figure(result: EnsembleFitResult, path=None):
     profile = [i for i, lab in enumerate(labels) if lab.startswith("normal[")]
     ax = axes[2]
     if profile:
-        x = (np.arange(len(profile)) + 0.5) / len(profile)
+        at = [lab.split("x/B=")[1].rstrip("]") for lab in (labels[i] for i in profile) if "x/B=" in lab]
+        x = np.asarray(at, float) if len(at) == len(profile) else (np.arange(len(profile)) + 0.5) / len(profile)
         t = result.target
         ax.fill_between(x, t.mean[profile] - t.spread[profile], t.mean[profile] + t.spread[profile], alpha=0.2,
-                        color="k", label="target +- one pile")
-        ax.plot(x, t.mean[profile], "k-", label="target")
+                        color="k", label="target +- its error" if t.error is not None else "target +- one pile")
+        ax.plot(x, t.mean[profile], "ko-" if len(at) else "k-", label="target")
         ax.plot(x, result.start_mean[profile], "C1--", label="start")
         ax.plot(x, result.fitted_mean[profile], "C0-", label="fit")
         ax.set(xlabel="x / B", ylabel="normal base force / peak", title="ensemble-mean base profile")
@@ -614,8 +701,12 @@ def figure(result: EnsembleFitResult, path=None):
         ax.set_xticks(k, labels, rotation=20, fontsize=8)
         ax.set(ylabel="(mean - target) / spread", title="ensemble means against the target")
     ax.legend(fontsize=8)
+    judged = result.record.get("verdict")
+    said = "" if judged is None else "\n" + verdict.verdict_lines(judged)[0] + (
+        "; the interval can be trusted" if judged["interval_trusted"] else "; the interval cannot be trusted")
     fig.suptitle(f"{result.record['protocol']} / {result.record['law']}: fit of {', '.join(names)} "
-                 f"({result.record['estimator']}, {result.record['optimizer']}, B = {len(result.record['seeds'])})")
+                 f"({result.record['estimator']}, {result.record['optimizer']}, B = {len(result.record['seeds'])})"
+                 + said, color="k" if judged is None or judged["interval_trusted"] else "firebrick")
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=110)

@@ -16,6 +16,8 @@ from jaxpile import budget, sweeps
 from jaxpile.errors import InputError
 from jaxpile.protocols import running
 from jaxpile.fit.profiles import base_load, smooth_base_profile
+from jaxpile.measure.base_reading import profile_at_points
+from jaxpile.measure.forces import base_forces
 from jaxpile.sweeps import MEMBER_COLUMNS
 
 
@@ -29,13 +31,20 @@ class Statistics(NamedTuple):
         protocol's fixed extent (`Batch.extent` of its spec), normal force over its peak
         (`fit.smooth_base_profile`); 0: no profile.
       horizontal: the horizontal profile as well (on the same scale).
-      bandwidth: the profile's smoothing width (default one bin).
+      bandwidth: the profile's smoothing width (default one bin); with `at`,
+        the reading's width in x/B.
+      at: the x/B (of each pile's own base, foot to foot) where a measured
+        profile was taken: the profile read there as `fit.measured.read_profile`
+        reads it, instead of on `bins`.
+      normalised_by: the scale of a profile read `at` points: `"max"` or `"weight"`.
     """
 
     columns: tuple = ()
     bins: int = 0
     horizontal: bool = True
     bandwidth: float | None = None
+    at: tuple = ()
+    normalised_by: str = "max"
 
     def labels(self) -> list[str]:
         labels = list(self.columns)
@@ -43,15 +52,32 @@ class Statistics(NamedTuple):
             labels += [f"normal[{i}]" for i in range(self.bins)]
             if self.horizontal:
                 labels += [f"horizontal[{i}]" for i in range(self.bins)]
+        if self.at:
+            labels += [f"normal[x/B={u:g}]" for u in self.at]
+            if self.horizontal:
+                labels += [f"horizontal[x/B={u:g}]" for u in self.at]
         return labels
+
+
 def _check_statistics(statistics: Statistics, spec) -> Statistics:
     if not isinstance(statistics, Statistics):
         raise InputError(f"statistics must be an ensemble_fit.Statistics; got {type(statistics).__name__}.")
     statistics = statistics._replace(columns=tuple(statistics.columns))
     if int(statistics.bins) != statistics.bins or statistics.bins < 0:
         raise InputError(f"bins must be a whole number >= 0; got {statistics.bins!r}.")
-    if not statistics.columns and not statistics.bins:
+    if not statistics.columns and not statistics.bins and not statistics.at:
         raise InputError("a fit needs something to compare: name columns, or bins > 0 for the base profile.")
+    statistics = statistics._replace(at=tuple(float(u) for u in statistics.at))
+    if statistics.at:
+        if statistics.bins:
+            raise InputError("a profile is read on bins or at measured points (at), not both.")
+        if not all(0 <= u <= 1 for u in statistics.at) or list(statistics.at) != sorted(set(statistics.at)):
+            raise InputError(f"the measured points must be x/B in [0, 1], increasing; got {list(statistics.at)}.")
+        if not (statistics.bandwidth is not None and 0 < statistics.bandwidth <= 0.5):
+            raise InputError(f"a profile read at measured points needs a bandwidth in x/B in (0, 0.5]; got "
+                             f"{statistics.bandwidth!r}.")
+        if statistics.normalised_by not in ("max", "weight"):
+            raise InputError(f"a profile is normalised by max or weight; got {statistics.normalised_by!r}.")
     if statistics.bins and spec.batch.extent is None:
         raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
     columns = running.row_columns(spec)
@@ -64,6 +90,15 @@ def _check_statistics(statistics: Statistics, spec) -> Statistics:
 
 
 def _profile_hook(spec, statistics: Statistics) -> Callable | None:
+    if statistics.at:
+        def measure_at(sim, params, state, protocol):
+            normal, horizontal = profile_at_points(base_forces(sim, params, state), statistics.at,
+                                                   bandwidth=statistics.bandwidth,
+                                                   normalised_by=statistics.normalised_by,
+                                                   horizontal=statistics.horizontal)
+            return {"_profile_normal": normal, **({} if horizontal is None else {"_profile_horizontal": horizontal})}
+
+        return measure_at
     if not statistics.bins:
         return None
 
@@ -90,7 +125,7 @@ def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
         if v is not None and not isinstance(v, (int, float, np.number)):
             raise InputError(f"the column {column!r} is not a number per pile ({type(v).__name__}); fit a numeric one.")
         values.append(float(v) if v is not None else math.nan)
-    if statistics.bins:
+    if statistics.bins or statistics.at:
         values += list(row["_profile_normal"])
         if statistics.horizontal:
             values += list(row["_profile_horizontal"])

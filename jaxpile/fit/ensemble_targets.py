@@ -29,6 +29,9 @@ class EnsembleTarget(NamedTuple):
       seeds: the seeds of its piles (a fit must use others), or None.
       setting: the protocol, law, options and fixed parameters it was made
         with (a fit of another set-up is refused), or None (from data).
+      error: `[k]` the standard error of each target value itself (a
+        measurement's; NaN: to be taken as one pile's spread at the fit's
+        start), or None (the members carry it, or a declared value has none).
     """
 
     labels: list
@@ -39,11 +42,13 @@ class EnsembleTarget(NamedTuple):
     truth: dict | None = None
     seeds: list | None = None
     setting: dict | None = None
+    error: np.ndarray | None = None
 
     def to_json(self) -> dict:
         return {"labels": list(self.labels), "mean": self.mean.tolist(), "spread": self.spread.tolist(),
                 "members": None if self.members is None else self.members.tolist(), "source": self.source,
-                "truth": self.truth, "seeds": self.seeds, "setting": self.setting}
+                "truth": self.truth, "seeds": self.seeds, "setting": self.setting,
+                **({} if self.error is None else {"error": self.error.tolist()})}
 
     @classmethod
     def from_json(cls, record: dict, where: str = "the record") -> "EnsembleTarget":
@@ -51,10 +56,11 @@ class EnsembleTarget(NamedTuple):
         if not isinstance(record, dict) or any(k not in record for k in need):
             raise InputError(f"{where} is not an ensemble target: a target holds {', '.join(need)} (the "
                              "target.json a fit writes, or its fit.json).")
-        members = record.get("members")
+        members, error = record.get("members"), record.get("error")
         return cls(list(record["labels"]), np.asarray(record["mean"], float), np.asarray(record["spread"], float),
                    None if members is None else np.asarray(members, float), record.get("source", ""),
-                   record.get("truth"), record.get("seeds"), record.get("setting"))
+                   record.get("truth"), record.get("seeds"), record.get("setting"),
+                   None if error is None else np.asarray(error, float))
 
 
 def make_target(runner: Runner, truth: dict, seeds, statistics: Statistics, progress=None,

@@ -1,6 +1,7 @@
 """The pile a pathwise fit differentiates, as one named record: `problem(...)`
-builds it from a protocol that offers one (its spec's `pathwise`: the lattice,
-the pour), and its `profile` and `objective` are the differentiable profile and
+builds it from a protocol that offers one (its spec's `pathwise`: the
+deterministic lattice; random piles are fitted by their ensembles,
+`ensemble_fit`), and its `profile` and `objective` are the differentiable profile and
 loss that `fit` minimises."""
 
 from __future__ import annotations
@@ -52,8 +53,11 @@ def pathwise_of(protocol: str, remedy: str = "an ensemble estimator (jaxpile.fit
     spec = PROTOCOLS.get(protocol)
     if spec is None or spec.pathwise is None:
         offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
-        raise InputError(f"pathwise fits run on the {', '.join(offered)} protocols; fit the {protocol} protocol "
-                         f"with {remedy}.")
+        why = ("" if spec is None or spec.batch is None or spec.batch.deterministic else
+               f"the {protocol} protocol builds random piles, and the gradient through one of them says how that "
+               "packing relaxes, not how the protocol's piles depend on the parameters (docs/gradients.md); ")
+        raise InputError(f"{why}pathwise fits run on the deterministic {', '.join(offered)} protocol(s); fit the "
+                         f"{protocol} protocol with {remedy}.")
     return spec.pathwise
 
 
@@ -61,11 +65,10 @@ def problem(protocol: str, law: str | None = None, start: dict | None = None, *,
             seed: int = 0, options: dict | None = None, bins: int | None = None, window: int = 2000,
             progress=None) -> FitProblem:
     """The pile a pathwise fit of `protocol` differentiates (the lattice: the
-    whole quasi-static loading of a `size`-layer pile; the pour: `window` steps
-    of relaxation of a heap of `size` disks poured with the starting values).
+    whole quasi-static loading of a `size`-layer pile).
 
     Args:
-      protocol: a protocol whose spec offers a pathwise fit ("lattice", "pour").
+      protocol: a protocol whose spec offers a pathwise fit ("lattice").
       law: the law's name (default: the protocol's).
       start: the law parameters to build with, as a dict (default: the protocol's setting).
       size: the protocol's size (layers or disks; default its own).

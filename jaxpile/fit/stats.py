@@ -38,4 +38,6 @@ def t_quantile(dof: float) -> float:
     """The two-sided 95 % Student-t quantile (1.96 for many degrees of freedom)."""
     from scipy import stats
 
+    if dof == math.inf:  # errors taken as known: the normal quantile
+        return float(stats.norm.ppf(0.975))
     return float(stats.t.ppf(0.975, dof)) if math.isfinite(dof) and dof > 0 else float("nan")

@@ -28,6 +28,11 @@ class ProfileTarget(NamedTuple):
         force, 1 - centre / max, or None.
       central_dip_range: `(low, high)`: the reported range of that depth, or None.
       source: where the target comes from (a file, a paper).
+      normal_stderr, horizontal_stderr: `[m]` the measurement's standard
+        errors, on the same scale as the values, or None (not given).
+      normalised_by: `"max"` (the values over the largest normal force) or
+        `"weight"` (force per unit x/B over the pile's weight: n(x/B) B / W,
+        whose integral over the base is 1).
     """
 
     x_over_b: np.ndarray
@@ -37,30 +42,44 @@ class ProfileTarget(NamedTuple):
     central_dip: float | None = None
     central_dip_range: tuple[float, float] | None = None
     source: str = ""
+    normal_stderr: np.ndarray | None = None
+    horizontal_stderr: np.ndarray | None = None
+    normalised_by: str = "max"
 
 
 # ------------------------------------------------------------ a CSV file
-_CSV_COLUMNS = {"x/b": "x", "x_over_b": "x", "normal/max": "normal", "normal": "normal",
-                "horizontal/max": "horizontal", "horizontal": "horizontal"}
-_CSV_HELP = "columns x/B, normal/max and optionally horizontal/max (or x_over_b, normal, horizontal)"
+_CSV_COLUMNS = {"x/b": "x", "x_over_b": "x", "normal/max": "normal", "normal/weight": "normal", "normal": "normal",
+                "horizontal/max": "horizontal", "horizontal/weight": "horizontal", "horizontal": "horizontal",
+                "stderr": "normal_stderr", "normal_stderr": "normal_stderr", "horizontal_stderr": "horizontal_stderr"}
+_CSV_HELP = ("columns x/B, normal/max (or normal/weight) and optionally stderr, horizontal/max and "
+             "horizontal_stderr")
+NORMALISATIONS = ("max", "weight")
+"""How a measured profile is scaled: by its largest normal force, or per unit x/B by the pile's weight."""
 
 
-def load_profile_csv(path: str | os.PathLike) -> ProfileTarget:
+def load_profile_csv(path: str | os.PathLike, normalised_by: str | None = None) -> ProfileTarget:
     """A measured base profile from a CSV file.
 
-    The file has a header row naming the columns `x/B` and `normal/max`, and
-    optionally `horizontal/max` (also accepted: `x_over_b`, `normal`,
-    `horizontal`; case and surrounding spaces do not matter), then at least 3
-    rows of numbers. Lines starting with `#` and blank lines are skipped. x/B
-    must lie in [0, 1] and increase strictly. The normal column is divided by
-    its maximum (a no-op for a column already normalised) and the horizontal
-    column by the same number.
+    The file has a header row naming the columns `x/B` and `normal/max` (the
+    normal force over its largest value) or `normal/weight` (the normal force
+    per unit x/B over the pile's weight, n B / W), optionally `stderr` (the
+    normal values' standard errors, on their scale), `horizontal/max` (or
+    `/weight`) and `horizontal_stderr`; also accepted: `x_over_b`, and plain
+    `normal`, `horizontal`, scaled as `normalised_by` says (default by the
+    maximum). Case and surrounding spaces do not matter. Then at least 3 rows
+    of numbers; lines starting with `#` and blank lines are skipped. x/B must
+    lie in [0, 1] and increase strictly, a standard error must be positive.
+    A plain `normal` column scaled by the maximum has every column divided by
+    its largest value; a `normal/max` column is taken as given (the mean of
+    heaps each normalised by its own maximum peaks below 1, as the ensemble
+    mean of piles read so does).
 
     Raises:
       InputError: on a missing file, a missing, unknown or repeated column, a
         row of the wrong length, a value that is not a finite number, fewer than
-        3 rows, x/B outside [0, 1] or not increasing, or a normal column whose
-        maximum is not positive.
+        3 rows, x/B outside [0, 1] or not increasing, a normal column whose
+        maximum is not positive, a standard error that is not positive, or a
+        scale the header and `normalised_by` give differently.
     """
     path = os.fspath(path)
     rows, line_numbers = _csv_rows(path)
@@ -85,8 +104,32 @@ def load_profile_csv(path: str | os.PathLike) -> ProfileTarget:
     if not peak > 0:
         raise InputError(f"{path!r}: the normal column's maximum is {peak!r}; it must be positive (the base "
                          "carries the pile).")
-    horizontal = np.asarray(data["horizontal"]) / peak if "horizontal" in data else None
-    return ProfileTarget(x_over_b=x, normal=normal / peak, horizontal=horizontal, source=path)
+    for key in ("normal_stderr", "horizontal_stderr"):
+        if key in data and not np.all(np.asarray(data[key]) > 0):
+            k = int(np.flatnonzero(np.asarray(data[key]) <= 0)[0])
+            raise InputError(f"{path!r} line {line_numbers[k + 1]}: a standard error of {data[key][k]!r}; it must be "
+                             "positive (leave the column out for a measurement without errors).")
+    header = [name.strip().lower() for name in rows[0]]
+    scale = _scale(path, header, normalised_by)
+    divide = peak if scale == "max" and "normal/max" not in header else 1.0  # a normal/max column is as given
+    column = {key: np.asarray(data[key]) / divide if key in data else None
+              for key in ("horizontal", "normal_stderr", "horizontal_stderr")}
+    return ProfileTarget(x_over_b=x, normal=normal / divide, horizontal=column["horizontal"], source=path,
+                         normal_stderr=column["normal_stderr"], horizontal_stderr=column["horizontal_stderr"],
+                         normalised_by=scale)
+
+
+def _scale(path: str, header: list[str], normalised_by: str | None) -> str:
+    """How the file's profile is scaled: its header's `/max` or `/weight`, or `normalised_by` (default max)."""
+    if normalised_by is not None and normalised_by not in NORMALISATIONS:
+        raise InputError(f"a profile is normalised by {' or '.join(NORMALISATIONS)}; got {normalised_by!r}.")
+    declared = {name.split("/")[1] for name in header if name.split("/")[0] in ("normal", "horizontal") and "/" in name}
+    if len(declared) > 1:
+        raise InputError(f"{path!r}: the header scales columns both by max and by weight; use one scale.")
+    if declared and normalised_by is not None and normalised_by not in declared:
+        raise InputError(f"{path!r} is scaled by {declared.pop()} (its header), not by {normalised_by}: leave "
+                         "the normalisation out or fix the header.")
+    return declared.pop() if declared else (normalised_by or "max")
 
 
 def _csv_rows(path: str) -> tuple[list[list[str]], list[int]]:

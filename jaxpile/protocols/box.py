@@ -392,6 +392,7 @@ SPEC = ProtocolSpec(
                   "repose_cumulative_parabola", "theta_ms_theory"),
         length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
     batch=Batch(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
+                readings={"angle_of_repose": "repose_cumulative_parabola"},
                 theory=marginal_stability_overlay, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
                 fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")},
                 simulator_options=frozenset()))  # the simulator reads no option: set-ups share a compile

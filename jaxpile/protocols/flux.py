@@ -414,6 +414,7 @@ SPEC = ProtocolSpec(
         figures=(outputs.angles_figure,)),
     batch=Batch(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
                 fit_statistics={"columns": ("steady_mean",)},
+                readings={"angle_of_repose": "steady_mean"},
                 # the simulator reads no option: set-ups share a compile; piles fed out of phase
                 simulator_options=frozenset(), sequential=True))
 """The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the

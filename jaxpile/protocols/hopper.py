@@ -358,6 +358,7 @@ SPEC = ProtocolSpec(
         headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
         base_forces=outputs.substrate_base, figures=(discharge_figure,)),
     batch=Batch(angles=("flow_rate", "beverloo_c"), unit="disks / time", fit_statistics={"columns": ("flow_rate",)},
+                readings={"flow_rate": "flow_rate"},
                 # one simulator for every set-up: orifices share a compile; silos discharge out of phase
                 simulator_options=frozenset(), sequential=True))
 """The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,

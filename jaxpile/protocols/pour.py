@@ -67,7 +67,7 @@ from jaxpile.engine.boundaries import (
 )
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
-from jaxpile.measure.heap import ProfileSetting, steepest_heap_height, substrate_size
+from jaxpile.measure.heap import steepest_heap_height, substrate_size
 
 # the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
 from jaxpile.measure.poured_heap import ROW_COLUMNS, check_options, measure, report, sweep_row
@@ -79,7 +79,6 @@ from jaxpile.protocols.geometry import heap_extent
 from jaxpile.protocols.spec import (
     Batch,
     Options,
-    Pathwise,
     Presentation,
     ProtocolSpec,
     option,
@@ -449,50 +448,6 @@ def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict
     return measure(sim, params, state, bins=o.bins, voidage_cell=o.voidage_cell)
 
 
-# ------------------------------------------------------------- pathwise fits
-def _pathwise_setup(law, size: int, seed: int, options: dict | None):
-    """The pour's options and set-up of a pathwise fit's heap (`size` disks)."""
-    o = SPEC.make_options(options, n=size)
-    return o, setup(o, law=law, seed=ranges.SEED.check("seed", seed, scalar=True), dt=SPEC.default_dt(law))
-
-
-def pathwise_problem(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
-                     bins: int | None = None, window: int = 2000, progress=None):
-    """What `jaxpile fit --estimator pathwise` differentiates: a `size`-disk heap
-    poured and relaxed with the starting parameters (not differentiated), then
-    `window` steps of relaxation from it with the parameters being fitted, all
-    differentiated: the fit sees how the settled heap's base forces respond to
-    the parameters, with its geometry fixed. `options` are the pour's
-    (`PourOptions`). Returns `(sim, params, state, steps, setting, window,
-    description)`."""
-    o, p = _pathwise_setup(law, size, seed, options)
-    _, _, params = law_and_params(law, start)
-    sim = simulator(o, law=law, dt=p.info["dt"])
-    state, info = execute(sim, params, p, speed_tolerance=o.speed_tolerance, max_settle_steps=o.max_settle_steps,
-                          progress=progress)
-    m = measure_heap(sim, params, state, p, o)
-    if "extent" not in m:
-        raise InputError("the poured heap has no disks on the substrate; pour more (--n).")
-    x_left, x_right = m["extent"]
-    setting = ProfileSetting("substrate", float(x_left), float(x_right), bins or 9, None)
-    return sim, params, state, int(window), setting, int(window), (
-        f"{size}-disk heap poured (seed {seed}) and relaxed with the starting parameters ({info.steps} steps, "
-        f"at rest: {info.at_rest}); then {window} steps of relaxation differentiated")
-
-
-def pathwise_dry_run(law, start: dict, *, size: int = 60, seed: int = 0, options: dict | None = None,
-                     window: int = 2000, **_):
-    """`(what, particles, params, steps of the build, steps differentiated)` of
-    `pathwise_problem`, set up and checked, not run."""
-    from jaxpile.engine.simulate import Simulator
-
-    o, p = _pathwise_setup(law, size, seed, options)
-    _, contact_law, params = law_and_params(law, start)
-    Simulator(contact_law, p.info["dt"]).check_params(params, p.particles)
-    build = {"pour_steps": p.info["pour_steps"], "max_settle_steps": o.max_settle_steps}
-    return f"a {size}-disk poured heap (seed {seed})", p.particles, params, build, window
-
-
 SPEC = ProtocolSpec(
     name="pour", options=PourOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(PAPER_SETTING["dt"]), finished=poured_and_at_rest, budget=step_budget,
@@ -511,12 +466,12 @@ SPEC = ProtocolSpec(
     batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,
                 extent=heap_extent("substrate", "centre_x", "n_poured"),
                 fit_statistics={"columns": ("repose_mean",), "bins": 9},
-                simulator_options=frozenset(), sequential=True),
-    pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=60))
+                readings={"angle_of_repose": "repose_mean", "packing_fraction": "core_packing_fraction"},
+                simulator_options=frozenset(), sequential=True))
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
 
 
 __all__ = ["LOST_DEPTH", "MIN_RELEASE_GAP", "PAPER_SETTING", "PARK_SPACING", "SPEC", "PourOptions", "PourState",
            "driver", "execute", "in_play", "law_and_params", "law_params", "make_simulator", "measure_heap",
-           "pathwise_dry_run", "pathwise_problem", "poured_and_at_rest", "setup", "simulator", "step_budget"]
+           "poured_and_at_rest", "setup", "simulator", "step_budget"]

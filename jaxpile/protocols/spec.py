@@ -164,6 +164,9 @@ class Batch:
         base profile is read for fitting; the same for every member of one set-up.
       fit_statistics: what an ensemble fit compares by default:
         `{"columns": (...), "bins": b}`.
+      readings: the column a measured quantity is compared with, by the name
+        a measurement file gives it (`fit.measured.READINGS`): e.g.
+        `{"angle_of_repose": "repose_mean"}`.
       deterministic: every seed builds the same pile: one seed is an ensemble.
       simulator_options: the options the simulator depends on (None: all);
         members whose options differ only in others share one compiled batch.
@@ -179,6 +182,7 @@ class Batch:
     theory: Callable | None = None
     extent: Callable | None = None
     fit_statistics: dict = field(default_factory=dict)
+    readings: dict = field(default_factory=dict)
     deterministic: bool = False
     simulator_options: frozenset | None = None
     sequential: bool = False

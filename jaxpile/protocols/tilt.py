@@ -389,6 +389,7 @@ SPEC = ProtocolSpec(
         length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
     batch=Batch(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability_overlay,
                 fit_statistics={"columns": ("theta_t", "theta_r")},
+                readings={"angle_of_repose": "theta_r"},
                 simulator_options=frozenset()),  # the simulator reads no option: set-ups share a compile
     starts_from=boxes.SPEC, pile_facts=pile_facts)
 """The tilt (Lee & Herrmann 1993, sec. 4): `SPEC.run("lee-herrmann", pile_options={"width": 1.6, "height": 1.6})`

@@ -1,0 +1,162 @@
+"""A measurement made at a known truth, fitted from the command line: does the
+interval hold the truth, and does the verdict say converged?
+
+Each case pours `--measured-heaps` heaps at the truth (seeds 10000 + b, which
+the fit never sees) and writes what an experimentalist who measured them would
+have: their mean base profile at 11 points across each heap's own base with its
+standard error (`measurement.csv`), and their mean angle of repose with its
+standard error (`measurement.toml`, which names the CSV). Then it runs
+
+    jaxpile fit --protocol pour --target measurement.toml --params P ... --out OUT/CASE/fit
+
+as a user would (a subprocess; rerunning the script resumes it), and records
+the fitted value, its interval, whether the truth is inside, the first pass and
+the verdict in benchmarks/results/calibrate/CASE.json, with the commands.
+
+    python benchmarks/studies/calibrate/measured_recovery.py pour-mu-roll
+    python benchmarks/studies/calibrate/measured_recovery.py pour-mu
+    python benchmarks/studies/calibrate/measured_recovery.py pour-profile-only   # the profile alone: mu refused?
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))  # benchmarks/studies/calibrate
+BENCHMARKS = os.path.dirname(os.path.dirname(HERE))
+ROOT = os.path.dirname(BENCHMARKS)
+sys.path.insert(0, ROOT)
+sys.path.insert(1, BENCHMARKS)  # machine
+
+POINTS = [i / 10 for i in range(11)]
+"""Where the measured profile is read: x/B = 0, 0.1, ..., 1 of each heap's own base."""
+
+ROLLING = {"law_options": {"rolling": "sds"}, "rotation": True, "params": {"k_roll": 1000.0, "gamma_roll": 30.0}}
+
+CASES = {
+    # rolling resistance raises the angle (docs/rolling_resistance.md): the lever a heap's angle gives mu_roll
+    "pour-mu-roll": dict(protocol="pour", law="baxter", n=60, truth={"mu_roll": 0.173}, start={"mu_roll": 0.11},
+                         angle=True, **ROLLING),
+    # the disk friction of a heap without rolling resistance, from its angle and profile
+    "pour-mu": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True),
+    # the profile alone against mu: what the first pass says of it at this size
+    "pour-profile-only": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55},
+                              angle=False),
+}
+
+
+def measure(case: dict, heaps: int) -> tuple[dict, dict]:
+    """The measured heaps' mean profile and angle with their standard errors:
+    `({label: mean}, {label: stderr})`."""
+    import numpy as np
+
+    from jaxpile.fit import ensemble_fit as ef
+
+    runner = ef.Runner(case["protocol"], case["law"], params={**case.get("params", {}), **case["truth"]},
+                       options={"n": case["n"]}, law_options=case.get("law_options"), rotation=case.get("rotation"))
+    statistics = ef.Statistics(columns=("repose_mean",), at=tuple(POINTS), horizontal=False, bandwidth=0.05)
+    s, _ = runner.run([case["truth"]], range(10_000, 10_000 + heaps), statistics)
+    piles = s[0]
+    keep = np.isfinite(piles).all(axis=1)  # a heap whose flank could not be measured: left out, as a lab would
+    piles = piles[keep]
+    labels = statistics.labels()
+    return (dict(zip(labels, piles.mean(axis=0).tolist())),
+            dict(zip(labels, (piles.std(axis=0, ddof=1) / np.sqrt(len(piles))).tolist())) | {"_heaps": int(keep.sum())})
+
+
+def write_measurement(folder: str, case: dict, mean: dict, stderr: dict) -> str:
+    """measurement.csv (the profile, normalised by its largest point) and measurement.toml (the angle, and the CSV)."""
+    normal = [mean[f"normal[x/B={u:g}]"] for u in POINTS]
+    errors = [stderr[f"normal[x/B={u:g}]"] for u in POINTS]
+    with open(os.path.join(folder, "measurement.csv"), "w") as fh:
+        fh.write(f"# the mean of {stderr['_heaps']} heaps poured at {case['truth']} (seeds 10000+)\n")
+        fh.write("x/B,normal/max,stderr\n")
+        for u, v, e in zip(POINTS, normal, errors):
+            fh.write(f"{u:g},{v:.6f},{e:.6f}\n")
+    path = os.path.join(folder, "measurement.toml")
+    with open(path, "w") as fh:
+        fh.write(f'source = "{stderr["_heaps"]} heaps poured at {case["truth"]}"\nprofile = "measurement.csv"\n')
+        if case["angle"]:
+            fh.write(f"[scalars]\nangle_of_repose = {{ value = {mean['repose_mean']:.4f}, "
+                     f"stderr = {stderr['repose_mean']:.4f} }}\n")
+    return path
+
+
+def main(argv=None) -> dict:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("case", choices=sorted(CASES))
+    parser.add_argument("--measured-heaps", type=int, default=8)
+    parser.add_argument("--ensemble", type=int, default=8)
+    parser.add_argument("--steps", type=int, default=6)
+    parser.add_argument("--difference-step", type=float, default=0.2, help="a poured heap is chaotic: a wide step")
+    parser.add_argument("--checkpoint-every", type=int, default=20_000)
+    parser.add_argument("--out", default=os.path.join(BENCHMARKS, "results", "calibrate"))
+    args = parser.parse_args(argv)
+    case = CASES[args.case]
+    folder = os.path.join(args.out, args.case)
+    os.makedirs(folder, exist_ok=True)
+    t0 = time.perf_counter()
+    target = os.path.join(folder, "measurement.toml")
+    if not os.path.exists(target):
+        import jaxpile
+
+        jaxpile.configure(threads=True)
+        mean, stderr = measure(case, args.measured_heaps)
+        write_measurement(folder, case, mean, stderr)
+    measured_seconds = time.perf_counter() - t0
+    (name, start), = case["start"].items()
+    fit_dir = os.path.join(folder, "fit")
+    command = [os.path.join(os.path.dirname(sys.executable), "jaxpile"), "fit", "--protocol", case["protocol"], "--law", case["law"],
+               "--target", target, "--params", name, "--set", f"{name}={start}", "--n", str(case["n"]),
+               "--ensemble", str(args.ensemble), "--steps", str(args.steps), "--difference-step",
+               str(args.difference_step), "--checkpoint-every", str(args.checkpoint_every), "--out", fit_dir]
+    for key, value in case.get("params", {}).items():
+        command += ["--set", f"{key}={value}"]
+    if case.get("law_options"):
+        command += ["--rolling", case["law_options"]["rolling"]]
+    if case.get("rotation") is not None:
+        command += ["--rotation", "on" if case["rotation"] else "off"]
+    if os.path.exists(os.path.join(fit_dir, "fit_checkpoint.json")) and not os.path.exists(
+            os.path.join(fit_dir, "fit.json")):
+        command.append("--resume")
+    print(" ".join(["jaxpile"] + command[1:]), flush=True)
+    t1 = time.perf_counter()
+    done = subprocess.run(command, cwd=ROOT)
+    record = {"case": args.case, "truth": case["truth"], "start": case["start"], "n": case["n"],
+              "measured_heaps": args.measured_heaps, "ensemble": args.ensemble, "returncode": done.returncode,
+              "measurement_seconds": measured_seconds, "fit_seconds_this_run": time.perf_counter() - t1,
+              "command": "python benchmarks/studies/calibrate/measured_recovery.py " + " ".join(argv),
+              "fit_command": " ".join(["jaxpile"] + command[1:]).replace(ROOT + os.sep, "")}
+    fit_json = os.path.join(fit_dir, "fit.json")
+    if done.returncode == 0 and os.path.exists(fit_json):
+        with open(fit_json) as fh:
+            fit = json.load(fh)
+        lo, hi = fit["interval"][name]
+        record.update(value=fit["values"][name], interval=[lo, hi], truth_inside=bool(lo <= case["truth"][name] <= hi),
+                      verdict=fit["verdict"], first_pass=fit["first_pass"]["report"],
+                      regression=fit.get("regression"), particle_steps=fit["particle_steps"])
+    else:
+        checkpoint = os.path.join(fit_dir, "fit_checkpoint.json")
+        if os.path.exists(checkpoint):
+            with open(checkpoint) as fh:
+                saved = json.load(fh)
+            record["first_pass"] = (saved.get("first_pass") or {}).get("report")
+        record["refused"] = done.returncode == 2
+    sys.path.insert(0, BENCHMARKS)
+    from machine import describe
+
+    record["machine"] = describe()
+    with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
+        json.dump(record, fh, indent=1)
+    print(json.dumps({k: record.get(k) for k in ("case", "truth", "value", "interval", "truth_inside", "returncode")}))
+    return record
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,192 @@
+"""What an ensemble fit can claim: before it spends its budget, whether each
+fitted parameter moves the target's statistics beyond their noise at this
+size (`first_pass`, on the 2d + 1 ensembles of its first central
+differences); after, whether it converged and why, how far the fitted
+statistics sit from the target in units of their errors, and whether its
+interval can be trusted (`verdict`). Both are plain dicts (fit.json) with a
+sentence each for the command line (`first_pass_lines`, `verdict_lines`).
+
+The tests are the usual ones of least squares: a signal-to-noise ratio of
+the finite-difference Jacobian (a column that is noise steers Gauss-Newton
+by noise), the correlation of the estimates from (J^T W J)^-1, and the lack
+of fit chi^2 = sum_k r_k^2 / (e_k^2 + v_k / B) on k - d degrees of freedom
+(e_k: the target's error, v_k: one fitted pile's variance), which treats the
+statistics as independent (the points of a smoothed profile are not quite:
+it is a guide, said as one).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+IDENTIFIABLE_RATIO = 2.0
+"""A parameter is told from noise when its change moves the weighted statistics
+by twice their standard error (about 1 when it moves nothing)."""
+
+TOLD_APART = 0.95
+"""Two parameters whose estimates correlate beyond this are flagged as poorly told apart."""
+
+LACK_OF_FIT_P = 0.01
+"""The chi^2 tail probability below which the model is said not to fit the target."""
+
+MIN_PILES = 3
+"""The smallest ensemble whose pile-to-pile spread measures the noise of a difference."""
+
+
+def target_error(target, members=None) -> np.ndarray:
+    """`[k]` the standard error of the target values themselves: a measurement's
+    stated error, a synthetic target's sampling error (its piles' spread over
+    sqrt(B_t)), or a declared target's spread (what the declaration leaves open)."""
+    if target.error is not None:
+        return np.asarray(target.error, float)
+    if target.members is not None and len(target.members) > 1:
+        return np.asarray(target.members, float).std(axis=0, ddof=1) / math.sqrt(len(target.members))
+    if target.members is not None:
+        return np.zeros(len(target.mean))
+    return np.asarray(target.spread, float)
+
+
+def first_pass(s: np.ndarray, step: float, w: np.ndarray, target, names: list, disks: int) -> dict:
+    """How well the target can identify each parameter, from the statistics
+    `s` `[2d + 1, B, k]` of the ensembles at theta, theta + h e_i and theta - h e_i
+    (`estimators.central_points`), with the fit's weights `w`.
+
+    Per parameter: `signal` (the weighted norm of the mean change over the
+    2h step), `noise` (its standard error, from the piles' paired changes:
+    common random numbers), their `ratio`, the statistic it moves most in
+    units of its weight, and `identifiable` (ratio >= IDENTIFIABLE_RATIO; None
+    when fewer than `MIN_PILES` piles cannot measure the noise). With two or
+    more: the estimates' `correlation` from the first Jacobian, and which
+    pairs are poorly told apart."""
+    s = np.asarray(s, float)
+    d, b = len(names), s.shape[1]
+    labels = list(target.labels)
+    out = {"disks": int(disks), "piles": int(b), "step": float(step), "parameters": {}}
+    jac = np.zeros((s.shape[2], d))
+    for i, name in enumerate(names):
+        change = s[1 + i] - s[1 + d + i]  # [B, k]: each pile's change over the 2h step (common random numbers)
+        mean = change.mean(axis=0)
+        se = change.std(axis=0, ddof=1) / math.sqrt(b) if b > 1 else np.zeros_like(mean)
+        jac[:, i] = mean / (2 * step)
+        signal, noise = float(np.sqrt(np.sum(w * mean ** 2))), float(np.sqrt(np.sum(w * se ** 2)))
+        k = int(np.argmax(np.abs(mean) * np.sqrt(w)))
+        measurable = b >= MIN_PILES or (b >= 1 and noise == 0.0)
+        ratio = signal / noise if noise > 0 else (math.inf if signal > 0 else 0.0)
+        out["parameters"][name] = {
+            "signal": signal, "noise": noise, "ratio": ratio,
+            "identifiable": (ratio >= IDENTIFIABLE_RATIO) if measurable else None,
+            "most_moved": labels[k], "change": float(mean[k]), "change_stderr": float(se[k]),
+            "error": float(1.0 / math.sqrt(w[k])) if w[k] > 0 else math.nan}
+    hessian = (jac.T * w) @ jac
+    if d > 1 and np.all(np.isfinite(hessian)) and np.linalg.matrix_rank(hessian) == d:
+        inv = np.linalg.inv(hessian)
+        corr = inv / np.sqrt(np.outer(np.diag(inv), np.diag(inv)))
+        out["correlation"] = corr.tolist()
+        out["poorly_told_apart"] = [[names[i], names[j]] for i in range(d) for j in range(i + 1, d)
+                                    if abs(corr[i, j]) > TOLD_APART]
+    elif d > 1:
+        out["correlation"], out["poorly_told_apart"] = None, [list(names)]
+    out["identifiable"] = all(p["identifiable"] is not False for p in out["parameters"].values())
+    return out
+
+
+def first_pass_lines(report: dict) -> list[str]:
+    """One line per parameter (and one for a pair poorly told apart)."""
+    lines = []
+    pct = 100 * (math.exp(report["step"]) - 1)
+    for name, p in report["parameters"].items():
+        times = f"{p['ratio']:.1f}x" if p["ratio"] < 1000 else "over 1000x"  # common random numbers: no noise
+        moved = (f"at {report['disks']} disks, {name} from -{pct:.2g} % to +{pct:.2g} % moves {p['most_moved']} by "
+                 f"{p['change']:+.3g} +- {p['change_stderr']:.2g} (the target's spread {p['error']:.2g}): ")
+        if p["identifiable"] is None:
+            lines.append(moved + f"signal {times} its noise, not judged: {report['piles']} piles cannot "
+                                 f"measure the noise ({MIN_PILES} or more can)")
+        elif p["identifiable"]:
+            lines.append(moved + f"signal {times} its noise: identifiable")
+        else:
+            lines.append(moved + f"signal {times} its noise: the target cannot identify {name} at this "
+                                 "size")
+    for a, b in report.get("poorly_told_apart") or []:
+        corr = report.get("correlation")
+        how = "" if corr is None else (
+            f" (their estimates correlate at {np.asarray(corr)[list(report['parameters']).index(a), list(report['parameters']).index(b)]:+.3f})")
+        lines.append(f"{a} and {b} move the statistics alike{how}: the target tells them poorly apart; fit one, "
+                     "or add a statistic that moves only one")
+    return lines
+
+
+def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: np.ndarray, target, names: list,
+            converged: bool, message: str, steps: int) -> dict:
+    """The fit's verdict: converged or not and why (`tolerance`, `noise
+    floor`: the last step within its standard error in every component,
+    `budget`: iterations spent, or `stopped`: `message`); the loss path; each
+    fitted statistic against the target in units of its error (`misfit`), the
+    lack-of-fit chi^2 and its p-value; the Jacobian's rank and conditioning;
+    and whether the interval can be trusted, with the reasons it cannot."""
+    from scipy import stats
+
+    d = len(names)
+    last = history[-1] if history else {}
+    step = np.abs(np.asarray(last.get("next_theta", []), float) - np.asarray(last.get("theta", []), float))
+    step_se = np.asarray(last.get("step_stderr", [math.nan] * d), float)
+    if converged:
+        why = "noise floor" if last.get("stopped_by") == "noise" else "tolerance"
+    elif message:
+        why = "stopped"
+    elif step.size and np.all(np.isfinite(step_se)) and np.all(step < step_se):
+        why, converged = "noise floor", True
+    else:
+        why = "budget"
+    members = np.asarray(fitted_members, float)
+    b = len(members)
+    error = target_error(target)
+    variance = members.var(axis=0, ddof=1) / b if b > 1 else np.zeros(members.shape[1])
+    total = np.sqrt(error ** 2 + variance)
+    r = members.mean(axis=0) - np.asarray(target.mean, float)
+    misfit = np.where(total > 0, r / np.where(total > 0, total, 1.0), np.nan)
+    dof = len(r) - d
+    known = np.isfinite(misfit)
+    chi2 = float(np.sum(misfit[known] ** 2))
+    p = float(stats.chi2.sf(chi2, dof)) if dof > 0 and known.all() else math.nan
+    jac = np.asarray(jacobian, float)
+    hessian = (jac.T * w) @ jac if np.all(np.isfinite(jac)) else np.full((d, d), np.nan)
+    rank = int(np.linalg.matrix_rank(hessian)) if np.all(np.isfinite(hessian)) else 0
+    condition = float(np.linalg.cond(hessian)) if rank == d else math.inf
+    loss = [h["loss"] for h in history]
+    doubts = []
+    if not converged:
+        doubts.append("the fit did not converge" + (f" ({message})" if message else
+                                                     f" in {steps} iterations: its last step was "
+                                                     f"{float(step.max()) if step.size else math.nan:.3g} in log units"))
+    if rank < d:
+        doubts.append(f"the Jacobian has rank {rank} < {d}: a parameter does not move the statistics")
+    if math.isfinite(p) and p < LACK_OF_FIT_P:
+        doubts.append(f"the model does not fit the target (chi^2 = {chi2:.3g} on {dof} degrees of freedom, "
+                      f"p = {p:.2g}): the interval, which assumes it does, is too narrow")
+    return {"converged": bool(converged), "why": why, "message": message, "iterations": len(history),
+            "last_step": step.tolist(), "last_step_stderr": step_se.tolist(), "loss_path": loss,
+            "misfit": dict(zip(target.labels, misfit.tolist())), "chi2": chi2, "dof": dof, "p_value": p,
+            "jacobian_rank": rank, "condition": condition, "interval_trusted": not doubts, "doubts": doubts}
+
+
+def verdict_lines(v: dict) -> list[str]:
+    """The verdict in a few sentences."""
+    how = {"tolerance": "converged (its last step below the tolerance)",
+           "noise floor": "converged to the noise floor (its last step within its standard error)",
+           "budget": f"did NOT converge: its {v['iterations']} iteration(s) were spent",
+           "stopped": f"did NOT converge: it stopped ({v['message']})"}[v["why"]]
+    worst = max(v["misfit"].items(), key=lambda kv: abs(kv[1]) if math.isfinite(kv[1]) else -1, default=None)
+    fit_line = (f"the fitted statistics sit {math.sqrt(v['chi2'] / max(len(v['misfit']), 1)):.2g} errors from the "
+                f"target (rms), the farthest {worst[0]} at {worst[1]:+.2g}"
+                if worst is not None and math.isfinite(worst[1]) else "the misfit has no error to be judged in")
+    if math.isfinite(v["p_value"]):
+        fit_line += f"; chi^2 = {v['chi2']:.3g} on {v['dof']} degrees of freedom (p = {v['p_value']:.2g})"
+    trust = ("the interval can be trusted" if v["interval_trusted"]
+             else "the interval cannot be trusted: " + "; ".join(v["doubts"]))
+    return [f"the fit {how}", fit_line, trust]
+
+
+__all__ = ["IDENTIFIABLE_RATIO", "LACK_OF_FIT_P", "MIN_PILES", "TOLD_APART", "first_pass", "first_pass_lines",
+           "target_error", "verdict", "verdict_lines"]
