@@ -7,6 +7,7 @@
     base = jp.base_forces(pile.simulator, pile.params, pile.state)      # eagerly or under jax.grad
     rows = jp.sweep("box", vary={"mu": [0.1, 0.3]}, seeds=4)            # one batched run
     jp.summarise(rows, "mu", "repose_cumulative_parabola")              # mean +- s.e. per mu
+    result = jp.calibrate("pour", "heap.csv", "mu", options={"n": 100})  # a law fitted to a measurement
 
 `import jaxpile` changes nothing in JAX, XLA or the environment;
 `jaxpile.configure()` sets what the commands set (float64, and on a CPU the XLA
@@ -28,6 +29,7 @@ from jaxpile.engine.boundaries import make_boundaries, set_wall  # noqa: E402
 from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed  # noqa: E402
 from jaxpile.engine.state import Boundaries, Contacts, Particles, SimState, make_particles  # noqa: E402
 from jaxpile.errors import InputError, SimulationError  # noqa: E402
+from jaxpile.fit.calibrate import calibrate  # noqa: E402
 from jaxpile.measure import analysis, theory  # noqa: E402
 from jaxpile.measure.forces import base_forces  # noqa: E402
 from jaxpile.protocols import run  # noqa: E402
@@ -47,6 +49,7 @@ __all__ = [
     "SweepResult",
     "summarise",
     "fit",
+    "calibrate",
     # by hand: particles, boundaries, a simulator, batches
     "Boundaries",
     "Contacts",

@@ -165,10 +165,14 @@ def test_first_pass_tells_a_parameter_that_moves_the_statistics_from_one_that_mo
     s = _central([np.full(3, 3.0), np.zeros(3)])
     report = verdict.first_pass(s, 0.05, np.ones(3), _target(), ["mu", "kn"], 40)
     assert report["parameters"]["mu"]["identifiable"] is True
-    assert report["parameters"]["mu"]["ratio"] > 10
+    assert report["parameters"]["mu"]["z"] > 10 > report["parameters"]["mu"]["needed"]
     assert report["parameters"]["kn"]["identifiable"] is False and report["identifiable"] is False
     lines = verdict.first_pass_lines(report)
     assert "at 40 disks" in lines[1] and "cannot identify kn" in lines[1]
+    one_of_twelve = verdict.first_pass(_central([np.r_[3.0, np.zeros(11)]], k=12), 0.05, np.ones(12), _target(12),
+                                       ["mu"], 40)  # one statistic moved among eleven that are not: not diluted
+    assert one_of_twelve["parameters"]["mu"]["identifiable"] is True
+    assert one_of_twelve["parameters"]["mu"]["most_moved"] == "c0"
     two = verdict.first_pass(_central([np.full(3, 3.0)], b=2), 0.05, np.ones(3), _target(), ["mu"], 40)
     assert two["parameters"]["mu"]["identifiable"] is None and two["identifiable"]  # 2 piles measure no noise
     alike = verdict.first_pass(_central([np.full(3, 3.0), np.full(3, 3.1)]), 0.05, np.ones(3), _target(),
@@ -237,7 +241,7 @@ def _measured(mu=0.3137):
 
 def test_a_parameter_the_target_cannot_see_is_refused_before_the_fit_steps():
     runner = Toy()
-    with pytest.raises(InputError, match=r"cannot identify kn at 1 disks .* kn moves the statistics by 0.0x"):
+    with pytest.raises(InputError, match=r"cannot identify kn at 1 disks .* kn moves angle most, by 0.0x its noise"):
         ef.fit(runner, ["mu", "kn"], {"mu": 0.2, "kn": 1e4}, _measured(), seeds=range(8), statistics=TOY,
                progress=False)
     assert runner.calls == 1  # the first pass alone: no iteration, no interval
@@ -291,3 +295,38 @@ def test_a_measured_profile_is_fitted_from_the_command_line_by_the_pours_ensembl
     assert record["converged"] == judged["converged"] == (judged["why"] in ("tolerance", "noise floor"))
     assert set(record["first_pass"]["report"]["parameters"]) == {"mu"}
     assert (out / "fit.png").exists()
+
+
+class Scarce(Toy):
+    """The toy's piles, the feature missing (NaN) from most of them, or from all at mu above 0.25."""
+
+    def __init__(self, most=True):
+        super().__init__()
+        self.most = most
+
+    def run(self, points, seeds, statistics, progress=None):
+        s, info = super().run(points, seeds, statistics, progress)
+        mu = np.array([p["mu"] for p in points])
+        if self.most:
+            s[:, : 2 * s.shape[1] // 3, 1] = np.nan
+        else:
+            s[mu > 0.25, :, 1] = np.nan
+        return s, info
+
+
+def test_a_statistic_most_piles_lack_is_refused_at_the_first_pass_and_one_all_lack_later_stops_the_fit(tmp_path):
+    with pytest.raises(InputError, match="at 1 disks 'feature' is missing from 5 of 8 piles at the start"):
+        ef.fit(Scarce(), ["mu"], {"mu": 0.2}, _measured(), seeds=range(8), statistics=TOY, progress=False)
+    checkpoint = str(tmp_path / "c.json")
+    with pytest.raises(InputError, match=r"the fit stopped in iteration 2: the statistic 'feature' is missing from "
+                                         r"every pile at mu = 0.2\d+ .*a larger pile; its 1 iteration\(s\) are kept in"):
+        ef.fit(Scarce(most=False), ["mu"], {"mu": 0.2}, _measured(), seeds=range(8), statistics=TOY, steps=6,
+               progress=False, checkpoint=checkpoint)
+    assert len(io_json(checkpoint)["history"]) == 1
+
+
+def io_json(path):
+    import json
+
+    with open(path) as fh:
+        return json.load(fh)

@@ -392,3 +392,37 @@ def test_sweep_dry_run_reports_the_batch_and_runs_nothing(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "6 members" in text and "dry run of one box member: 40 disks" in text and "a batch of 6 members" in text
     assert not out.exists()
+
+
+def test_ctrl_c_saves_where_the_run_stood_and_the_resume_ends_as_the_uninterrupted_run(tmp_path, monkeypatch,
+                                                                                     capsys):
+    """KeyboardInterrupt in the chunk loop (Ctrl-C) saves the last chunk's end to the run's checkpoint, even
+    long before its next periodic save, and the run resumed from it ends bit for bit as the whole one."""
+    from jaxpile import io
+    from jaxpile.cli import main
+    from jaxpile.engine import loop
+
+    run = ["pile", "--protocol", "lattice", "--layers", "4", "--ramp-steps", "1000", "--max-steps", "6000",
+           "--speed-tol", "1e-12", "--checkpoint-every", "1000000", "--no-progress"]
+    whole, cut = tmp_path / "whole", tmp_path / "cut"
+    assert main(run + ["--out", str(whole)]) == 0
+    chunk, calls = loop.chunk, []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+        return chunk(*args, **kwargs)
+
+    monkeypatch.setattr(loop, "chunk", interrupted)
+    assert main(run + ["--out", str(cut)]) == 130
+    assert "continues from its last checkpoint" in capsys.readouterr().err
+    saved = checkpoint.read_metadata(cut / "checkpoint.npz")["step"]
+    assert 0 < saved < 6000 and not (cut / "summary.json").exists()
+    monkeypatch.setattr(loop, "chunk", chunk)
+    assert main(["pile", "--resume", str(cut), "--no-progress"]) == 0
+    a, b = io.load_arrays(whole / "state.npz"), io.load_arrays(cut / "state.npz")
+    for key in a:
+        if key != "metadata":
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    assert json.loads((cut / "summary.json").read_text())["resumed_from_step"] == saved

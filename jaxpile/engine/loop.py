@@ -103,8 +103,9 @@ def run_chunks(advance: Advance, params, state: SimState, n_steps: int, *, chunk
       status: `state -> (frozen, stop)` after each chunk: the members to hold
         still in the next chunk (None for one pile) and whether the run ends.
       start: `(frozen, stop)` before the first chunk (`stop`: run nothing).
-      save: a `Checkpointer` (or None): called at each chunk's end, and given
-        the last good state when a chunk ends non-finite.
+      save: a `Checkpointer` (or None): called at each chunk's end, given
+        the last good state when a chunk ends non-finite, and the last chunk's
+        end when the run is interrupted (Ctrl-C).
       progress: a progress bar (default: when stderr is a terminal).
       observe: called on the start state and after each chunk.
       postfix: `frozen -> dict` shown on the progress bar after each chunk.
@@ -141,6 +142,10 @@ def run_chunks(advance: Advance, params, state: SimState, n_steps: int, *, chunk
                 save(state, done, final=stop or done >= n_steps)
             if stop:
                 break
+    except KeyboardInterrupt:
+        if save is not None and done:  # the last chunk's end: a resume goes on from there
+            save.interrupted(state)
+        raise
     finally:
         bar.close()
     return state
@@ -197,6 +202,12 @@ class Checkpointer:
         if final or step // self.every > self.last:
             self.last = step // self.every
             self._save(self._path(state), state)
+
+    def interrupted(self, state: SimState) -> None:
+        """Saves where an interrupted run stood (the last chunk's end), so that
+        its resume loses none of the steps since the last periodic save."""
+        self.last = step_of(state) // self.every
+        self._save(self._path(state), state)
 
     def last_good(self, state: SimState, failed_at: int) -> str:
         """Saves the last finite state as `<path stem>.last-good.npz`; returns its path."""

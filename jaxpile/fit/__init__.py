@@ -29,7 +29,9 @@ The pieces live in one module each, and every name below is re-exported here:
   optax loop `fit` and its figure.
 
 Fits to the ensembles that a protocol builds are in `ensemble_fit` (with
-`estimators`, `construction`, `regression`, `stats`), imported on their own.
+`estimators`, `construction`, `regression`, `stats`, `verdict`); a fit to a
+measurement (`measured`: `Measurement`, `load_measurement`) in one call is
+`calibrate` (also `jaxpile.calibrate`), what `jaxpile fit --target FILE` does.
 
 Example:
   >>> import jax.numpy as jnp
@@ -49,7 +51,9 @@ parameter only as long as no such switch happens within the step the optimiser
 takes.
 """
 
+from jaxpile.fit.calibrate import calibrate
 from jaxpile.fit.losses import dip_loss, feature_loss, profile_loss
+from jaxpile.fit.measured import Measurement, load_measurement
 from jaxpile.fit.optimise import (
     FORWARD_MODE_MAX,
     GRADIENT_MODES,
@@ -91,6 +95,7 @@ from jaxpile.measure.heap import ProfileSetting
 __all__ = [
     "BASES",
     "LOWER_BOUNDS",
+    "Measurement",
     "SMID_NOVOSAD_ANGLE_DEGREES",
     "SMID_NOVOSAD_DIP_RANGE",
     "BaseLoad",
@@ -103,6 +108,7 @@ __all__ = [
     "ProfileTarget",
     "Transform",
     "base_load",
+    "calibrate",
     "central_dip",
     "central_slope",
     "dip_loss",
@@ -111,6 +117,7 @@ __all__ = [
     "fit_figure",
     "force_unit",
     "gradient_mode",
+    "load_measurement",
     "load_profile_csv",
     "normalise",
     "profile_loss",

@@ -77,7 +77,7 @@ import jaxpile.fit.verdict as verdict
 from jaxpile import config, distributed, io
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Runner, Statistics
-from jaxpile.fit.ensemble_runs import fill_missing, run_saved
+from jaxpile.fit.ensemble_runs import MissingEverywhere, fill_missing, run_saved
 from jaxpile.fit.ensemble_targets import EnsembleTarget, make_target, smid_novosad_target
 from jaxpile.fit.stats import t_quantile, weights
 from jaxpile.ranges import COUNT, POSITIVE
@@ -305,25 +305,31 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
             print(f"first pass: {line}", flush=True)
     if identifiability == "refuse" and not first["report"]["identifiable"]:
         report = first["report"]
-        bad = {n: p["ratio"] for n, p in report["parameters"].items() if p["identifiable"] is False}
+        bad = {n: p for n, p in report["parameters"].items() if p["identifiable"] is False}
         raise InputError(f"the target cannot identify {', '.join(bad)} at {report['disks']} disks (the first pass: "
-                         + ", ".join(f"{n} moves the statistics by {r:.1f}x their noise" for n, r in bad.items())
-                         + f", {verdict.IDENTIFIABLE_RATIO:g}x needed); use more disks, other statistics (an angle, "
-                         "the profile) or a larger ensemble, or fit regardless (--fit-anyway, identifiability='warn').")
+                         + ", ".join(f"{n} moves {p['most_moved']} most, by {p['z']:.1f}x its noise where "
+                                     f"{p['needed']:.1f}x is needed" for n, p in bad.items())
+                         + "); use more disks, other statistics (an angle, the profile) or a larger ensemble, or fit "
+                         "regardless (--fit-anyway, identifiability='warn').")
     message = ""
     done = bool(history) and history[-1].get("converged", False)
     for it in range(len(history), steps):
         if done:
             break
-        entry, delta, opt_state, message = fitting.iteration(theta, it, opt_state)
+        try:
+            entry, delta, opt_state, message = fitting.iteration(theta, it, opt_state)
+        except MissingEverywhere as err:  # no mean to compare: the fit stops, its history kept, and says why
+            kept = f"; its {len(history)} iteration(s) are kept in {checkpoint}" if checkpoint and history else ""
+            raise MissingEverywhere(f"the fit stopped in iteration {it + 1}: {err}{kept}") from None
         history.append(entry)
         theta = theta + delta
         if progress is True:
             vals = ", ".join(f"{n} = {v:.5g}" for n, v in entry["values"].items())
-            loss = ("" if not math.isfinite(entry["loss"])
-                    else f"loss {entry['loss']:.4g} +- {entry['loss_stderr']:.2g}, ")
+            loss = ("" if not math.isfinite(entry["loss"]) else f"loss {entry['loss']:.4g}"
+                    + (f" +- {entry['loss_stderr']:.2g}, " if math.isfinite(entry["loss_stderr"]) else ", "))
+            left = f", {entry['missing']} pile statistic(s) missing, left out" if entry["missing"] else ""
             print(f"fit {it + 1}/{steps}: {vals}: {loss}step {np.round(delta, 4).tolist()} "
-                  f"({entry['seconds']:.0f} s)", flush=True)
+                  f"({entry['seconds']:.0f} s{left})", flush=True)
         elif callable(progress):
             progress(entry)
         save_history()
@@ -418,7 +424,16 @@ def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
     t1 = time.perf_counter()
     if progress is True:
         print("first pass: is each parameter identifiable at this size?", flush=True)
-    s, missing, info = fitting.run(estimators.central_points(theta, fitting.step))
+    points = estimators.central_points(theta, fitting.step)
+    s, _, info = fitting.run(points, fill=False)
+    options = fitting.runner.options or {}
+    disks = int(options.get("n") or info.get("n_particles", 0))
+    scarce = {lab: int(c) for lab, c in zip(fitting.target.labels, info["missing_by_statistic"]) if 2 * c > s.shape[1]}
+    if scarce:  # a statistic most piles lack at this size would soon be missing from all at some point
+        raise InputError(f"at {disks} disks " + ", ".join(f"{lab!r} is missing from {c} of {s.shape[1]} piles"
+                                                         for lab, c in scarce.items())
+                         + " at the start (heaps too small to read it): use more disks or other statistics.")
+    s, missing = fill_missing(s, fitting.statistics.labels())
     target, out = fitting.target, {"statistics": s.tolist(), "particle_steps": int(info["particle_steps"]),
                                    "missing": missing}
     unknown = ~np.isfinite(np.asarray(target.spread, float))
@@ -438,8 +453,6 @@ def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
             print(f"first pass: the target gives no errors for {int(unknown.sum())} of its {len(unknown)} "
                   "statistics: each is taken as one simulated pile's spread at the start (the measurement as "
                   "one heap)", flush=True)
-    options = fitting.runner.options or {}
-    disks = int(options.get("n") or options.get("layers") or info.get("n_particles", 0))
     out["report"] = verdict.first_pass(s, fitting.step, weights(target), target, fitting.names, disks)
     out["seconds"] = time.perf_counter() - t1
     return out
@@ -510,7 +523,7 @@ class _Fitting(NamedTuple):
     def params_of(self, theta) -> dict:
         return {n: float(v) for n, v in zip(self.names, np.exp(theta))}
 
-    def run(self, thetas):
+    def run(self, thetas, fill: bool = True):
         """`(s, missing, info)`: the statistics `[m, B, k]` of the seeds at
         each of the m `thetas` (one batched run), missing ones filled; the
         batch saved as it runs and continued from its save (`fit`'s
@@ -525,7 +538,17 @@ class _Fitting(NamedTuple):
                       "piles in one batch)", flush=True)
             s, info = run_saved(self.runner, [self.params_of(t) for t in thetas], self.seeds, self.statistics,
                                 self.batch_checkpoint, progress=None if self.show else False)
-        s, missing = fill_missing(s)
+        info = {**info, "missing_by_statistic": np.isnan(s).any(axis=0).sum(axis=0).tolist()}
+        if not fill:
+            return s, 0, info
+        try:
+            s, missing = fill_missing(s, self.statistics.labels())
+        except MissingEverywhere as err:
+            at = thetas[err.point if err.point is not None else 0]
+            where = ", ".join(f"{n} = {v:.4g}" for n, v in self.params_of(at).items())
+            raise MissingEverywhere(f"{err.name} is missing from every pile at {where} (no pile had a surface to "
+                                    "measure, none moved, or the heaps were too narrow to read it): choose other "
+                                    "statistics or a larger pile") from None
         return s, missing, info
 
     def ensembles(self, theta: np.ndarray, it: int) -> _Iterate:

@@ -233,21 +233,35 @@ def saved_batch(path: str) -> dict | None:
         return None
 
 
-def fill_missing(s: np.ndarray) -> tuple[np.ndarray, int]:
+class MissingEverywhere(InputError):
+    """A statistic no pile of an ensemble could give (`fill_missing`)."""
+
+
+def fill_missing(s: np.ndarray, labels=None) -> tuple[np.ndarray, int]:
     """`[m, B, k]` statistics with the piles that could not give one (NaN: e.g.
     no surface to fit an angle to, a tilted pile that never moved) left out of
     that statistic at *every* point, so a difference between two points
     compares the same piles (common random numbers). They are left out by
     taking, at each point, the mean of the piles that gave the statistic at all
     points, which moves no mean (it narrows the spread a little: the count of
-    such (pile, statistic) pairs is returned, to report)."""
+    such (pile, statistic) pairs is returned, to report). A statistic that
+    no pile gives at some point raises `MissingEverywhere`, naming it
+    (`labels`) and the point's index."""
     s = np.array(s, dtype=float)
     bad = np.isnan(s).any(axis=0)  # [B, k]: missing at some point
     missing = int(bad.sum())
     if missing:
         if bad.all(axis=0).any():
-            raise InputError("a statistic is missing from every pile at some point (e.g. no pile had a surface "
-                             "to measure, or none moved); choose other statistics or a larger pile.")
+            k = int(np.flatnonzero(bad.all(axis=0))[0])
+            point = int(np.flatnonzero(np.isnan(s[:, :, k]).all(axis=1))[0]) if np.isnan(s[:, :, k]).all(axis=1).any() \
+                else None
+            name = f"the statistic {labels[k]!r}" if labels is not None else "a statistic"
+            error = MissingEverywhere(
+                f"{name} is missing from every pile" + ("" if point is None else f" at point {point}")
+                + " (e.g. no pile had a surface to measure, none moved, or the heaps were too narrow to read it); "
+                "choose other statistics or a larger pile.")
+            error.name, error.point = name, point
+            raise error
         good = np.where(bad[None], np.nan, s)
         fill = np.nanmean(good, axis=1, keepdims=True)  # [m, 1, k]: the mean of the complete piles
         s = np.where(bad[None], np.broadcast_to(fill, s.shape), s)

@@ -6,9 +6,10 @@ statistics sit from the target in units of their errors, and whether its
 interval can be trusted (`verdict`). Both are plain dicts (fit.json) with a
 sentence each for the command line (`first_pass_lines`, `verdict_lines`).
 
-The tests are the usual ones of least squares: a signal-to-noise ratio of
-the finite-difference Jacobian (a column that is noise steers Gauss-Newton
-by noise), the correlation of the estimates from (J^T W J)^-1, and the lack
+The tests are the usual ones of least squares: whether the finite-difference
+Jacobian's column is told from noise in some statistic (a column that is
+noise steers Gauss-Newton by noise), with a Bonferroni-corrected t test over
+the statistics; the correlation of the estimates from (J^T W J)^-1, and the lack
 of fit chi^2 = sum_k r_k^2 / (e_k^2 + v_k / B) on k - d degrees of freedom
 (e_k: the target's error, v_k: one fitted pile's variance), which treats the
 statistics as independent (the points of a smoothed profile are not quite:
@@ -21,9 +22,10 @@ import math
 
 import numpy as np
 
-IDENTIFIABLE_RATIO = 2.0
-"""A parameter is told from noise when its change moves the weighted statistics
-by twice their standard error (about 1 when it moves nothing)."""
+FALSE_ALARM = 0.05
+"""The chance that a parameter which moves nothing is judged to move a statistic:
+each of k statistics is tested at FALSE_ALARM / k (Bonferroni), with a Student-t
+quantile for the B - 1 degrees of freedom of B piles' paired changes."""
 
 TOLD_APART = 0.95
 """Two parameters whose estimates correlate beyond this are flagged as poorly told apart."""
@@ -53,13 +55,17 @@ def first_pass(s: np.ndarray, step: float, w: np.ndarray, target, names: list, d
     `s` `[2d + 1, B, k]` of the ensembles at theta, theta + h e_i and theta - h e_i
     (`estimators.central_points`), with the fit's weights `w`.
 
-    Per parameter: `signal` (the weighted norm of the mean change over the
-    2h step), `noise` (its standard error, from the piles' paired changes:
-    common random numbers), their `ratio`, the statistic it moves most in
-    units of its weight, and `identifiable` (ratio >= IDENTIFIABLE_RATIO; None
-    when fewer than `MIN_PILES` piles cannot measure the noise). With two or
-    more: the estimates' `correlation` from the first Jacobian, and which
-    pairs are poorly told apart."""
+    Per parameter: the statistic its change moves most in units of that
+    change's standard error (from the piles' paired changes: common random
+    numbers), `z` its mean change over that error, `needed` the t quantile
+    that `FALSE_ALARM` sets for k statistics and B piles, `identifiable` (|z|
+    >= needed; None when fewer than `MIN_PILES` piles cannot measure the
+    noise), and `signal`, `noise`, `ratio`: the weighted norms of the mean
+    change and of its standard error over all statistics (about 1 when
+    nothing moves). With two or more: the estimates' `correlation` from the
+    first Jacobian, and which pairs are poorly told apart."""
+    from scipy import stats
+
     s = np.asarray(s, float)
     d, b = len(names), s.shape[1]
     labels = list(target.labels)
@@ -71,12 +77,14 @@ def first_pass(s: np.ndarray, step: float, w: np.ndarray, target, names: list, d
         se = change.std(axis=0, ddof=1) / math.sqrt(b) if b > 1 else np.zeros_like(mean)
         jac[:, i] = mean / (2 * step)
         signal, noise = float(np.sqrt(np.sum(w * mean ** 2))), float(np.sqrt(np.sum(w * se ** 2)))
-        k = int(np.argmax(np.abs(mean) * np.sqrt(w)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(se > 0, np.abs(mean) / np.where(se > 0, se, 1.0), np.where(mean != 0, np.inf, 0.0))
+        k = int(np.argmax(z))
         measurable = b >= MIN_PILES or (b >= 1 and noise == 0.0)
-        ratio = signal / noise if noise > 0 else (math.inf if signal > 0 else 0.0)
+        needed = float(stats.t.ppf(1 - FALSE_ALARM / (2 * len(z)), b - 1)) if b > 1 else 0.0
         out["parameters"][name] = {
-            "signal": signal, "noise": noise, "ratio": ratio,
-            "identifiable": (ratio >= IDENTIFIABLE_RATIO) if measurable else None,
+            "signal": signal, "noise": noise, "ratio": signal / noise if noise > 0 else (math.inf if signal else 0.0),
+            "z": float(z[k]), "needed": needed, "identifiable": bool(z[k] >= needed and z[k] > 0) if measurable else None,
             "most_moved": labels[k], "change": float(mean[k]), "change_stderr": float(se[k]),
             "error": float(1.0 / math.sqrt(w[k])) if w[k] > 0 else math.nan}
     hessian = (jac.T * w) @ jac
@@ -97,17 +105,18 @@ def first_pass_lines(report: dict) -> list[str]:
     lines = []
     pct = 100 * (math.exp(report["step"]) - 1)
     for name, p in report["parameters"].items():
-        times = f"{p['ratio']:.1f}x" if p["ratio"] < 1000 else "over 1000x"  # common random numbers: no noise
-        moved = (f"at {report['disks']} disks, {name} from -{pct:.2g} % to +{pct:.2g} % moves {p['most_moved']} by "
-                 f"{p['change']:+.3g} +- {p['change_stderr']:.2g} (the target's spread {p['error']:.2g}): ")
+        times = f"{p['z']:.1f}x" if p["z"] < 1000 else "over 1000x"  # common random numbers: no noise at all
+        moved = (f"at {report['disks']} disks, {name} from -{pct:.2g} % to +{pct:.2g} % moves {p['most_moved']} "
+                 f"most, by {p['change']:+.3g} +- {p['change_stderr']:.2g} (the target's spread "
+                 f"{p['error']:.2g}): {times} its noise")
         if p["identifiable"] is None:
-            lines.append(moved + f"signal {times} its noise, not judged: {report['piles']} piles cannot "
-                                 f"measure the noise ({MIN_PILES} or more can)")
+            lines.append(moved + f", not judged: {report['piles']} piles cannot measure the noise ({MIN_PILES} or "
+                                 "more can)")
         elif p["identifiable"]:
-            lines.append(moved + f"signal {times} its noise: identifiable")
+            lines.append(moved + (f" ({p['needed']:.1f}x needed)" if report["piles"] > 1 else " (one pile: no noise)")
+                         + ": identifiable")
         else:
-            lines.append(moved + f"signal {times} its noise: the target cannot identify {name} at this "
-                                 "size")
+            lines.append(moved + f" ({p['needed']:.1f}x needed): the target cannot identify {name} at this size")
     for a, b in report.get("poorly_told_apart") or []:
         corr = report.get("correlation")
         how = "" if corr is None else (
@@ -188,5 +197,5 @@ def verdict_lines(v: dict) -> list[str]:
     return [f"the fit {how}", fit_line, trust]
 
 
-__all__ = ["IDENTIFIABLE_RATIO", "LACK_OF_FIT_P", "MIN_PILES", "TOLD_APART", "first_pass", "first_pass_lines",
+__all__ = ["FALSE_ALARM", "LACK_OF_FIT_P", "MIN_PILES", "TOLD_APART", "first_pass", "first_pass_lines",
            "target_error", "verdict", "verdict_lines"]
