@@ -79,7 +79,7 @@ def test_base_load_on_the_ground_matches_analysis_base_forces(sim, relaxed_scene
     np.testing.assert_allclose(horizontal, ref.horizontal[order], rtol=1e-12, atol=1e-12)
     # eqs. 42 and 44 for k = 3 in the lattice disks' own weight (so the signs, not only the
     # bookkeeping, are right); mg is the mean movable mass, the lighter heap's included, times g
-    unit = float(fit.force_unit(state))
+    unit = float(analysis.traced_force_unit(state))
     assert unit == pytest.approx(analysis.force_unit(state), rel=1e-14)
     assert unit == pytest.approx(GRAVITY * (6 + 10 * (2 * HEAP_RADIUS) ** 2) / 16, rel=1e-12)
     lattice_weight = GRAVITY * 1.0
@@ -211,7 +211,7 @@ def _write(tmp_path, text, name="profile.csv"):
 
 
 def test_load_profile_csv_round_trip(tmp_path):
-    target = fit.smid_novosad_target(points=21)  # samples the maxima, so normal/max is the file's own max
+    target = fit.smid_novosad_profile(points=21)  # samples the maxima, so normal/max is the file's own max
     lines = ["# digitised by hand", "x/B,normal/max,horizontal/max"]
     lines += [f"{float(u)!r},{float(n)!r},{float(h)!r}"
               for u, n, h in zip(target.x_over_b, target.normal, target.horizontal)]
@@ -249,10 +249,10 @@ def test_load_profile_csv_refuses_bad_files(tmp_path, text, match):
 
 
 def test_smid_novosad_target_has_the_reported_features():
-    target = fit.smid_novosad_target(points=41)
+    target = fit.smid_novosad_profile(points=41)
     u, normal, horizontal = target.x_over_b, target.normal, target.horizontal
     centre = int(np.flatnonzero(u == 0.5)[0])
-    assert "not measured points" in target.source and "reported features" in fit.smid_novosad_target.__doc__
+    assert "not measured points" in target.source and "reported features" in fit.smid_novosad_profile.__doc__
     assert target.angle_of_repose_degrees == 32.6
     # the M: maximum 1, central minimum 25% below it (within the reported 20-30%)
     assert normal.max() == pytest.approx(1.0)
@@ -260,7 +260,7 @@ def test_smid_novosad_target_has_the_reported_features():
     assert dip == pytest.approx(0.25) and target.central_dip == 0.25
     lo, hi = target.central_dip_range
     assert (lo, hi) == (0.2, 0.3) and lo <= dip <= hi
-    assert float(fit.central_dip(target)) == pytest.approx(0.25)
+    assert float(fit.dip_below_peak(target)) == pytest.approx(0.25)
     peaks = u[np.flatnonzero(normal == normal.max())]
     assert np.all((np.abs(peaks - 0.5) >= 0.2) & (np.abs(peaks - 0.5) <= 0.3))
     assert normal[0] == normal[-1] == 0.0
@@ -284,12 +284,12 @@ def test_smid_novosad_target_has_the_reported_features():
 ])
 def test_smid_novosad_target_refuses_bad_settings(kwargs, match):
     with pytest.raises(InputError, match=match):
-        fit.smid_novosad_target(**kwargs)
+        fit.smid_novosad_profile(**kwargs)
 
 
 # ------------------------------------------------------------------ losses
 def test_profile_loss_is_zero_on_the_target_and_grows_away_from_it():
-    target = fit.smid_novosad_target(points=21)
+    target = fit.smid_novosad_profile(points=21)
     same = fit.Profile(x_over_b=target.x_over_b, normal=target.normal, horizontal=target.horizontal)
     assert float(fit.profile_loss(same, target, horizontal_weight=1.0)) == pytest.approx(0.0, abs=1e-30)
     # a binned profile stops short of the feet; it is read as 0 there
@@ -330,8 +330,8 @@ def test_profile_interpolation_is_jnp_interp_and_its_gradient_has_no_scatter():
 
 
 def test_dip_and_feature_losses():
-    target = fit.smid_novosad_target()
-    shallow = fit.smid_novosad_target(dip=0.1)
+    target = fit.smid_novosad_profile()
+    shallow = fit.smid_novosad_profile(dip=0.1)
     assert float(fit.dip_loss(target, 0.25)) == pytest.approx(0.0, abs=1e-24)
     assert float(fit.dip_loss(shallow, 0.25)) == pytest.approx(0.15**2)
     assert float(fit.feature_loss(shallow, target)) == pytest.approx(0.15**2)
@@ -480,7 +480,7 @@ def test_fit_refuses_a_non_finite_start_and_stops_on_a_later_one():
 def test_fit_figure(tmp_path):
     import matplotlib.pyplot as plt
 
-    target = fit.smid_novosad_target(points=21)
+    target = fit.smid_novosad_profile(points=21)
     result = fit.fit(lambda p: (jnp.log(p["a"]) - 1.0) ** 2, {"a": 1.0}, "a", steps=5)
     before = fit.Profile(target.x_over_b, np.ones(21), np.zeros(21))
     after = fit.Profile(target.x_over_b, target.normal, target.horizontal)
@@ -500,7 +500,7 @@ def rollout_loss(sim):
     params = hooke.make_params(kn=1e4, gamma_n=50.0, mu=0.3)
     particles, boundaries = lattice.equilateral_pile(3)
     state = sim.init(params, particles, boundaries)
-    target = fit.smid_novosad_target()
+    target = fit.smid_novosad_profile()
 
     def loss(p):
         final = sim.rollout(p, state, ROLLOUT_STEPS)

@@ -283,7 +283,7 @@ def test_dip_below_flanks_reads_smid_novosad_dip_in_fixed_windows():
     """`heap.dip_below_flanks`: 1 - the centre over the flanks in windows fixed
     in advance (Smid & Novosad's dip, 20-30 % below the maximum, as Liffman et
     al. 1992 report it): by hand on 15 bins; the declared M of
-    `fit.smid_novosad_target` (dip 0.25) reads a little under 0.25 (the flanks'
+    `fit.smid_novosad_profile` (dip 0.25) reads a little under 0.25 (the flanks'
     mean lies under their maxima); a narrow dip that the pour's default ~9 bins
     average away still reads; no dip, a tent, a flat base read <= 0."""
     from jaxpile import fit
@@ -307,7 +307,7 @@ def test_dip_below_flanks_reads_smid_novosad_dip_in_fixed_windows():
         return analysis.SubstrateForces(x=10 * u, normal=normal_of_u(u), horizontal=0 * u, particle=0 * u,
                                         substrate=0 * u)
 
-    target = fit.smid_novosad_target(2001, dip=0.25)
+    target = fit.smid_novosad_profile(2001, dip=0.25)
     declared = heap.base_profile(forces(lambda u: np.interp(u, target.x_over_b, target.normal)), extent=(0.0, 10.0),
                                  bins=heap.DIP_BINS)
     assert 0.2 < heap.dip_below_flanks(declared) < 0.25

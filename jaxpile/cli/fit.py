@@ -94,7 +94,7 @@ def _pathwise_inputs(args) -> tuple:
     if args.steps < 0:
         raise InputError(f"--steps must be >= 0; got {args.steps}.")
     if args.target == "smid-novosad":
-        target = fit.smid_novosad_target()
+        target = fit.smid_novosad_profile()
     elif os.path.exists(args.target):
         target = fit.load_profile_csv(args.target, args.normalised_by)  # a folder, unreadable file: one line there
     else:
@@ -214,7 +214,7 @@ def _fit_record(args, law, names, described, target, params, result, seconds, be
 
     def plain_profile(pr):
         return {"x_over_b": np.asarray(pr.x_over_b).tolist(), "normal": np.asarray(pr.normal).tolist(),
-                "horizontal": np.asarray(pr.horizontal).tolist(), "central_dip": float(fit.central_dip(pr))}
+                "horizontal": np.asarray(pr.horizontal).tolist(), "central_dip": float(fit.dip_below_peak(pr))}
 
     return {
         "target": target.source or args.target, "protocol": args.protocol, "law": law, "fitted": names,

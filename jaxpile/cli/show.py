@@ -143,7 +143,7 @@ def _fit(folder: str, out: str) -> list[str]:
         target = SimpleNamespace(x_over_b=np.asarray(saved["x_over_b"]), normal=np.asarray(saved["normal"]),
                                  horizontal=horizontal)
     elif record.get("target") == "smid-novosad":
-        target = fit.smid_novosad_target()
+        target = fit.smid_novosad_profile()
     elif os.path.exists(str(record.get("target"))):
         target = fit.load_profile_csv(record["target"])
     else:

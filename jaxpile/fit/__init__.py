@@ -8,7 +8,7 @@ law parameters (so `jax.grad` runs through a whole `Simulator.rollout`):
   --`smooth_base_profile`--> a Gaussian-smoothed profile over the base,
   normalised by its maximum (x/B, F/F_max: the papers' axes)
   --`profile_loss` / `dip_loss` / `feature_loss`--> a scalar against a
-  `ProfileTarget` (`load_profile_csv` for measured points, `smid_novosad_target`
+  `ProfileTarget` (`load_profile_csv` for measured points, `smid_novosad_profile`
   for the features Smid & Novosad's experiment is reported to show).
 
 `fit` then runs an optax optimiser over chosen parameters in log space
@@ -17,7 +17,7 @@ law parameters (so `jax.grad` runs through a whole `Simulator.rollout`):
 The pieces live in one module each, and every name below is re-exported here:
 
 - `profiles`: base loads, smooth and normalised profiles, and the features
-  read off a profile (`central_dip`, `central_slope`);
+  read off a profile (`dip_below_peak`, `central_slope`);
 - `targets`: `ProfileTarget`, from a CSV file, Smid & Novosad's declared
   shape, or a computed profile;
 - `losses`: a predicted profile against a target;
@@ -72,9 +72,8 @@ from jaxpile.fit.profiles import (
     BaseLoad,
     Profile,
     base_load,
-    central_dip,
+    dip_below_peak,
     central_slope,
-    force_unit,
     normalise,
     profile_peak,
     smooth_base_profile,
@@ -87,7 +86,7 @@ from jaxpile.fit.targets import (
     SMID_NOVOSAD_DIP_RANGE,
     ProfileTarget,
     load_profile_csv,
-    smid_novosad_target,
+    smid_novosad_profile,
     target_from_profile,
 )
 from jaxpile.measure.heap import ProfileSetting
@@ -109,13 +108,12 @@ __all__ = [
     "Transform",
     "base_load",
     "calibrate",
-    "central_dip",
+    "dip_below_peak",
     "central_slope",
     "dip_loss",
     "feature_loss",
     "fit",
     "fit_figure",
-    "force_unit",
     "gradient_mode",
     "load_measurement",
     "load_profile_csv",
@@ -124,7 +122,7 @@ __all__ = [
     "profile_objective",
     "problem",
     "profile_peak",
-    "smid_novosad_target",
+    "smid_novosad_profile",
     "smooth_base_profile",
     "smooth_profile",
     "simulated_profile",

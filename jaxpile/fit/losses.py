@@ -9,7 +9,7 @@ from typing import Any
 import jax.numpy as jnp
 
 from jaxpile.errors import InputError
-from jaxpile.fit.profiles import Profile, central_dip, central_slope, profile_at
+from jaxpile.fit.profiles import Profile, central_slope, dip_below_peak, profile_at
 from jaxpile.fit.targets import ProfileTarget
 
 Array = Any
@@ -48,16 +48,16 @@ def profile_loss(predicted: Profile, target: ProfileTarget, *, horizontal_weight
 
 
 def dip_loss(predicted, target_dip: float = 0.25) -> Array:
-    """(central_dip(predicted) - target_dip)^2: the squared miss of the central
+    """(dip_below_peak(predicted) - target_dip)^2: the squared miss of the central
     minimum's depth (Smid & Novosad: 0.2-0.3, 0.25 in the middle)."""
-    return (central_dip(predicted) - target_dip) ** 2
+    return (dip_below_peak(predicted) - target_dip) ** 2
 
 
 def feature_loss(predicted, target: ProfileTarget, *, dip_weight: float = 1.0, slope_weight: float = 0.0,
                  half_width: float = 0.1) -> Array:
     """Squared misses of a target's features, weighted:
 
-    dip_weight (central_dip(pred) - target.central_dip)^2
+    dip_weight (dip_below_peak(pred) - target.central_dip)^2
     + slope_weight (central_slope(pred) - central_slope(target))^2,
 
     the slope over |x/B - 1/2| <= half_width (eq. 57's region, about 0.185 wide

@@ -5,7 +5,7 @@ off a profile.
   (fixed shapes, padding masked out by a 0/1 `weight`)
   --`smooth_base_profile`--> a Gaussian-smoothed `Profile` over the base,
   normalised by its maximum (x/B, F/F_max: the papers' axes)
-  --`central_dip`, `central_slope`--> the features the papers report.
+  --`dip_below_peak`, `central_slope`--> the features the papers report.
 
 Every step is traceable, so `jax.grad` runs from a feature or a loss back
 through the rollout that made the state.
@@ -31,7 +31,6 @@ BASES = analysis.BASES
 # host-side `base_forces` and `substrate_forces` are built on them).
 BaseLoad = analysis.BaseLoad
 base_load = analysis.base_load
-force_unit = analysis.traced_force_unit
 
 
 def is_concrete(*values) -> bool:
@@ -212,7 +211,7 @@ def interp_without_scatter(x, xp, fp) -> Array:
     return jnp.where(x > xp[-1], fp[-1], f)
 
 
-def central_dip(profile) -> Array:
+def dip_below_peak(profile) -> Array:
     """Depth of the central minimum of the normal profile: 1 - N(x/B = 1/2) / max N
     (0.25 for a centre 25% below the maxima; negative for a peak at the centre).
     The centre value is interpolated linearly between points."""

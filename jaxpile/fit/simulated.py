@@ -51,7 +51,7 @@ def profile_objective(sim, state: SimState, steps: int, setting: ProfileSetting,
     """`params -> loss`: `profile_loss` (plus `dip_weight` times the squared
     miss of the target's central dip, when it has one) of `simulated_profile`."""
     if dip_weight > 0 and target.central_dip is None:
-        raise InputError("dip_weight > 0 needs a target with a central_dip (e.g. smid_novosad_target()).")
+        raise InputError("dip_weight > 0 needs a target with a central_dip (e.g. smid_novosad_profile()).")
 
     def loss(params):
         predicted = simulated_profile(sim, params, state, steps, setting, window=window, checkpoint=checkpoint)

@@ -11,7 +11,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxpile.errors import InputError
-from jaxpile.fit.profiles import Profile, central_dip
+from jaxpile.fit.profiles import Profile, dip_below_peak
 from jaxpile.measure import theory
 
 
@@ -213,7 +213,7 @@ SMID_NOVOSAD_DIP_RANGE = (0.2, 0.3)
 and cite the experiment as qualitatively very similar)."""
 
 
-def smid_novosad_target(points: int = 41, *, dip: float = 0.25, peak_offset: float = 0.25) -> ProfileTarget:
+def smid_novosad_profile(points: int = 41, *, dip: float = 0.25, peak_offset: float = 0.25) -> ProfileTarget:
     """A target built from the features of Smid & Novosad's experiment (1981) that
     the papers report in words. It is built from reported features, NOT from
     measured points: the papers print no table of the experiment's values (Liffman
@@ -286,4 +286,4 @@ def target_from_profile(profile: Profile, source: str = "simulated") -> ProfileT
     recovers the parameters a profile was made with)."""
     return ProfileTarget(x_over_b=np.asarray(profile.x_over_b), normal=np.asarray(profile.normal),
                          horizontal=None if profile.horizontal is None else np.asarray(profile.horizontal),
-                         central_dip=float(central_dip(profile)), source=source)
+                         central_dip=float(dip_below_peak(profile)), source=source)

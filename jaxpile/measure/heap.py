@@ -136,7 +136,7 @@ def dip_below_flanks(profile: BaseProfile, flanks=DIP_FLANK_WINDOWS, centre=DIP_
     the two windows' means, as in `flank_over_centre`. On a `DIP_BINS`-bin
     profile the centre window holds the middle bin alone (x/B 0.47-0.53) and the flank
     windows two bins each (x/B 0.20-0.33, 0.67-0.80), about where the declared
-    maxima sit (`fit.smid_novosad_target`, x/B = 0.25, 0.75). The flanks' mean
+    maxima sit (`fit.smid_novosad_profile`, x/B = 0.25, 0.75). The flanks' mean
     lies a little below their maxima, so this reads no deeper than the
     reported dip. NaN when a window holds no bin or the flanks carry nothing."""
     left, right, middle = _window_means(profile.x_over_b, profile.force, (*flanks, centre))
