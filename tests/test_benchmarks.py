@@ -19,7 +19,7 @@ from jaxpile.engine.simulate import Simulator, gravity_ramp
 BENCHMARKS = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
 # the suite (benchmarks/) and the studies (benchmarks/studies/papers, benchmarks/studies/fitting)
 sys.path[:0] = [str(BENCHMARKS), str(BENCHMARKS / "studies" / "papers"), str(BENCHMARKS / "studies" / "fitting"),
-                 str(BENCHMARKS / "studies" / "reproducibility")]
+                 str(BENCHMARKS / "studies" / "reproducibility"), str(BENCHMARKS / "studies" / "calibrate")]
 import lammps_peer as peer  # noqa: E402
 import run_all  # noqa: E402
 import vs_lammps  # noqa: E402
@@ -172,6 +172,18 @@ def test_recovery_table_is_the_one_the_results_give():
     import fit_recovery
 
     assert fit_recovery.rewrite_page(check=True), "run `python benchmarks/studies/fitting/fit_recovery.py --table`"
+
+
+def test_measured_recovery_table_is_the_one_the_results_give():
+    """benchmarks/studies/calibrate/measured_recovery.py writes docs/calibrate.md's table of measurements
+    made at known truths and fitted from the command line: the page must hold exactly that table, and
+    a case the first pass refused shows no fitted value."""
+    import measured_recovery
+
+    assert measured_recovery.rewrite_page(check=True), \
+        "run `python benchmarks/studies/calibrate/measured_recovery.py --table`"
+    rows = {r.split(" | ")[0].lstrip("| "): r for r in measured_recovery.table().splitlines()[2:]}
+    assert "refused | — |" in rows["pour-profile-only"]
 
 
 def test_estimator_study_table_is_the_one_the_results_give():

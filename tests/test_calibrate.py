@@ -188,12 +188,16 @@ def test_the_verdict_says_why_a_fit_stopped_and_whether_the_model_fits():
     budget = verdict.verdict([step], jac, w, members, target, ["mu"], False, "", 1)
     assert budget["why"] == "budget" and not budget["converged"] and not budget["interval_trusted"]
     assert "did NOT converge" in verdict.verdict_lines(budget)[0]
-    small = {**step, "next_theta": [0.05]}  # a step within its standard error: the noise floor
-    floor = verdict.verdict([small], jac, w, members, target, ["mu"], False, "", 1)
+    # three steps each within twice their standard error, back and forth: the noise floor; one way: a drift
+    wander = [{**step, "next_theta": [x]} for x in (0.15, -0.18, 0.12)]
+    floor = verdict.verdict(wander, jac, w, members, target, ["mu"], False, "", 3)
     assert floor["why"] == "noise floor" and floor["converged"] and floor["interval_trusted"]
-    far = verdict.verdict([small], jac, w, members + 5.0, target, ["mu"], False, "", 1)
+    drift = [{**step, "next_theta": [x]} for x in (0.15, 0.18, 0.12)]
+    assert verdict.verdict(drift, jac, w, members, target, ["mu"], False, "", 3)["why"] == "budget"
+    assert verdict.verdict(wander[:2], jac, w, members, target, ["mu"], False, "", 2)["why"] == "budget"
+    far = verdict.verdict(wander, jac, w, members + 5.0, target, ["mu"], False, "", 3)
     assert far["p_value"] < 1e-6 and not far["interval_trusted"] and "does not fit the target" in far["doubts"][0]
-    flat = verdict.verdict([small], np.zeros((3, 1)), w, members, target, ["mu"], True, "", 1)
+    flat = verdict.verdict(wander, np.zeros((3, 1)), w, members, target, ["mu"], True, "", 3)
     assert flat["jacobian_rank"] == 0 and "rank 0" in flat["doubts"][0]
 
 
@@ -249,8 +253,8 @@ def test_a_parameter_the_target_cannot_see_is_refused_before_the_fit_steps():
 
 def test_a_measurement_without_errors_is_fitted_with_one_piles_spread_and_says_so(tmp_path):
     runner = Toy()
-    result = ef.fit(runner, ["mu"], {"mu": 0.2}, _measured(), seeds=range(16), statistics=TOY, steps=8,
-                    progress=False, checkpoint=str(tmp_path / "c.json"))
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, _measured(), seeds=range(16), statistics=TOY, progress=False,
+                    stopping=ef.Stopping(steps=8), saving=ef.Saving(checkpoint=str(tmp_path / "c.json")))
     first = result.record["first_pass"]
     assert first["errors_from_piles"] == ["angle", "feature"]
     spread = np.asarray(first["spread"])
@@ -320,8 +324,8 @@ def test_a_statistic_most_piles_lack_is_refused_at_the_first_pass_and_one_all_la
     checkpoint = str(tmp_path / "c.json")
     with pytest.raises(InputError, match=r"the fit stopped in iteration 2: the statistic 'feature' is missing from "
                                          r"every pile at mu = 0.2\d+ .*a larger pile; its 1 iteration\(s\) are kept in"):
-        ef.fit(Scarce(most=False), ["mu"], {"mu": 0.2}, _measured(), seeds=range(8), statistics=TOY, steps=6,
-               progress=False, checkpoint=checkpoint)
+        ef.fit(Scarce(most=False), ["mu"], {"mu": 0.2}, _measured(), seeds=range(8), statistics=TOY, progress=False,
+               stopping=ef.Stopping(steps=6), saving=ef.Saving(checkpoint=checkpoint))
     assert len(io_json(checkpoint)["history"]) == 1
 
 

@@ -52,7 +52,8 @@ def _target(runner, truth=0.3137, seeds=range(100, 132)):
 def test_gauss_newton_recovers_the_truth_inside_its_interval():
     runner = ToyRunner()
     target = _target(runner)
-    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(32), statistics=STATS, steps=8, progress=False)
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(32), statistics=STATS, progress=False,
+                    stopping=ef.Stopping(steps=8))
     assert abs(result.values["mu"] / 0.3137 - 1) < 0.05
     lo, hi = result.interval["mu"]
     assert lo < 0.3137 < hi and lo < result.values["mu"] < hi
@@ -65,7 +66,7 @@ def test_gauss_newton_recovers_the_truth_inside_its_interval():
     assert np.allclose(result.record["final_point_means"][0], result.fitted_mean)
     # the interval is the sandwich: tighter with noiseless piles
     exact = ef.fit(ToyRunner(noise=1e-6), ["mu"], {"mu": 0.2}, _target(ToyRunner(noise=1e-6)), seeds=range(4),
-                   statistics=STATS, steps=8, progress=False)
+                   statistics=STATS, progress=False, stopping=ef.Stopping(steps=8))
     assert abs(exact.values["mu"] / 0.3137 - 1) < 1e-4
     assert exact.interval["mu"][1] - exact.interval["mu"][0] < 1e-3 * (hi - lo)
 
@@ -75,9 +76,9 @@ def test_gauss_newton_stops_once_its_step_is_inside_the_noise():
     ensembles' noise: the fit stops there (`noise_stop`), before a tolerance
     that only a noiseless fit could reach, and says why."""
     target = _target(ToyRunner())
-    kw = dict(seeds=range(32), statistics=STATS, steps=8, progress=False, interval=False, tolerance=1e-14)
-    noisy = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, noise_stop=True, **kw)
-    strict = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw)  # the default: the tolerance alone
+    kw, stop = dict(seeds=range(32), statistics=STATS, progress=False, interval=False), dict(steps=8, tolerance=1e-14)
+    noisy = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw, stopping=ef.Stopping(**stop, noise_stop=True))
+    strict = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw, stopping=ef.Stopping(**stop))  # the tolerance alone
     last = noisy.history[-1]
     assert last["converged"] and last["stopped_by"] == "noise"
     assert abs(np.asarray(last["next_theta"]) - np.asarray(last["theta"]))[0] < last["step_stderr"][0]
@@ -91,7 +92,8 @@ def test_the_figure_shows_each_statistic_against_its_target_in_units_of_its_spre
     (mean - target) / spread, so the target sits at 0 +- 1 and a statistic 0.5 spreads off reads 0.5."""
     runner = ToyRunner()
     target = _target(runner)
-    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(8), statistics=STATS, steps=2, progress=False)
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(8), statistics=STATS, progress=False,
+                    stopping=ef.Stopping(steps=2))
     ax = ef.figure(result).axes[2]
     target_y, start_y, fit_y = (line.get_ydata() for line in ax.lines[:3])
     assert list(target_y) == [0.0, 0.0]
@@ -102,13 +104,15 @@ def test_the_figure_shows_each_statistic_against_its_target_in_units_of_its_spre
 
 def test_smoothing_with_adam_moves_toward_the_truth_and_resume_replays_the_optax_state(tmp_path):
     target = _target(ToyRunner())
-    kw = dict(seeds=range(8), statistics=STATS, estimator="smoothing", optimizer="adam", lr=0.1, pairs=2,
-              progress=False, interval=False)
-    whole = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, steps=4, **kw)
+    kw = dict(seeds=range(8), statistics=STATS, gradient=ef.Gradient(estimator="smoothing", pairs=2), optimizer="adam",
+              lr=0.1, progress=False, interval=False)
+    whole = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw, stopping=ef.Stopping(steps=4))
     assert whole.values["mu"] > 0.2 * np.exp(0.25)  # four adam steps of ~0.1 each, all upward
     ck = str(tmp_path / "fit.json")
-    ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, steps=2, checkpoint=ck, **kw)
-    resumed = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, steps=4, resume=ck, **kw)
+    ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw, stopping=ef.Stopping(steps=2),
+           saving=ef.Saving(checkpoint=ck))
+    resumed = ef.fit(ToyRunner(), ["mu"], {"mu": 0.2}, target, **kw, stopping=ef.Stopping(steps=4),
+                     saving=ef.Saving(resume=ck))
     assert resumed.values == whole.values
     assert [h["gradient"] for h in resumed.history] == [h["gradient"] for h in whole.history]
 
@@ -119,8 +123,8 @@ def test_bad_fits_are_refused_in_one_line():
     with pytest.raises(InputError, match="overlap"):
         ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 100], statistics=STATS, progress=False)
     with pytest.raises(InputError, match="Gauss-Newton"):
-        ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, estimator="smoothing",
-               progress=False)
+        ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, progress=False,
+               gradient=ef.Gradient(estimator="smoothing"))
     with pytest.raises(InputError, match="statistics"):
         ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=ef.Statistics(columns=("angle",)),
                progress=False)
@@ -142,13 +146,13 @@ def test_the_truncated_estimator_is_offered_where_it_can_run_and_refused_in_one_
     runner = ToyRunner()
     target = _target(runner)
     with pytest.raises(InputError, match="only pour"):
-        ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, estimator="truncated",
-               optimizer="adam", progress=False)
+        ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, optimizer="adam", progress=False,
+               gradient=ef.Gradient(estimator="truncated"))
     for statistics, optimizer, match in ((ef.Statistics(columns=("repose_mean",), bins=4), "adam", "profile alone"),
                                          (ef.Statistics(bins=4), "gauss-newton", "Gauss-Newton")):
         with pytest.raises(InputError, match=match):
-            ef.fit(ef.Runner("pour"), ["n"], {"n": 30.0}, target, seeds=[0, 1], estimator="truncated",
-                   optimizer=optimizer, statistics=statistics, progress=False)
+            ef.fit(ef.Runner("pour"), ["n"], {"n": 30.0}, target, seeds=[0, 1], optimizer=optimizer,
+                   statistics=statistics, progress=False, gradient=ef.Gradient(estimator="truncated"))
     assert cli.main(["fit", "--protocol", "pour", "--params", "n", "--truth", "n=30", "--ensemble", "2",
                      "--estimator", "truncated", "--bins", "4", "--dry-run", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -193,8 +197,9 @@ def test_a_truncated_fit_takes_the_constructions_gradient_and_records_it(monkeyp
     runner = ToyRunner()
     target = _target(runner)
     theta = np.log([0.2])
-    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, estimator="truncated",
-                    optimizer="adam", window=400, steps=1, progress=False, interval=False)
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, optimizer="adam",
+                    progress=False, interval=False, gradient=ef.Gradient(estimator="truncated", window=400),
+                    stopping=ef.Stopping(steps=1))
     toy, w = Toy(None, [0, 1], None, None, None), ef.weights(target)
     exact = jax.grad(lambda t: ef.objective_for(target, w)(toy.advance(t, toy.start, 400).mean(0)))(jnp.asarray(theta))
     entry = result.history[0]
@@ -202,8 +207,9 @@ def test_a_truncated_fit_takes_the_constructions_gradient_and_records_it(monkeyp
     assert entry["particle_steps"] == 2400 and result.record["window"] == 400 and entry["theta"] == theta.tolist()
     assert entry["next_theta"][0] == pytest.approx(theta[0] - 0.1 * np.sign(exact[0]), abs=1e-6)  # adam's first step
     Toy.statistics = lambda self, t, state: state * jnp.nan  # a heap without a profile: no step on a NaN
-    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, estimator="truncated",
-                    optimizer="adam", window=400, steps=3, progress=False, interval=False)
+    result = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, optimizer="adam",
+                    progress=False, interval=False, gradient=ef.Gradient(estimator="truncated", window=400),
+                    stopping=ef.Stopping(steps=3))
     assert len(result.history) == 1 and result.history[0]["next_theta"] == theta.tolist()
     assert "not finite" in result.record["message"] and result.values["mu"] == pytest.approx(0.2)
 
@@ -254,8 +260,8 @@ def test_a_deterministic_lattice_gives_back_its_stiffness_from_its_height():
     runner = ef.Runner("lattice", "liffman", options={"layers": 4, "ramp_steps": 1000})
     statistics = ef.Statistics(columns=("height",), bins=4)
     target = ef.make_target(runner, {"ks": 13_700.0}, [7], statistics)
-    result = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, seeds=[0], statistics=statistics, steps=4,
-                    progress=False)
+    result = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, seeds=[0], statistics=statistics, progress=False,
+                    stopping=ef.Stopping(steps=4))
     assert abs(result.values["ks"] / 13_700.0 - 1) < 1e-3
     assert result.record["sensitivity"]["ks"] > 0
 
@@ -275,7 +281,7 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     runner = ef.Runner("lattice", "liffman", options={"layers": 4, "ramp_steps": 1000})
     statistics = ef.Statistics(columns=("height",), bins=4)
     target = ef.make_target(runner, {"ks": 13_700.0}, [7], statistics)
-    kw = dict(seeds=[0], statistics=statistics, steps=1, progress=False, interval=False)
+    kw = dict(seeds=[0], statistics=statistics, stopping=ef.Stopping(steps=1), progress=False, interval=False)
     whole = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw)
 
     saves, save = [], ckpt.save
@@ -288,15 +294,16 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     history, batch = str(tmp_path / "fit.json"), tmp_path / "batch.npz"
     monkeypatch.setattr(ckpt, "save", save_then_stop)
     with pytest.raises(_Stopped):
-        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200), **kw)
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw,
+               saving=ef.Saving(checkpoint=history, batch=(str(batch), 200)))
     monkeypatch.setattr(ckpt, "save", save)
     assert saves == [str(batch)] and ckpt.read_metadata(batch)["extra"]["batch_start"] == 0
     from jaxpile import sweeps
 
     resumes, sweep = [], sweeps.sweep
     monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
-    resumed = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
-                     batch_checkpoint=(str(batch), 200), **kw)
+    resumed = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw,
+                     saving=ef.Saving(checkpoint=history, resume=history, batch=(str(batch), 200)))
     assert resumes == [str(batch), None]  # the iteration's batch from its save, the final one afresh
     assert not batch.exists()
     assert resumed.values == whole.values
@@ -305,18 +312,19 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
 
     assert [same(h) for h in resumed.history] == [same(h) for h in whole.history]
     batch.write_bytes(b"another fit's batch")
-    again = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, batch_checkpoint=(str(batch), 200), **kw)
+    again = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw, saving=ef.Saving(batch=(str(batch), 200)))
     assert again.values == whole.values and not batch.exists()
     # a save of another batch (here: a resume in batches of another size) is removed with a warning, not
     # continued nor a failure
     monkeypatch.setattr(ckpt, "save", save_then_stop)
     with pytest.raises(_Stopped):
-        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200), **kw)
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw,
+               saving=ef.Saving(checkpoint=history, batch=(str(batch), 200)))
     monkeypatch.setattr(ckpt, "save", save)
     resumes.clear()
     with pytest.warns(UserWarning, match="another batch of piles"):
-        other = ef.fit(runner._replace(batch_size=1), ["ks"], {"ks": 9_000.0}, target, checkpoint=history,
-                       resume=history, batch_checkpoint=(str(batch), 200), **kw)
+        other = ef.fit(runner._replace(batch_size=1), ["ks"], {"ks": 9_000.0}, target, **kw,
+                       saving=ef.Saving(checkpoint=history, resume=history, batch=(str(batch), 200)))
     assert resumes == [None, None] and other.values == whole.values and not batch.exists()
     # stopped in the final batch (the interval's, after the last iteration): the resume runs no iteration
     # and continues that batch
@@ -330,27 +338,28 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: calls.append(k["resume"]) or sweep(*a, **k))
     monkeypatch.setattr(ckpt, "save", save_in_final)
     with pytest.raises(_Stopped):
-        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200),
-               **{**kw, "interval": True})
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True},
+               saving=ef.Saving(checkpoint=history, batch=(str(batch), 200)))
     monkeypatch.setattr(ckpt, "save", save)
     calls.clear()
-    final = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
-                   batch_checkpoint=(str(batch), 200), **{**kw, "interval": True})
+    final = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True},
+                   saving=ef.Saving(checkpoint=history, resume=history, batch=(str(batch), 200)))
     assert calls == [str(batch)] and not batch.exists()
     uninterrupted = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True})
     assert final.values == uninterrupted.values and final.interval == uninterrupted.interval
     # stopped in a later iteration (the second's batch): the resume takes the first from the history,
     # continues the second's batch from its save and runs the final one
-    two = {**kw, "steps": 2}
+    two = {**kw, "stopping": ef.Stopping(steps=2)}
     calls.clear()
     monkeypatch.setattr(ckpt, "save", save_in_final)  # stops at the first save of the second batch run
     with pytest.raises(_Stopped):
-        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, batch_checkpoint=(str(batch), 200), **two)
+        ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **two,
+               saving=ef.Saving(checkpoint=history, batch=(str(batch), 200)))
     monkeypatch.setattr(ckpt, "save", save)
     assert calls == [None, None] and len(json.loads(open(history).read())["history"]) == 1
     calls.clear()
-    later = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, checkpoint=history, resume=history,
-                   batch_checkpoint=(str(batch), 200), **two)
+    later = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **two,
+                   saving=ef.Saving(checkpoint=history, resume=history, batch=(str(batch), 200)))
     assert calls == [str(batch), None] and not batch.exists()  # the second from its save, the final one afresh
     both = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **two)
     assert len(both.history) == 2 and later.values == both.values
@@ -413,11 +422,11 @@ def test_missing_statistics_weights_and_resume_guards(tmp_path):
     runner = ToyRunner()
     toy = _target(runner)
     ck = str(tmp_path / "fit.json")
-    ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, steps=1, checkpoint=ck,
-           progress=False, interval=False)
+    ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, progress=False, interval=False,
+           stopping=ef.Stopping(steps=1), saving=ef.Saving(checkpoint=ck))
     with pytest.raises(InputError, match="another fit.*step"):
-        ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, steps=2, step=0.1, resume=ck,
-               progress=False)
+        ef.fit(runner, ["mu"], {"mu": 0.2}, toy, seeds=range(4), statistics=STATS, progress=False,
+               gradient=ef.Gradient(step=0.1), stopping=ef.Stopping(steps=2), saving=ef.Saving(resume=ck))
     renamed = toy._replace(labels=["angle", "dip"])
     with pytest.raises(InputError, match="same statistics"):
         ef.fit(runner, ["mu"], {"mu": 0.2}, renamed, seeds=range(4), statistics=STATS, progress=False)
@@ -509,15 +518,16 @@ def test_regression_over_every_ensemble_is_exact_on_a_line_and_honest_in_chaos()
 
     truth, stats = 0.3137, ef.Statistics(columns=("angle", "feature"))
     exact = ChaoticToyRunner(noise=0.0)
-    result = ef.fit(exact, ["mu"], {"mu": 0.2}, _target(exact, truth), seeds=range(8), statistics=stats, steps=4,
-                    progress=False)
+    result = ef.fit(exact, ["mu"], {"mu": 0.2}, _target(exact, truth), seeds=range(8), statistics=stats, progress=False,
+                    stopping=ef.Stopping(steps=4))
     assert result.record["regression"]["values"]["mu"] == pytest.approx(truth, rel=1e-9)
     gn_errors, regression_errors, gn_inside, regression_inside = [], [], 0, 0
     for k in range(6):  # independent targets and fits
         runner = ChaoticToyRunner(noise=1.0)
         target = _target(runner, truth, seeds=range(1000 * (k + 1), 1000 * (k + 1) + 32))
         fit = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(100 * k, 100 * k + 32), statistics=stats,
-                     steps=6, step=0.2, progress=False)  # h as fit_recovery's chaotic cases
+                     progress=False, gradient=ef.Gradient(step=0.2),  # h as fit_recovery's chaotic cases
+                     stopping=ef.Stopping(steps=6))
         again = regression.estimate(fit)  # from the result alone, as for a fit.json
         assert again.values == fit.record["regression"]["values"]
         assert again.points == 3 * (len(fit.history) - 1) + 3  # the start's iteration left out, the end's in

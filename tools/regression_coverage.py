@@ -49,7 +49,7 @@ def main(argv=None) -> dict:
             runner = make()
             target = _target(runner, truth, seeds=range(1000 * (k + 1), 1000 * (k + 1) + 32))
             fit = ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=range(100 * k, 100 * k + 32), statistics=stats,
-                         steps=6, step=0.2, progress=False)
+                         progress=False, gradient=ef.Gradient(step=0.2), stopping=ef.Stopping(steps=6))
             line = fit.record["regression"]
             for name, value, (lo, hi) in (("gauss_newton", fit.values["mu"], fit.interval["mu"]),
                                           ("line", line["values"]["mu"], line["interval"]["mu"])):

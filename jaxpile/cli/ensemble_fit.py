@@ -198,13 +198,15 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     optimizer = args.optimizer or ("gauss-newton" if estimator == "central" else "adam")
     print(f"jaxpile: fitting {', '.join(names)} of the {law} law on {args.protocol} ensembles of {b} "
           f"({estimator}, {optimizer}) to {target.source}", flush=True)
-    result = ensemble_fit.fit(runner, names, start, target, seeds=seeds, statistics=statistics,
-                              estimator=estimator, optimizer=optimizer, steps=steps, lr=args.lr,
-                              step=args.difference_step, window=args.truncation_window,
-                              progress=not args.no_progress, checkpoint=checkpoint,
-                              resume=checkpoint if args.resume else None,
-                              batch_checkpoint=None if every is None else (fit_save, every),
-                              identifiability="warn" if args.fit_anyway else "refuse")
+    result = ensemble_fit.fit(runner, names, start, target, seeds=seeds, statistics=statistics, optimizer=optimizer,
+                              lr=args.lr, progress=not args.no_progress,
+                              identifiability="warn" if args.fit_anyway else "refuse",
+                              gradient=ensemble_fit.Gradient(estimator=estimator, step=args.difference_step,
+                                                             window=args.truncation_window),
+                              stopping=ensemble_fit.Stopping(steps=steps),
+                              saving=ensemble_fit.Saving(checkpoint=checkpoint,
+                                                         resume=checkpoint if args.resume else None,
+                                                         batch=None if every is None else (fit_save, every)))
     return _write_results(args, names, target, result) if writes else result.to_json()
 
 

@@ -66,9 +66,10 @@ def calibrate(protocol: str, measurement: str | os.PathLike | Measurement, param
     b = int(ensemble) if ensemble is not None else (1 if spec.batch.deterministic else 8)
     runner = ensemble_fit.Runner(protocol, law, params=dict(fixed) if fixed else None, options=options,
                                  law_options=law_options, rotation=rotation)
-    return ensemble_fit.fit(runner, names, start, target, seeds=range(b), statistics=statistics, step=step,
-                            steps=steps, progress=progress, checkpoint=checkpoint,
-                            resume=checkpoint if resume else None, identifiability=identifiability)
+    return ensemble_fit.fit(runner, names, start, target, seeds=range(b), statistics=statistics, progress=progress,
+                            identifiability=identifiability, gradient=ensemble_fit.Gradient(step=step),
+                            stopping=ensemble_fit.Stopping(steps=steps),
+                            saving=ensemble_fit.Saving(checkpoint=checkpoint, resume=checkpoint if resume else None))
 
 
 __all__ = ["calibrate"]

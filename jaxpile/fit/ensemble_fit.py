@@ -191,13 +191,77 @@ def _optimiser(name: str, lr: float):
     return getattr(optax, name)(lr)
 
 
+class Gradient(NamedTuple):
+    """How an ensemble fit estimates its loss's gradient.
+
+    Attributes:
+      estimator: `"central"`, `"smoothing"` (module docstring) or
+        `"truncated"`: the truncated pathwise gradient through the pour's
+        construction (`construction.Construction`, windows of `window` steps,
+        their sensitivities averaged); the base profile alone. Measured biased
+        on 40-disk heaps (docs/fitting.md, the estimator study): for trying on others.
+      step: central differences' h (log units; a chaotic pile needs ~0.2).
+      sigma, pairs, key: the smoothing's width, antithetic pairs and random key.
+      window: the truncated estimator's steps per sensitivity.
+    """
+
+    estimator: str = "central"
+    step: float = 0.05
+    sigma: float = 0.05
+    pairs: int = 4
+    key: int = 0
+    window: int = 60
+
+
+class Stopping(NamedTuple):
+    """When an ensemble fit stops.
+
+    Attributes:
+      steps: iterations at most.
+      tolerance: stop when a Gauss-Newton step is below this (log units).
+      max_step: the largest change of a log-parameter per Gauss-Newton step.
+      noise_stop: also stop when every component of a Gauss-Newton step is
+        below its own standard error (the sandwich at that iterate: the spread
+        of the fitted and the target piles). Off by default: the iterates
+        wander by more than these standard errors, which leave out the
+        finite-difference Jacobian's own noise, so on the pour recovery it
+        stopped early with an interval that missed the truth (docs/fitting.md,
+        "Fitting built piles"; docs/performance.md, "Stopping an ensemble fit
+        on its noise"). Every entry records `step_stderr` either way, and the
+        verdict judges the last step against it.
+    """
+
+    steps: int = 6
+    tolerance: float = 1e-3
+    max_step: float = 0.3
+    noise_stop: bool = False
+
+
+class Saving(NamedTuple):
+    """What an ensemble fit saves as it goes, and continues from.
+
+    Attributes:
+      checkpoint: a JSON path to write the history (and the first pass) to
+        before the first iteration and after every one.
+      resume: a checkpoint JSON of this fit to continue from.
+      batch: `(path, every)`: each batch of piles the runner runs (an
+        iteration's ensembles, the final ones) is saved to the `.npz` `path`
+        every `every` steps (`sweeps.sweep`'s checkpoint), continued from it
+        when the fit is resumed, and removed when the batch ends; without
+        `resume` a file left there is removed first. The central and
+        smoothing estimators' batches (the truncated estimator's rollouts are
+        not saved).
+    """
+
+    checkpoint: str | None = None
+    resume: str | None = None
+    batch: tuple[str, int] | None = None
+
+
 def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarget, *, seeds,
-        statistics: Statistics, estimator: str = "central", optimizer: str = "gauss-newton", steps: int = 6,
-        lr: float = 0.1, step: float = 0.05, sigma: float = 0.05, pairs: int = 4, key: int = 0, window: int = 60,
-        max_step: float = 0.3, tolerance: float = 1e-3, noise_stop: bool = False,
-        progress: Callable | bool | None = True,
-        checkpoint: str | None = None, resume: str | None = None, interval: bool = True,
-        batch_checkpoint: tuple[str, int] | None = None, identifiability: str = "refuse") -> EnsembleFitResult:
+        statistics: Statistics, gradient: Gradient = Gradient(), optimizer: str = "gauss-newton", lr: float = 0.1,
+        stopping: Stopping = Stopping(), saving: Saving = Saving(), interval: bool = True,
+        identifiability: str = "refuse", progress: Callable | bool | None = True) -> EnsembleFitResult:
     """Fits the law parameters `names` (positive; fitted as logs) so that the
     ensemble of `seeds` matches `target`.
 
@@ -208,31 +272,12 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
       target: from `make_target` (or `EnsembleTarget.from_json`).
       seeds: the fit's piles (never the target's).
       statistics: what each pile contributes (as the target was made).
-      estimator: `"central"`, `"smoothing"` (module docstring) or
-        `"truncated"`: the truncated pathwise gradient through the pour's
-        construction (`construction.Construction`, windows of `window` steps,
-        their sensitivities averaged); the base profile alone. Measured biased
-        on 40-disk heaps (docs/fitting.md, the estimator study): for trying on others.
+      gradient: how the gradient is estimated (`Gradient`: central
+        differences by default).
       optimizer: `"gauss-newton"` (central only) or an optax name (`adam`, `sgd`...).
-      steps: iterations at most.
       lr: the optax learning rate (log units).
-      step: central differences' h (log units); sigma, pairs, key: smoothing's.
-      max_step: the largest change of a log-parameter per Gauss-Newton step.
-      tolerance: stop when a Gauss-Newton step is below this (log units).
-      noise_stop: also stop when every component of a Gauss-Newton step is
-        below its own standard error (the sandwich at that iterate: the spread
-        of the fitted and the target piles). Off by default: the iterates
-        wander by more than these standard errors, which leave out the
-        finite-difference Jacobian's own noise, so on the pour recovery it
-        stopped early with an interval that missed the truth (docs/fitting.md,
-        "Fitting built piles"; docs/performance.md, "Stopping an ensemble fit
-        on its noise"). Every entry records `step_stderr` either way, to
-        compare the steps with.
-      progress: print a line per iteration (True), or a callable given each
-        history entry.
-      checkpoint: a JSON path to write the history to before the first
-        iteration and after every one.
-      resume: a checkpoint JSON of this fit to continue from.
+      stopping: when to stop (`Stopping`: 6 iterations at most by default).
+      saving: the history's checkpoint, a resume, the running batch (`Saving`).
       interval: run the final central differences for the confidence
         interval (2d + 1 more ensembles); False: NaN interval.
       identifiability: the first pass (`verdict.first_pass`, on the first
@@ -241,18 +286,20 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         `InputError` with its numbers when one does not, `"warn"` says so and
         fits regardless. It also measures the errors a target lacks (a
         measurement without standard errors: one pile's spread at the start).
-      batch_checkpoint: `(path, every)`: each batch of piles the runner runs
-        (an iteration's ensembles, the final ones) is saved to the `.npz`
-        `path` every `every` steps (`sweeps.sweep`'s checkpoint), continued
-        from it when the fit is resumed, and removed when the batch ends;
-        without `resume` a file left there is removed first. The central and
-        smoothing estimators' batches (the truncated estimator's rollouts are
-        not saved).
+      progress: print the first pass, a line per iteration and the verdict
+        (True), or a callable given each history entry.
 
     Returns:
       `EnsembleFitResult` (the interval from a final central-difference
       Jacobian at the fitted values; its record's `first_pass` and `verdict`).
     """
+    for record_, kind in ((gradient, Gradient), (stopping, Stopping), (saving, Saving)):
+        if not isinstance(record_, kind):
+            raise InputError(f"{kind.__name__.lower()} must be an ensemble_fit.{kind.__name__}; got "
+                             f"{type(record_).__name__}.")
+    estimator, step, sigma, pairs, key, window = gradient
+    steps, tolerance, max_step, noise_stop = stopping
+    checkpoint, resume, batch_checkpoint = saving
     statistics, names, seeds, steps = _checked(runner, names, start, target, seeds, statistics, estimator,
                                                optimizer, steps, window)
     if identifiability not in ("refuse", "warn"):
@@ -646,7 +693,7 @@ class _Fitting(NamedTuple):
                        "jacobian": jac.tolist(), "sensitivity": dict(zip(names, sensitivity.tolist())),
                        "interval_dof": dof, "interval_quantile": z, "converged": judged["converged"],
                        "verdict": judged,
-                       "message": message or ("" if converged or self.opt is not None else
+                       "message": message or ("" if judged["converged"] or self.opt is not None else
                                               f"not converged in {steps} iterations: the interval is at the last one"),
                        "fit_seconds": time.perf_counter() - t0,
                        "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"]
@@ -737,5 +784,5 @@ def figure(result: EnsembleFitResult, path=None):
     return fig
 
 
-__all__ = ["ESTIMATORS", "EnsembleFitResult", "EnsembleTarget", "Runner", "Statistics", "confidence", "figure",
-           "fit", "make_target", "objective_for", "smid_novosad_target", "weights"]
+__all__ = ["ESTIMATORS", "EnsembleFitResult", "EnsembleTarget", "Gradient", "Runner", "Saving", "Statistics",
+           "Stopping", "confidence", "figure", "fit", "make_target", "objective_for", "smid_novosad_target", "weights"]

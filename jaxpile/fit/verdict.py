@@ -126,10 +126,48 @@ def first_pass_lines(report: dict) -> list[str]:
     return lines
 
 
+NOISE_FLOOR_STEPS = 3
+"""How many last steps must each lie within twice their standard error, and
+not all one way, for a fit to have reached its noise floor."""
+
+
+def at_noise_floor(history: list) -> bool:
+    """Whether a Gauss-Newton fit's last `NOISE_FLOOR_STEPS` steps each lie
+    within twice their own standard error (the 95 % band of a step taken at
+    the optimum, where the step is the noise) and, in every parameter, do not
+    all go one way (a drift, not a wander): further iterations would move the
+    estimate by its noise, not towards a better one."""
+    recent = history[-NOISE_FLOOR_STEPS:]
+    if len(recent) < NOISE_FLOOR_STEPS:
+        return False
+    steps = np.array([np.asarray(h["next_theta"], float) - np.asarray(h["theta"], float) for h in recent])
+    se = np.array([np.asarray(h.get("step_stderr", [math.nan] * steps.shape[1]), float) for h in recent])
+    if not np.all(np.isfinite(se)) or not np.all(se > 0):
+        return False
+    within = np.all(np.abs(steps) < 2 * se)
+    drifting = np.any(np.all(steps > 0, axis=0) | np.all(steps < 0, axis=0))
+    return bool(within and not drifting)
+
+
+def of_record(record: dict) -> dict:
+    """The verdict of a fit from its fit.json record (`EnsembleFitResult.to_json`),
+    as `ensemble_fit.fit` would judge it now."""
+    from jaxpile.fit.ensemble_targets import EnsembleTarget
+    from jaxpile.fit.stats import weights
+
+    target = EnsembleTarget.from_json(record["target"])
+    history = record["history"]
+    converged = bool(history) and bool(history[-1].get("converged"))
+    message = record.get("message", "") if not str(record.get("message", "")).startswith("not converged in") else ""
+    return verdict(history, np.asarray(record["jacobian"], float), weights(target),
+                   np.asarray(record["fitted_members"], float), target, list(record["names"]), converged, message,
+                   int(record.get("steps", len(history))))
+
+
 def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: np.ndarray, target, names: list,
             converged: bool, message: str, steps: int) -> dict:
     """The fit's verdict: converged or not and why (`tolerance`, `noise
-    floor`: the last step within its standard error in every component,
+    floor`: `at_noise_floor`, or the fit's own `noise_stop`,
     `budget`: iterations spent, or `stopped`: `message`); the loss path; each
     fitted statistic against the target in units of its error (`misfit`), the
     lack-of-fit chi^2 and its p-value; the Jacobian's rank and conditioning;
@@ -144,7 +182,7 @@ def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: 
         why = "noise floor" if last.get("stopped_by") == "noise" else "tolerance"
     elif message:
         why = "stopped"
-    elif step.size and np.all(np.isfinite(step_se)) and np.all(step < step_se):
+    elif at_noise_floor(history):
         why, converged = "noise floor", True
     else:
         why = "budget"
@@ -183,7 +221,8 @@ def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: 
 def verdict_lines(v: dict) -> list[str]:
     """The verdict in a few sentences."""
     how = {"tolerance": "converged (its last step below the tolerance)",
-           "noise floor": "converged to the noise floor (its last step within its standard error)",
+           "noise floor": f"converged to the noise floor (its last {NOISE_FLOOR_STEPS} steps within twice their "
+                          "standard errors, not all one way)",
            "budget": f"did NOT converge: its {v['iterations']} iteration(s) were spent",
            "stopped": f"did NOT converge: it stopped ({v['message']})"}[v["why"]]
     worst = max(v["misfit"].items(), key=lambda kv: abs(kv[1]) if math.isfinite(kv[1]) else -1, default=None)
@@ -194,8 +233,11 @@ def verdict_lines(v: dict) -> list[str]:
         fit_line += f"; chi^2 = {v['chi2']:.3g} on {v['dof']} degrees of freedom (p = {v['p_value']:.2g})"
     trust = ("the interval can be trusted" if v["interval_trusted"]
              else "the interval cannot be trusted: " + "; ".join(v["doubts"]))
-    return [f"the fit {how}", fit_line, trust]
+    path = [x for x in v["loss_path"] if math.isfinite(x)]
+    went = "" if len(path) < 2 else (f"; the loss went {path[0]:.3g} -> {path[-1]:.3g} over its iterations"
+                                     + (" (it rose)" if path[-1] > path[0] else ""))
+    return [f"the fit {how}{went}", fit_line, trust]
 
 
-__all__ = ["FALSE_ALARM", "LACK_OF_FIT_P", "MIN_PILES", "TOLD_APART", "first_pass", "first_pass_lines",
+__all__ = ["FALSE_ALARM", "NOISE_FLOOR_STEPS", "at_noise_floor", "of_record", "LACK_OF_FIT_P", "MIN_PILES", "TOLD_APART", "first_pass", "first_pass_lines",
            "target_error", "verdict", "verdict_lines"]

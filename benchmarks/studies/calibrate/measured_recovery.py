@@ -15,7 +15,9 @@ the verdict in benchmarks/results/calibrate/CASE.json, with the commands.
 
     python benchmarks/studies/calibrate/measured_recovery.py pour-mu-roll
     python benchmarks/studies/calibrate/measured_recovery.py pour-mu
+    python benchmarks/studies/calibrate/measured_recovery.py pour-mu-hooke
     python benchmarks/studies/calibrate/measured_recovery.py pour-profile-only   # the profile alone: mu refused?
+    python benchmarks/studies/calibrate/measured_recovery.py --table   # docs/calibrate.md's table from the JSON
 """
 
 from __future__ import annotations
@@ -49,6 +51,9 @@ CASES = {
     # normal[x/B=0.3] moved 2.4x its noise, 3.4x needed)
     "pour-mu": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
                     ensemble=32, step=0.4),
+    # the same with the hooke law (LAMMPS gran/hooke/history), whose Coulomb friction sets a heap's angle
+    "pour-mu-hooke": dict(protocol="pour", law="hooke", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
+                          ensemble=32, step=0.4),
     # the profile alone against mu, at the sizes that do not tell mu_roll: what the first pass says of it
     "pour-profile-only": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55},
                               angle=False, ensemble=8, step=0.2),
@@ -92,8 +97,56 @@ def write_measurement(folder: str, case: dict, mean: dict, stderr: dict) -> str:
     return path
 
 
+START, END = "<!-- measured-recovery:start -->\n", "<!-- measured-recovery:end -->"
+
+
+def table(folder: str = os.path.join(BENCHMARKS, "results", "calibrate")) -> str:
+    """docs/calibrate.md's table of the cases run (a case not run yet is left out)."""
+    lines = ["| case | law, heap | measured (heaps) | fitted | truth | start | first pass | fitted value (95 %) | "
+             "truth inside | verdict | through all ensembles (95 %) | piles a side | cost |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for case, what in CASES.items():
+        path = os.path.join(folder, f"{case}.json")
+        if not os.path.exists(path):
+            continue
+        with open(path) as fh:
+            r = json.load(fh)
+        (name, truth), = r["truth"].items()
+        measured = ("angle + " if what["angle"] else "") + f"profile at 11 points ({r['measured_heaps']})"
+        p = (r.get("first_pass") or {}).get("parameters", {}).get(name, {})
+        first = (f"{p['most_moved']} {p['z']:.1f}x its noise ({p['needed']:.1f}x needed)" if p else "—")
+        if r.get("value") is None:
+            lines.append(f"| {case} | {what['law']}, {r['n']} disks | {measured} | {name} | {truth:g} | "
+                         f"{r['start'][name]:g} | {first}: refused | — | — | — | — | {r['ensemble']} | first pass |")
+            continue
+        lo, hi = r["interval"]
+        v = r["verdict"]
+        line = r.get("regression") or {}
+        through = "—" if not line else (f"{line['values'][name]:.4g} ({line['interval'][name][0]:.4g} – "
+                                        f"{line['interval'][name][1]:.4g}), truth "
+                                        f"{'in' if r['regression_truth_inside'] else 'out'}")
+        said = f"{v['why']}, interval {'trusted' if v['interval_trusted'] else 'not trusted'}, p = {v['p_value']:.2g}"
+        lines.append(f"| {case} | {what['law']}, {r['n']} disks | {measured} | {name} | {truth:g} | "
+                     f"{r['start'][name]:g} | {first} | {r['value']:.4g} ({lo:.4g} – {hi:.4g}) | "
+                     f"{'yes' if r['truth_inside'] else 'no'} | {said} | {through} | {r['ensemble']} | "
+                     f"{r['iterations']} iterations, {r['particle_steps']:.2g} particle-steps, "
+                     f"{r['fit_seconds'] / 60:.0f} min |")
+    return "\n".join(lines) + "\n"
+
+
+def rewrite_page(check: bool = False) -> bool:
+    """Writes `table()` between its markers in docs/calibrate.md (with `check`: only compares)."""
+    import docs_block
+
+    return docs_block.rewrite(START, END, table(), check=check, page=docs_block.DOCS / "calibrate.md")
+
+
 def main(argv=None) -> dict:
     argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--table":
+        rewrite_page()
+        print(table())
+        return {}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("case", choices=sorted(CASES))
     parser.add_argument("--measured-heaps", type=int, default=16)
@@ -134,21 +187,30 @@ def main(argv=None) -> dict:
             os.path.join(fit_dir, "fit.json")):
         command.append("--resume")
     print(" ".join(["jaxpile"] + command[1:]), flush=True)
-    t1 = time.perf_counter()
-    done = subprocess.run(command, cwd=ROOT)
+    fit_json = os.path.join(fit_dir, "fit.json")
+    finished = os.path.exists(fit_json)  # a finished fit is summarised again, not run again
+    done = subprocess.CompletedProcess(command, 0) if finished else subprocess.run(command, cwd=ROOT)
     record = {"case": args.case, "truth": case["truth"], "start": case["start"], "n": case["n"],
               "measured_heaps": args.measured_heaps, "ensemble": args.ensemble, "returncode": done.returncode,
-              "measurement_seconds": measured_seconds, "fit_seconds_this_run": time.perf_counter() - t1,
+              "measurement_seconds": measured_seconds,
               "command": "python benchmarks/studies/calibrate/measured_recovery.py " + " ".join(argv),
               "fit_command": " ".join(["jaxpile"] + command[1:]).replace(ROOT + os.sep, "")}
-    fit_json = os.path.join(fit_dir, "fit.json")
     if done.returncode == 0 and os.path.exists(fit_json):
+        from jaxpile.fit import verdict
+
         with open(fit_json) as fh:
             fit = json.load(fh)
         lo, hi = fit["interval"][name]
+        line = fit.get("regression") or {}
+        through = line.get("interval", {}).get(name)
         record.update(value=fit["values"][name], interval=[lo, hi], truth_inside=bool(lo <= case["truth"][name] <= hi),
-                      verdict=fit["verdict"], first_pass=fit["first_pass"]["report"],
-                      regression=fit.get("regression"), particle_steps=fit["particle_steps"])
+                      # the verdict as the code judges the fit.json now (verdict.of_record), and as the run did
+                      verdict=verdict.of_record(fit), verdict_at_run=fit["verdict"],
+                      first_pass=fit["first_pass"]["report"], regression=line or None,
+                      regression_truth_inside=None if through is None else bool(through[0] <= case["truth"][name]
+                                                                                 <= through[1]),
+                      particle_steps=fit["particle_steps"], fit_seconds=fit["fit_seconds"],
+                      iterations=len(fit["history"]))
     else:
         checkpoint = os.path.join(fit_dir, "fit_checkpoint.json")
         if os.path.exists(checkpoint):
@@ -163,6 +225,8 @@ def main(argv=None) -> dict:
     with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
         json.dump(record, fh, indent=1)
     print(json.dumps({k: record.get(k) for k in ("case", "truth", "value", "interval", "truth_inside", "returncode")}))
+    if args.out == os.path.join(BENCHMARKS, "results", "calibrate"):
+        rewrite_page()
     return record
 
 

@@ -227,8 +227,8 @@ def main(argv=None) -> dict:
         with open(checkpoint) as fh:
             earlier = float(sum(h.get("seconds", 0.0) for h in json.load(fh).get("history", [])))
     result = ef.fit(runner, list(case["start"]), case["start"], target, seeds=range(b), statistics=statistics,
-                    steps=args.steps, checkpoint=checkpoint, step=case.get("step", 0.05),
-                    resume=checkpoint if os.path.exists(checkpoint) else None)
+                    gradient=ef.Gradient(step=case.get("step", 0.05)), stopping=ef.Stopping(steps=args.steps),
+                    saving=ef.Saving(checkpoint=checkpoint, resume=checkpoint if os.path.exists(checkpoint) else None))
     record = result.to_json()
     record["truth"] = case["truth"]
     record["relative_error"] = {n: result.values[n] / case["truth"][n] - 1 for n in result.names}
