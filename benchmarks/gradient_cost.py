@@ -261,7 +261,7 @@ def main(argv=None) -> dict:
         values = {k: getattr(params, k) for k in NAMES}
         grad_ckpt = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, True)(params.set(**v)), values,
                                            "reverse")
-        # forward mode over the same three, as `fit.fit(mode="auto")` takes it for <= 4 values
+        # forward mode over the same three, as `fit.descend(mode="auto")` takes it for <= 4 values
         jvp = fit.value_and_gradient(lambda v: loss_fn(sim, state, steps, False)(params.set(**v)), values, "forward")
         # and over mu alone: what a pathwise fit of one parameter differentiates
         one = {"mu": params.mu}

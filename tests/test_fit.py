@@ -395,7 +395,7 @@ def _toy_loss(p):
 def test_fit_recovers_a_toy_optimum_from_a_perturbed_start():
     start = hooke.make_params(kn=1e4, kt=3500.0, mu=0.45, gamma_n=50.0)
     seen = []
-    result = fit.fit(_toy_loss, start, ["mu", "kt"], steps=400, patience=400, callback=seen.append)
+    result = fit.descend(_toy_loss, start, ["mu", "kt"], steps=400, patience=400, callback=seen.append)
     assert float(result.params.mu) == pytest.approx(0.3, rel=1e-3)
     assert float(result.params.kt) == pytest.approx(2000.0, rel=1e-3)
     assert float(result.params.kn) == 1e4 and float(result.params.gamma_n) == 50.0  # not fitted, unchanged
@@ -422,10 +422,10 @@ def test_forward_and_reverse_mode_give_one_gradient_and_one_fit():
     np.testing.assert_allclose(reverse[1]["b"], 2.0 * (3 * np.sin(0.3) * np.array([1.0, 4.0])
                                                        + np.array([0.3 * np.exp(0.3), 0.0])), rtol=1e-12)
     start = hooke.make_params(kn=1e4, kt=3500.0, mu=0.45, gamma_n=50.0)
-    runs = [fit.fit(_toy_loss, start, ["mu", "kt"], steps=30, mode=mode) for mode in ("forward", "reverse")]
+    runs = [fit.descend(_toy_loss, start, ["mu", "kt"], steps=30, mode=mode) for mode in ("forward", "reverse")]
     assert [r["loss"] for r in runs[0].history] == pytest.approx([r["loss"] for r in runs[1].history], rel=1e-9)
     with pytest.raises(InputError, match="mode"):
-        fit.fit(_toy_loss, start, "mu", mode="sideways")
+        fit.descend(_toy_loss, start, "mu", mode="sideways")
 
 
 def test_auto_mode_takes_forward_mode_up_to_the_measured_count_and_explicit_modes_as_given():
@@ -444,7 +444,7 @@ def test_auto_mode_takes_forward_mode_up_to_the_measured_count_and_explicit_mode
 
 def test_fit_stops_when_the_loss_stalls_and_with_an_explicit_optimizer():
     params = {"a": 1.0, "b": 2.0}
-    result = fit.fit(lambda p: 1.0 + 0.0 * p["a"], params, "a", patience=5, steps=50)
+    result = fit.descend(lambda p: 1.0 + 0.0 * p["a"], params, "a", patience=5, steps=50)
     assert result.converged and result.steps == 5 and len(result.history) == 6
     assert "converged" in result.message
     traces = []
@@ -453,7 +453,7 @@ def test_fit_stops_when_the_loss_stalls_and_with_an_explicit_optimizer():
         traces.append(1)
         return (jnp.log(p["a"]) - 1.0) ** 2
 
-    result = fit.fit(loss, params, "a", optimizer=optax.sgd(0.4), steps=60)
+    result = fit.descend(loss, params, "a", optimizer=optax.sgd(0.4), steps=60)
     assert float(result.params["a"]) == pytest.approx(math.e, rel=1e-6) and result.params["b"] == 2.0
     assert len(traces) == 1  # compiled once: optimiser steps never re-trace the loss
 
@@ -461,17 +461,17 @@ def test_fit_stops_when_the_loss_stalls_and_with_an_explicit_optimizer():
 def test_fit_refuses_a_non_finite_start_and_stops_on_a_later_one():
     params = hooke.make_params(kn=1e4, mu=0.3)
     with pytest.raises(InputError, match="loss is nan at the starting parameters"):
-        fit.fit(lambda p: jnp.nan * p.mu, params, "mu")
+        fit.descend(lambda p: jnp.nan * p.mu, params, "mu")
     with pytest.raises(InputError, match="gradient is not finite"):
-        fit.fit(lambda p: jnp.sqrt(jnp.maximum(p.mu - 1.0, 0.0)), params, "mu")  # 0, with a NaN slope
+        fit.descend(lambda p: jnp.sqrt(jnp.maximum(p.mu - 1.0, 0.0)), params, "mu")  # 0, with a NaN slope
     with pytest.raises(InputError, match="scalar"):
-        fit.fit(lambda p: jnp.stack([p.mu, p.mu]), params, "mu")
+        fit.descend(lambda p: jnp.stack([p.mu, p.mu]), params, "mu")
 
     def blows_up(p):  # pulls mu up, and is NaN beyond mu = 0.4
         return jnp.where(p.mu > 0.4, jnp.nan, (p.mu - 1.0) ** 2)
 
     with pytest.warns(RuntimeWarning, match="keeping the best parameters"):
-        result = fit.fit(blows_up, params, "mu", optimizer=optax.sgd(0.5), steps=50)
+        result = fit.descend(blows_up, params, "mu", optimizer=optax.sgd(0.5), steps=50)
     assert not result.converged and "loss is nan" in result.message
     assert 0.3 < float(result.params.mu) <= 0.4
     assert result.loss == pytest.approx((float(result.params.mu) - 1.0) ** 2)
@@ -481,7 +481,7 @@ def test_fit_figure(tmp_path):
     import matplotlib.pyplot as plt
 
     target = fit.smid_novosad_profile(points=21)
-    result = fit.fit(lambda p: (jnp.log(p["a"]) - 1.0) ** 2, {"a": 1.0}, "a", steps=5)
+    result = fit.descend(lambda p: (jnp.log(p["a"]) - 1.0) ** 2, {"a": 1.0}, "a", steps=5)
     before = fit.Profile(target.x_over_b, np.ones(21), np.zeros(21))
     after = fit.Profile(target.x_over_b, target.normal, target.horizontal)
     fig = fit.fit_figure(result, target, before, after)

@@ -177,7 +177,7 @@ def _fit_one_pile(args, law: str, names: list, target, optimizer, start: dict) -
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # its message is in the result and printed below
-        result = fit.fit(loss, params, names, optimizer=optimizer, steps=args.steps, progress=progress is None,
+        result = fit.descend(loss, params, names, optimizer=optimizer, steps=args.steps, progress=progress is None,
                          callback=stable)
     seconds = time.perf_counter() - t0
     if stopped:

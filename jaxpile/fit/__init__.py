@@ -11,7 +11,7 @@ law parameters (so `jax.grad` runs through a whole `Simulator.rollout`):
   `ProfileTarget` (`load_profile_csv` for measured points, `smid_novosad_profile`
   for the features Smid & Novosad's experiment is reported to show).
 
-`fit` then runs an optax optimiser over chosen parameters in log space
+`descend` then runs an optax optimiser over chosen parameters in log space
 (`Transform`), keeping the rest of the params pytree fixed.
 
 The pieces live in one module each, and every name below is re-exported here:
@@ -26,7 +26,7 @@ The pieces live in one module each, and every name below is re-exported here:
 - `problem`: the pile a pathwise fit differentiates (`FitProblem`), built
   from a protocol that offers one;
 - `optimise`: the log-space `Transform`, forward or reverse gradients, the
-  optax loop `fit` and its figure.
+  optax loop `descend` and its figure.
 
 Fits to the ensembles that a protocol builds are in `ensemble_fit` (with
 `estimators`, `construction`, `regression`, `stats`, `verdict`); a fit to a
@@ -40,7 +40,7 @@ Example:
   >>> from jaxpile.laws import hooke
   >>> params = hooke.make_params(kn=1e4, mu=0.5)
   >>> loss = lambda p: (jnp.log(p.mu) - jnp.log(0.3)) ** 2
-  >>> result = fit.fit(loss, params, ["mu"], steps=400)  # doctest: +SKIP
+  >>> result = fit.descend(loss, params, ["mu"], steps=400)  # doctest: +SKIP
   >>> float(result.params.mu)  # doctest: +SKIP
   0.3...
 
@@ -60,7 +60,7 @@ from jaxpile.fit.optimise import (
     LOWER_BOUNDS,
     FitResult,
     Transform,
-    fit,
+    descend,
     fit_figure,
     gradient_mode,
     to_constrained,
@@ -112,7 +112,7 @@ __all__ = [
     "central_slope",
     "dip_loss",
     "feature_loss",
-    "fit",
+    "descend",
     "fit_figure",
     "gradient_mode",
     "load_measurement",

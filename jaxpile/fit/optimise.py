@@ -190,7 +190,7 @@ def value_and_gradient(objective: Callable, u, mode: str = "auto") -> Callable:
 
 # ---------------------------------------------------------------- fitting
 class FitResult(NamedTuple):
-    """What `fit` did.
+    """What `descend` did.
 
     Attributes:
       params: the params pytree with the lowest loss seen.
@@ -200,7 +200,7 @@ class FitResult(NamedTuple):
       history: one dict per evaluated step: `step`, `loss`, each fitted
         parameter's value, and `grad_norm`, the gradient's global norm in the
         log space the optimiser moves in.
-      converged: True when the loss stopped improving (see `fit`'s `patience`).
+      converged: True when the loss stopped improving (see `descend`'s `patience`).
       steps: optimiser updates taken.
       message: why the fit stopped.
     """
@@ -223,7 +223,7 @@ def _scalar_or_list(value):
     return float(v) if v.ndim == 0 else v.tolist()
 
 
-def fit(loss_fn: Callable[[Any], Array], params, names: str | Sequence[str], *,
+def descend(loss_fn: Callable[[Any], Array], params, names: str | Sequence[str], *,
         optimizer: optax.GradientTransformation | None = None, steps: int = 50, patience: int = 20,
         rtol: float = 1e-6, callback: Callable[[dict], Any] | None = None, progress: bool = False,
         mode: str = "auto") -> FitResult:
@@ -397,7 +397,7 @@ def fit_figure(result: FitResult, target: ProfileTarget, before, after, path=Non
     falls back to Agg).
 
     Args:
-      result: from `fit`.
+      result: from `descend`.
       target: the `ProfileTarget`.
       before, after: `Profile`s (from `smooth_base_profile`) at the initial and
         the fitted parameters.
