@@ -319,7 +319,7 @@ class Scarce(Toy):
 
 
 def test_a_statistic_most_piles_lack_is_refused_at_the_first_pass_and_one_all_lack_later_stops_the_fit(tmp_path):
-    with pytest.raises(InputError, match="at 1 disks 'feature' is missing from 5 of 8 piles at the start"):
+    with pytest.raises(InputError, match="at 1 disks 'feature' is missing from 5 of 8 piles in the first pass's ensembles"):
         ef.fit(Scarce(), ["mu"], {"mu": 0.2}, _measured(), seeds=range(8), statistics=TOY, progress=False)
     checkpoint = str(tmp_path / "c.json")
     with pytest.raises(InputError, match=r"the fit stopped in iteration 2: the statistic 'feature' is missing from "
@@ -334,3 +334,25 @@ def io_json(path):
 
     with open(path) as fh:
         return json.load(fh)
+
+
+def test_a_deterministic_piles_measurement_without_errors_is_fitted_by_least_squares():
+    """One pile (a deterministic protocol) has no spread to stand in for missing errors: the points weigh
+    alike and the interval comes from the misfit (s^2 H^-1), neither refused nor of zero width."""
+    target = _measured()._replace(mean=_measured().mean + np.array([0.3, -0.02]))  # a model that misses a little
+    result = ef.fit(Toy(), ["mu"], {"mu": 0.2}, target, seeds=[0], statistics=TOY, progress=False,
+                    stopping=ef.Stopping(steps=8))
+    assert result.record["first_pass"]["errors_from_misfit"] == ["angle", "feature"]
+    lo, hi = result.interval["mu"]
+    assert 0 < hi - lo < 0.1 and lo < result.values["mu"] < hi
+    assert np.isnan(result.record["verdict"]["p_value"])  # no error to judge the misfit in
+
+
+def test_a_pathwise_fit_refuses_a_profile_it_would_read_otherwise(tmp_path, capsys):
+    from jaxpile import cli
+
+    csv = tmp_path / "p.csv"
+    csv.write_text(PROFILE)  # with standard errors
+    assert cli.main(["fit", "--protocol", "lattice", "--target", str(csv), "--params", "mu", "--layers", "3",
+                     "--dry-run", "--out", str(tmp_path / "f")]) == 2
+    assert "a pathwise fit" in capsys.readouterr().err

@@ -259,6 +259,7 @@ def _write_results(args, names: list, target, result) -> dict:
     from jaxpile.fit import ensemble_fit, verdict
 
     record = result.to_json()
+    io.write_json(os.path.join(args.out, "target.json"), plain(result.target.to_json()))  # its errors measured
     if target.truth:
         record["truth_inside_interval"] = {n: bool(lo <= target.truth[n] <= hi)
                                            for n, (lo, hi) in result.interval.items() if n in target.truth}
@@ -266,7 +267,8 @@ def _write_results(args, names: list, target, result) -> dict:
     ensemble_fit.figure(result, path=os.path.join(args.out, "fit.png"))
     judged = result.record["verdict"]
     if args.no_progress:  # else the fit printed them as it went
-        for line in verdict.first_pass_lines(result.record["first_pass"]["report"]):
+        report = result.record["first_pass"].get("report")
+        for line in verdict.first_pass_lines(report) if report else []:
             print(f"first pass: {line}")
         for line in verdict.verdict_lines(judged):
             print(f"verdict: {line}")

@@ -56,6 +56,8 @@ def run_fit(args) -> dict:
     if args.checkpoint_every is not None:
         raise InputError("--checkpoint-every saves an ensemble fit's batches of piles: a pathwise fit runs one pile "
                          "(use --estimator central or smoothing).")
+    if args.fit_anyway:
+        raise InputError("--fit-anyway overrides an ensemble fit's first pass: a pathwise fit has none.")
     if args.rolling is not None or args.rotation is not None:
         raise InputError("a pathwise fit builds its pile with the protocol's own law readings: --rolling and "
                          "--rotation are for ensemble fits (--estimator central or smoothing).")
@@ -97,6 +99,13 @@ def _pathwise_inputs(args) -> tuple:
         target = fit.smid_novosad_profile()
     elif os.path.exists(args.target):
         target = fit.load_profile_csv(args.target, args.normalised_by)  # a folder, unreadable file: one line there
+        if target.normalised_by != "max" or target.normal_stderr is not None or target.horizontal_stderr is not None:
+            raise InputError(f"{args.target} is scaled by the weight or gives standard errors, which a pathwise fit "
+                             "(profiles over their maximum, unweighted) would ignore: fit it by the ensemble mean, "
+                             "--estimator central.")
+        peak = float(np.max(target.normal))  # the pathwise loss compares profiles whose maximum is 1
+        target = target._replace(normal=target.normal / peak,
+                                 horizontal=None if target.horizontal is None else target.horizontal / peak)
     else:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     optimizer = _optimizer(args.optimizer, args.lr)

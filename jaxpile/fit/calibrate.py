@@ -49,6 +49,8 @@ def calibrate(protocol: str, measurement: str | os.PathLike | Measurement, param
     """
     from jaxpile import sweeps
 
+    if resume and checkpoint is None:
+        raise InputError("resume=True continues the fit saved at checkpoint=PATH: give the checkpoint.")
     spec = sweeps.spec_of(protocol)
     if not isinstance(measurement, Measurement):
         measurement = load_measurement(measurement, normalised_by)

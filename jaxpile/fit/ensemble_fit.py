@@ -175,6 +175,7 @@ def confidence(jacobian: np.ndarray, w: np.ndarray, members: np.ndarray, target:
         return np.atleast_2d(np.cov(g, rowvar=False)) / len(piles)
 
     error = None if target.error is None else np.nan_to_num(np.asarray(target.error, float))
+    error = error if error is not None and np.any(error > 0) else None
     if not spread(members) and not spread(target.members) and error is None:
         r = np.asarray(members, float).mean(axis=0) - target.mean
         dof = max(len(r) - d, 1)
@@ -315,6 +316,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
               "max_step": max_step, "tolerance": tolerance, "noise_stop": noise_stop,
               "options": dict(runner.options or {}),
               "params": dict(runner.params or {}), "target_mean": [float(x) for x in target.mean],
+              **({"reading": {"at": list(statistics.at), "bandwidth": statistics.bandwidth,
+                              "normalised_by": statistics.normalised_by}} if statistics.at else {}),
               "settings": config.settings()}
     passed: dict = {}
 
@@ -336,28 +339,30 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
     t0 = time.perf_counter()
     fitting = _Fitting(runner, names, seeds, statistics, target, weights(target), None, estimator, opt, step, sigma,
                        pairs, key, window, max_step, tolerance, noise_stop, batch_checkpoint, {}, progress is True)
-    if not passed:
+    if not passed and history:  # a fit saved before fits had a first pass: resumed as it began
+        passed = {"first_pass": {"report": None, "skipped": "resumed a fit saved before its first pass"}}
+    elif not passed:
         passed = {"first_pass": _first_pass(fitting, theta, progress)}
     first = passed["first_pass"]
-    target = fitting.target if first.get("error") is None else target._replace(
-        spread=np.asarray(first["spread"], float), error=np.asarray(first["error"], float))
+    if first.get("spread") is not None:  # the errors the target lacked, as the first pass measured them
+        target = target._replace(spread=np.asarray(first["spread"], float), error=np.asarray(first["error"], float))
     w = weights(target)
     fitting = fitting._replace(target=target, w=w, objective=objective_for(target, w))
     if first.get("statistics") is not None and estimator == "central" and not history:
         fitting.cache[estimators.central_points(theta, step).tobytes()] = np.asarray(first["statistics"], float)
     save_history()
-    lines = verdict.first_pass_lines(first["report"])
+    report = first["report"]
     if progress is True:
-        for line in lines:
+        for line in verdict.first_pass_lines(report) if report else []:
             print(f"first pass: {line}", flush=True)
-    if identifiability == "refuse" and not first["report"]["identifiable"]:
-        report = first["report"]
+    if identifiability == "refuse" and report and not report["identifiable"]:
         bad = {n: p for n, p in report["parameters"].items() if p["identifiable"] is False}
         raise InputError(f"the target cannot identify {', '.join(bad)} at {report['disks']} disks (the first pass: "
                          + ", ".join(f"{n} moves {p['most_moved']} most, by {p['z']:.1f}x its noise where "
                                      f"{p['needed']:.1f}x is needed" for n, p in bad.items())
-                         + "); use more disks, other statistics (an angle, the profile) or a larger ensemble, or fit "
-                         "regardless (--fit-anyway, identifiability='warn').")
+                         + "); use more disks, a larger ensemble or a wider difference step, or measure another "
+                         "quantity (an angle, the profile), or fit regardless (--fit-anyway, "
+                         "identifiability='warn').")
     message = ""
     done = bool(history) and history[-1].get("converged", False)
     for it in range(len(history), steps):
@@ -447,8 +452,9 @@ def _replay(resume: str, record: dict, theta: np.ndarray, opt, opt_state):
         raise InputError(f"{resume} was written by another fit (its {', '.join(differ)} differ); resume it "
                          "with the command that made it.")
     if distributed.process_count() > 1:  # each process saved its own history: they must all be at one iteration
-        lengths = distributed.gather([len(saved["history"])])
-        if len(set(lengths)) > 1:
+        at = distributed.gather([2 * len(saved["history"]) + int(bool(saved.get("first_pass")))])
+        lengths = [a // 2 for a in at]
+        if len(set(at)) > 1:
             raise InputError(f"the processes' checkpoints hold {', '.join(map(str, lengths))} iterations (a process "
                              "stopped between saves): copy the longest fit_checkpoint.json over the others, and resume.")
     settings_differ = config.differences(saved.get("settings"), record["settings"], batch=True)
@@ -479,18 +485,26 @@ def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
     if scarce:  # a statistic most piles lack at this size would soon be missing from all at some point
         raise InputError(f"at {disks} disks " + ", ".join(f"{lab!r} is missing from {c} of {s.shape[1]} piles"
                                                          for lab, c in scarce.items())
-                         + " at the start (heaps too small to read it): use more disks or other statistics.")
+                         + " in the first pass's ensembles (heaps too small to read it): use more disks or other "
+                         "statistics.")
     s, missing = fill_missing(s, fitting.statistics.labels())
     target, out = fitting.target, {"statistics": s.tolist(), "particle_steps": int(info["particle_steps"]),
                                    "missing": missing}
     unknown = ~np.isfinite(np.asarray(target.spread, float))
-    if unknown.any():
-        if s.shape[1] < 2:
-            raise InputError("the target gives no standard errors for "
-                             f"{', '.join(np.asarray(target.labels)[unknown][:3])}, and one pile cannot measure a "
-                             "spread: fit an ensemble of 2 or more piles (--ensemble), or give the errors (a stderr "
-                             "column).")
-        pile = s[0].std(axis=0, ddof=1)
+    pile = s[0].std(axis=0, ddof=1) if s.shape[1] > 1 else np.zeros(s.shape[2])
+    if unknown.any() and not np.any(pile[unknown] > 0):
+        # one pile, or piles all alike (a deterministic protocol): nothing measures the missing errors, so
+        # the points weigh alike and the interval is least squares' from the misfit (`confidence`)
+        given = np.asarray(target.error if target.error is not None else target.spread, float)
+        target = target._replace(spread=np.where(unknown, 1.0, target.spread),
+                                 error=np.where(unknown, np.nan, given))  # NaN: not known, not judged
+        out.update(spread=target.spread.tolist(), error=target.error.tolist(),
+                   errors_from_misfit=[lab for lab, u in zip(target.labels, unknown) if u])
+        if progress is True:
+            print(f"first pass: the target gives no errors for {int(unknown.sum())} of its {len(unknown)} "
+                  "statistics and the piles have no spread to stand in: they weigh alike, and the interval comes "
+                  "from the misfit (least squares)", flush=True)
+    elif unknown.any():
         error = np.asarray(target.error if target.error is not None else target.spread, float)
         target = target._replace(spread=np.where(unknown, pile, target.spread),
                                  error=np.where(np.isfinite(error), error, pile))
@@ -658,8 +672,8 @@ class _Fitting(NamedTuple):
         gauss_newton = self.opt is None and not message
         converged = bool(gauss_newton and np.max(np.abs(delta)) < self.tolerance)
         step_stderr, why = [float("nan")] * len(self.names), "tolerance" if converged else ""
-        if gauss_newton:
-            cov, _ = confidence(ens.jac, self.w, ens.s[0], self.target)
+        if gauss_newton:  # the fitted piles' noise alone: the target's own error does not change between steps
+            cov, _ = confidence(ens.jac, self.w, ens.s[0], self.target._replace(members=None, error=None))
             if np.all(np.isfinite(cov)):
                 step_stderr = np.sqrt(np.clip(np.diag(cov), 0, None)).tolist()
                 if self.noise_stop and not converged and np.all(np.abs(delta) < np.asarray(step_stderr)):

@@ -92,10 +92,14 @@ def _check_statistics(statistics: Statistics, spec) -> Statistics:
 def _profile_hook(spec, statistics: Statistics) -> Callable | None:
     if statistics.at:
         def measure_at(sim, params, state, protocol):
-            normal, horizontal = profile_at_points(base_forces(sim, params, state), statistics.at,
-                                                   bandwidth=statistics.bandwidth,
-                                                   normalised_by=statistics.normalised_by,
-                                                   horizontal=statistics.horizontal)
+            try:
+                normal, horizontal = profile_at_points(base_forces(sim, params, state), statistics.at,
+                                                       bandwidth=statistics.bandwidth,
+                                                       normalised_by=statistics.normalised_by,
+                                                       horizontal=statistics.horizontal)
+            except InputError:  # this pile has no base profile to read (two contacts or fewer): it is missing
+                nan = np.full(len(statistics.at), np.nan)
+                normal, horizontal = nan, (nan if statistics.horizontal else None)
             return {"_profile_normal": normal, **({} if horizontal is None else {"_profile_horizontal": horizontal})}
 
         return measure_at

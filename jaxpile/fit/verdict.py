@@ -199,15 +199,18 @@ def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: 
     p = float(stats.chi2.sf(chi2, dof)) if dof > 0 and known.all() else math.nan
     jac = np.asarray(jacobian, float)
     hessian = (jac.T * w) @ jac if np.all(np.isfinite(jac)) else np.full((d, d), np.nan)
-    rank = int(np.linalg.matrix_rank(hessian)) if np.all(np.isfinite(hessian)) else 0
-    condition = float(np.linalg.cond(hessian)) if rank == d else math.inf
+    measured = bool(np.all(np.isfinite(hessian)))  # a fit without its final interval measures no Jacobian
+    rank = int(np.linalg.matrix_rank(hessian)) if measured else d
+    condition = float(np.linalg.cond(hessian)) if measured and rank == d else math.inf
     loss = [h["loss"] for h in history]
     doubts = []
     if not converged:
         doubts.append("the fit did not converge" + (f" ({message})" if message else
                                                      f" in {steps} iterations: its last step was "
                                                      f"{float(step.max()) if step.size else math.nan:.3g} in log units"))
-    if rank < d:
+    if not measured:
+        doubts.append("no interval was measured (its final central differences were not run)")
+    elif rank < d:
         doubts.append(f"the Jacobian has rank {rank} < {d}: a parameter does not move the statistics")
     if math.isfinite(p) and p < LACK_OF_FIT_P:
         doubts.append(f"the model does not fit the target (chi^2 = {chi2:.3g} on {dof} degrees of freedom, "

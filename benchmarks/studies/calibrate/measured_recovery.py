@@ -16,6 +16,7 @@ the verdict in benchmarks/results/calibrate/CASE.json, with the commands.
     python benchmarks/studies/calibrate/measured_recovery.py pour-mu-roll
     python benchmarks/studies/calibrate/measured_recovery.py pour-mu
     python benchmarks/studies/calibrate/measured_recovery.py pour-mu-hooke
+    python benchmarks/studies/calibrate/measured_recovery.py pour-mu-no-spin
     python benchmarks/studies/calibrate/measured_recovery.py pour-profile-only   # the profile alone: mu refused?
     python benchmarks/studies/calibrate/measured_recovery.py --table   # docs/calibrate.md's table from the JSON
 """
@@ -54,6 +55,9 @@ CASES = {
     # the same with the hooke law (LAMMPS gran/hooke/history), whose Coulomb friction sets a heap's angle
     "pour-mu-hooke": dict(protocol="pour", law="hooke", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
                           ensemble=32, step=0.4),
+    # disks that cannot roll (the hooke law without spins): the Coulomb friction is all that holds a flank
+    "pour-mu-no-spin": dict(protocol="pour", law="hooke", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
+                            ensemble=32, step=0.4, rotation=False),
     # the profile alone against mu, at the sizes that do not tell mu_roll: what the first pass says of it
     "pour-profile-only": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55},
                               angle=False, ensemble=8, step=0.2),
