@@ -480,7 +480,9 @@ def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
     points = estimators.central_points(theta, fitting.step)
     s, _, info = fitting.run(points, fill=False)
     options = fitting.runner.options or {}
-    disks = int(options.get("n") or info.get("n_particles", 0))
+    spec = getattr(fitting.runner, "spec", None)  # a protocol's own pile size, not its padded disk count
+    size = getattr(spec().make_options(options), "n", None) if spec is not None and "n" not in options else None
+    disks = int(options.get("n") or size or info.get("n_particles", 0))
     scarce = {lab: int(c) for lab, c in zip(fitting.target.labels, info["missing_by_statistic"]) if 2 * c > s.shape[1]}
     if scarce:  # a statistic most piles lack at this size would soon be missing from all at some point
         raise InputError(f"at {disks} disks " + ", ".join(f"{lab!r} is missing from {c} of {s.shape[1]} piles"
