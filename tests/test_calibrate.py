@@ -356,3 +356,16 @@ def test_a_pathwise_fit_refuses_a_profile_it_would_read_otherwise(tmp_path, caps
     assert cli.main(["fit", "--protocol", "lattice", "--target", str(csv), "--params", "mu", "--layers", "3",
                      "--dry-run", "--out", str(tmp_path / "f")]) == 2
     assert "a pathwise fit" in capsys.readouterr().err
+
+
+def test_a_gauss_newton_step_that_undoes_the_last_bisects_it_and_is_judged_as_proposed():
+    from jaxpile.fit.ensemble_fit import _damped
+
+    last = {"theta": [0.0, 0.0], "next_theta": [-0.3, 0.1]}
+    np.testing.assert_allclose(_damped(np.array([0.3, 0.2]), last), [0.15, 0.2])  # reversed: half; onward: kept
+    np.testing.assert_allclose(_damped(np.array([0.05, -0.01]), last), [0.05, -0.01])  # within half: as proposed
+    assert _damped(np.array([0.3, 0.2]), None).tolist() == [0.3, 0.2]
+    # the noise floor and the tolerance read the proposals: a damped step is not a converged one
+    wander = [{"theta": [0.0], "next_theta": [x], "proposed_step": [p], "step_stderr": [0.1]}
+              for x, p in ((0.15, 0.15), (-0.05, -0.3), (0.02, 0.12))]
+    assert not verdict.at_noise_floor(wander)  # the middle proposal is 3 errors long

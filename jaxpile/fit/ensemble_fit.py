@@ -369,7 +369,8 @@ def fit(runner: Runner, names: Sequence[str], start: dict, target: EnsembleTarge
         if done:
             break
         try:
-            entry, delta, opt_state, message = fitting.iteration(theta, it, opt_state)
+            entry, delta, opt_state, message = fitting.iteration(theta, it, opt_state,
+                                                                 history[-1] if history else None)
         except MissingEverywhere as err:  # no mean to compare: the fit stops, its history kept, and says why
             kept = f"; its {len(history)} iteration(s) are kept in {checkpoint}" if checkpoint and history else ""
             raise MissingEverywhere(f"the fit stopped in iteration {it + 1}: {err}{kept}") from None
@@ -528,6 +529,21 @@ def _central_jacobian(s: np.ndarray, step: float) -> np.ndarray:
     return (s[1:1 + d].mean(axis=1) - s[1 + d:].mean(axis=1)).T / (2 * step)
 
 
+def _damped(proposed: np.ndarray, previous: dict | None) -> np.ndarray:
+    """The Gauss-Newton step taken: `proposed`, except that a component which
+    reverses the previous step is at most half that step's size (a step that
+    undoes the last one bisects it instead: noisy Jacobians otherwise make the
+    iterates cycle between two values, as they did on poured heaps,
+    docs/calibrate.md). The proposal itself is what the stopping rules and
+    the verdict judge."""
+    if previous is None or "next_theta" not in previous:
+        return proposed
+    last = np.asarray(previous["next_theta"], float) - np.asarray(previous["theta"], float)
+    reverses = proposed * last < 0
+    half = 0.5 * np.abs(last)
+    return np.where(reverses, np.clip(proposed, -half, half), proposed)
+
+
 def _gauss_newton_step(jac: np.ndarray, w: np.ndarray, r: np.ndarray, max_step: float) -> tuple[np.ndarray, str]:
     """`(delta, message)`: the Gauss-Newton step for the residual `r` (the mean
     minus the target) with Levenberg-Marquardt damping, each component clipped
@@ -638,21 +654,23 @@ class _Fitting(NamedTuple):
                                               sigma=self.sigma, pairs=self.pairs)
         return _Iterate(est, cache["s"], cache["missing"], cache["info"])  # the smoothing does not run theta itself
 
-    def iteration(self, theta: np.ndarray, it: int, opt_state):
-        """`(entry, delta, opt_state, message)`: iteration `it` from `theta`,
-        its history entry and step, and why the fit must stop ("" to go on)."""
+    def iteration(self, theta: np.ndarray, it: int, opt_state, previous: dict | None = None):
+        """`(entry, delta, opt_state, message)`: iteration `it` from `theta`
+        (after the history entry `previous`), its history entry and step, and
+        why the fit must stop ("" to go on)."""
         ens = self.ensembles(theta, it)
         gradient = np.asarray(ens.estimate.gradient, float)
-        message = ""
+        message, proposed = "", None
         if self.opt is None:
-            delta, message = _gauss_newton_step(ens.jac, self.w, ens.mean - self.target.mean, self.max_step)
+            proposed, message = _gauss_newton_step(ens.jac, self.w, ens.mean - self.target.mean, self.max_step)
+            delta = _damped(proposed, previous)
         elif not np.all(np.isfinite(gradient)):  # a pile's NaN would spoil the optimiser's state for good
             message = f"the {self.estimator} gradient is not finite ({gradient.tolist()}): stopped before stepping"
             delta = np.zeros(len(self.names))
         else:
             updates, opt_state = self.opt.update(jnp.asarray(gradient), opt_state, jnp.asarray(theta))
             delta = np.asarray(updates, float)
-        converged, why, step_stderr = self.stop(ens, delta, message)
+        converged, why, step_stderr = self.stop(ens, delta if proposed is None else proposed, message)
         base = ens.s[0] if ens.jac is not None else None  # the piles at theta itself (central differences)
         loss_se = estimators.loss_stderr(base, self.objective) if base is not None else float("nan")
         entry = {"iteration": it, "theta": theta.tolist(), "values": self.params_of(theta),
@@ -661,6 +679,7 @@ class _Fitting(NamedTuple):
                  "ensembles": int(ens.estimate.evaluations), "particle_steps": int(ens.info["particle_steps"]),
                  "missing": ens.missing, "mean": None if ens.mean is None else ens.mean.tolist(),
                  "next_theta": (theta + delta).tolist(),
+                 **({} if proposed is None else {"proposed_step": proposed.tolist()}),
                  **({} if ens.points is None else {"points": ens.points.tolist(),
                                                    "point_means": ens.s.mean(axis=1).tolist()}),
                  "converged": converged, "stopped_by": why, "step_stderr": step_stderr,

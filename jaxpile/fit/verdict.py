@@ -132,7 +132,8 @@ not all one way, for a fit to have reached its noise floor."""
 
 
 def at_noise_floor(history: list) -> bool:
-    """Whether a Gauss-Newton fit's last `NOISE_FLOOR_STEPS` steps each lie
+    """Whether a Gauss-Newton fit's last `NOISE_FLOOR_STEPS` steps (as proposed,
+    before damping) each lie
     within twice their own standard error (the 95 % band of a step taken at
     the optimum, where the step is the noise) and, in every parameter, do not
     all go one way (a drift, not a wander): further iterations would move the
@@ -140,7 +141,8 @@ def at_noise_floor(history: list) -> bool:
     recent = history[-NOISE_FLOOR_STEPS:]
     if len(recent) < NOISE_FLOOR_STEPS:
         return False
-    steps = np.array([np.asarray(h["next_theta"], float) - np.asarray(h["theta"], float) for h in recent])
+    steps = np.array([np.asarray(h["proposed_step"], float) if "proposed_step" in h else
+                      np.asarray(h["next_theta"], float) - np.asarray(h["theta"], float) for h in recent])
     se = np.array([np.asarray(h.get("step_stderr", [math.nan] * steps.shape[1]), float) for h in recent])
     if not np.all(np.isfinite(se)) or not np.all(se > 0):
         return False
@@ -176,7 +178,8 @@ def verdict(history: list, jacobian: np.ndarray, w: np.ndarray, fitted_members: 
 
     d = len(names)
     last = history[-1] if history else {}
-    step = np.abs(np.asarray(last.get("next_theta", []), float) - np.asarray(last.get("theta", []), float))
+    step = np.abs(np.asarray(last["proposed_step"], float) if "proposed_step" in last else
+                  np.asarray(last.get("next_theta", []), float) - np.asarray(last.get("theta", []), float))
     step_se = np.asarray(last.get("step_stderr", [math.nan] * d), float)
     if converged:
         why = "noise floor" if last.get("stopped_by") == "noise" else "tolerance"
