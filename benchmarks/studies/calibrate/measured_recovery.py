@@ -55,9 +55,11 @@ CASES = {
     # the same with the hooke law (LAMMPS gran/hooke/history), whose Coulomb friction sets a heap's angle
     "pour-mu-hooke": dict(protocol="pour", law="hooke", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
                           ensemble=32, step=0.4),
-    # disks that cannot roll (the hooke law without spins): the Coulomb friction is all that holds a flank
+    # disks that cannot roll (the hooke law without spins): the Coulomb friction is all that holds a flank.
+    # Their foot loads are heavy-tailed (a few heaps in sixteen carry 2-3x the typical load at one foot):
+    # measured on 32 heaps, so that the stated errors see the tail
     "pour-mu-no-spin": dict(protocol="pour", law="hooke", n=60, truth={"mu": 0.37}, start={"mu": 0.55}, angle=True,
-                            ensemble=32, step=0.4, rotation=False),
+                            ensemble=32, step=0.4, rotation=False, measured=32),
     # the profile alone against mu, at the sizes that do not tell mu_roll: what the first pass says of it
     "pour-profile-only": dict(protocol="pour", law="baxter", n=60, truth={"mu": 0.37}, start={"mu": 0.55},
                               angle=False, ensemble=8, step=0.2),
@@ -134,7 +136,8 @@ def table(folder: str = os.path.join(BENCHMARKS, "results", "calibrate")) -> str
                      f"{r['start'][name]:g} | {first} | {r['value']:.4g} ({lo:.4g} – {hi:.4g}) | "
                      f"{'yes' if r['truth_inside'] else 'no'} | {said} | {through} | {r['ensemble']} | "
                      f"{r['iterations']} iterations, {r['particle_steps']:.2g} particle-steps, "
-                     f"{r['fit_seconds'] / 60:.0f} min |")
+                     f"{r['fit_seconds'] / 60:.0f} min" + (" in its resumed run" if "--resume" in r["fit_command"]
+                                                            else "") + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -153,7 +156,7 @@ def main(argv=None) -> dict:
         return {}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("case", choices=sorted(CASES))
-    parser.add_argument("--measured-heaps", type=int, default=16)
+    parser.add_argument("--measured-heaps", type=int, default=None, help="default: the case's, else 16")
     parser.add_argument("--ensemble", type=int, default=None, help="piles per ensemble (default: the case's)")
     parser.add_argument("--steps", type=int, default=6)
     parser.add_argument("--difference-step", type=float, default=None,
@@ -163,6 +166,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     case = CASES[args.case]
     args.ensemble = args.ensemble or case["ensemble"]
+    args.measured_heaps = args.measured_heaps or case.get("measured", 16)
     args.difference_step = args.difference_step or case["step"]
     folder = os.path.join(args.out, args.case)
     os.makedirs(folder, exist_ok=True)
