@@ -210,28 +210,9 @@ def test_a_measurements_own_error_widens_the_interval_by_its_jacobian():
     assert cov[0, 0] == pytest.approx(0.3 ** 2 / 2.0 ** 2, rel=1e-12) and dof == np.inf
 
 
-class Toy:
-    """Piles whose statistics are [20 log(mu) + noise_b, 5 mu^2 + noise'_b] and
-    do not depend on kn at all (common random numbers: the same noise at every point)."""
-
-    protocol, options, params = "toy", None, None
-
-    def __init__(self):
-        self.calls = 0
-
-    def check(self, statistics):
-        return statistics
-
-    def law_name(self):
-        return "toy"
-
-    def run(self, points, seeds, statistics, progress=None):
-        self.calls += 1
-        mu = np.array([p["mu"] for p in points])[:, None]
-        seeds = np.asarray(list(seeds))
-        e, f = np.sin(1.7 * seeds + 0.3)[None, :], 0.2 * np.cos(2.3 * seeds)[None, :]
-        s = np.stack([20 * np.log(mu) + e, 5 * mu ** 2 + f], axis=-1)
-        return s, {"n_particles": 1, "batch_steps": 1, "total_seconds": 0.0, "particle_steps": s.size}
+# the ensemble fit's toy piles: [20 log(mu) + noise_b, 5 mu^2 + noise'_b], the same noise at every point and
+# nothing that depends on kn
+from test_ensemble_fit import ToyRunner as Toy  # noqa: E402
 
 
 TOY = ef.Statistics(columns=("angle", "feature"))

@@ -495,28 +495,23 @@ def _first_pass(fitting: "_Fitting", theta: np.ndarray, progress) -> dict:
                                    "missing": missing}
     unknown = ~np.isfinite(np.asarray(target.spread, float))
     pile = s[0].std(axis=0, ddof=1) if s.shape[1] > 1 else np.zeros(s.shape[2])
-    if unknown.any() and not np.any(pile[unknown] > 0):
-        # one pile, or piles all alike (a deterministic protocol): nothing measures the missing errors, so
-        # the points weigh alike and the interval is least squares' from the misfit (`confidence`)
+    if unknown.any():
+        # the piles' spread stands in for a missing error (the measurement as one heap); where the piles have
+        # none (one pile, or a deterministic protocol) the points weigh alike and the interval is least squares'
+        # from the misfit (`confidence`), the error NaN: not known, not judged
+        from_piles = bool(np.any(pile[unknown] > 0))
         given = np.asarray(target.error if target.error is not None else target.spread, float)
-        target = target._replace(spread=np.where(unknown, 1.0, target.spread),
-                                 error=np.where(unknown, np.nan, given))  # NaN: not known, not judged
-        out.update(spread=target.spread.tolist(), error=target.error.tolist(),
-                   errors_from_misfit=[lab for lab, u in zip(target.labels, unknown) if u])
+        target = target._replace(spread=np.where(unknown, pile if from_piles else 1.0, target.spread),
+                                 error=np.where(np.isfinite(given), given, pile if from_piles else np.nan))
+        out.update({"spread": target.spread.tolist(), "error": target.error.tolist(),
+                    "errors_from_piles" if from_piles else "errors_from_misfit":
+                        [lab for lab, u in zip(target.labels, unknown) if u]})
         if progress is True:
             print(f"first pass: the target gives no errors for {int(unknown.sum())} of its {len(unknown)} "
-                  "statistics and the piles have no spread to stand in: they weigh alike, and the interval comes "
-                  "from the misfit (least squares)", flush=True)
-    elif unknown.any():
-        error = np.asarray(target.error if target.error is not None else target.spread, float)
-        target = target._replace(spread=np.where(unknown, pile, target.spread),
-                                 error=np.where(np.isfinite(error), error, pile))
-        out.update(spread=target.spread.tolist(), error=target.error.tolist(),
-                   errors_from_piles=[lab for lab, u in zip(target.labels, unknown) if u])
-        if progress is True:
-            print(f"first pass: the target gives no errors for {int(unknown.sum())} of its {len(unknown)} "
-                  "statistics: each is taken as one simulated pile's spread at the start (the measurement as "
-                  "one heap)", flush=True)
+                  "statistics: " + ("each is taken as one simulated pile's spread at the start (the measurement "
+                                    "as one heap)" if from_piles else "the piles have no spread to stand in, so "
+                                    "they weigh alike and the interval comes from the misfit (least squares)"),
+                  flush=True)
     out["report"] = verdict.first_pass(s, fitting.step, weights(target), target, fitting.names, disks)
     out["seconds"] = time.perf_counter() - t1
     return out

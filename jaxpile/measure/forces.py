@@ -202,12 +202,11 @@ def _check_has_base(state: SimState, base: str, wall: int) -> None:
     b, p = state.boundaries, state.particles
     floor = b.wall_normal.shape[0] > wall and bool(np.asarray(b.wall_active)[wall])
     fixed = bool(np.any(np.asarray(p.fixed) & np.asarray(p.active)))
-    if (base == "ground" and not floor) or (base == "substrate" and not fixed) or not (floor or fixed):
-        has = "neither an active floor wall nor fixed disks" if not (floor or fixed) else \
-            ("no active wall {wall}" if base == "ground" else "no fixed disks")
-        raise InputError(f"this set-up has {has.format(wall=wall)}, so it has no {'' if base == 'pile' else base + ' '}"
-                         "base whose forces could be read" + ("" if base == "pile" else
-                                                            "; leave base out to read what the pile stands on") + ".")
+    lacks = {"pile": None if floor or fixed else "neither an active floor wall nor fixed disks",
+             "ground": None if floor else f"no active wall {wall}", "substrate": None if fixed else "no fixed disks"}
+    if lacks[base] is not None:
+        raise InputError(f"this set-up has {lacks[base]}, so it has no base whose forces could be read"
+                         + ("." if base == "pile" else "; leave base out to read what the pile stands on."))
 
 
 class SubstrateForces(NamedTuple):
