@@ -124,7 +124,7 @@ def grid(vary: dict, seeds) -> list[tuple[dict, int]]:
 _ENSEMBLES: dict = {}  # the last few batched simulators, so repeated sweeps (a fit's iterations) compile once
 
 
-def _ensemble(spec, law, dt, rotation, options, devices, law_options=None) -> ensemble.Ensemble:
+def ensemble_for(spec, law, dt, rotation, options, law_options=None, devices=None) -> ensemble.Ensemble:
     """The `Ensemble` for this protocol stage and its options: reused when a
     sweep with the same law, dt, rotation and the options its simulator reads
     ran before (its compiled loops are kept per batch shape); built afresh otherwise."""
@@ -272,8 +272,8 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     dt, vary, points, batch_size = checked.dt, checked.vary, checked.points, checked.batch_size
     options = dict(options or {})
     chain = spec.chain()
-    devices_used = len(_ensemble(chain[0], law, dt, rotation, running.stage_options(spec, split(members[0][0])[1])[0],
-                                 devices, law_options).devices)
+    devices_used = len(ensemble_for(chain[0], law, dt, rotation, running.stage_options(spec, split(members[0][0])[1])[0],
+                                    law_options, devices).devices)
     rows, info = [], RunInfo()
     planned = [[point, seed] for point, seed in members]
     processes = distributed.process_count()
@@ -395,13 +395,13 @@ def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dt
     from jaxpile.engine import checkpoint as ckpt
 
     first = chain[0]
-    ens = _ensemble(first, law, dt, rotation, stage_options[0], devices, law_options)
+    ens = ensemble_for(first, law, dt, rotation, stage_options[0], law_options, devices)
     setups = [running.member_setup(first, law, seed, dt, stage_options[0], dtype) for _, seed in chunk]
     state = ens.init(prms, setups)
     saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
     at_stage = int(saved.get("stage", 0)) if saved is not None else 0
     for k, (stage, options) in enumerate(zip(chain, stage_options)):
-        stage_ens = ens if k == 0 else _ensemble(stage, law, dt, rotation, options, devices, law_options)
+        stage_ens = ens if k == 0 else ensemble_for(stage, law, dt, rotation, options, law_options, devices)
         done = 0
         if k > 0:
             piles = [ensemble.member(state, i) for i in range(len(chunk))]

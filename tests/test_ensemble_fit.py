@@ -137,15 +137,15 @@ def test_bad_fits_are_refused_in_one_line():
 
 
 def test_the_truncated_estimator_is_offered_where_it_can_run_and_refused_in_one_line_elsewhere(tmp_path, capsys):
-    """`--estimator truncated` runs the pour's construction as rollouts and
-    differentiates its base profile: another protocol, an angle among the
+    """`--estimator truncated` runs a one-stage construction as rollouts and
+    differentiates its base profile: a protocol of two stages, an angle among the
     statistics or Gauss-Newton (it gives no Jacobian) are refused before any
     pile runs; the pour's dry run fits the profile alone."""
     from jaxpile import cli
 
     runner = ToyRunner()
     target = _target(runner)
-    with pytest.raises(InputError, match="only pour"):
+    with pytest.raises(InputError, match="runs for box, drop, lattice, pour, sloped"):
         ef.fit(runner, ["mu"], {"mu": 0.2}, target, seeds=[0, 1], statistics=STATS, optimizer="adam", progress=False,
                gradient=ef.Gradient(estimator="truncated"))
     for statistics, optimizer, match in ((ef.Statistics(columns=("repose_mean",), bins=4), "adam", "profile alone"),
@@ -157,9 +157,9 @@ def test_the_truncated_estimator_is_offered_where_it_can_run_and_refused_in_one_
                      "--estimator", "truncated", "--bins", "4", "--dry-run", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "['normal[0]'" in out and "repose" not in out and "3 ensembles" in out
-    assert cli.main(["fit", "--protocol", "box", "--params", "mu", "--truth", "mu=0.3", "--estimator", "truncated",
+    assert cli.main(["fit", "--protocol", "tilt", "--params", "mu", "--truth", "mu=0.3", "--estimator", "truncated",
                      "--dry-run", "--out", str(tmp_path)]) == 2
-    assert "only pour" in capsys.readouterr().err
+    assert "no base extent" in capsys.readouterr().err  # the tilt's piles have no base profile to fit
     assert cli.main(["fit", "--protocol", "pour", "--params", "n", "--truth", "n=30", "--estimator", "truncated",
                      "--truncation-window", "0", "--dry-run", "--out", str(tmp_path)]) == 2
 
@@ -264,6 +264,24 @@ def test_a_deterministic_lattice_gives_back_its_stiffness_from_its_height():
                     stopping=ef.Stopping(steps=4))
     assert abs(result.values["ks"] / 13_700.0 - 1) < 1e-3
     assert result.record["sensitivity"]["ks"] > 0
+
+
+def test_a_construction_rolled_out_ends_where_the_batch_of_the_same_pile_ends():
+    """`construction.Construction` builds any one-stage protocol's piles as
+    the sweep builds them: the 4-layer liffman lattice (deterministic) rolled
+    out to the construction's length has the base profile its batch run
+    measures, to round-off (the rollout's lists are sized once, the batch's
+    at every chunk, so the sums may differ in their last bits)."""
+    from jaxpile.fit import construction
+
+    runner = ef.Runner("lattice", "liffman", options={"layers": 4, "ramp_steps": 1000})
+    statistics = ef.Statistics(bins=4)
+    theta = np.log([13_700.0])
+    built = construction.Construction(runner, [0], statistics, ["ks"], theta)
+    rolled = np.asarray(built.statistics(theta, built.advance(theta, built.start, built.steps)))
+    measured, _ = runner.run([{"ks": 13_700.0}], [0], statistics)
+    assert np.all(np.isfinite(rolled)) and rolled.shape == (1, 8)  # normal, then horizontal
+    np.testing.assert_allclose(rolled, measured[0], rtol=1e-9, atol=1e-12 * float(np.max(np.abs(measured))))
 
 
 class _Stopped(Exception):

@@ -3,10 +3,13 @@ truncated pathwise estimator (`estimators.truncated_pathwise`: `advance`,
 `statistics`, `start`, `steps`) in `ensemble_fit.fit(estimator="truncated")`
 and `benchmarks/studies/fitting/estimator_study.py`.
 
-Only the pour is built this way: its construction is one stage whose every
-step a rollout can carry (the release schedule is read from the state), and
-its base profile is traceable. The angles of repose are fitted on the host and
-have no tangent, so the statistics are the base profile alone.
+A protocol whose piles a batch builds in one stage can be built this way: the
+batch runs them as chunks of its step function (its driver reads the set-up
+from the state), and a rollout of the construction's length is those chunks
+without the host in between. Its statistics are the base profile over the
+batch's extent; the angles of repose are fitted on the host and have no
+tangent. A protocol that continues another's pile (the tilt) is two stages
+and is refused.
 """
 
 from __future__ import annotations
@@ -18,40 +21,44 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxpile import sweeps
 from jaxpile.engine import batch, ensemble
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine import pairs as pair_list
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import smooth_base_profile
 from jaxpile.measure import analysis
-from jaxpile.protocols import pour, running
+from jaxpile.protocols import PROTOCOLS, running
 
-PROTOCOLS = ("pour",)
+
+def rolled_out() -> tuple[str, ...]:
+    """The protocols whose construction can be rolled out: one stage, and a base to read."""
+    return tuple(sorted(name for name, spec in PROTOCOLS.items()
+                        if spec.starts_from is None and spec.batch.extent is not None))
 
 
 def check(runner, statistics) -> None:
     """Raises `InputError` unless `runner`'s piles can be built as rollouts and
     `statistics` are traceable (before any pile runs)."""
-    if runner.protocol not in PROTOCOLS:
-        raise InputError(f"the truncated pathwise estimator runs a construction as rollouts, which only "
-                         f"{', '.join(PROTOCOLS)} is built for; the {runner.protocol} pile: use --estimator "
+    if runner.protocol not in rolled_out():
+        spec = PROTOCOLS.get(runner.protocol)
+        why = (f"continues the {spec.starts_from.name} pile (two stages)" if spec is not None and spec.starts_from
+               else "has no base to read a profile on")
+        raise InputError(f"the truncated pathwise estimator rolls out a construction of one stage and reads its "
+                         f"base profile: the {runner.protocol} pile {why}; it runs for {', '.join(rolled_out())}: use --estimator "
                          "central or smoothing.")
     if statistics.columns or not statistics.bins:
         raise InputError("the truncated pathwise estimator differentiates the base profile alone (the angles "
                          "are fitted on the host, with no tangent): fit bins > 0 and no columns.")
-    if runner.law_options:
-        raise InputError(f"the truncated pathwise estimator builds its rollouts with the law's own readings; "
-                         f"law options {sorted(runner.law_options)} (e.g. --rolling): use --estimator central or "
-                         "smoothing.")
 
 
 class Construction:
     """The B piles of `seeds` built as `runner` builds them, as rollouts at the
     log-parameters `theta` of `names`.
 
-    The piles are set up as a sweep sets them up (the runner's options and
-    fixed parameters), on a simulator that carries every disk (a rollout has
-    no host blocks). A host run to the protocol's finish at theta gives the
+    The piles are set up and simulated as a sweep builds them (the runner's
+    options, fixed parameters, rotation and law options); a rollout carries
+    every disk (it has no host blocks). A host run to the protocol's finish at theta gives the
     construction's length (the longest member's) and sizes the lists, with
     head-room (a rollout has no overflow handling); a rollout at theta that
     still overflows is refused. Every heap is rolled out to that length: one
@@ -69,14 +76,13 @@ class Construction:
     def __init__(self, runner, seeds, statistics, names, theta):
         check(runner, statistics)
         names, seeds = list(names), [int(s) for s in seeds]
-        law = runner.law_name()
-        spec = pour.SPEC
+        law, spec = runner.law_name(), runner.spec()
         dt = spec.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
         options = spec.make_options(runner.options or {})
         # set up and checked as the sweep's piles (e.g. a voidage map too fine for the memory)
         protocols = [running.member_setup(spec, law, s, dt, options, runner.dtype) for s in seeds]
         extent = tuple(spec.batch.extent(protocols[0]))
-        pieces = _pieces(law, dt, runner.dtype, runner.params, tuple(names), extent, statistics)
+        pieces = _pieces(spec, law, dt, options, runner, tuple(names), extent, statistics)
         self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics
         p0 = pieces.params(jnp.asarray(theta))
         start = pieces.ensemble.init([p0] * len(protocols), protocols)
@@ -112,19 +118,24 @@ class _Pieces(NamedTuple):
 _PIECES: dict = {}
 
 
-def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent: tuple, statistics) -> _Pieces:
+def _pieces(spec, law: str, dt: float, options, runner, names: tuple, extent: tuple, statistics) -> _Pieces:
     """The simulator, its batch and the rollout functions of one construction's
     configuration, made once: a fit builds a new `Construction` at every
     iterate, and with the same functions its host run, its checking rollout
     and the estimator's windows (`estimators.truncated_pathwise`, keyed by
-    `advance`) compile once for the whole fit."""
+    `advance`) compile once for the whole fit. The batch is the sweep's own
+    (`sweeps.ensemble_for`), so its host run compiles nothing a sweep at
+    these settings has not."""
     bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
-    key = (law, float(dt), str(dtype), json.dumps(fixed or {}, sort_keys=True, default=repr), names, extent,
-           bins, bandwidth, horizontal)
+    fixed, rotation, law_options = runner.params or {}, runner.rotation, runner.law_options
+    key = (spec.name, law, float(dt), json.dumps([options.as_dict(), fixed, law_options, rotation], sort_keys=True,
+                                                  default=repr), str(runner.dtype), names, extent, bins, bandwidth,
+           horizontal)
     if key in _PIECES:
         return _PIECES[key]
-    sim = pour.make_simulator(law, dt=dt, in_play=None)
-    base = pour.law_params(law, dtype=dtype, **(fixed or {}))
+    runs = sweeps.ensemble_for(spec, law, dt, rotation, options, law_options)
+    sim = runs.sim
+    base = spec.law_and_params(law, dict(fixed), rotation, runner.dtype, law_options)[2]
     base_name, x_left, x_right = extent
 
     def params(t):  # each value in its parameter's own dtype (a float32 pile stays float32)
@@ -143,7 +154,6 @@ def _pieces(law: str, dt: float, dtype, fixed: dict | None, names: tuple, extent
 
     if len(_PIECES) >= 4:  # a few configurations at a time: each holds compiled programs
         _PIECES.pop(next(iter(_PIECES)))
-    runner = ensemble.Ensemble(sim, sequential=pour.SPEC.batch.sequential)
-    _PIECES[key] = pieces = _Pieces(sim, runner, params, advance, stats,
+    _PIECES[key] = pieces = _Pieces(sim, runs, params, advance, stats,
                                     jax.jit(advance, static_argnums=2))
     return pieces
