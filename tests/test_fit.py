@@ -524,7 +524,23 @@ def test_gradient_of_a_profile_loss_through_a_rollout_matches_central_difference
     assert g == pytest.approx(fd, rel=1e-4)
 
 
-def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
+LATTICE_TRUTH = {"kt": 3000.0, "mu": 0.15}
+
+
+@pytest.fixture(scope="module")
+def lattice_profile(tmp_path_factory):
+    """`(profile, csv path)`: the base profile of the 4-layer hooke lattice at
+    `LATTICE_TRUTH` (loaded by a gravity ramp), written as a measurement CSV."""
+    problem = fit.problem("lattice", "hooke", LATTICE_TRUTH, size=4)
+    made = jax.jit(problem.profile)(problem.params)
+    target = tmp_path_factory.mktemp("lattice") / "target.csv"
+    rows = zip(np.asarray(made.x_over_b), np.asarray(made.normal), np.asarray(made.horizontal))
+    lines = [f"{float(x)!r},{float(n)!r},{float(h)!r}" for x, n, h in rows]
+    target.write_text("x/B,normal/max,horizontal/max\n" + "\n".join(lines) + "\n")
+    return made, target
+
+
+def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path, lattice_profile):
     """The issue's check: a base profile made by jaxpile (4-layer lattice pile,
     hooke law, kt = 3000, mu = 0.15, loaded by a gravity ramp) written as a
     target CSV; `jaxpile fit` from kt = 4000, mu = 0.2 recovers both within 2%."""
@@ -532,13 +548,10 @@ def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
 
     from jaxpile import cli
 
-    true = {"kt": 3000.0, "mu": 0.15}
-    problem = fit.problem("lattice", "hooke", true, size=4)
-    made = jax.jit(problem.profile)(problem.params)
-    target = tmp_path / "target.csv"
-    rows = zip(np.asarray(made.x_over_b), np.asarray(made.normal), np.asarray(made.horizontal))
-    lines = [f"{float(x)!r},{float(n)!r},{float(h)!r}" for x, n, h in rows]
-    target.write_text("x/B,normal/max,horizontal/max\n" + "\n".join(lines) + "\n")
+    true = LATTICE_TRUTH
+    made, shared = lattice_profile
+    target = tmp_path / "target.csv"  # a copy: this test removes it
+    target.write_text(shared.read_text())
     out = tmp_path / "fit"
     assert cli.main(["fit", "--target", str(target), "--protocol", "lattice", "--layers", "4", "--params", "kt,mu",
                      "--set", "kt=4000", "--set", "mu=0.2", "--steps", "150", "--horizontal-weight", "10",
@@ -554,6 +567,29 @@ def test_jaxpile_fit_recovers_kt_and_mu_from_a_profile_jaxpile_made(tmp_path):
     target.unlink()
     assert cli.main(["show", str(out), "--out", str(tmp_path / "redrawn")]) == 0
     assert (tmp_path / "redrawn" / "fit.png").stat().st_size > 10_000
+
+
+def test_calibrate_with_the_pathwise_estimator_fits_one_lattice_pile_to_a_measured_profile(lattice_profile,
+                                                                                            tmp_path):
+    """`jaxpile.calibrate(..., estimator="pathwise")`: the gradient through one
+    deterministic pile, as `jaxpile fit --estimator pathwise` takes it; mu from
+    0.2 back to the profile's 0.15 (kt held at its truth). What it cannot take
+    is refused in one line before a pile is built: a random protocol, an
+    ensemble, scalars."""
+    made, csv = lattice_profile
+    done = jaxpile.calibrate("lattice", csv, "mu", estimator="pathwise", law="hooke", options={"layers": 4},
+                             start={"kt": LATTICE_TRUTH["kt"], "mu": 0.2}, steps=60, progress=False)
+    assert float(done.result.params.mu) == pytest.approx(LATTICE_TRUTH["mu"], rel=2e-3)
+    assert done.result.loss < 1e-3 * done.result.history[0]["loss"]
+    np.testing.assert_allclose(np.asarray(done.target.normal), np.asarray(made.normal), rtol=1e-12)
+    scalars = tmp_path / "m.toml"
+    scalars.write_text("[scalars]\nangle_of_repose = { value = 20.0, stderr = 1.0 }\n")
+    for protocol, measured, more, match in (("pour", csv, {}, "builds random piles"),
+                                            ("lattice", csv, {"ensemble": 4}, "ensemble are for the ensemble"),
+                                            ("lattice", scalars, {}, "holds scalars angle_of_repose"),
+                                            ("lattice", csv, {"estimator": "newton"}, "must be one of")):
+        with pytest.raises(InputError, match=match):
+            jaxpile.calibrate(protocol, measured, "mu", **{"estimator": "pathwise", **more}, progress=False)
 
 
 def test_a_pathwise_dry_run_refuses_a_start_the_fit_cannot_take_the_log_of(tmp_path, capsys):

@@ -6,14 +6,13 @@ estimators are `ensemble_fit`'s."""
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 
 from jaxpile import config
 from jaxpile.cli.dry_run import dry_run_report
 from jaxpile.cli.parsing import parse_options, parse_set
-from jaxpile.errors import InputError, SimulationError
+from jaxpile.errors import InputError
 from jaxpile.io import plain
 from jaxpile.protocols import PROTOCOLS
 
@@ -98,14 +97,10 @@ def _pathwise_inputs(args) -> tuple:
     if args.target == "smid-novosad":
         target = fit.smid_novosad_profile()
     elif os.path.exists(args.target):
-        target = fit.load_profile_csv(args.target, args.normalised_by)  # a folder, unreadable file: one line there
-        if target.normalised_by != "max" or target.normal_stderr is not None or target.horizontal_stderr is not None:
-            raise InputError(f"{args.target} is scaled by the weight or gives standard errors, which a pathwise fit "
-                             "(profiles over their maximum, unweighted) would ignore: fit it by the ensemble mean, "
-                             "--estimator central.")
-        peak = float(np.max(target.normal))  # the pathwise loss compares profiles whose maximum is 1
-        target = target._replace(normal=target.normal / peak,
-                                 horizontal=None if target.horizontal is None else target.horizontal / peak)
+        from jaxpile.fit.pile_fit import pathwise_target
+
+        # a folder, an unreadable file: one line there
+        target = pathwise_target(fit.load_profile_csv(args.target, args.normalised_by), args.target)
     else:
         raise InputError(f"--target {args.target!r} is neither smid-novosad nor an existing CSV file.")
     optimizer = _optimizer(args.optimizer, args.lr)
@@ -151,66 +146,23 @@ def _dry_run_fit(args, law: str, names: list, start: dict) -> dict:
 
 
 def _fit_one_pile(args, law: str, names: list, target, optimizer, start: dict) -> dict:
-    """Builds the pile, fits `names` from `start` through it, checks that no
-    contact was dropped, and writes fit.json and fit.png."""
-    import warnings
+    """Builds the pile, fits `names` from `start` through it (`fit.pile_fit`),
+    and writes fit.json and fit.png."""
+    from jaxpile.fit.pile_fit import fit_pile
 
-    import jax
-    import jax.numpy as jnp
+    def announce(described):
+        print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
+              flush=True)
 
-    from jaxpile import fit
-
-    progress = False if args.no_progress else None
     size = args.layers if PROTOCOLS[args.protocol].size == "layers" else args.n
-    sim, params, state, steps, setting, window, described = fit.problem(
-        args.protocol, law, start, size=size, seed=args.seed, options=parse_options(args.option), bins=args.bins,
-        window=args.window, progress=progress)
-    print(f"jaxpile: fitting {', '.join(names)} of the {law} law to {target.source or args.target}: {described}",
-          flush=True)
-    horizontal_weight = args.horizontal_weight if target.horizontal is not None else 0.0
-    loss = fit.profile_objective(sim, state, steps, setting, target, window=window,
-                                 horizontal_weight=horizontal_weight, dip_weight=args.dip_weight)
-    profile = jax.jit(lambda p: fit.simulated_profile(sim, p, state, steps, setting, window=window))
-    stopped = []
-
-    def stable(record) -> bool:
-        """Stops the fit before it steps where dt is above the law's stability limit
-        (the rollout would blow up and its gradient turn NaN)."""
-        try:
-            sim.check_params(params.set(**{n: jnp.asarray(record[n]) for n in names}), state.particles)
-        except InputError as err:
-            stopped.append(f"stopped at step {record['step']}: {err}")
-            return True
-        return False
-
-    t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # its message is in the result and printed below
-        result = fit.descend(loss, params, names, optimizer=optimizer, steps=args.steps, progress=progress is None,
-                         callback=stable)
-    seconds = time.perf_counter() - t0
-    if stopped:
-        result = result._replace(message=stopped[0] + " Keeping the best parameters before it.")
-    before, after = profile(params), profile(result.params)
-    _check_contacts_kept(sim, state, steps, params, result.params)
-    record = _fit_record(args, law, names, described, target, params, result, seconds, before, after)
-    _write_fit(args.out, record, result, target, before, after)
+    done = fit_pile(args.protocol, law, names, start, target, optimizer, steps=args.steps, size=size,
+                    seed=args.seed, options=parse_options(args.option), bins=args.bins, window=args.window,
+                    horizontal_weight=args.horizontal_weight, dip_weight=args.dip_weight,
+                    progress=False if args.no_progress else None, announce=announce)
+    record = _fit_record(args, law, names, done.described, target, done.result.initial_params, done.result,
+                         done.seconds, done.before, done.after)
+    _write_fit(args.out, record, done.result, target, done.before, done.after)
     return record
-
-
-def _check_contacts_kept(sim, state, steps, start, fitted) -> None:
-    """The rollouts are pure (no re-allocation inside): refuses the fit when the
-    neighbour list overflowed with the starting or the fitted parameters."""
-    import jax
-
-    from jaxpile.engine.neighbors import overflowed as lost_contacts
-
-    overflowed = jax.jit(lambda p: lost_contacts(sim.rollout(p, state, steps)))
-    for label, p in (("starting", start), ("fitted", fitted)):
-        if bool(overflowed(p)):
-            raise SimulationError(f"the neighbour list overflowed in the rollout with the {label} parameters, so "
-                                  "contacts were missing from it; the fit is not valid. Give the pile more neighbour "
-                                  "head-room (a larger capacity_multiplier) and fit again.")
 
 
 def _fit_record(args, law, names, described, target, params, result, seconds, before, after) -> dict:
