@@ -49,6 +49,7 @@ from jax_md import dataclasses
 
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_
+from jaxpile.laws import tangential
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, with_set)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
@@ -127,11 +128,6 @@ def wall_params(p: Params) -> Params:
     )
 
 
-FRAME_EPSILON = 1e-10
-"""LAMMPS `pair_style granular`'s EPSILON: the shear spring is turned into the
-tangent plane when |s . n| k_t exceeds this fraction of mu |F_n|."""
-
-
 def make_pair_force(rolling=None, pair_style: str = "gran/hooke/history"):
     """The kernel in one reading: `rolling` (None, `"sds"`, `"constant"`) and the
     tangential spring's `pair_style` (see the module docstring)."""
@@ -163,45 +159,9 @@ def make_pair_force(rolling=None, pair_style: str = "gran/hooke/history"):
 
         fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
 
-        if granular:  # turn the spring into the tangent plane keeping its length, then add the increment
-            sx, sy = shear[0], shear[1]
-            sn = sx * nx + sy * ny
-            turn = jnp.abs(sn) * p.kt > FRAME_EPSILON * (p.mu * jnp.abs(fn))
-            length2 = sx * sx + sy * sy
-            px, py = sx - sn * nx, sy - sn * ny
-            projected2 = px * px + py * py
-            keep_length = projected2 > 0
-            scale = jnp.where(keep_length, jnp.sqrt(jnp.where(keep_length, length2, 1.0)
-                                                    / jnp.where(keep_length, projected2, 1.0)), 0.0)
-            sx, sy = jnp.where(turn, px * scale, sx), jnp.where(turn, py * scale, sy)
-            sx, sy = sx + vtx * dt, sy + vty * dt
-            s2 = sx * sx + sy * sy
-        else:
-            sx, sy = shear[0] + vtx * dt, shear[1] + vty * dt
-            s2 = sx * sx + sy * sy
-            sn = sx * nx + sy * ny
-            sx, sy = sx - sn * nx, sy - sn * ny  # rotate into the current tangent plane
-        damping = g.effective_mass * p.gamma_t
-        ftx, fty = -(p.kt * sx + damping * vtx), -(p.kt * sy + damping * vty)
-        ft2 = ftx * ftx + fty * fty
-        cap = p.mu * jnp.abs(fn)
-        sliding = ft2 > cap * cap
-        # cap / |F_t| with a select between the divide and the sqrt: XLA rewrites
-        # a / sqrt(b) into a * rsqrt(b), and XLA:CPU emits a float64 rsqrt as scalar
-        # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
-        # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
-        # in the unselected branch would make the gradient NaN where F_t = 0.
-        ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
-        # Sliding: keep k_t s + m_eff gamma_t v_tr on the Coulomb circle (LAMMPS rescale).
-        has_kt = p.kt > 0
-        inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, p.kt, 1.0), 0.0)
-        rescale = sliding & (s2 > 0)
-        sx = jnp.where(rescale, jnp.where(has_kt, ratio * (sx + damping * vtx * inv_kt) - damping * vtx * inv_kt, 0.0),
-                       sx)
-        sy = jnp.where(rescale, jnp.where(has_kt, ratio * (sy + damping * vty * inv_kt) - damping * vty * inv_kt, 0.0),
-                       sy)
-        keep = jnp.where(sliding & (s2 <= 0), 0.0, ratio)
-        ftx, fty = keep * ftx, keep * fty
+        # the spring in this reading's frame (`jaxpile.laws.tangential`), capped at mu |F_n|
+        ftx, fty, sx, sy = tangential.spring(shear[0], shear[1], nx, ny, vtx, vty, p.kt,
+                                             g.effective_mass * p.gamma_t, p.mu * jnp.abs(fn), dt, granular)
 
         fx, fy = fn * nx + ftx, fn * ny + fty
         n_cross_ft = nx * fty - ny * ftx

@@ -1,0 +1,93 @@
+"""The tangential spring with history that `hooke` and `granular` share: the
+shear displacement s of a pair, its force F_t = -(k_t s + eta_t v_tr), and the
+Coulomb cap |F_t| <= F_crit with LAMMPS's rescale of s.
+
+Two readings of the spring's frame, as the two LAMMPS pair styles have them:
+
+- `gran/hooke/history`: s <- s + v_tr dt, then projected onto the current
+  tangent plane (its length not kept).
+- `pair_style granular` (29Sep2021): before the increment, when |s . n| k_t >
+  1e-10 F_crit, s is turned into the current tangent plane keeping its length,
+  s <- (s - (s . n) n) |s| / |s - (s . n) n|; then s <- s + v_tr dt.
+
+Sliding (|F_t| > F_crit): F_t <- F_t F_crit / |F_t| and s <- -(F_t + eta_t
+v_tr) / k_t, so that k_t s + eta_t v_tr stays on the Coulomb circle; with s = 0
+there, F_t = 0 (LAMMPS semantics).
+
+Written component by component (x, y scalars): vmapped over the slots every
+intermediate is an `[n, k]` array, which XLA on CPU fuses with the rest of a
+kernel (benchmarks/profile_step.py).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+
+Array = Any
+
+FRAME_EPSILON = 1e-10
+"""LAMMPS `pair_style granular`'s EPSILON: the shear spring is turned into the
+tangent plane when |s . n| k_t exceeds this fraction of F_crit."""
+
+
+def spring(sx, sy, nx, ny, vtx, vty, kt, damping, cap, dt, turn_in_plane: bool):
+    """One step of the spring: `(ftx, fty, sx, sy)`, the capped tangential force
+    on i and the new shear displacement.
+
+    Args:
+      sx, sy: the shear displacement carried from the last step.
+      nx, ny: the unit normal; vtx, vty: the contact points' relative velocity.
+      kt: the spring's stiffness; damping: eta_t (force per velocity).
+      cap: F_crit, the largest |F_t|.
+      turn_in_plane: `pair_style granular`'s frame (True) or
+        `gran/hooke/history`'s (False).
+    """
+    if turn_in_plane:
+        sn = sx * nx + sy * ny
+        turn = jnp.abs(sn) * kt > FRAME_EPSILON * cap
+        length2 = sx * sx + sy * sy
+        px, py = sx - sn * nx, sy - sn * ny
+        projected2 = px * px + py * py
+        keep_length = projected2 > 0
+        scale = jnp.where(keep_length, jnp.sqrt(jnp.where(keep_length, length2, 1.0)
+                                                / jnp.where(keep_length, projected2, 1.0)), 0.0)
+        sx, sy = jnp.where(turn, px * scale, sx), jnp.where(turn, py * scale, sy)
+        sx, sy = sx + vtx * dt, sy + vty * dt
+        s2 = sx * sx + sy * sy
+    else:
+        sx, sy = sx + vtx * dt, sy + vty * dt
+        s2 = sx * sx + sy * sy
+        sn = sx * nx + sy * ny
+        sx, sy = sx - sn * nx, sy - sn * ny  # rotate into the current tangent plane
+    ftx, fty = -(kt * sx + damping * vtx), -(kt * sy + damping * vty)
+    ft2 = ftx * ftx + fty * fty
+    sliding = ft2 > cap * cap
+    # cap / |F_t| with a select between the divide and the sqrt: XLA rewrites
+    # a / sqrt(b) into a * rsqrt(b), and XLA:CPU emits a float64 rsqrt as scalar
+    # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
+    # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
+    # in the unselected branch would make the gradient NaN where F_t = 0.
+    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+    # Sliding: keep k_t s + eta_t v_tr on the Coulomb circle (LAMMPS rescale).
+    has_kt = kt > 0
+    inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, kt, 1.0), 0.0)
+    rescale = sliding & (s2 > 0)
+    sx = jnp.where(rescale, jnp.where(has_kt, ratio * (sx + damping * vtx * inv_kt) - damping * vtx * inv_kt, 0.0), sx)
+    sy = jnp.where(rescale, jnp.where(has_kt, ratio * (sy + damping * vty * inv_kt) - damping * vty * inv_kt, 0.0), sy)
+    keep = jnp.where(sliding & (s2 <= 0), 0.0, ratio)
+    return keep * ftx, keep * fty, sx, sy
+
+
+def capped_dashpot(vtx, vty, damping, cap):
+    """The tangential force without a spring (LAMMPS `tangential
+    linear_nohistory`): F_t = -eta_t v_tr, capped at F_crit."""
+    ftx, fty = -damping * vtx, -damping * vty
+    ft2 = ftx * ftx + fty * fty
+    sliding = ft2 > cap * cap
+    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+    return ratio * ftx, ratio * fty
+
+
+__all__ = ["FRAME_EPSILON", "capped_dashpot", "spring"]
