@@ -237,7 +237,7 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
     the box stage) had run."""
     from jaxpile import sweeps
 
-    monkeypatch.setattr(sweeps, "_ensemble",
+    monkeypatch.setattr(sweeps, "ensemble_for",
                         lambda *a, **k: pytest.fail("a batch was built before the grid was checked"))
     with pytest.raises(InputError):
         sweeps.sweep(protocol, vary=vary, seeds=1, options=options, progress=False)
