@@ -215,15 +215,7 @@ def make_pair_force(model: Model):
     """The kernel of one composition (see the module docstring)."""
 
     def pair_force(p: Params, g: PairGeometry, history: Array, dt) -> PairForce:
-        dx, dy = g.displacement[0], g.displacement[1]
-        r2 = dx * dx + dy * dy
-        positive = r2 > 0
-        r = jnp.sqrt(jnp.where(positive, r2, 1.0))
-        inv_r = jnp.where(positive, 1.0 / r, 0.0)
-        nx, ny = dx * inv_r, dy * inv_r
-        r = jnp.where(positive, r, 0.0)
-        radsum = g.radius_i + g.radius_j
-        in_contact = (r < radsum) & positive
+        nx, ny, r, radsum, in_contact, vn, vtx, vty = tangential.frame(g)
         delta = jnp.where(in_contact, radsum - r, 0.0)
         a = safe_sqrt(rolling_.effective_radius(g.radius_i, g.radius_j) * delta)
 
@@ -243,12 +235,7 @@ def make_pair_force(model: Model):
         else:
             eta_n = alpha(p.restitution) * safe_sqrt(meff * k)
 
-        vx, vy = g.velocity[0], g.velocity[1]
-        vn = vx * nx + vy * ny
         fn = k * delta - eta_n * vn
-        spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
-        vtx = vx - vn * nx + spin * ny  # v - (v.n) n - spin (z x n)
-        vty = vy - vn * ny - spin * nx
 
         eta_t, cap = p.xgamma_t * eta_n, p.mu * jnp.abs(fn)
         if model.tangential == "linear_nohistory":  # (T1)

@@ -140,22 +140,7 @@ def make_pair_force(rolling=None, pair_style: str = "gran/hooke/history"):
         over the slots every intermediate is then an `[n, k]` array, and XLA on CPU
         computes the shared scalars (r, F_n, the Coulomb ratio) once instead of once
         per vector component (measured: see benchmarks/profile_step.py)."""
-        dx, dy = g.displacement[0], g.displacement[1]
-        r2 = dx * dx + dy * dy
-        positive = r2 > 0
-        r = jnp.sqrt(jnp.where(positive, r2, 1.0))
-        inv_r = jnp.where(positive, 1.0 / r, 0.0)
-        nx, ny = dx * inv_r, dy * inv_r
-        r = jnp.where(positive, r, 0.0)
-        radsum = g.radius_i + g.radius_j
-        in_contact = (r < radsum) & positive
-
-        vx, vy = g.velocity[0], g.velocity[1]
-        vn = vx * nx + vy * ny
-        spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
-        # relative velocity of the contact points: v - (v.n) n - spin (z x n), z x n = (-ny, nx)
-        vtx = vx - vn * nx + spin * ny
-        vty = vy - vn * ny - spin * nx
+        nx, ny, r, radsum, in_contact, vn, vtx, vty = tangential.frame(g)
 
         fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
 

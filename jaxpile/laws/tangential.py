@@ -1,4 +1,5 @@
-"""The tangential spring with history that `hooke` and `granular` share: the
+"""The contact frame and the tangential spring with history that `hooke` and
+`granular` share (`frame`, `spring`): the
 shear displacement s of a pair, its force F_t = -(k_t s + eta_t v_tr), and the
 Coulomb cap |F_t| <= F_crit with LAMMPS's rescale of s.
 
@@ -21,7 +22,7 @@ kernel (benchmarks/profile_step.py).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
@@ -30,6 +31,40 @@ Array = Any
 FRAME_EPSILON = 1e-10
 """LAMMPS `pair_style granular`'s EPSILON: the shear spring is turned into the
 tangent plane when |s . n| k_t exceeds this fraction of F_crit."""
+
+
+class Frame(NamedTuple):
+    """One pair's contact frame in components: the unit normal, the distance,
+    the radii's sum, contact, the normal velocity and the contact points'
+    relative velocity v - (v . n) n - (r_i w_i + r_j w_j)(z x n)."""
+
+    nx: Array
+    ny: Array
+    r: Array
+    radsum: Array
+    in_contact: Array
+    vn: Array
+    vtx: Array
+    vty: Array
+
+
+def frame(g) -> Frame:
+    """The `Frame` of a `PairGeometry`, safe at zero distance (n = 0, r = 0:
+    a padded slot's gradient stays finite)."""
+    dx, dy = g.displacement[0], g.displacement[1]
+    r2 = dx * dx + dy * dy
+    positive = r2 > 0
+    r = jnp.sqrt(jnp.where(positive, r2, 1.0))
+    inv_r = jnp.where(positive, 1.0 / r, 0.0)
+    nx, ny = dx * inv_r, dy * inv_r
+    r = jnp.where(positive, r, 0.0)
+    radsum = g.radius_i + g.radius_j
+    in_contact = (r < radsum) & positive
+    vx, vy = g.velocity[0], g.velocity[1]
+    vn = vx * nx + vy * ny
+    spin = g.radius_i * g.angular_velocity_i + g.radius_j * g.angular_velocity_j
+    # z x n = (-ny, nx)
+    return Frame(nx, ny, r, radsum, in_contact, vn, vx - vn * nx + spin * ny, vy - vn * ny - spin * nx)
 
 
 def spring(sx, sy, nx, ny, vtx, vty, kt, damping, cap, dt, turn_in_plane: bool):
@@ -90,4 +125,4 @@ def capped_dashpot(vtx, vty, damping, cap):
     return ratio * ftx, ratio * fty
 
 
-__all__ = ["FRAME_EPSILON", "capped_dashpot", "spring"]
+__all__ = ["FRAME_EPSILON", "Frame", "capped_dashpot", "frame", "spring"]
