@@ -3,6 +3,8 @@ network, and base-force profiles with the papers' theory overlaid."""
 
 from __future__ import annotations
 
+import textwrap
+
 # No backend is forced here, so notebooks draw inline; the CLI picks the
 # file-only Agg backend itself, and matplotlib falls back to it without a display.
 import matplotlib.pyplot as plt
@@ -44,7 +46,7 @@ def pile_figure(position, radius, network=None, *, active=None, title: str = "",
     ax.set_xlabel(f"x ({length_unit})")
     ax.set_ylabel(f"y ({length_unit})")
     if title:
-        ax.set_title(title)
+        ax.set_title(_wrapped(title))
     fig.tight_layout()
     return _finish(fig, path)
 
@@ -68,7 +70,7 @@ def base_profile_figure(x, normal, horizontal, *, theory_normal=None, theory_hor
         ax.grid(alpha=0.3)
         ax.legend()
     if title:
-        fig.suptitle(title)
+        fig.suptitle(_wrapped(title))
     fig.tight_layout()
     return _finish(fig, path)
 
@@ -92,7 +94,7 @@ def series_figure(x, series: dict, *, xlabel: str, ylabel: str, title: str = "",
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
-        ax.set_title(title)
+        ax.set_title(_wrapped(title))
     fig.tight_layout()
     return _finish(fig, path)
 
@@ -121,9 +123,15 @@ def sweep_figure(series: dict, xlabel: str, *, theory=None, ylabel: str = "angle
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(_wrapped(title), fontsize=10)
     fig.tight_layout()
     return _finish(fig, path)
+
+
+def _wrapped(title: str, width: int = 90) -> str:
+    """A title on lines of at most `width` characters (a LAMMPS line as the
+    law's name runs past the figure's edge)."""
+    return "\n".join(textwrap.wrap(title, width)) or title
 
 
 def _finish(fig, path):

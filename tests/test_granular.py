@@ -14,7 +14,7 @@ import pytest
 
 import jaxpile  # noqa: F401  (float64 on)
 from jaxpile.errors import InputError
-from jaxpile.laws import granular
+from jaxpile.laws import granular, hooke
 from jaxpile.laws.base import PairGeometry
 
 R1, R2, M1, M2 = 0.5, 0.4, 1.3, 0.7
@@ -111,6 +111,139 @@ def test_mindlin_tangential_stiffness_under_load_eq_T3():
     assert float(out.force[0]) == pytest.approx(k * delta, rel=1e-13)
 
 
+def pair_at(delta, velocity=(0.0, 0.0), radius_j=R2, mass=MEFF):
+    """The geometry of a pair (a wall with radius_j = 0) at overlap `delta`
+    along x, with relative velocity `velocity`."""
+    return PairGeometry(displacement=jnp.stack([R1 + radius_j - delta, 0.0 * delta]), radius_i=jnp.asarray(R1),
+                        radius_j=jnp.asarray(radius_j), velocity=jnp.asarray(velocity, float),
+                        angular_velocity_i=jnp.asarray(0.0), angular_velocity_j=jnp.asarray(0.0),
+                        effective_mass=jnp.asarray(mass))
+
+
+def test_jkr_pull_off_force_is_3_pi_w_r_and_a_contact_holds_to_the_pull_off_overlap_eq_N5():
+    """Johnson, Kendall & Roberts 1971 (eq. N5), w LAMMPS's `cohesion` (the
+    surface energy; JKR's work of adhesion is 2 w): along the JKR curve the
+    normal force is -8/9 of the pull-off force at first touch (delta = 0),
+    and its least value, -3 pi w R, is reached at the pull-off overlap
+    delta_c = a0^2 / R - 2 sqrt(pi w a0 / E_eff), a0 = (9 pi w R^2 / (4
+    E_eff))^(1/3), where a touching contact breaks; an untouched pair beyond
+    contact feels nothing."""
+    e_mod, nu, w = 1e5, 0.3, 2.0
+    model, params = granular.parse(f"jkr {e_mod} 0.0 {nu} {w} damping velocity tangential linear_nohistory 0.0 0.0")
+    law = granular.law(model)
+    touched = jnp.array([0.0, 0.0, 1.0])
+    e_eff = e_mod / (2 * (1 - nu ** 2))
+    a0 = (9 * math.pi * w * REFF ** 2 / (4 * e_eff)) ** (1 / 3)
+    delta_c = a0 ** 2 / REFF - 2 * math.sqrt(math.pi * w * a0 / e_eff)
+    pulloff = 3 * math.pi * w * REFF
+
+    def normal(delta, history=touched):
+        out = law.pair_force(params, pair_at(delta), history, 0.0)
+        return float(out.normal), bool(out.in_contact)
+
+    assert delta_c < 0
+    assert normal(0.0)[0] == pytest.approx(-8 / 9 * pulloff, rel=1e-9)
+    along = jax.jit(jax.vmap(lambda d: law.pair_force(params, pair_at(d), touched, 0.0)))(
+        jnp.linspace(delta_c * (1 - 1e-9), 0.02, 4001))
+    assert bool(np.all(along.in_contact))
+    assert float(along.normal.min()) == pytest.approx(-pulloff, rel=1e-9)
+    assert float(along.normal[0]) == pytest.approx(-pulloff, rel=1e-6)
+    assert not normal(delta_c * (1 + 1e-6))[1]  # broken beyond the pull-off overlap
+    assert not normal(0.5 * delta_c, jnp.zeros(3))[1]  # never touched: no reach beyond contact
+    assert float(law.interaction_range(params, R1, R2)) == pytest.approx(R1 + R2 - delta_c, rel=1e-12)
+
+
+def test_dmt_adds_a_constant_pull_off_force_4_pi_w_r_to_hertz_eq_N4():
+    """Derjaguin, Muller & Toporov 1975 (eq. N4): F_ne = 4/3 E_eff a delta -
+    4 pi w R in contact, nothing apart; its friction cap is mu |F_ne + 2
+    F_pulloff| (LAMMPS's manual, granular's W3)."""
+    e_mod, nu, w, mu = 1e5, 0.3, 2.0, 0.4
+    model, params = granular.parse(f"dmt {e_mod} 1.0 {nu} {w} damping velocity tangential linear_nohistory 1e6 {mu}")
+    law = granular.law(model)
+    delta = 0.004
+    a = math.sqrt(REFF * delta)
+    fne = 4 / 3 * e_mod / (2 * (1 - nu ** 2)) * a * delta - 4 * math.pi * w * REFF
+    out = law.pair_force(params, pair_at(delta, velocity=(0.0, 3.0)), jnp.zeros(2), 0.0)
+    assert float(out.normal) == pytest.approx(fne, rel=1e-12)
+    assert float(out.force[1]) == pytest.approx(-mu * abs(fne + 8 * math.pi * w * REFF), rel=1e-12)  # sliding
+    assert not bool(law.pair_force(params, pair_at(-1e-9), jnp.zeros(2), 0.0).in_contact)
+
+
+def test_mindlin_rescale_scales_the_spring_with_the_contact_radius_on_unloading_and_force_forms_match_at_constant_a():
+    """mindlin_rescale (eq. T4): when the contact radius falls from a_last to
+    a, the spring's displacement is scaled by a / a_last, so the force kt a s
+    by (a / a_last)^2; loading leaves it. mindlin/force (eq. T5) carries the
+    elastic force: at constant a, n steps of a tangential velocity give the
+    force mindlin gives, -kt a v n dt, to round-off."""
+    line = "hertz/material 2e5 0.0 0.25 damping velocity tangential {} 3e4 0.0 10.0"
+    rescale = granular.law(granular.parse(line.format("mindlin_rescale"))[0])
+    params = granular.parse(line.format("mindlin_rescale"))[1]
+    a_of = lambda d: math.sqrt(REFF * d)  # noqa: E731
+    s = 1e-4
+    for before, after in ((0.01, 0.0025), (0.0025, 0.01)):  # unloading, then loading
+        out = rescale.pair_force(params, pair_at(after), jnp.array([0.0, s, a_of(before)]), 0.0)
+        scaled = min(1.0, a_of(after) / a_of(before))
+        assert float(out.force[1]) == pytest.approx(-3e4 * a_of(after) * s * scaled, rel=1e-12)
+        assert float(out.history[2]) == pytest.approx(a_of(after), rel=1e-15)
+    forces = {}
+    for form in ("mindlin", "mindlin/force"):
+        model, p = granular.parse(line.format(form))
+        law, history = granular.law(model), jnp.zeros(2)
+        for _ in range(50):
+            out = law.pair_force(p, pair_at(0.01, velocity=(0.0, 0.3)), history, 1e-4)
+            history = out.history
+        forces[form] = float(out.force[1])
+    assert forces["mindlin/force"] == pytest.approx(forces["mindlin"], rel=1e-12)
+    assert forces["mindlin"] == pytest.approx(-3e4 * a_of(0.01) * 0.3 * 50 * 1e-4, rel=1e-12)
+
+
+def test_limit_damping_keeps_a_separating_contact_from_pulling():
+    """`limit_damping`: a normal force the damping would make attractive (a
+    fast separation) is zero; without it the contact pulls."""
+    line = "hooke 1e4 50.0 damping mass_velocity tangential linear_history 1e3 0.5 0.4"
+    geometry = pair_at(1e-4, velocity=(5.0, 0.0))
+    pulls = granular.law(granular.parse(line)[0]).pair_force(granular.parse(line)[1], geometry, jnp.zeros(2), 0.0)
+    model, params = granular.parse(line + " limit_damping")
+    held = granular.law(model).pair_force(params, geometry, jnp.zeros(2), 0.0)
+    assert float(pulls.normal) < 0 and float(held.normal) == 0.0
+
+
+def test_walls_as_lammps_computes_them_or_with_the_pairs_formulas():
+    """A wall contact (a partner of zero radius, R = r_i): by default as
+    LAMMPS 29Sep2021's `fix wall/gran granular` (E_eff = E / (2 (1 - nu)),
+    eq. W1; jkr's reach r_i + a0^2 / r_i - 2 sqrt(pi w a0 / E_eff) with a0 =
+    (9 pi w r_i / (4 E_eff))^(1/3), eq. W4, which is a0^2 (1 / r_i - 4 / (3
+    sqrt(r_i))): beyond contact for r_i < 9/16 in the length unit, within the
+    overlap above); with walls="pair" the pair's E / (2 (1 - nu^2)) and
+    pull-off overlap delta_c = -a0^2 / (3 R) < 0 at R = r_i."""
+    e_mod, nu, w = 1e5, 0.3, 2.0
+    model, params = granular.parse(f"jkr {e_mod} 0.0 {nu} {w} damping velocity tangential linear_nohistory 0.0 0.0")
+    touched = jnp.array([0.0, 0.0, 1.0])
+    lammps, pair = granular.law(model), granular.law(model, walls="pair")
+    assert lammps != pair and granular.law(model, walls="lammps") == lammps
+    wall = e_mod / (2 * (1 - nu))
+
+    def on_wall(law, delta, radius):
+        g = pair_at(delta, radius_j=0.0, mass=M1)._replace(radius_i=jnp.asarray(radius),
+                                                            displacement=jnp.array([radius - delta, 0.0]))
+        return law.pair_force(params, g, touched, 0.0)
+
+    for law, e_eff in ((lammps, wall), (pair, e_mod / (2 * (1 - nu ** 2)))):  # the JKR curve at delta = 0
+        assert float(on_wall(law, 0.0, R1).normal) == pytest.approx(-8 / 9 * 3 * math.pi * w * R1, rel=1e-9)
+    for radius in (0.4, 0.7):  # either side of 9/16
+        reach = float(granular.wall_pulloff_overlap(wall, w, radius))
+        a0 = (9 * math.pi * w * radius / (4 * wall)) ** (1 / 3)
+        assert reach == pytest.approx(a0 ** 2 * (1 / radius - 4 / (3 * math.sqrt(radius))), rel=1e-12)
+        assert (reach > 0) == (radius < 9 / 16)
+        assert bool(on_wall(lammps, -reach + 1e-6 * abs(reach), radius).in_contact)
+        assert not bool(on_wall(lammps, -reach - 1e-6 * abs(reach), radius).in_contact)
+        delta_c = float(granular.pulloff_overlap(e_mod / (2 * (1 - nu ** 2)), w, radius))
+        assert bool(on_wall(pair, delta_c * (1 - 1e-6), radius).in_contact)
+        assert not bool(on_wall(pair, delta_c * (1 + 1e-6), radius).in_contact)
+    with pytest.raises(InputError, match="walls is one of"):
+        granular.law(model, walls="lammps-2023")
+
+
 def test_a_lammps_line_is_read_with_its_defaults_and_written_back():
     """`parse` reads a `pair_coeff` granular line (LAMMPS's default damping is
     viscoelastic; tsuji's coefficient is e; NULL is mindlin's 8 G_eff);
@@ -125,8 +258,11 @@ def test_a_lammps_line_is_read_with_its_defaults_and_written_back():
     default, _ = granular.parse("hooke 1e5 0.3 tangential linear_history 2e4 0.5 0.4")
     assert default.damping == "viscoelastic"
     for line, match in (("hooke 1e5 0.3", "needs a tangential model"),
-                        ("hertz 1e5 0.3 tangential mindlin NULL 1.0 0.5", "only hertz/material gives"),
-                        ("jkr 1e5 0.3 0.3 1.0 tangential linear_history 1 1 1", "starts with its normal model"),
+                        ("hertz 1e5 0.3 tangential mindlin NULL 1.0 0.5", "only hertz/material, dmt, jkr give"),
+                        ("hertz/mindlin 1e5 0.3 0.3 tangential linear_history 1 1 1", "starts with its normal model"),
+                        ("jkr 1e5 0.3 0.3 tangential linear_history 1 1 1", "jkr takes 4 coefficients"),
+                        ("jkr 1e5 0.3 0.3 1.0 tangential linear_history 1 1 1 limit_damping", "cannot be used with jkr"),
+                        ("hooke 1e5 0.3 tangential linear_history 2e4 0.5 0.4 rolling spring 1 1 1", "unknown rolling"),
                         ("hooke 1e5 0.3 tangential linear_history 2e4 0.5", "takes 3 coefficients"),
                         ("hooke 1e5 0.3 tangential linear_history 2e4 0.5 0.4 twisting marshall", "twisting is 3D"),
                         ("hertz/material 1e5 0.3 0.6 tangential linear_history 2e4 0.5 0.4", "nu")):
@@ -156,3 +292,28 @@ def test_a_granular_law_is_the_same_object_for_the_same_model_and_its_gradient_i
         up[name], down[name] = value + h, value - h
         assert float(grad[name]) == pytest.approx((float(fx(up)) - float(fx(down))) / (2 * h), rel=1e-6, abs=1e-9), name
     assert np.all(np.isfinite(np.asarray(jax.tree_util.tree_leaves(grad))))
+
+
+@pytest.mark.parametrize("rolling", [None, "sds"])
+def test_hooke_is_the_composition_hooke_mass_velocity_linear_history_bit_for_bit(rolling):
+    """`hooke kn gamma_n damping mass_velocity tangential linear_history kt
+    xgamma_t mu` is the `hooke` law in its `granular` reading
+    (`hooke.law(pair_style="granular")`, LAMMPS's pair_style granular) bit
+    for bit, rolling sds too, where xgamma_t gamma_n is hooke's gamma_t
+    exactly (LAMMPS's defaults: gamma_t = gamma_n / 2): 20 disks settling in a
+    box with walls, every position, velocity, spin, force and torque at every
+    dump over 1000 steps."""
+    from lammps_twin import pile, run_jaxpile, walls
+
+    roll = {} if rolling is None else dict(k_roll=5e3, gamma_roll=2.0, mu_roll=0.2)
+    hp = hooke.make_params(kn=1e5, gamma_n=20.0, mu=0.4, **roll)
+    model, gp = granular.parse(f"hooke 1e5 20.0 damping mass_velocity tangential linear_history {float(hp.kt)!r} "
+                               f"0.5 0.4" + ("" if rolling is None else " rolling sds 5e3 2.0 0.2"))
+    particles, wall_positions, _ = pile()
+    case = dict(steps=1000, every=250, dt=2e-4)
+    ours, _ = run_jaxpile(particles, walls(5.0, **wall_positions), law=granular.law(model), params=gp, **case)
+    theirs, _ = run_jaxpile(particles, walls(5.0, **wall_positions), law=hooke.law(rolling=rolling, pair_style="granular"),
+                            params=hp, **case)
+    for step in theirs:
+        for column in theirs[step]:
+            np.testing.assert_array_equal(np.asarray(ours[step][column]), np.asarray(theirs[step][column]))

@@ -17,13 +17,21 @@ from lammps_twin import LMP, differences, pile, run_jaxpile, run_lammps, walls
 
 pytestmark = pytest.mark.skipif(LMP is None, reason="LAMMPS (lmp) is not installed: apt-get install lammps")
 
-MODELS = {  # every normal, damping and tangential model at least once, and rolling sds
+MODELS = {  # every normal, damping and tangential model at least once, rolling sds and limit_damping
     "hooke-velocity-nohistory": "hooke 1e5 100.0 damping velocity tangential linear_nohistory 0.5 0.4",
     "hertz-viscoelastic-linear": "hertz 2e6 5000.0 damping viscoelastic tangential linear_history 3e4 0.5 0.4",
     "material-tsuji-mindlin": "hertz/material 3e6 0.5 0.3 damping tsuji tangential mindlin NULL 1.0 0.4",
     "material-mass-mindlin-sds": ("hertz/material 3e6 150.0 0.25 damping mass_velocity tangential mindlin 4e5 0.5 "
                                   "0.4 rolling sds 5e3 2.0 0.2"),
     "hertz-tsuji-nohistory": "hertz 2e6 0.7 damping tsuji tangential linear_nohistory 1.0 0.4",
+    "jkr-viscoelastic-rescale": "jkr 3e6 5000.0 0.3 0.5 damping viscoelastic tangential mindlin_rescale NULL 1.0 0.4",
+    "jkr-tsuji-force": "jkr 3e6 0.5 0.3 0.5 damping tsuji tangential mindlin/force NULL 1.0 0.4",
+    "material-velocity-rescale-force-sds": ("hertz/material 3e6 50.0 0.3 damping velocity tangential "
+                                            "mindlin_rescale/force 4e5 0.5 0.4 rolling sds 5e3 2.0 0.2"),
+    "hooke-mass-linear-limit": ("hooke 1e5 20.0 damping mass_velocity tangential linear_history 3e4 0.5 0.4 "
+                                "limit_damping"),
+    # frictionless: LAMMPS 29Sep2021's dmt friction cap reads a variable only jkr sets (granular's W3)
+    "dmt-viscoelastic-frictionless": "dmt 3e6 5000.0 0.25 0.3 damping viscoelastic tangential linear_nohistory 1.0 0.0",
 }
 
 
@@ -67,7 +75,10 @@ def test_each_granular_sub_model_matches_lammps_pair_granular_to_round_off(name,
     disk moved by one ulp: hooke-velocity-nohistory 2.8e-11 (1.2e-13),
     hertz-viscoelastic-linear 1.7e-12 (5.3e-13), material-tsuji-mindlin
     1.4e-10 (3.9e-13), material-mass-mindlin-sds 1.3e-11 (2.3e-13),
-    hertz-tsuji-nohistory 9.8e-11 (1.7e-13): LAMMPS's order of summation
+    hertz-tsuji-nohistory 9.8e-11 (1.7e-13), jkr-viscoelastic-rescale
+    1.1e-11, jkr-tsuji-force 7.1e-12, material-velocity-rescale-force-sds
+    1.0e-11, hooke-mass-linear-limit 4.7e-12, dmt-viscoelastic-frictionless
+    5.7e-13: LAMMPS's order of summation
     differs at every contact of every step, not once, and the pile amplifies
     it; the collisions, which do not, agree to 1e-12 in every model."""
     case = dict(SETUPS[setup])

@@ -169,6 +169,7 @@ def _fit_record(args, law, names, described, target, params, result, seconds, be
     """fit.json's record: the set-up, the values before and after, the history
     and the profiles (target, before, after)."""
     from jaxpile import fit
+    from jaxpile.laws import granular
 
     def values(p):
         return {n: float(getattr(p, n)) for n in names}
@@ -189,6 +190,7 @@ def _fit_record(args, law, names, described, target, params, result, seconds, be
                            "horizontal": None if target.horizontal is None else np.asarray(target.horizontal).tolist()},
         "profile_before": plain_profile(before),
         "profile_after": plain_profile(after), "history": result.history,
+        **({"lammps_pair_coeff": line} if (line := granular.line_at(law, vars(result.params))) else {}),
     }
 
 

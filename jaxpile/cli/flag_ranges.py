@@ -52,12 +52,13 @@ def check_flags(args) -> None:
 def ranges_markdown() -> str:
     """The table of valid ranges in docs/cli.md, from the same tables the checks use
     (tests/test_input_catalogue.py checks that docs/cli.md holds it as it is)."""
-    from jaxpile.laws import LAWS, get_law_module
+    from jaxpile.laws import LAWS, get_law_module, granular
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols.spec import ranges_of
 
     rows = ["| input | valid ranges |", "|---|---|"]
     rows += [f"| law `{name}` (`--set NAME=VALUE`) | {inline(get_law_module(name).RANGES)} |" for name in LAWS]
+    rows += [f"| a LAMMPS granular line (`--law \"...\"`, `--set NAME=VALUE`) | {inline(granular.RANGES)} |"]
     rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(ranges_of(spec.options))} |"
              for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]
     rows += [f"| every protocol's run (`SPEC.run(..., seed=, dt=, chunk_steps=)`) | {inline(RUN_RANGES)} |"]
@@ -69,7 +70,7 @@ def ranges_markdown() -> str:
 
 def ranges_epilog() -> str:
     """`jaxpile pile --help`'s list of every law parameter's and protocol option's range."""
-    from jaxpile.laws import LAWS, get_law_module
+    from jaxpile.laws import LAWS, get_law_module, granular
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols.spec import ranges_of
 
@@ -84,6 +85,7 @@ def ranges_epilog() -> str:
 
     out = ["law parameters (--set NAME=VALUE) and their valid ranges:"]
     out += [entry(name, get_law_module(name).RANGES) for name in LAWS]
+    out += [entry("a LAMMPS granular line", granular.RANGES)]
     out += ["protocol options (--option NAME=VALUE, or a flag of its own: `jaxpile pile --protocol P --help`) "
             "and their valid ranges:"]
     out += [entry(name, ranges_of(spec.options)) for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]

@@ -73,7 +73,9 @@ def _pile_parser(sub) -> argparse.ArgumentParser:
     pile.add_argument("--option", action="append", metavar="NAME=VALUE",
                       help="a protocol option, e.g. width=4 (box), polydispersity=0.05 (pour) (repeatable)")
     pile.add_argument("--law", default=None,
-                      help="contact law: hooke, liffman, lee-herrmann, baxter (default: the protocol's paper's law)")
+                      help="contact law: hooke, liffman, lee-herrmann, baxter, or a LAMMPS pair_coeff granular line "
+                           "in quotes, e.g. \"hertz/material 1e7 0.3 0.3 tangential mindlin NULL 1.0 0.5\" "
+                           "(docs/lammps.md; default: the protocol's paper's law)")
     pile.add_argument("--set", action="append", metavar="NAME=VALUE", help="override a law parameter (repeatable)")
     pile.add_argument("--rotation", type=on_off, default=None, metavar="on|off",
                       help="integrate spins (lattice default: off, as the 1992 static analysis)")
@@ -129,7 +131,8 @@ def _sweep_parser(sub) -> argparse.ArgumentParser:
     sweep = sub.add_parser("sweep", help="run a protocol over a grid of law parameters and seeds, batched")
     sweep.add_argument("--protocol", default="box", choices=sweep_protocols(),
                        help="every registered protocol (lattice and sloped are deterministic: vary the law)")
-    sweep.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
+    sweep.add_argument("--law", default=None, help="contact law, or a LAMMPS pair_coeff granular line in quotes "
+                       "(default: the protocol paper's)")
     sweep.add_argument("--mu", default=None, metavar="V1,V2,...", help="friction coefficients to sweep")
     sweep.add_argument("--vary", action="append", metavar="NAME=V1,V2,...",
                        help="another law parameter, or a set-up option of the protocol (--vary orifice=4,6,8 "
@@ -184,7 +187,8 @@ def _fit_parser(sub) -> argparse.ArgumentParser:
                            "construction truncated to windows of --truncation-window steps (the base profile "
                            "alone; measured biased on 40-disk heaps: docs/fitting.md)")
     _ensemble_fit_args(fitp)
-    fitp.add_argument("--law", default=None, help="contact law (default: the protocol paper's)")
+    fitp.add_argument("--law", default=None, help="contact law, or a LAMMPS pair_coeff granular line in quotes "
+                      "(default: the protocol paper's)")
     fitp.add_argument("--params", required=True, metavar="NAME,NAME", help="the law parameters to fit")
     fitp.add_argument("--set", action="append", metavar="NAME=VALUE", help="a starting/fixed law parameter")
     fitp.add_argument("--rotation", type=on_off, default=None, metavar="on|off",

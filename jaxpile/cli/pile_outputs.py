@@ -41,6 +41,7 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
     file of the run to OUT, prints its headline, and returns its summary."""
     from jaxpile import export, io
     from jaxpile.engine.simulate import Simulator
+    from jaxpile.laws import granular
     from jaxpile.measure import analysis
 
     name = args.protocol
@@ -73,6 +74,9 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
         **(plain(m) if registered.summary is None else registered.summary(m)),
     }
     summary["protocol"], summary["law"] = name, contact_law.name
+    line = granular.line_at(contact_law.name, summary["params"])
+    if line is not None:  # the line at the values run, to take back to LAMMPS
+        summary["lammps_pair_coeff"] = line
     out = args.out
     os.makedirs(out, exist_ok=True)
     io.write_json(os.path.join(out, "summary.json"), summary)

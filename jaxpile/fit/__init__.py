@@ -58,6 +58,7 @@ from jaxpile.fit.optimise import (
     FORWARD_MODE_MAX,
     GRADIENT_MODES,
     LOWER_BOUNDS,
+    UPPER_BOUNDS,
     FitResult,
     Transform,
     descend,
@@ -94,6 +95,7 @@ from jaxpile.measure.heap import ProfileSetting
 __all__ = [
     "BASES",
     "LOWER_BOUNDS",
+    "UPPER_BOUNDS",
     "Measurement",
     "SMID_NOVOSAD_ANGLE_DEGREES",
     "SMID_NOVOSAD_DIP_RANGE",

@@ -80,6 +80,8 @@ from jaxpile.fit.ensemble_runs import Runner, Statistics
 from jaxpile.fit.ensemble_runs import MissingEverywhere, fill_missing, run_saved
 from jaxpile.fit.ensemble_targets import EnsembleTarget, make_target, smid_novosad_target
 from jaxpile.fit.stats import t_quantile, weights
+from jaxpile.fit.optimise import UPPER_BOUNDS
+from jaxpile.laws import granular
 from jaxpile.ranges import COUNT, POSITIVE
 
 ESTIMATORS = ("central", "smoothing", "truncated")
@@ -412,6 +414,11 @@ def _checked(runner: Runner, names, start: dict, target: EnsembleTarget, seeds, 
         raise InputError(f"start must give exactly the fitted parameters {names}; got {sorted(start)}.")
     for n in names:
         POSITIVE.check(f"the starting {n}", start[n], scalar=True)
+    bounded = sorted({n for n in names for bounds in UPPER_BOUNDS.values() if n in bounds})
+    if bounded:
+        raise InputError(f"{', '.join(bounded)} is bounded above, and the ensemble fit steps in log space, which "
+                         "would cross the bound: fix it (--set), or fit it on one pile (--estimator pathwise, in "
+                         "logit space).")
     if estimator not in ESTIMATORS:
         raise InputError(f"estimator must be one of {ESTIMATORS}; got {estimator!r}.")
     if estimator == "truncated":
@@ -728,6 +735,9 @@ class _Fitting(NamedTuple):
                        "fit_seconds": time.perf_counter() - t0,
                        "particle_steps": int(sum(h["particle_steps"] for h in history) + info["particle_steps"]
                                              + record.get("first_pass", {}).get("particle_steps", 0))})
+        line = granular.line_at(record["law"], {**record.get("params", {}), **self.params_of(theta)})
+        if line is not None:  # the fitted law as a LAMMPS pair_coeff line, to take back
+            record["lammps_pair_coeff"] = line
         first = history[0]["mean"] if history and history[0].get("mean") is not None else None
         start_mean = np.asarray(first, float) if first is not None else np.full(len(target.mean), np.nan)
         return EnsembleFitResult(names, self.params_of(theta), {n: float(start[n]) for n in names}, bounds,

@@ -24,15 +24,19 @@ from jaxpile.engine.compile import jit_derivative
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import is_concrete
 from jaxpile.fit.targets import ProfileTarget
-from jaxpile.laws import LAWS
+from jaxpile.laws import LAWS, granular
 
 Array = Any
 
 # ------------------------------------------------------------ transforms
-LOWER_BOUNDS: dict[str, dict[str, float]] = {"baxter": {"r0": 1.0}}
+LOWER_BOUNDS: dict[str, dict[str, float]] = {"baxter": {"r0": 1.0}, "granular": {"nu": -1.0}}
 """Lower bounds other than 0, per law: baxter's cut-off r0 must exceed 1 (a
-cut-off beyond contact). Every other fitted parameter must be > 0 (mu, kn, kt, ks,
-baxter n, ...)."""
+cut-off beyond contact), a Poisson's ratio -1. Every other fitted parameter must
+be > 0 (mu, kn, kt, ks, baxter n, E, ...)."""
+
+UPPER_BOUNDS: dict[str, dict[str, float]] = {"granular": {"nu": 0.5, "restitution": 1.0}}
+"""Upper bounds, per law: a Poisson's ratio below 1/2, a coefficient of
+restitution below 1. A parameter with one is fitted in logit space."""
 
 
 def _law_of(params) -> tuple[str | None, tuple[str, ...]]:
@@ -42,6 +46,8 @@ def _law_of(params) -> tuple[str | None, tuple[str, ...]]:
     for name, module in LAWS.items():
         if isinstance(params, module.Params):
             return name, tuple(module.PARAM_NAMES)
+    if isinstance(params, granular.Params):  # the parameters its composition was given
+        return granular.NAME, tuple(n for n in granular.PARAM_NAMES if getattr(params, n) is not None)
     raise InputError(f"params must be a law's params pytree (one of the laws {sorted(LAWS)}) or a mapping of "
                      f"names to values; got {type(params).__name__}.")
 
@@ -58,21 +64,29 @@ def _with(params, values: Mapping[str, Array]):
 
 @dataclasses.dataclass(frozen=True)
 class Transform:
-    """Positive parameters in log space: u = log(value - lower), value = lower + exp(u).
+    """Positive parameters in log space: u = log(value - lower), value = lower + exp(u);
+    a parameter bounded above too (`UPPER_BOUNDS`) in logit space:
+    u = log((value - lower) / (upper - value)), value = lower + (upper - lower) sigmoid(u).
 
-    An optimiser then moves freely in u while every value stays above its lower
-    bound (`LOWER_BOUNDS`: 0 for mu, kn, kt, ks, baxter n, ...; 1 for baxter r0).
-    A value at its bound (mu = 0) has no image: start from a small positive
-    value instead. Steps in u are relative steps in the value, which suits
-    parameters spanning decades (stiffnesses).
+    An optimiser then moves freely in u while every value stays within its
+    bounds (`LOWER_BOUNDS`: 0 for mu, kn, kt, ks, baxter n, ...; 1 for baxter
+    r0). A value at a bound (mu = 0) has no image: start from inside instead.
+    Steps in u are relative steps in the value, which suits parameters spanning
+    decades (stiffnesses).
 
     Attributes:
       names: the transformed parameters.
       lower: their lower bounds.
+      upper: their upper bounds (inf: none); empty for none at all.
     """
 
     names: tuple[str, ...]
     lower: tuple[float, ...]
+    upper: tuple[float, ...] = ()
+
+    @property
+    def _bounds(self):
+        return zip(self.names, self.lower, self.upper or (math.inf,) * len(self.names))
 
     @classmethod
     def of(cls, params, names: str | Sequence[str]) -> "Transform":
@@ -93,8 +107,10 @@ class Transform:
         if unknown:
             what = f"the {law} law's parameters (PARAM_NAMES)" if law else "the mapping's keys"
             raise InputError(f"unknown parameter(s) {unknown}; {what}: {list(known)}.")
-        bounds = LOWER_BOUNDS.get(law, {}) if law else {}
-        return cls(names=names, lower=tuple(float(bounds.get(n, 0.0)) for n in names))
+        lower, upper = (LOWER_BOUNDS.get(law, {}), UPPER_BOUNDS.get(law, {})) if law else ({}, {})
+        return cls(names=names, lower=tuple(float(lower.get(n, 0.0)) for n in names),
+                   upper=tuple(float(upper.get(n, math.inf)) for n in names) if any(n in upper for n in names)
+                   else ())
 
     def to_unconstrained(self, params) -> dict[str, Array]:
         """{name: log(value - lower)} for the transformed parameters.
@@ -104,7 +120,7 @@ class Transform:
             disk value: set it to fit it), non-finite, or not above its bound.
         """
         out = {}
-        for name, lower in zip(self.names, self.lower):
+        for name, lower, upper in self._bounds:
             value = _get(params, name)
             if value is None:
                 raise InputError(f"parameter {name} is None (it follows its disk value); give it a value to "
@@ -118,7 +134,11 @@ class Transform:
                     raise InputError(f"parameter {name} must be finite and > {lower:g} to be fitted in log space "
                                      f"(log({name} - {lower:g})); got {v.tolist()}. Start from a value above "
                                      "the bound.")
-            out[name] = jnp.log(value - lower)
+                if np.any(v >= upper):
+                    raise InputError(f"parameter {name} must be < {upper:g} to be fitted in logit space "
+                                     f"(log(({name} - {lower:g}) / ({upper:g} - {name}))); got {v.tolist()}. "
+                                     "Start from a value below the bound.")
+            out[name] = jnp.log(value - lower) if math.isinf(upper) else jnp.log((value - lower) / (upper - value))
         return out
 
     def to_constrained(self, unconstrained: Mapping[str, Array], params):
@@ -127,7 +147,9 @@ class Transform:
         missing = [n for n in self.names if n not in unconstrained]
         if missing:
             raise InputError(f"unconstrained values missing for {missing}.")
-        return _with(params, {n: lower + jnp.exp(unconstrained[n]) for n, lower in zip(self.names, self.lower)})
+        return _with(params, {n: lower + jnp.exp(unconstrained[n]) if math.isinf(upper)
+                              else lower + (upper - lower) * jax.nn.sigmoid(unconstrained[n])
+                              for n, lower, upper in self._bounds})
 
 
 def to_unconstrained(params, names: str | Sequence[str]) -> dict[str, Array]:

@@ -15,6 +15,12 @@ Sliding (|F_t| > F_crit): F_t <- F_t F_crit / |F_t| and s <- -(F_t + eta_t
 v_tr) / k_t, so that k_t s + eta_t v_tr stays on the Coulomb circle; with s = 0
 there, F_t = 0 (LAMMPS semantics).
 
+`force_spring` is the spring that carries its elastic force f instead of s
+(`pair_style granular`'s `mindlin/force` forms; Thornton et al., Powder
+Technol. 233, 30 (2013), eq. 18): f is turned as s is (when |f . n| > 1e-10
+F_crit), then f <- f - k_t v_tr dt, F_t = f - eta_t v_tr; sliding, f <- F_t +
+eta_t v_tr with F_t on the circle.
+
 Written component by component (x, y scalars): vmapped over the slots every
 intermediate is an `[n, k]` array, which XLA on CPU fuses with the rest of a
 kernel (benchmarks/profile_step.py).
@@ -80,15 +86,7 @@ def spring(sx, sy, nx, ny, vtx, vty, kt, damping, cap, dt, turn_in_plane: bool):
         `gran/hooke/history`'s (False).
     """
     if turn_in_plane:
-        sn = sx * nx + sy * ny
-        turn = jnp.abs(sn) * kt > FRAME_EPSILON * cap
-        length2 = sx * sx + sy * sy
-        px, py = sx - sn * nx, sy - sn * ny
-        projected2 = px * px + py * py
-        keep_length = projected2 > 0
-        scale = jnp.where(keep_length, jnp.sqrt(jnp.where(keep_length, length2, 1.0)
-                                                / jnp.where(keep_length, projected2, 1.0)), 0.0)
-        sx, sy = jnp.where(turn, px * scale, sx), jnp.where(turn, py * scale, sy)
+        sx, sy = _turned(sx, sy, nx, ny, lambda sn: jnp.abs(sn) * kt > FRAME_EPSILON * cap)
         sx, sy = sx + vtx * dt, sy + vty * dt
         s2 = sx * sx + sy * sy
     else:
@@ -104,7 +102,7 @@ def spring(sx, sy, nx, ny, vtx, vty, kt, damping, cap, dt, turn_in_plane: bool):
     # code, leaving the whole fusion around it unvectorised (benchmarks/profile_step.py).
     # The sqrt's own argument stays selected too: sqrt'(0) is infinite, and 0 * inf
     # in the unselected branch would make the gradient NaN where F_t = 0.
-    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+    ratio = _cap_ratio(sliding, cap, ft2)
     # Sliding: keep k_t s + eta_t v_tr on the Coulomb circle (LAMMPS rescale).
     has_kt = kt > 0
     inv_kt = jnp.where(has_kt, 1.0 / jnp.where(has_kt, kt, 1.0), 0.0)
@@ -115,14 +113,51 @@ def spring(sx, sy, nx, ny, vtx, vty, kt, damping, cap, dt, turn_in_plane: bool):
     return keep * ftx, keep * fty, sx, sy
 
 
+def force_spring(fx, fy, nx, ny, vtx, vty, kt, damping, cap, dt):
+    """One step of the spring that carries its elastic force (module notes):
+    `(ftx, fty, fx, fy)`, the capped tangential force on i and the new elastic
+    force; arguments as `spring`'s, with the force `fx, fy` in place of s."""
+    fx, fy = _turned(fx, fy, nx, ny, lambda fn: jnp.abs(fn) > FRAME_EPSILON * cap)
+    fx, fy = fx - kt * vtx * dt, fy - kt * vty * dt
+    f2 = fx * fx + fy * fy
+    ftx, fty = fx - damping * vtx, fy - damping * vty
+    ft2 = ftx * ftx + fty * fty
+    sliding = ft2 > cap * cap
+    ratio = _cap_ratio(sliding, cap, ft2)
+    rescale = sliding & (f2 > 0)
+    fx = jnp.where(rescale, ratio * ftx + damping * vtx, fx)
+    fy = jnp.where(rescale, ratio * fty + damping * vty, fy)
+    keep = jnp.where(sliding & (f2 <= 0), 0.0, ratio)
+    return keep * ftx, keep * fty, fx, fy
+
+
+def _turned(sx, sy, nx, ny, turns):
+    """(sx, sy) turned into the tangent plane of n keeping its length, where
+    `turns(s . n)` (LAMMPS's test), else as it was."""
+    sn = sx * nx + sy * ny
+    turn = turns(sn)
+    length2 = sx * sx + sy * sy
+    px, py = sx - sn * nx, sy - sn * ny
+    projected2 = px * px + py * py
+    keep_length = projected2 > 0
+    scale = jnp.where(keep_length, jnp.sqrt(jnp.where(keep_length, length2, 1.0)
+                                            / jnp.where(keep_length, projected2, 1.0)), 0.0)
+    return jnp.where(turn, px * scale, sx), jnp.where(turn, py * scale, sy)
+
+
+def _cap_ratio(sliding, cap, ft2):
+    """cap / |F_t| where sliding, else 1."""
+    return jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+
+
 def capped_dashpot(vtx, vty, damping, cap):
     """The tangential force without a spring (LAMMPS `tangential
     linear_nohistory`): F_t = -eta_t v_tr, capped at F_crit."""
     ftx, fty = -damping * vtx, -damping * vty
     ft2 = ftx * ftx + fty * fty
     sliding = ft2 > cap * cap
-    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, ft2, 1.0)), 1.0), 1.0)
+    ratio = _cap_ratio(sliding, cap, ft2)
     return ratio * ftx, ratio * fty
 
 
-__all__ = ["FRAME_EPSILON", "Frame", "capped_dashpot", "frame", "spring"]
+__all__ = ["FRAME_EPSILON", "Frame", "capped_dashpot", "force_spring", "frame", "spring"]

@@ -84,9 +84,15 @@ def law_name(law) -> str:
     return get_law_module(name).NAME
 
 
+REDUCED_UNITS = {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3, "params": {}}
+"""How a law the paper's table does not name (a LAMMPS granular line) runs:
+in the reduced units of `hooke`'s row, with the line's own parameters."""
+
+
 def law_setting(law) -> dict:
-    """`PAPER_SETTING["laws"][law]`: units, dt and parameters for one law."""
-    return PAPER_SETTING["laws"][law_name(law)]
+    """`PAPER_SETTING["laws"][law]`: units, dt and parameters for one law
+    (`REDUCED_UNITS` for a granular line)."""
+    return PAPER_SETTING["laws"].get(law_name(law), REDUCED_UNITS)
 
 
 def units(law) -> Units:
