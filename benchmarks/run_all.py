@@ -39,6 +39,7 @@ BENCHMARKS = {
                       ["--members", "64", "--n", "409", "--steps", "5000"]),
     "profile": ("profile_step.py", ["--steps", "300"], ["--steps", "2000"]),
     "rebuild": ("rebuild_cost.py", ["--repeats", "500"], ["--repeats", "2000"]),
+    "granular_cost": ("granular_cost.py", [], ["--layers", "45", "--steps", "20000"]),
 }
 
 
