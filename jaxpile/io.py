@@ -6,12 +6,19 @@ import json
 import os
 import tempfile
 import warnings
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:  # io sits below the engine: the state's type for annotations only
-    from jaxpile.engine.state import SimState
+class SimState(Protocol):
+    """What `state_arrays` reads of a state (a `jaxpile.engine.state.SimState`
+    is one): io sits below the engine and imports none of it."""
+
+    particles: Any
+    contacts: Any
+    boundaries: Any
+    step: Any
+    integrator_state: Any
 
 
 def state_arrays(state: SimState) -> dict:

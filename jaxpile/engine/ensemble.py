@@ -49,7 +49,7 @@ protocol are one compiled loop. What makes that work for DEM:
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -64,10 +64,20 @@ from jaxpile.engine.compile import jit_one_off
 from jaxpile.errors import InputError, SimulationError
 from jaxpile.engine.loop import Advance, compiled_for, non_finite_disks, run_chunks
 from jaxpile.engine.simulate import RunInfo, Simulator, make_step, max_speed
-from jaxpile.engine.state import SimState
+from jaxpile.engine.state import Boundaries, Particles, SimState
 
-if TYPE_CHECKING:  # the set-up's type for annotations: the engine imports no protocol
-    from jaxpile.protocols.base import Setup
+
+class Setup(Protocol):
+    """What a member's set-up gives the ensemble (a `jaxpile.protocols.Setup`
+    is one): the engine reads these and imports no protocol."""
+
+    particles: Particles
+    boundaries: Boundaries
+    schedule: Callable | None
+    driver: Callable | None
+    protocol_state: Any
+    box: tuple | None
+    info: dict
 
 Array = Any
 
