@@ -2,6 +2,7 @@
 so the notebooks never rot."""
 
 import pathlib
+import re
 
 import nbformat
 from nbclient import NotebookClient
@@ -57,12 +58,14 @@ def _tool(name):
 
 
 PAPERS = {"liffman1992": "1992", "lee_herrmann1993": "1993", "baxter1997": "1997"}
+DRAWS = re.compile(r"\b\w*_figure\(|\bplt\.(subplots|figure|plot|gca|errorbar)\(|\bax\.\w+\(")
+"""A code cell that draws: one of jaxpile's figures, or matplotlib by hand."""
 
 
 def test_committed_notebooks_hold_the_outputs_of_their_code_and_judge_the_papers_from_ensembles():
     """Each notebook is stored with its outputs (the docs site and GitHub show them), made from the code as
     committed (tools/execute_notebooks.py records a hash of the code cells: edit a cell and run it again),
-    without an error; a paper notebook's closing table judges the paper's figures from the committed
+    without an error, each cell that draws with its figure; a paper notebook's closing table judges the paper's figures from the committed
     ensembles (one verdict per row of the papers table), its own single piles shown and not judged."""
     execute_notebooks = _tool("execute_notebooks")
     import sys
@@ -78,6 +81,9 @@ def test_committed_notebooks_hold_the_outputs_of_their_code_and_judge_the_papers
         code = [c for c in nb.cells if c.cell_type == "code"]
         assert all(c.execution_count is not None for c in code), path.name
         assert not any(o.get("output_type") == "error" for c in code for o in c.outputs), path.name
+        blank = [k for k, c in enumerate(code) if DRAWS.search(c.source)
+                 and not any("image/png" in o.get("data", {}) for o in c.outputs)]
+        assert blank == [], f"{path.name}: code cells {blank} draw and hold no figure: run tools/execute_notebooks.py"
         closing = "".join(o.get("text", "") for o in code[-1].outputs)
         if path.stem in PAPERS:
             rows = papers.verdict_rows(PAPERS[path.stem])

@@ -60,7 +60,8 @@ def execute(path: pathlib.Path) -> float:
 def main(argv: list[str]) -> int:
     for name in ("XLA_FLAGS", "PJRT_NPROC", "JAXPILE_MULTI_OUTPUT_FUSION", "JAXPILE_HOST_DEVICES"):
         os.environ.pop(name, None)  # a user's environment
-    os.environ.setdefault("MPLBACKEND", "Agg")
+    # the kernel draws inline, so that each figure is stored as the cell's output (Agg would draw none)
+    os.environ["MPLBACKEND"] = "module://matplotlib_inline.backend_inline"
     wanted = set(argv)
     chosen = [p for p in paper_notebooks() if not wanted or p.stem in wanted]
     if wanted - {p.stem for p in chosen}:

@@ -191,7 +191,130 @@ def rows_1993() -> list[list[str]]:
          f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)",
          below_ms("theta_r_plus_theta_t")],
         row_flux(at_02),
+        *rows_kn_gamma(),
     ]
+
+
+KN_GAMMA = RESULTS / "lee_herrmann_1993" / "kn_gamma"
+"""Sec. 4's k_n and gamma_n study: each sweep's sweep.csv, sweep.json and command.txt in its folder."""
+_BOX_W4 = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--mu", "0.2", "--seeds", "20", "--option",
+           "width=4", "--option", "height=4", "--checkpoint-every", "20000", "--no-progress"]
+KN_GAMMA_SWEEPS = {
+    "kn": [*_BOX_W4, "--vary", "kn=10000,100000,1000000"],
+    "gamma50": [*_BOX_W4, "--vary", "gamma_n=50", "--set", "gamma_s=0.5"],
+    "gamma100": [*_BOX_W4, "--vary", "gamma_n=100", "--set", "gamma_s=1.0"],
+}
+"""The paper's box (W = H = 4, mu = 0.2, its law: k_n = 1e6, gamma_n = 500, gamma_s = gamma_n / 100) at
+its three k_n and its three gamma_n (500 is the k_n sweep's 1e6 point), 20 piles each as the paper's."""
+KN_PAPER = {1e4: (16.53, 0.73), 1e5: (18.65, 0.70), 1e6: (17.99, 0.64)}
+GAMMA_PAPER = {50.0: (16.47, 0.75), 100.0: (17.15, 0.62), 500.0: (17.99, 0.64)}
+METHODS_PAPER = {"repose_endpoints": (20.14, 2.15), "repose_least_squares": (18.90, 1.49),
+                 "repose_cumulative_parabola": (17.88, 1.76)}
+"""Sec. 3: the three methods at mu = 0.2, 400 disks, over ten piles (mean and sample-to-sample fluctuation)."""
+
+
+def _sweep_rows(name: str) -> list[dict] | None:
+    import csv
+
+    path = KN_GAMMA / name / "sweep.csv"
+    if not path.exists():
+        return None
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def _angle(rows: list[dict], key: str = "repose_cumulative_parabola") -> dict:
+    from baxter_readings import mean_stderr
+
+    return mean_stderr([float(r[key]) for r in rows if r[key] not in ("", "None", "nan")])
+
+
+def _against_paper(ours: dict, paper: tuple[float, float], piles: int) -> tuple[bool, bool]:
+    """Whether our mean is within two combined standard errors of the paper's,
+    its +- read as a standard error, and read as a sample-to-sample
+    fluctuation over `piles` piles (the two readings the text leaves open)."""
+    value, pm = paper
+    as_se = abs(ours["mean"] - value) <= 2 * math.hypot(_se(ours), pm)
+    as_sd = abs(ours["mean"] - value) <= 2 * math.hypot(_se(ours), pm / math.sqrt(piles))
+    return as_se, as_sd
+
+
+def rows_kn_gamma() -> list[list[str]]:
+    """Sec. 4: theta_R against k_n and gamma_n at mu = 0.2, and sec. 3's three angle methods
+    (the k_n = 1e6 piles: the paper's parameters)."""
+    kn, gammas = _sweep_rows("kn"), {g: _sweep_rows(f"gamma{g}") for g in (50, 100)}
+    quantity_kn = "θ_R against k_n = 1e4, 1e5, 1e6 at μ = 0.2 (sec. 4; W = H = 4, 409 disks, method 3)"
+    paper_kn = "16.53 ± 0.73, 18.65 ± 0.70, 17.99 ± 0.64° (20 piles each): \"no systematic dependency\""
+    if kn is None:
+        return [["1993", quantity_kn, paper_kn, _missing("kn_gamma"), "—"]]
+    by_kn = {float(v): [r for r in kn if float(r["kn"]) == float(v)] for v in KN_PAPER}
+    angles = {v: _angle(rows) for v, rows in by_kn.items()}
+    piles = min(len(rows) for rows in by_kn.values())
+
+    def trend(points: dict, x_of) -> tuple[float, float]:
+        """The least-squares slope of the piles' angles against x_of(value), and its standard error."""
+        import numpy as np
+
+        x, y = [], []
+        for v, rows in points.items():
+            for r in rows:
+                if r["repose_cumulative_parabola"] not in ("", "None", "nan"):
+                    x.append(x_of(v))
+                    y.append(float(r["repose_cumulative_parabola"]))
+        x, y = np.asarray(x), np.asarray(y)
+        A = np.stack([np.ones_like(x), x], 1)
+        coef, res, *_ = np.linalg.lstsq(A, y, rcond=None)
+        sigma2 = float(np.sum((y - A @ coef) ** 2) / max(len(y) - 2, 1))
+        cov = sigma2 * np.linalg.inv(A.T @ A)
+        return float(coef[1]), float(math.sqrt(cov[1, 1]))
+
+    def paper_readings(table: dict, ours: dict) -> str:
+        readings = [_against_paper(ours[v], table[v], 20) for v in table]
+        return (f"each within 2 combined s.e. of the paper's: {sum(a for a, _ in readings)} of {len(readings)} "
+                f"with its ± as a standard error, {sum(b for _, b in readings)} of {len(readings)} as a "
+                "standard deviation over its 20 piles")
+
+    slope, slope_se = trend(by_kn, lambda v: math.log10(v))
+    flat = abs(slope) <= 2 * slope_se
+    rows = [["1993", f"{quantity_kn}, {piles} piles each", paper_kn,
+             ", ".join(_pm(angles[v], 2, "") for v in KN_PAPER) + f"° (slope {slope:+.2f} ± {slope_se:.2f}° per "
+             "decade of k_n)",
+             f"no trend in k_n: {'agrees' if flat else 'differs'} (slope within 2 s.e. of 0: "
+             f"{'yes' if flat else 'no'}); {paper_readings(KN_PAPER, angles)}"]]
+
+    quantity_g = "θ_R against γ_n = 50, 100, 500 (γ_s = γ_n / 100) at μ = 0.2 (sec. 4; same box)"
+    paper_g = "16.47 ± 0.75, 17.15 ± 0.62, 17.99 ± 0.64°: falls as γ_n falls, by ~5 %"
+    if any(v is None for v in gammas.values()):
+        rows.append(["1993", quantity_g, paper_g, _missing("kn_gamma"), "—"])
+    else:
+        by_g = {50.0: gammas[50], 100.0: gammas[100], 500.0: by_kn[1e6]}
+        g_angles = {v: _angle(r) for v, r in by_g.items()}
+        g_slope, g_se = trend(by_g, lambda v: math.log10(v))
+        falls = _sign(g_slope, g_se, agree="agrees", differ="differs: rises as γ_n falls")
+        rows.append(["1993", f"{quantity_g}, {min(len(r) for r in by_g.values())} piles each", paper_g,
+                     ", ".join(_pm(g_angles[v], 2, "") for v in GAMMA_PAPER) + f"° (slope {g_slope:+.2f} ± "
+                     f"{g_se:.2f}° per decade of γ_n)",
+                     f"falls as γ_n falls: {falls}; {paper_readings(GAMMA_PAPER, g_angles)}"])
+
+    paper_piles = by_kn[1e6]
+    methods = {k: _angle(paper_piles, k) for k in METHODS_PAPER}
+
+    def paired(a: str, b: str) -> dict:
+        from baxter_readings import mean_stderr
+
+        return mean_stderr([float(r[a]) - float(r[b]) for r in paper_piles
+                            if r[a] not in ("", "None", "nan") and r[b] not in ("", "None", "nan")])
+
+    d12, d23 = paired("repose_endpoints", "repose_least_squares"), paired("repose_least_squares",
+                                                                           "repose_cumulative_parabola")
+    order = [_sign(d["mean"], _se(d)) for d in (d12, d23)]
+    rows.append(["1993", f"the three angle methods at μ = 0.2 (sec. 3: (1) the line h(0)–h(W), (2) least squares, "
+                 f"(3) the cumulative parabola), the k_n = 1e6 piles ({len(paper_piles)})",
+                 "20.14 ± 2.15, 18.90 ± 1.49, 17.88 ± 1.76° (ten piles): (1) > (2) > (3), within the error bars",
+                 ", ".join(_pm(methods[k]) for k in METHODS_PAPER) + f"; paired (1) − (2) {_pm(d12)}, (2) − (3) "
+                 f"{_pm(d23)}",
+                 f"(1) > (2): {order[0]}; (2) > (3): {order[1]}"])
+    return rows
 
 
 def row_flux(theta_r: dict | None) -> list[str]:
@@ -561,6 +684,16 @@ def run(studies: list[str]) -> None:
         argv = ["sweep", "--resume", str(FLUX)] if resumed else [*FLUX_SWEEP, "--out", str(FLUX)]
         subprocess.run([jaxpile, *argv], check=True)
         (FLUX / "command.txt").write_text("jaxpile " + " ".join(FLUX_SWEEP) + f" --out {FLUX.relative_to(ROOT)}\n")
+    if "kn_gamma" in studies:
+        jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
+        for name, sweep in KN_GAMMA_SWEEPS.items():
+            out = KN_GAMMA / name
+            if (out / "sweep.csv").exists():
+                continue
+            resumed = (out / "checkpoint.npz").exists()
+            subprocess.run([jaxpile, *(["sweep", "--resume", str(out)] if resumed else [*sweep, "--out", str(out)])],
+                           check=True)
+            (out / "command.txt").write_text("jaxpile " + " ".join(sweep) + f" --out {out.relative_to(ROOT)}\n")
     if "drop" in studies:
         import paper_ensembles as pe
 
@@ -577,7 +710,7 @@ def run(studies: list[str]) -> None:
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(HEAP_SETTINGS), "--workers", "1"])
 
 
-STUDIES = ("lattice", "sloped", "tilt", "flux", "drop", "heap", "heap1000")
+STUDIES = ("lattice", "sloped", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000")
 
 
 def main(argv=None) -> int:
