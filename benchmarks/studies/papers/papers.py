@@ -2,14 +2,14 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,flux,drop,heap,heap1000]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,flux,kn_gamma,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
 wrote (the command is in the file): the 1992 lattice and sloped piles
 (`jaxpile pile`, summary.json), the 1993 tilt ensemble and the 1992 dropped
-piles (`paper_ensembles.py`, one JSON per pile), the 1993 flux piles
-(`jaxpile sweep`, sweep.csv), and the 1997 heaps
+piles (`paper_ensembles.py`, one JSON per pile), the 1993 flux piles and
+its k_n and gamma_n boxes (`jaxpile sweep`, sweep.csv), and the 1997 heaps
 (`baxter_readings.py`, one JSON per heap). A study with fewer piles than its
 target shows what it has ("k of 8"); one not run yet says how to run it.
 """
@@ -197,7 +197,7 @@ def rows_1993() -> list[list[str]]:
 
 KN_GAMMA = RESULTS / "lee_herrmann_1993" / "kn_gamma"
 """Sec. 4's k_n and gamma_n study: each sweep's sweep.csv, sweep.json and command.txt in its folder."""
-_BOX_W4 = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--mu", "0.2", "--seeds", "20", "--option",
+_BOX_W4 = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--mu", "0.2", "--seeds", str(PILES), "--option",
            "width=4", "--option", "height=4", "--checkpoint-every", "20000", "--no-progress"]
 KN_GAMMA_SWEEPS = {
     "kn": [*_BOX_W4, "--vary", "kn=10000,100000,1000000"],
@@ -205,7 +205,8 @@ KN_GAMMA_SWEEPS = {
     "gamma100": [*_BOX_W4, "--vary", "gamma_n=100", "--set", "gamma_s=1.0"],
 }
 """The paper's box (W = H = 4, mu = 0.2, its law: k_n = 1e6, gamma_n = 500, gamma_s = gamma_n / 100) at
-its three k_n and its three gamma_n (500 is the k_n sweep's 1e6 point), 20 piles each as the paper's."""
+its three k_n and its three gamma_n (500 is the k_n sweep's 1e6 point), `PILES` piles each (the paper's 20
+take 2.5 times the CPU: about 1.5 hours on 2 cores for the k_n sweep alone)."""
 KN_PAPER = {1e4: (16.53, 0.73), 1e5: (18.65, 0.70), 1e6: (17.99, 0.64)}
 GAMMA_PAPER = {50.0: (16.47, 0.75), 100.0: (17.15, 0.62), 500.0: (17.99, 0.64)}
 METHODS_PAPER = {"repose_endpoints": (20.14, 2.15), "repose_least_squares": (18.90, 1.49),
