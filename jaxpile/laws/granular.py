@@ -176,6 +176,10 @@ class Model(NamedTuple):
         return normal + damping + tangent + (() if self.rolling is None else
                                              rolling_.PARAM_NAMES if self.rolling == "sds" else ("mu_roll",))
 
+    def reads(self) -> tuple[str, ...]:
+        """Every parameter this composition reads: `needs`, and the mindlin models' optional kt."""
+        return self.needs() + (("kt",) if self.tangential in MINDLIN else ())
+
     def history_layout(self) -> dict[str, int]:
         """Where each history entry sits: the shear spring's two components,
         then mindlin_rescale's last contact radius, the rolling entry, and
@@ -235,8 +239,7 @@ def make_params(model: Model = Model(), *, dtype=None, **values) -> Params:
     missing = [n for n in needs if values.get(n) is None]
     if missing:
         raise InputError(f"the {NAME} model {describe(model)} needs {', '.join(missing)}.")
-    unread = sorted(n for n, v in values.items() if v is not None and n not in needs
-                    and not (n == "kt" and model.tangential in MINDLIN))
+    unread = sorted(n for n, v in values.items() if v is not None and n not in model.reads())
     if unread:
         raise InputError(f"the {NAME} model {describe(model)} does not read {', '.join(unread)}.")
     if model.tangential in MINDLIN and values.get("kt") is None and model.normal not in MATERIAL:
@@ -630,8 +633,7 @@ class Composition:
     @property
     def PARAM_NAMES(self) -> tuple[str, ...]:
         """The parameters the composition reads (`--set`, `--vary`, `--params`)."""
-        needs = self.model.needs()
-        return needs + (("kt",) if self.model.tangential == "mindlin" else ())
+        return self.model.reads()
 
     @property
     def RANGES(self) -> dict:

@@ -84,7 +84,7 @@ def law_name(law) -> str:
     return get_law_module(name).NAME
 
 
-REDUCED_UNITS = {"scale": 5.0, "gravity": 1.0, "sphere_density": None, "dt": 1.0e-3, "params": {}}
+REDUCED_UNITS = {**PAPER_SETTING["laws"]["hooke"], "params": {}}
 """How a law the paper's table does not name (a LAMMPS granular line) runs:
 in the reduced units of `hooke`'s row, with the line's own parameters."""
 
