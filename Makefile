@@ -12,7 +12,7 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
 
 # --no-compile, then tools/compile_imported.py: bytecode for what jaxpile and its tests import, not for
-# all of jax-md's requirements (half of pip's time; docs/performance.md#the-install)
+# all of jax-md's requirements (half of pip's time; docs/choices.md#the-install)
 $(STAMP): $(BIN)/python pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet --no-compile -e ".[test]"

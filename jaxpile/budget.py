@@ -5,7 +5,7 @@ The estimate is per disk and linear in the disk count: the state (positions,
 velocities, the contact history, the neighbour list) plus XLA's temporaries of
 the compiled step, as `benchmarks/scaling.py` measures them (`make bench`;
 `compiled.memory_analysis()`), flat in N (measured:
-docs/performance.md#memory-per-disk). We add a quarter for
+docs/choices.md#memory-per-disk). We add a quarter for
 what the measurement does not see (the neighbour list re-allocated larger, the
 host-side set-up and measurement arrays) and a fixed allowance for JAX itself.
 """
@@ -20,7 +20,7 @@ from jaxpile.errors import InputError
 
 MEASURED_BYTES_PER_DISK = {"float64": 258 + 995, "float32": 154 + 879}
 """State + XLA temporaries per disk, the largest of `make bench`'s scaling rows
-(docs/performance.md#memory-per-disk)."""
+(docs/choices.md#memory-per-disk)."""
 
 HEADROOM = 1.25
 """Factor on the measured figure for what it does not see (a larger re-allocated

@@ -17,11 +17,11 @@ What it sets:
   - 512-bit vectors (`--xla_cpu_prefer_vector_width=512`): XLA vectorises at
     256 bits by default even where the CPU has 512-bit registers; the step's
     kernels are elementwise over pairs and disks, so wider vectors pay (same
-    arithmetic, same bits; docs/performance.md#vector-width);
+    arithmetic, same bits; docs/choices.md#vector-width);
   - XLA:CPU's multi-output fusion: one fusion computes a law's shared
     arithmetic once for the force, its two scatters and the new history, where
     XLA would otherwise copy it into each (the law runs three to five times a
-    step without it; docs/performance.md#multi-output-fusion). It changes
+    step without it; docs/choices.md#multi-output-fusion). It changes
     results at round-off, which a pile's dynamics then grow, hence one setting
     for commands and scripts. `multi_output_fusion=False` leaves it off: XLA's
     newer emitters abort the process compiling a multi-output fusion of some
@@ -30,7 +30,7 @@ What it sets:
     losses hold none);
   - one XLA thread per process (`PJRT_NPROC=1`) unless `threads=True`: one
     small pile's kernels (a few microseconds each) cost more to split than they
-    save (docs/performance.md#why-one-thread-per-pile-on-a-cpu); a batch's, or
+    save (docs/choices.md#why-one-thread-per-pile-on-a-cpu); a batch's, or
     one pile's from about 2000 disks, are large enough. Threads never change results;
   - `host_devices=N` (or `JAXPILE_HOST_DEVICES=N` in the environment): the host
     split into N JAX devices, one core each, over which `Ensemble` and sweeps

@@ -118,13 +118,16 @@ def test_baxter_angle_bands_read_the_saved_heaps_as_the_study_measured_them():
     heap by heap, and the rows of a row spilled over by the heap (`row35`) hold
     fewer disks than they poured."""
     import baxter_angle_bands as bands
+    import baxter_readings as br
 
-    folder = pathlib.Path(__file__).resolve().parents[1] / "benchmarks/results/baxter_readings/n300"
-    for name in ("row35_seed0", "contact-point_hold_seed4"):
-        measured = json.loads((folder / f"{name}.json").read_text())["angle_mid_flank"]
-        again = bands.heap_angles(str(folder / f"{name}.npz"))["0.2-0.8"]
+    root = pathlib.Path(__file__).resolve().parents[1]
+    rows = {(br.name_of(r), r["seed"]): r for r in br.heap_rows(root / "benchmarks/results/baxter_readings/n300")}
+    saved = root / "tests/data/baxter_heaps"  # two of the study's saved final states
+    for setting, seed in (("row35", 0), ("contact-point/hold", 4)):
+        measured = rows[(setting, seed)]["angle_mid_flank"]
+        again = bands.heap_angles(str(saved / f"{setting.replace('/', '_')}_seed{seed}.npz"))["0.2-0.8"]
         assert again == pytest.approx([measured["left"], measured["right"]], abs=1e-9)
-    spilled = [json.loads(f.read_text())["counts"]["lost"] for f in sorted(folder.glob("row35_seed*.json"))]
+    spilled = [r["counts"]["lost"] for (setting, _), r in rows.items() if setting == "row35"]
     assert len(spilled) == 8 and sum(spilled) > 0
 
 

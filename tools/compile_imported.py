@@ -5,7 +5,7 @@ test suite import (and jax, jaxlib, jax-md and optax whole), and no others:
 pip byte-compiles every file it installs, one at a time; jax-md's requirements
 alone bring tens of thousands of lines jaxpile never imports (a materials
 library, symbolic algebra, plotting and data-frame packages), and compiling
-them was about half of a fresh install (docs/performance.md#the-install). The
+them was about half of a fresh install (docs/choices.md#the-install). The
 bytecode is only a cache: a module this leaves out still imports, parsed from
 its source (in every process, where PYTHONDONTWRITEBYTECODE is set).
 

@@ -5,7 +5,7 @@ has: `energy` with its neural-network potentials (flax, e3nn, sympy, scipy) and
 `rigid_body`, which computes at import: ten times as long as the four modules
 jaxpile uses (`partition`, `space`, `util`, `dataclasses`), and it would be most
 of every `jaxpile` command's start-up and of the time to refuse a run too big
-for the machine (measured: docs/performance.md#importing-jax-md).
+for the machine (measured: docs/choices.md#importing-jax-md).
 
 `register()` puts the package in `sys.modules` without running its `__init__`,
 so `from jax_md import partition` loads that module and what it imports. A

@@ -40,7 +40,7 @@ def stack(trees: Sequence[Any]) -> Any:
 
     Concrete leaves are stacked by numpy on the host: `jnp.stack` run op by
     op would compile a program for every leaf shape and member count (see
-    docs/performance.md#eager-compiles)."""
+    docs/choices.md#eager-compiles)."""
     if not trees:
         raise InputError("an ensemble needs at least one member.")
 
@@ -60,7 +60,7 @@ def member(tree: Any, i: int) -> Any:
 
     A batch of jax arrays on one device is cut by one compiled program per
     batch shape, the index an argument: indexed op by op, every leaf would
-    compile a slice for every member (docs/performance.md#eager-compiles)."""
+    compile a slice for every member (docs/choices.md#eager-compiles)."""
     leaves = jax.tree.leaves(tree)
     if leaves and all(isinstance(x, jax.Array) and not isinstance(x, jax.core.Tracer) and _one_device(x)
                       for x in leaves):

@@ -47,12 +47,12 @@ FINE_BLOCK = 512
 """From this size up the blocks step by 1.5x and 4/3x (512, 768, 1024, 1536,
 2048, ...), below it by 2x: below ~512 disks a step costs its kernel launches
 more than its disks, so finer blocks there save less than their compiles cost
-(measured: docs/performance.md#pour-blocks)."""
+(measured: docs/choices.md#pour-blocks)."""
 
 FINE_SAVING = 1 / 8
 """A block from `FINE_BLOCK` up is used when it leaves out at least this
 share of the disks (a smaller block, at least half of them): each size costs
-a compile (docs/performance.md#pour-blocks)."""
+a compile (docs/choices.md#pour-blocks)."""
 
 
 def block_size(needed: int, count: int) -> int | None:
@@ -148,6 +148,6 @@ def put(full: SimState, block: SimState) -> SimState:
 
 # Compiled once per block size: run op by op, take and put are ~50 eager
 # primitives each, every one compiled for each new shape
-# (docs/performance.md#eager-compiles).
+# (docs/choices.md#eager-compiles).
 take_jit = jax.jit(take, static_argnums=(1, 2))
 put_jit = jax.jit(put)

@@ -11,7 +11,7 @@ With XLA:CPU's multi-output fusion on (`jaxpile.configure`, as
 `jaxpile pile`, `sweep` and `fit` run) the newer emitters are the faster for
 derivatives too and the older ones make a reverse gradient many times slower,
 so derivatives keep XLA's default there (measured:
-docs/performance.md#fusion-emitters-for-derivatives). The option exists on the
+docs/choices.md#fusion-emitters-for-derivatives). The option exists on the
 CPU backend only, and a flag the user set in XLA_FLAGS wins.
 """
 
@@ -46,7 +46,7 @@ ONE_OFF_MAX_DISKS = 2_000
 integrator's preparation; the contact forces a measurement reads) compile at
 LLVM optimisation level 0 for piles of up to this many disks: up to here a
 call's slower run costs less than the compile time it saves (measured:
-docs/performance.md#one-off-programs-at-optimisation-level-0). Level 0 can
+docs/choices.md#one-off-programs-at-optimisation-level-0). Level 0 can
 round differently from the default in the last bit (the 36-disk agitated
 pile's start forces: up to 6e-15 relative, `tests/test_engine.py`); a pile and
 an ensemble member of the same size start at the same level (`Ensemble.init`

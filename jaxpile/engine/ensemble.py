@@ -28,7 +28,7 @@ protocol are one compiled loop. What makes that work for DEM:
   their states agree bit for bit where the docs page below says so, and at
   round-off elsewhere. It applies on one CPU device; boxes and drops gain
   little from it and run side by side
-  (docs/performance.md#members-side-by-side-or-one-after-another).
+  (docs/choices.md#members-side-by-side-or-one-after-another).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).

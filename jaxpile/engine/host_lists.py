@@ -4,7 +4,7 @@ re-allocation, batches brought to one capacity and checkpoints restored.
 These run a few times per run, each on one pile, with shapes that change
 from pile to pile: compiled with `jax.jit` each new shape would be an XLA
 program of its own, for work numpy does in well under a second even for 1e5
-disks (measured: docs/performance.md#host-built-lists). The step loop keeps the traced twins in
+disks (measured: docs/choices.md#host-built-lists). The step loop keeps the traced twins in
 `jaxpile.engine.neighbors` (`_build`, `half_pairs`, `carry_history`,
 `pair_count`); each function here returns what its twin returns
 (`tests/test_engine.py` compares the build, pair lists, count and carried

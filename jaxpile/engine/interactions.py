@@ -65,7 +65,7 @@ def _kernel_over(law: ContactLaw):
     without it. It also keeps the fusion's emitter abort (see
     `engine.compile`) away from the walls' kernel where it runs outside its
     `cond`, as a batched predicate makes it under `vmap` (measured:
-    docs/performance.md#checkpointing-the-law-kernel)."""
+    docs/choices.md#checkpointing-the-law-kernel)."""
     return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
 
 
@@ -93,7 +93,7 @@ def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positi
     """The geometry of every half pair, component-major (vectors `[2, P]`; masked
     pairs put `FAR` apart), and the pair ends i, j. (One gather per field: packing
     the fields into one `[n, m]` table gathered by rows is slower on a CPU,
-    docs/performance.md#pair-gathers.)"""
+    docs/choices.md#pair-gathers.)"""
     p = particles
     n = p.count
     valid = pairs[:, 0] < n

@@ -13,7 +13,7 @@ several times as much per rebuild on a CPU, and a pour rebuilds every ~8 steps
 while disks fall; this build, its half pair list and history carry included,
 avoids chains of small XLA kernels (binary searches, argsorts, long cumsums)
 and takes a third of jax-md's temporary memory (measured:
-docs/performance.md#neighbour-lists). The list keeps
+docs/choices.md#neighbour-lists). The list keeps
 jax-md's `NeighborList` type and its overflow flags: `max_occupancy` is K,
 `cell_list_capacity` is W.
 
@@ -100,7 +100,7 @@ def _sorted_by_cell(key: Array, n: int, cells: int) -> tuple[Array, Array]:
     """`(order, sorted_key)`: the disks sorted by cell key, ties by index (a
     stable sort). One sort of the code `key n + index`, not an argsort with an
     index payload, which is several times slower on a CPU
-    (docs/performance.md#neighbour-lists). The code is int32
+    (docs/choices.md#neighbour-lists). The code is int32
     where `cells n` fits in it (jaxpile runs with 64-bit integers enabled)."""
     wide = jnp.int32 if cells * n < 2**31 else jnp.int64
     code = jnp.sort(key.astype(wide) * n + jnp.arange(n, dtype=wide))
@@ -114,7 +114,7 @@ def _run_starts(sorted_key: Array, lo: Array, hi: Array, cells: int) -> Array:
     hi, or n). With a table of each cell's first position (one scatter) this is
     three gathers; a binary search is a loop of ~log2(n) rounds of small
     kernels, a large share of a small pile's rebuild
-    (docs/performance.md#neighbour-lists)."""
+    (docs/choices.md#neighbour-lists)."""
     n = sorted_key.shape[0]
     if cells > CELL_TABLE_PER_DISK * n + CELL_TABLE_MIN:
         return jnp.searchsorted(sorted_key, lo, side="left").astype(jnp.int32)
@@ -190,7 +190,7 @@ HOST_BUILD_MAX = 200_000
 """Lists of up to this many disks are allocated and rebuilt to a capacity on
 the host (`host_lists.build`, numpy: nothing to compile per new pile size);
 larger ones by the compiled `_build`, the faster there even with its compile
-(measured: docs/performance.md#host-built-lists)."""
+(measured: docs/choices.md#host-built-lists)."""
 
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
 
@@ -284,7 +284,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     first K columns are what a build with K slots gives. Up to
     `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
     traced `_build`'s list up to rounding at the reach): compiled, it would
-    be an XLA program for every new pile size (docs/performance.md#host-built-lists)."""
+    be an XLA program for every new pile size (docs/choices.md#host-built-lists)."""
     host = np.asarray(position)
     position = transfer.to_device(position)
     n = int(position.shape[0])
@@ -413,7 +413,7 @@ def pairs_needed(state, overflowed) -> int:
     `PAIR_HEADROOM` times the demand (a chunk that starts with few contacts
     may end with more; a growth too small re-allocates again, at a compile and
     a chunk's re-run each, and one too large, such as doubling, makes every
-    step pay for the empty entries: docs/performance.md#neighbour-lists)."""
+    step pay for the empty entries: docs/choices.md#neighbour-lists)."""
     capacity = int(state.contacts.pairs.shape[-2])
     demand = int(np.max(np.asarray(overflowed.contacts.demand)))
     if demand <= capacity:
@@ -426,7 +426,7 @@ SLOT_HEADROOM, SLOT_EXTRA = 1.25, 4
 neighbours any disk had in the chunk (`Contacts.slot_demand`; `slots_needed`),
 and at least this many more: a growth of one or two slots can re-allocate a
 small list several times in one chunk, a compile each
-(docs/performance.md#neighbour-lists)."""
+(docs/choices.md#neighbour-lists)."""
 
 
 def slots_needed(state, overflowed) -> int:
@@ -436,7 +436,7 @@ def slots_needed(state, overflowed) -> int:
     `SLOT_HEADROOM` times the most it found (at least `SLOT_EXTRA` more). The
     slots follow what the chunk found, not a fixed step on any overflow (the
     pair room's included): every slot beyond the pile's need makes each
-    rebuild dearer (docs/performance.md#neighbour-lists)."""
+    rebuild dearer (docs/choices.md#neighbour-lists)."""
     slots = int(state.neighbors.max_occupancy)
     demand = int(np.max(np.asarray(overflowed.contacts.slot_demand)))
     if demand > slots:

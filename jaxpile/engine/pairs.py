@@ -22,7 +22,7 @@ Array = Any
 
 PAIR_ALIGN = 64
 """Pair capacities are rounded up to a multiple of this: XLA splits a loop of an
-odd length across threads badly (measured: docs/performance.md#neighbour-lists)."""
+odd length across threads badly (measured: docs/choices.md#neighbour-lists)."""
 
 
 def aligned(entries: int) -> int:
@@ -56,7 +56,7 @@ def half_slots(idx: Array) -> tuple[Array, Array]:
     its left in its row: a cumulative sum over the n rows and a K x K triangle
     within each, not a cumulative sum over all n K slots (on a CPU XLA writes a
     cumsum as a reduce-window whose cost grows with its length:
-    docs/performance.md#neighbour-lists)."""
+    docs/choices.md#neighbour-lists)."""
     n, k = idx.shape
     keep = (idx < n) & (idx > jnp.arange(n, dtype=idx.dtype)[:, None])
     count = jnp.sum(keep, axis=1, dtype=jnp.int32)

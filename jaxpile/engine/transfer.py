@@ -4,7 +4,7 @@
 every new shape and dtype, and `jnp.zeros` a `broadcast_in_dim` and a
 `convert_element_type`: each costs milliseconds with its tracing, and setting
 up a pile of a new size would run dozens of them
-(docs/performance.md#eager-compiles). `jax.device_put` of a numpy array compiles nothing. On a CPU it may alias the
+(docs/choices.md#eager-compiles). `jax.device_put` of a numpy array compiles nothing. On a CPU it may alias the
 numpy buffer, so `to_device` hands it a private copy: a caller's array edited
 later never reaches the pile.
 """

@@ -17,8 +17,9 @@ hour on 2 CPU cores each.
     python benchmarks/studies/fitting/fit_recovery.py --table      # docs/fitting.md's recovery table from the JSON
 
 Writes benchmarks/results/fit_recovery/CASE.json (with the command), the
-fit's history as CASE_checkpoint.json while it runs (a rerun resumes), and
-docs/fit_recovery_CASE.png.
+fit's history as CASE_checkpoint.json while it runs (a rerun resumes; not
+committed), and its figure CASE.png beside the JSON (the docs draw the cases
+they show with `--figure docs/fit_recovery_CASE.png`).
 """
 
 from __future__ import annotations
@@ -189,7 +190,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--ensemble", type=int, default=None, help="piles per ensemble (default: the case's, 32)")
     parser.add_argument("--steps", type=int, default=6, help="Gauss-Newton iterations at most")
     parser.add_argument("--out", default=os.path.join(BENCHMARKS, "results", "fit_recovery"))
-    parser.add_argument("--figure", default=None, help="default docs/fit_recovery_CASE.png")
+    parser.add_argument("--figure", default=None, help="default OUT/CASE.png")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="override one of the case's protocol options (e.g. width=4 for the paper's box; "
                              "numbers are read as numbers), repeatable")
@@ -248,7 +249,7 @@ def main(argv=None) -> dict:
         record["revision"] = None
     with open(os.path.join(args.out, f"{args.case}.json"), "w") as fh:
         json.dump(record, fh, indent=1)
-    figure = args.figure or os.path.join(ROOT, "docs", f"fit_recovery_{args.case}.png")
+    figure = args.figure or os.path.join(args.out, f"{args.case}.png")
     ef.figure(result, path=figure)
     for n in result.names:
         lo, hi = result.interval[n]

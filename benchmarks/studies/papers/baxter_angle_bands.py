@@ -8,7 +8,9 @@ final states those runs saved (`<folder>/<setting>_seed<k>.npz`) and measures
 the same line over other bands (the toe half, the upper half, the middle), and
 the steeper and the shallower flank of each heap apart: whether any reasonable
 way of reading the angle off our heaps reaches 35 +- 5 deg. No simulation;
-seconds.
+seconds. The saved states are a run's workings, not committed: rerun
+`baxter_readings.py` with the summary's command to have them (about 3.5 h of
+one core for the eight 1334-disk heaps); its result here is committed.
 
     python benchmarks/studies/papers/baxter_angle_bands.py [--folder benchmarks/results/baxter_readings/n1334]
         [--setting contact-point_hold] [--out FILE]

@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,tilt,flux,kn_gamma,drop,heap,heap1000]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -17,7 +17,6 @@ target shows what it has ("k of 8"); one not run yet says how to run it.
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import math
 import os
@@ -94,7 +93,51 @@ def _every(checks: list[bool], what: str) -> str:
 # ----------------------------------------------------------------- 1992
 LATTICE = RESULTS / "liffman_1992" / "lattice45_liffman.json"
 SLOPED = RESULTS / "liffman_1992" / "sloped30_n5490.json"
+SLOPED_ANGLES = {a: RESULTS / "liffman_1992" / "sloped_n360" / f"alpha{a}.json" for a in (30, 45, 50, 55)}
+"""The paper's piles of Figs. 12-14: about 360 disks at each angle of repose (sec. 5)."""
 DROP = RESULTS / "liffman_1992" / "drop_n968"
+
+
+def _rows_sloped_angles() -> list[list[str]]:
+    """Figs. 13-14: the 360-disk sloped piles at 30, 45, 50 and 55 deg against
+    eqs. 56-57 (the plateau of N, the central slope of H), and H's central slope
+    against alpha, which eq. 57 makes grow as sin a / sin(2 pi/3 - a)."""
+    piles = {a: _load(path) for a, path in SLOPED_ANGLES.items()}
+    if not all(piles.values()):
+        return [["1992", "sloped piles 30, 45, 50, 55°, 360 disks (Figs. 13, 14): central N, H vs eqs. 56, 57",
+                 "close to eqs. 54–59", _missing("sloped_angles"), "—"]]
+    angles = "/".join(f"{a}" for a in piles)
+    what = f"sloped piles {angles}°, 360 disks (Figs. 12–14; no random input: one pile each)"
+    n_dev = [p["central_normal_rel_dev"] for p in piles.values()]
+    dips = [p.get("central_normal_dip", 0) > 0.05 for p in piles.values()]
+    h_dev = [p["central_slope_rel_dev"] for p in piles.values()]
+    slopes = [p["central_slope_horizontal"] for p in piles.values()]
+    theory = [p["theory_central_slope_horizontal"] for p in piles.values()]
+    grows, ratio, ratio_theory = all(b > a for a, b in zip(slopes, slopes[1:])), slopes[-1] / slopes[0], theory[-1] / theory[0]
+    later = []
+    if (large := _load(SLOPED)) is not None:  # Fig. 15: the 30 deg pile at 5490 disks against 360
+        small = piles[30]
+        closer = abs(large["central_normal_rel_dev"]) < abs(small["central_normal_rel_dev"])
+        h_off = abs(large["central_slope_rel_dev"]) > 0.05
+        later.append(["1992", "30° pile, 5490 disks against 360 (Fig. 15)",
+                     "N closer to eq. 56; H does not converge to eq. 57",
+                     f"central N {100 * large['central_normal_rel_dev']:+.1f}% against "
+                     f"{100 * small['central_normal_rel_dev']:+.1f}%; central slope of H "
+                     f"{100 * large['central_slope_rel_dev']:+.0f}% against {100 * small['central_slope_rel_dev']:+.0f}%",
+                     "agrees" if closer and h_off else
+                     "differs (" + ("N not closer" if not closer else "H within 5% of eq. 57") + ")"])
+    return [
+        ["1992", f"{what}: central N vs eq. 56", "close to the plateau (Fig. 13)",
+         ", ".join(f"{100 * d:+.1f}%" for d in n_dev) + f"; {'a dip in ' + str(sum(dips)) if any(dips) else 'no dip in any'}",
+         _every([abs(d) < 0.05 and not dip for d, dip in zip(n_dev, dips)], "within 5% without a dip")],
+        ["1992", "the same: central slope of H vs eq. 57", "close, not equal (Fig. 14)",
+         ", ".join(f"{100 * d:+.0f}%" for d in h_dev), _every([abs(d) < 0.15 for d in h_dev], "within 15%")],
+        ["1992", "the same: H's central slope against α (Fig. 14: it depends on α)",
+         f"grows with α as eq. 57: ×{ratio_theory:.2f} from {angles.split('/')[0]}° to {angles.split('/')[-1]}°",
+         f"{', '.join(f'{v:.3f}' for v in slopes)} (in units of χg): ×{ratio:.2f}",
+         "agrees (grows, ratio within 10% of eq. 57's)" if grows and abs(ratio / ratio_theory - 1) < 0.1 else
+         "differs (" + ("not monotonic" if not grows else f"ratio {ratio:.2f} against {ratio_theory:.2f}") + ")"],
+    ] + later
 
 
 def rows_1992() -> list[list[str]]:
@@ -120,9 +163,11 @@ def rows_1992() -> list[list[str]]:
     else:
         rows.append(["1992", "sloped pile 30°, 5490 disks: central N and H vs eqs. 56, 57", "plateau, no dip",
                      _missing("sloped"), "—"])
-    piles = [json.loads(pathlib.Path(p).read_text()) for p in sorted(glob.glob(str(DROP / "seed*.json")))]
+    rows.extend(_rows_sloped_angles())
+    import paper_ensembles as pe
+
+    piles = pe.pile_rows(DROP)
     if piles:
-        import paper_ensembles as pe
 
         s = pe.summarise_drop(piles)
         dip = s["central_dip"]
@@ -377,8 +422,7 @@ def _heaps(n: int) -> dict[str, list[dict]]:
     import baxter_readings as br
 
     out: dict[str, list[dict]] = {}
-    for path in sorted(glob.glob(str(HEAPS / f"n{n}" / "*_seed*.json"))):
-        row = json.loads(pathlib.Path(path).read_text())
+    for row in br.heap_rows(HEAPS / f"n{n}"):
         out.setdefault(br.name_of(row), []).append(row)
     return out
 
@@ -607,10 +651,6 @@ def rewrite_page(check: bool = False) -> bool:
 
 
 # ---------------------------------------------------------------- figures
-def _rows(folder: pathlib.Path, pattern: str) -> list[dict]:
-    return [json.loads(pathlib.Path(p).read_text()) for p in sorted(glob.glob(str(folder / pattern)))]
-
-
 def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("1992", "1993", "1997")) -> list[str]:
     """The ensembles' figures, drawn from the same results JSON as the table
     (a study with no results draws nothing): the dropped piles' mean base
@@ -623,17 +663,53 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
     folder = pathlib.Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     drawn = []
-    if "1992" in papers and (piles := _rows(DROP, "seed*.json")):
+    if "1992" in papers and (piles := pe.pile_rows(DROP)):
         drawn.append(str(folder / "liffman1992_drop_ensemble.png"))
         pe.figure_drop(piles, drawn[-1])
-    if "1993" in papers and (tilts := _rows(TILT.parent, "mu*_seed*.json")):
+    if "1992" in papers and all(path.exists() for path in SLOPED_ANGLES.values()):
+        drawn.append(str(folder / "liffman1992_sloped_angles.png"))
+        figure_sloped_angles({a: _load(path) for a, path in SLOPED_ANGLES.items()}, drawn[-1])
+    if "1993" in papers and (tilts := pe.pile_rows(TILT.parent)):
         drawn.append(str(folder / "lee_herrmann1993_tilt_ensemble.png"))
         pe.figure_tilt(tilts, drawn[-1])
     for n in ((1334, 1000) if "1997" in papers else ()):
-        if heaps := _rows(HEAPS / f"n{n}", "*_seed*.json"):
+        if heaps := br.heap_rows(HEAPS / f"n{n}"):
             drawn.append(str(folder / f"baxter1997_n{n}.png"))
             br.figure(heaps, drawn[-1], f"Baxter et al. 1997 heaps of {n} disks, poured onto S = 1.1 sigma")
     return drawn
+
+
+def figure_sloped_angles(piles: dict, path: str) -> None:
+    """Figs. 13 and 14: each sloped pile's base normal and horizontal forces,
+    normalised by the largest simulated one as the paper does, against eqs. 54-59."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    from jaxpile.measure import theory
+
+    fig, (normal, horizontal) = plt.subplots(1, 2, figsize=(10, 4))
+    for k, (alpha, pile) in enumerate(piles.items()):
+        forces, base, a = pile["base_forces"], pile["base"], np.radians(alpha)
+        x = np.asarray(forces["x"])
+        grid = np.linspace(0.0, base, 400)
+        for ax, column, eq in ((normal, "normal", theory.continuum_ground_normal_force),
+                               (horizontal, "horizontal", theory.continuum_ground_horizontal_force)):
+            values = np.asarray(forces[column])
+            scale = np.abs(values).max()
+            ax.plot(x / base, values / scale, "o", ms=3, color=f"C{k}", label=f"{alpha}°: simulated")
+            ax.plot(grid / base, eq(grid, a, base) / scale, "-", color=f"C{k}", lw=1, label=f"{alpha}°: eqs.")
+    normal.set_title("base normal force (Fig. 13; eqs. 54, 56, 58)")
+    horizontal.set_title("base horizontal force (Fig. 14; eqs. 55, 57, 59)")
+    for ax in (normal, horizontal):
+        ax.set_xlabel("x / B")
+        ax.set_ylabel("force / largest simulated")
+    normal.legend(fontsize=7, ncol=2)
+    fig.suptitle(f"Liffman et al. 1992: sloped piles of {piles[30]['n_particles']} disks")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def notebook_section(paper: str, folder: str = ".") -> list[str]:
@@ -654,14 +730,20 @@ def verdict_rows(paper: str) -> list[tuple[str, str, str, str]]:
 
 
 # ------------------------------------------------------------------- runs
-def _pile_summary(args: list[str], dest: pathlib.Path) -> None:
-    """`jaxpile pile ARGS` into a scratch folder; its summary.json kept as `dest`."""
+def _pile_summary(args: list[str], dest: pathlib.Path, base_forces: bool = False) -> None:
+    """`jaxpile pile ARGS` into a scratch folder; its summary.json kept as `dest`,
+    with base_forces.csv's columns as `base_forces` when asked (for a figure)."""
     scratch = tempfile.mkdtemp(prefix="papers-")
     try:
         jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
         subprocess.run([jaxpile, "pile", *args, "--out", scratch, "--no-progress"], check=True)
         summary = json.loads((pathlib.Path(scratch) / "summary.json").read_text())
         summary["command"] = "jaxpile pile " + " ".join(args)
+        if base_forces:
+            import numpy as np
+
+            table = np.genfromtxt(pathlib.Path(scratch) / "base_forces.csv", delimiter=",", names=True)
+            summary["base_forces"] = {name: table[name].tolist() for name in table.dtype.names}
         dest.parent.mkdir(parents=True, exist_ok=True)
         dest.write_text(json.dumps(summary, indent=1))
     finally:
@@ -674,6 +756,10 @@ def run(studies: list[str]) -> None:
         _pile_summary(["--protocol", "lattice", "--layers", "45", "--law", "liffman"], LATTICE)
     if "sloped" in studies and not SLOPED.exists():
         _pile_summary(["--protocol", "sloped", "--slope", "30", "--n", "5490"], SLOPED)
+    if "sloped_angles" in studies:
+        for alpha, dest in SLOPED_ANGLES.items():
+            if not dest.exists():
+                _pile_summary(["--protocol", "sloped", "--slope", str(alpha), "--n", "360"], dest, base_forces=True)
     if "tilt" in studies:
         import paper_ensembles as pe
 
@@ -711,7 +797,7 @@ def run(studies: list[str]) -> None:
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(HEAP_SETTINGS), "--workers", "1"])
 
 
-STUDIES = ("lattice", "sloped", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000")
+STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000")
 
 
 def main(argv=None) -> int:
