@@ -34,6 +34,7 @@ import numpy as np
 from jaxpile import budget as memory
 from jaxpile import config
 from jaxpile import distributed
+from jaxpile.batches import batch_of
 from jaxpile.engine import ensemble
 from jaxpile.errors import InputError, SimulationError
 from jaxpile import ranges
@@ -128,8 +129,8 @@ def ensemble_for(spec, law, dt, rotation, options, law_options=None, devices=Non
     """The `Ensemble` for this protocol stage and its options: reused when a
     sweep with the same law, dt, rotation and the options its simulator reads
     ran before (its compiled loops are kept per batch shape); built afresh otherwise."""
-    read = options.as_dict() if spec.batch.simulator_options is None else {
-        k: v for k, v in options.as_dict().items() if k in spec.batch.simulator_options}
+    read = options.as_dict() if batch_of(spec).simulator_options is None else {
+        k: v for k, v in options.as_dict().items() if k in batch_of(spec).simulator_options}
 
     def build():
         return spec.simulator(options, law=law, dt=dt, rotation=rotation, law_options=law_options)
@@ -139,11 +140,11 @@ def ensemble_for(spec, law, dt, rotation, options, law_options=None, devices=Non
                tuple(sorted(read.items())), None if devices is None else tuple(devices))
         hash(key)
     except TypeError:  # an option that is a dict or a list: no reuse
-        return ensemble.Ensemble(build(), devices=devices, sequential=spec.batch.sequential)
+        return ensemble.Ensemble(build(), devices=devices, sequential=batch_of(spec).sequential)
     if key not in _ENSEMBLES:
         if len(_ENSEMBLES) >= 4:
             _ENSEMBLES.pop(next(iter(_ENSEMBLES)))
-        _ENSEMBLES[key] = ensemble.Ensemble(build(), devices=devices, sequential=spec.batch.sequential)
+        _ENSEMBLES[key] = ensemble.Ensemble(build(), devices=devices, sequential=batch_of(spec).sequential)
     return _ENSEMBLES[key]
 
 
@@ -314,7 +315,7 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
               "run_seconds": run_seconds, "total_seconds": time.perf_counter() - t0,
               "neighbor_reallocations": reallocations,
               "particle_steps_per_second": particle_steps / max(run_seconds, 1e-12),
-              "angles": list(spec.batch.angles), "unit": spec.batch.unit, "law_options": dict(law_options or {}),
+              "angles": list(batch_of(spec).angles), "unit": batch_of(spec).unit, "law_options": dict(law_options or {}),
               "settings": config.settings()}
     if processes > 1:
         record["gather_seconds"] = gather_seconds  # the rows' gather, waiting for the slowest process included
@@ -346,7 +347,7 @@ def _run_share(spec, chain, law, dt, rotation, devices, members, member_params, 
         for k, ((point, seed), prm, p) in enumerate(zip(chunk, prms, setups)):
             s = ensemble.member(state, k)
             row = {"member": start + k, **point, "seed": seed}
-            row.update(running.member_row(chain[-1], last_sim, prm, s, p, stage_options[-1]))
+            row.update(batch_of(chain[-1]).member_row(chain[-1].measure(last_sim, prm, s, p, stage_options[-1])))
             if extra_measure is not None:
                 row.update(extra_measure(last_sim, prm, s, p))
             row["steps"] = int(s.step)
@@ -507,7 +508,7 @@ def figure(result: SweepResult, by: str | None = None, path=None):
     if by is None:
         raise InputError("the sweep varied no parameter: nothing to plot against.")
     series = {name: summarise(result, by, name) for name in result.info["angles"]}
-    batch = spec_of(result.info["protocol"]).batch
+    batch = batch_of(result.info["protocol"])
     x = result.column(by)
     theory_x = np.linspace(np.nanmin(x), np.nanmax(x), 50)
     theory = batch.theory(by, theory_x) if batch.theory else None

@@ -158,6 +158,9 @@ def test_every_protocol_module_registers_its_spec_and_its_presentation_names_its
     import importlib
     import pkgutil
 
+    from jaxpile.batches import BATCHES
+    from jaxpile.cli.presentation import PRESENTATIONS, listed, presentation
+
     from jaxpile import protocols
     from jaxpile.laws import LAWS
     from jaxpile.protocols import PROTOCOLS
@@ -165,15 +168,14 @@ def test_every_protocol_module_registers_its_spec_and_its_presentation_names_its
     declaring = [getattr(importlib.import_module(f"jaxpile.protocols.{info.name}"), "SPEC", None)
                  for info in pkgutil.iter_modules(protocols.__path__)]
     assert sorted(PROTOCOLS) == sorted(s.name for s in declaring if s is not None)
-    # the papers' seven first, in the papers' order; a protocol added later (its own module) after them
-    assert list(PROTOCOLS)[:7] == ["lattice", "sloped", "drop", "box", "tilt", "flux", "pour"]
-    orders = [s.presentation.order for s in PROTOCOLS.values()]
-    assert orders == sorted(orders)
+    # the commands list the papers' seven first, in the papers' order; a protocol added later after them
+    assert listed(PROTOCOLS)[:7] == ["lattice", "sloped", "drop", "box", "tilt", "flux", "pour"]
+    assert set(PRESENTATIONS) == set(PROTOCOLS) == set(BATCHES)  # each shown and batched by name
     for name, spec in PROTOCOLS.items():
-        assert spec.default_law in LAWS and spec.presentation.help
+        assert spec.default_law in LAWS and presentation(name).help
         names = set().union(*(s.options.names() for s in spec.chain()))
         assert spec.chain()[0].size in names, (name, spec.size)
-        assert set(spec.presentation.flags.values()) <= names | {"seed"}, name
+        assert set(presentation(name).flags.values()) <= names | {"seed"}, name
 
 
 def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(monkeypatch):
@@ -181,12 +183,16 @@ def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(m
     import dataclasses
 
     from jaxpile import cli, sweeps
+    from jaxpile.batches import BATCHES
+    from jaxpile.cli.presentation import PRESENTATIONS
     from jaxpile.protocols import PROTOCOLS
 
     box = PROTOCOLS["box"]
-    silo = dataclasses.replace(box, name="silo", presentation=dataclasses.replace(
-        box.presentation, order=99, help="a silo emptied through an orifice"))
+    silo = dataclasses.replace(box, name="silo")
     monkeypatch.setitem(PROTOCOLS, "silo", silo)
+    monkeypatch.setitem(PRESENTATIONS, "silo", dataclasses.replace(
+        PRESENTATIONS["box"], order=99, help="a silo emptied through an orifice"))
+    monkeypatch.setitem(BATCHES, "silo", BATCHES["box"])
     assert cli.sweep_protocols()[-1] == "silo" and sweeps.spec_of("silo") is silo
     for command in ("pile", "sweep", "fit"):
         argv = [command, "--protocol", "silo", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])

@@ -26,11 +26,9 @@ def _nav_pages(nav) -> list[str]:
 
 
 def _built_path(page: str) -> str:
-    """Where mkdocs writes a page (directory URLs: a.md -> a/index.html)."""
-    stem = page.rsplit(".", 1)[0]
-    if stem == "index" or stem.endswith("/index"):
-        return stem + ".html"
-    return stem + "/index.html"
+    """Where mkdocs writes a page (`use_directory_urls: false`: a.md -> a.html, so
+    the site's links work opened from disk)."""
+    return page.rsplit(".", 1)[0] + ".html"
 
 
 def _exported_names() -> list[str]:
@@ -87,6 +85,35 @@ def test_the_tutorials_show_their_stored_outputs(site):
     """The notebooks are rendered as stored (mkdocs-jupyter, execute: false): a paper tutorial's page shows
     its figures and its closing table's verdicts without running anything."""
     for name in ("liffman1992", "lee_herrmann1993", "baxter1997"):
-        page = next(site.rglob(f"{name}/index.html")).read_text()
+        page = next(site.rglob(f"{name}.html")).read_text()
         assert "data:image/png;base64" in page, name
         assert "verdict: " in page, name
+
+
+def test_the_api_summaries_are_whole_sentences(site):
+    """The summary tables of the API pages (a package's modules, a module's
+    classes and functions) show each docstring's first sentence whole
+    (tools/griffe_summaries.py), never a first line cut mid-sentence."""
+    cut, rows = [], 0
+    for page in (site / "api").rglob("*.html"):
+        parts = re.split(r'<span class="doc-section-title">([^<]*)</span>', page.read_text())
+        for title, body in zip(parts[1::2], parts[2::2]):
+            if title.strip(":") not in ("Modules", "Classes", "Functions"):
+                continue
+            for row in re.findall(r'<tr class="doc-section-item">(.*?)</tr>', body.split("</table>", 1)[0], flags=re.S):
+                rows += 1
+                described = "".join(re.findall(r'<div class="doc-md-description">(.*?)</div>', row, flags=re.S))
+                text = re.sub(r"<[^>]+>", "", described).strip()
+                if text and not re.search(r"[.:!?)]$", text):
+                    cut.append((page.name, text[-60:]))
+    assert rows > 100 and not cut, f"summaries cut mid-sentence: {cut[:10]}"
+
+
+def test_a_summary_is_the_first_sentence_whole():
+    sys.path.insert(0, str(ROOT / "tools"))
+    from griffe_summaries import summary_first
+
+    assert summary_first("What is measured on a pile: base forces,\ncontact networks. More here,\nand here.\n\nArgs:") \
+        == "What is measured on a pile: base forces, contact networks.\nMore here, and here.\n\nArgs:"
+    assert summary_first("Eq. 3 of Lee et al. holds, e.g. at\nrest.") == "Eq. 3 of Lee et al. holds, e.g. at rest."
+    assert summary_first("One line.") == "One line."

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import jaxpile
-from jaxpile import ensemble, sweeps
+from jaxpile import batches, ensemble, sweeps
 from jaxpile.errors import InputError
 from jaxpile.protocols import box, lattice
 from jaxpile.engine.simulate import RunInfo, Simulator
@@ -247,7 +247,7 @@ def test_members_one_after_another_give_the_side_by_side_states_bit_for_bit(batc
     protocols = [pour.SPEC.set_up("hooke", 100, insert_height=14.0, interval=0.15, seed=seed) for seed in (4, 5, 6)]
     pour_params = [pour.law_params("hooke")] * 3
     pour_sim = pour.make_simulator("hooke", chunk_steps=1000)
-    assert not Ensemble(pour_sim).sequential and pour.SPEC.batch.sequential
+    assert not Ensemble(pour_sim).sequential and batches.batch_of("pour").sequential
     poured = {}
     for sequential in (False, True):
         ens = Ensemble(pour_sim, sequential=sequential)

@@ -1,5 +1,5 @@
 """The package's layers: `[tool.importlinter]` in pyproject.toml names them, top
-to bottom (cli > fit > sweep > protocols | export > measure > engine > laws >
+to bottom (cli > fit > sweeps > batches > protocols | export > measure > engine > laws >
 the ground modules > errors), and import-linter checks that each imports only
 what lies below it (TYPE_CHECKING imports counted), that each contact law and
 each command stands alone, and that the commands do not reach into the

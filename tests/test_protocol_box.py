@@ -200,9 +200,9 @@ def test_the_energy_figure_leaves_out_the_start_at_rest_and_the_headline_says_wh
     """Fig. 1(b) on a log axis: the first sample (at rest, E = 0) is left out, so
     the axis spans the run's energies; a NaN angle's reason is printed with the headline."""
     from jaxpile.cli.pile_outputs import headline
-    from jaxpile.protocols import outputs
+    from jaxpile.cli import presentation
 
-    time, energy = outputs.energy_series({"kinetic_energy": {"time": [0.0, 0.5, 1.0], "kinetic_energy": [0.0, 2e-3, 1e-6]}})
+    time, energy = presentation.energy_series({"kinetic_energy": {"time": [0.0, 0.5, 1.0], "kinetic_energy": [0.0, 2e-3, 1e-6]}})
     assert time.tolist() == [0.5, 1.0] and energy.tolist() == [2e-3, 1e-6]
     text = headline("box", {"repose_cumulative_parabola": float("nan"), "repose_error": "fewer than 3 columns"})
     assert "repose_error: fewer than 3 columns" in text

@@ -10,6 +10,7 @@ import pytest
 
 import jaxpile
 from jaxpile.errors import InputError
+from jaxpile.cli.presentation import presentation
 from jaxpile.protocols import pour
 from jaxpile.measure import analysis, poured_heap
 from jaxpile.measure import heap
@@ -337,7 +338,7 @@ def test_a_poured_heap_reads_its_dip_below_flanks_when_its_base_is_wide_enough(b
     expected = 1.0 - f[2] / (0.5 * (f[1] + f[3]))
     assert poured_heap.summary(wide)["dip_below_flanks"] == pytest.approx(expected, rel=1e-12)
     assert poured_heap.sweep_row(wide)["dip_below_flanks"] == pytest.approx(expected, rel=1e-12)
-    assert "dip_below_flanks" in pour.SPEC.presentation.headline
+    assert "dip_below_flanks" in presentation("pour").headline
     # the row's columns, declared so that an ensemble fit refuses an unknown statistic before a heap is poured
     assert tuple(poured_heap.sweep_row(m)) == tuple(poured_heap.sweep_row(wide)) == poured_heap.ROW_COLUMNS
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from jaxpile import analysis, theory
+from jaxpile.batches import batch_of
 from jaxpile.errors import InputError
 from jaxpile.protocols import lattice, sloped
 from jaxpile.engine.simulate import Simulator
@@ -161,7 +162,7 @@ def test_the_1992_piles_declare_the_columns_of_their_rows(spec, size, options, t
     sim = spec.simulator(o, law="hooke", dt=spec.default_dt("hooke"))
     measured = spec.measure(sim, params, sim.init(params, p.particles, p.boundaries, box=p.box), p, o)
     plain = tuple(k for k, v in measured.items() if np.ndim(v) == 0 and not isinstance(v, str))
-    assert plain == spec.row
+    assert plain == batch_of(spec).row
     assert main(["fit", "--protocol", spec.name, "--params", "kn", "--truth", "kn=2e5", "--statistics", "repose",
                  "--dry-run", "--out", str(tmp_path)]) == 2
     assert "no column 'repose'" in capsys.readouterr().err

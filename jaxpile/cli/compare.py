@@ -8,7 +8,7 @@ import os
 from jaxpile import config
 from jaxpile.cli.pile_outputs import headline
 from jaxpile.errors import InputError
-from jaxpile.protocols import presentation
+from jaxpile.cli.presentation import PRESENTATIONS, presentation
 
 
 def compare_table(dirs) -> str:
@@ -35,7 +35,7 @@ def compare_table(dirs) -> str:
         rate = s.get("particle_steps_per_second") or 0.0
         mu = s.get("params", {}).get("mu")
         try:  # a summary.json from elsewhere, or cut down, lacks what its protocol's row reads
-            registered = presentation(protocol) if isinstance(protocol, str) else None
+            registered = presentation(protocol) if protocol in PRESENTATIONS else None
             if registered is None:
                 raise KeyError(f"protocol {protocol!r}")
             result = (registered.compare(s) if registered.compare is not None

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 
+from jaxpile.batches import batch_of
 from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
 from jaxpile.errors import InputError
 from jaxpile.io import plain
@@ -17,7 +18,7 @@ from jaxpile.ranges import COUNT, POSITIVE
 def _statistics(args, spec):
     from jaxpile.fit.ensemble_fit import Statistics
 
-    default = spec.batch.fit_statistics
+    default = batch_of(spec).fit_statistics
     if args.statistics is not None:
         columns = tuple(c.strip() for c in args.statistics.split(",") if c.strip())
         bins = args.bins or 0
@@ -36,7 +37,7 @@ def _chosen_statistics(args, spec, estimator: str, declared: bool):
         return ensemble_fit.Statistics(columns=("central_dip",))
     if estimator == "truncated" and args.statistics is None:
         return ensemble_fit.Statistics(bins=int(args.bins if args.bins is not None
-                                                else spec.batch.fit_statistics.get("bins") or 9))
+                                                else batch_of(spec).fit_statistics.get("bins") or 9))
     return _statistics(args, spec)
 
 
@@ -141,7 +142,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
         statistics = _chosen_statistics(args, a, estimator, smid_novosad)
     if declared:  # a statistic Smid & Novosad did not report is refused before any pile, dry runs too
         ensemble_fit.smid_novosad_target(statistics.labels())
-    b = int(args.ensemble) if args.ensemble is not None else (1 if a.batch.deterministic else 8)
+    b = int(args.ensemble) if args.ensemble is not None else (1 if batch_of(a).deterministic else 8)
     seeds = list(range(b))
     steps = 6 if args.steps is None else int(args.steps)
     if args.checkpoint_every is not None:

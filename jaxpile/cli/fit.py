@@ -29,7 +29,9 @@ def fit_estimator(args) -> str:
     offers one (its piles deterministic), and central differences of the
     ensemble mean otherwise."""
     spec = PROTOCOLS.get(args.protocol)
-    pathwise = spec is not None and spec.pathwise is not None and not _ensemble_target(args)
+    from jaxpile.fit.problem import PATHWISE
+
+    pathwise = spec is not None and args.protocol in PATHWISE and not _ensemble_target(args)
     return args.estimator or ("pathwise" if pathwise else "central")
 
 

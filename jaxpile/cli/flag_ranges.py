@@ -53,14 +53,15 @@ def ranges_markdown() -> str:
     """The table of valid ranges in docs/cli.md, from the same tables the checks use
     (tests/test_input_catalogue.py checks that docs/cli.md holds it as it is)."""
     from jaxpile.laws import LAWS, get_law_module, granular
+    from jaxpile.cli.presentation import listed
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols.spec import ranges_of
 
     rows = ["| input | valid ranges |", "|---|---|"]
     rows += [f"| law `{name}` (`--set NAME=VALUE`) | {inline(get_law_module(name).RANGES)} |" for name in LAWS]
     rows += [f"| a LAMMPS granular line (`--law \"...\"`, `--set NAME=VALUE`) | {inline(granular.RANGES)} |"]
-    rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(ranges_of(spec.options))} |"
-             for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]
+    rows += [f"| protocol `{name}` (`--option NAME=VALUE`) | {inline(ranges_of(PROTOCOLS[name].options))} |"
+             for name in listed(PROTOCOLS) if ranges_of(PROTOCOLS[name].options)]
     rows += [f"| every protocol's run (`SPEC.run(..., seed=, dt=, chunk_steps=)`) | {inline(RUN_RANGES)} |"]
     rows += [f"| `jaxpile {command}` flags | "
              + "; ".join(f"--{dest.replace('_', '-')} {r.describe()}" for dest, r in FLAG_RANGES[command].items())
@@ -71,6 +72,7 @@ def ranges_markdown() -> str:
 def ranges_epilog() -> str:
     """`jaxpile pile --help`'s list of every law parameter's and protocol option's range."""
     from jaxpile.laws import LAWS, get_law_module, granular
+    from jaxpile.cli.presentation import listed
     from jaxpile.protocols import PROTOCOLS
     from jaxpile.protocols.spec import ranges_of
 
@@ -88,5 +90,6 @@ def ranges_epilog() -> str:
     out += [entry("a LAMMPS granular line", granular.RANGES)]
     out += ["protocol options (--option NAME=VALUE, or a flag of its own: `jaxpile pile --protocol P --help`) "
             "and their valid ranges:"]
-    out += [entry(name, ranges_of(spec.options)) for name, spec in PROTOCOLS.items() if ranges_of(spec.options)]
+    out += [entry(name, ranges_of(PROTOCOLS[name].options)) for name in listed(PROTOCOLS)
+            if ranges_of(PROTOCOLS[name].options)]
     return "\n".join(out)

@@ -9,6 +9,7 @@ import argparse
 from jaxpile.cli.flag_ranges import add_ranges_to_help, ranges_epilog
 from jaxpile.cli.parsing import on_off
 from jaxpile.cli.protocol_flags import DEFAULT_PROTOCOL, add_protocol_flags, command_and_protocol
+from jaxpile.cli.presentation import listed, presentation
 from jaxpile.protocols import PROTOCOLS
 
 
@@ -22,7 +23,7 @@ class CommandParser(argparse.ArgumentParser):
 
 def sweep_protocols() -> list[str]:
     """The registered protocols a sweep and an ensemble fit run: every one."""
-    return list(PROTOCOLS)
+    return listed(PROTOCOLS)
 
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
@@ -61,10 +62,10 @@ def _output_args(parser, precision: bool = True) -> None:
 
 def _pile_parser(sub) -> argparse.ArgumentParser:
     """`jaxpile pile`: one protocol's pile, its size, law, integrator, run and output flags."""
-    names = list(PROTOCOLS)
+    names = listed(PROTOCOLS)
     pile = sub.add_parser("pile", help="build a pile, relax it, measure its base forces and draw it")
     pile.add_argument("--protocol", default="lattice", choices=names,
-                      help="how the pile is built: " + "; ".join(f"{k}: {PROTOCOLS[k].presentation.help}" for k in names))
+                      help="how the pile is built: " + "; ".join(f"{k}: {presentation(k).help}" for k in names))
     pile.add_argument("--layers", type=int, default=None, help="layers of the lattice pile (default 45: 1035 disks)")
     pile.add_argument("--n", type=int, default=None,
                       help="disks (sloped, drop, box, tilt, pour) or insertions (flux); default: the paper's")

@@ -11,6 +11,7 @@ from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
 from jaxpile.cli.pile_outputs import trajectory, write_outputs
 from jaxpile.cli.run_folder import checkpoint_spec, replacing_earlier, resume_point
 from jaxpile.errors import InputError
+from jaxpile.cli.presentation import listed, presentation
 from jaxpile.protocols import PROTOCOLS
 
 
@@ -38,7 +39,7 @@ def run_protocol(args) -> dict:
     kwargs["checkpoint"] = checkpoint_spec(args)
     kwargs["resume"], resumed_from = resume_point(args)
 
-    print(f"jaxpile: {name} pile ({spec.presentation.help}), law {contact_law.name} "
+    print(f"jaxpile: {name} pile ({presentation(name).help}), law {contact_law.name} "
           f"(rotation {'on' if contact_law.rotation else 'off'}), {args.precision}", flush=True)
     if kwargs.get("hard_collisions") is not None:
         hard = kwargs["hard_collisions"]
@@ -57,7 +58,7 @@ def _size_flag(args, spec) -> str:
     size_flag = "--layers" if spec.size == "layers" else "--n"
     for flag in ("--n", "--layers"):  # one of them sets the protocol's size, the other is refused
         if flag != size_flag and getattr(args, flag[2:]) is not None:
-            owners = [p for p, s in PROTOCOLS.items() if s.size == flag[2:]]
+            owners = [p for p in listed(PROTOCOLS) if PROTOCOLS[p].size == flag[2:]]
             raise InputError(f"{flag} is for the {owners[0]} protocol; the {name} protocol's size is {size_flag}."
                              if len(owners) == 1 else f"{flag} is not used by the {name} protocol (its size is "
                              f"{size_flag}).")
@@ -87,9 +88,9 @@ def _run_keywords(args, spec, size_flag: str, kwargs: dict) -> dict:
     for flag, value in flags.items():
         if value is None:
             continue
-        if flag not in spec.presentation.flags:
+        if flag not in presentation(spec.name).flags:
             raise InputError(f"--{flag.replace('_', '-')} is not used by the {name} protocol.")
-        kwargs[spec.presentation.flags[flag]] = value
+        kwargs[presentation(spec.name).flags[flag]] = value
     options = parse_options(args.option)
     known = option_names(spec) - {"n"}
     unknown = set(options) - known

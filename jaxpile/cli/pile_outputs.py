@@ -12,7 +12,7 @@ import numpy as np
 from jaxpile import config
 from jaxpile.errors import InputError
 from jaxpile.io import plain
-from jaxpile.protocols import PROTOCOLS, presentation
+from jaxpile.cli.presentation import presentation
 
 
 def trajectory(args, resumed_from: int):
@@ -47,7 +47,7 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
     name = args.protocol
     dt = args.dt if args.dt is not None else _protocol_dt(spec, m, contact_law.name)
     sim = Simulator(contact_law, dt)
-    registered = spec.presentation
+    registered = presentation(spec.name)
     base = (analysis.base_forces(sim, params, state) if registered.base_forces is None
             else registered.base_forces(sim, params, state, m))  # e.g. the fixed row a heap stands on
     network = analysis.contact_network(sim, params, state)
@@ -122,7 +122,7 @@ def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
     figures (its registry entry's `figures`, `profile_theory`, `length_unit`)."""
     from jaxpile import plot
 
-    registered = PROTOCOLS[name].presentation
+    registered = presentation(name)
     p = state.particles
     title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} disks"
     plot.pile_figure(p.position, p.radius, network, active=np.asarray(p.active), title=title,

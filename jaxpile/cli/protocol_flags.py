@@ -43,7 +43,9 @@ def protocol_flags(command: str, protocol: str) -> dict:
             found.setdefault(name, o)
     taken = {"n"} | {s.size for s in spec.chain()}  # the size is `--n` (or `--layers`)
     if command == "pile":
-        taken |= set(spec.presentation.flags.values())
+        from jaxpile.cli.presentation import presentation
+
+        taken |= set(presentation(protocol).flags.values())
     return {k: o for k, o in found.items() if o.kind is not None and k not in taken}
 
 

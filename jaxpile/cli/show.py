@@ -48,7 +48,7 @@ def _finished(folder: str, out: str) -> list[str]:
                      title=title, path=os.path.join(out, "pile.png"))
     written = ["pile.png"]
     n_theory = h_theory = None
-    from jaxpile.protocols import presentation
+    from jaxpile.cli.presentation import presentation
 
     entry = presentation(summary.get("protocol", "lattice"))  # a summary without a protocol is a lattice run's
     if entry is not None and entry.profile_theory is not None and len(base["x"]):
@@ -114,7 +114,7 @@ def _checkpointed(path: str, out: str) -> list[str]:
     written = ["pile.png", "profile.png"]
     samples = meta["extra"].get("samples")
     if samples and samples.get("time"):  # the kinetic energy sampled so far: the run's own energy figure
-        from jaxpile.protocols.outputs import energy_figure
+        from jaxpile.cli.presentation import energy_figure
 
         written += energy_figure({"kinetic_energy": samples}, title, out)
     return written

@@ -11,6 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
+from jaxpile.batches import batch_of
 from jaxpile.errors import InputError
 from jaxpile.fit import ensemble_fit, pile_fit
 from jaxpile.fit.measured import Measurement, load_measurement, statistics_of, target_of
@@ -84,7 +85,7 @@ def calibrate(protocol: str, measurement: str | os.PathLike | Measurement, param
     start = {n: float(given[n]) if n in given else float(np.asarray(getattr(defaults, n))) for n in names}
     statistics = statistics_of(measurement, spec)
     target = target_of(measurement, statistics)
-    b = int(ensemble) if ensemble is not None else (1 if spec.batch.deterministic else 8)
+    b = int(ensemble) if ensemble is not None else (1 if batch_of(spec).deterministic else 8)
     runner = ensemble_fit.Runner(protocol, law, params=dict(fixed) if fixed else None, options=options,
                                  law_options=law_options, rotation=rotation)
     return ensemble_fit.fit(runner, names, start, target, seeds=range(b), statistics=statistics, progress=progress,

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile import sweeps
+from jaxpile.batches import batch_of
 from jaxpile.engine import batch, ensemble
 from jaxpile.engine import neighbors as nb
 from jaxpile.engine import pairs as pair_list
@@ -34,7 +35,7 @@ from jaxpile.protocols import PROTOCOLS, running
 def rolled_out() -> tuple[str, ...]:
     """The protocols whose construction can be rolled out: one stage, and a base to read."""
     return tuple(sorted(name for name, spec in PROTOCOLS.items()
-                        if spec.starts_from is None and spec.batch.extent is not None))
+                        if spec.starts_from is None and batch_of(spec).extent is not None))
 
 
 def check(runner, statistics) -> None:
@@ -81,7 +82,7 @@ class Construction:
         options = spec.make_options(runner.options or {})
         # set up and checked as the sweep's piles (e.g. a voidage map too fine for the memory)
         protocols = [running.member_setup(spec, law, s, dt, options, runner.dtype) for s in seeds]
-        extent = tuple(spec.batch.extent(protocols[0]))
+        extent = tuple(batch_of(spec).extent(protocols[0]))
         pieces = _pieces(spec, law, dt, options, runner, tuple(names), extent, statistics)
         self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics
         p0 = pieces.params(jnp.asarray(theta))

@@ -13,8 +13,8 @@ from typing import Callable, NamedTuple, Sequence
 import numpy as np
 
 from jaxpile import budget, sweeps
+from jaxpile.batches import batch_of
 from jaxpile.errors import InputError
-from jaxpile.protocols import running
 from jaxpile.fit.profiles import base_load, smooth_base_profile
 from jaxpile.measure.base_reading import profile_at_points
 from jaxpile.measure.forces import base_forces
@@ -78,9 +78,9 @@ def _check_statistics(statistics: Statistics, spec) -> Statistics:
                              f"{statistics.bandwidth!r}.")
         if statistics.normalised_by not in ("max", "weight"):
             raise InputError(f"a profile is normalised by max or weight; got {statistics.normalised_by!r}.")
-    if statistics.bins and spec.batch.extent is None:
+    if statistics.bins and batch_of(spec).extent is None:
         raise InputError("this protocol declares no base extent, so it cannot fit a base profile; fit columns.")
-    columns = running.row_columns(spec)
+    columns = batch_of(spec).columns()
     if columns is not None:  # before a pile runs, where the protocol names its row (else after, per row)
         known = columns | set(MEMBER_COLUMNS)
         unknown = [c for c in statistics.columns if c not in known]
@@ -107,7 +107,7 @@ def _profile_hook(spec, statistics: Statistics) -> Callable | None:
         return None
 
     def measure(sim, params, state, protocol):
-        base, x_left, x_right = spec.batch.extent(protocol)
+        base, x_left, x_right = batch_of(spec).extent(protocol)
         load = base_load(sim, params, state, base=base)
         profile = smooth_base_profile(load, x_left=x_left, x_right=x_right, bins=int(statistics.bins),
                                       bandwidth=statistics.bandwidth)

@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxpile.batches import batch_of
 from jaxpile.errors import InputError
 from jaxpile.fit.ensemble_runs import Statistics
 from jaxpile.fit.ensemble_targets import EnsembleTarget
@@ -145,7 +146,7 @@ def statistics_of(measurement: Measurement, spec) -> Statistics:
     """What each pile of the protocol `spec` reports to be compared with the
     measurement: its columns for the scalars (a `READINGS` name through the
     spec's `Batch.readings`), and its base profile at the measured x/B."""
-    readings = dict(spec.batch.readings or {})
+    readings = dict(batch_of(spec).readings or {})
     columns = []
     for name in measurement.scalars:
         if name in READINGS and name not in readings:

@@ -1,16 +1,43 @@
 """The pile a pathwise fit differentiates, as one named record: `problem(...)`
-builds it from a protocol that offers one (its spec's `pathwise`: the
-deterministic lattice; random piles are fitted by their ensembles,
-`ensemble_fit`), and its `profile` and `objective` are the differentiable profile and
-loss that `fit` minimises."""
+builds it from a protocol that offers one (`PATHWISE`: the deterministic
+lattice; random piles are fitted by their ensembles, `ensemble_fit`), and its
+`profile` and `objective` are the differentiable profile and loss that `fit`
+minimises."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
+from jaxpile.batches import BATCHES
 from jaxpile.errors import InputError
+from jaxpile.fit import pathwise_lattice
 from jaxpile.fit.simulated import profile_objective, simulated_profile
 from jaxpile.protocols import PROTOCOLS
+
+
+class Pathwise(NamedTuple):
+    """A protocol's pathwise fit (`jaxpile fit --estimator pathwise`).
+
+    Attributes:
+      problem: `(law, start, *, size, seed, options, bins, window, progress)
+        -> (sim, params, state, steps, setting, window, description)`: the
+        pile built with the starting parameters, and the steps differentiated from it.
+      dry_run: `(law, start, *, size, seed, options, window) -> (what,
+        particles, params, build steps, steps differentiated)`, set up and
+        checked, not run.
+      default_size: the pile's size when none is given.
+    """
+
+    problem: Callable
+    dry_run: Callable
+    default_size: int
+
+
+PATHWISE: dict[str, Pathwise] = {
+    "lattice": Pathwise(pathwise_lattice.pathwise_problem, pathwise_lattice.pathwise_dry_run, default_size=6),
+}
+"""The protocols that offer a pathwise fit, by name."""
 
 
 class FitProblem(NamedTuple):
@@ -48,17 +75,17 @@ class FitProblem(NamedTuple):
 
 
 def pathwise_of(protocol: str, remedy: str = "an ensemble estimator (jaxpile.fit.ensemble_fit)"):
-    """The protocol's pathwise fit (`ProtocolSpec.pathwise`), or `InputError`
-    naming the protocols that offer one and `remedy`."""
-    spec = PROTOCOLS.get(protocol)
-    if spec is None or spec.pathwise is None:
-        offered = [name for name, s in PROTOCOLS.items() if s.pathwise is not None]
-        why = ("" if spec is None or spec.batch is None or spec.batch.deterministic else
+    """The protocol's pathwise fit (`PATHWISE`), or `InputError` naming the
+    protocols that offer one and `remedy`."""
+    if protocol not in PATHWISE:
+        offered = [name for name in PATHWISE if name in PROTOCOLS]
+        batch = BATCHES.get(protocol)
+        why = ("" if protocol not in PROTOCOLS or batch is None or batch.deterministic else
                f"the {protocol} protocol builds random piles, and the gradient through one of them says how that "
                "packing relaxes, not how the protocol's piles depend on the parameters (docs/gradients.md); ")
         raise InputError(f"{why}pathwise fits run on the deterministic {', '.join(offered)} protocol(s); fit the "
                          f"{protocol} protocol with {remedy}.")
-    return spec.pathwise
+    return PATHWISE[protocol]
 
 
 def problem(protocol: str, law: str | None = None, start: dict | None = None, *, size: int | None = None,
@@ -80,4 +107,4 @@ def problem(protocol: str, law: str | None = None, start: dict | None = None, *,
                                              options=options, bins=bins, window=window, progress=progress))
 
 
-__all__ = ["FitProblem", "pathwise_of", "problem"]
+__all__ = ["FitProblem", "PATHWISE", "Pathwise", "pathwise_of", "problem"]

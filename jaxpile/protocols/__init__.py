@@ -1,28 +1,31 @@
 """How piles are built. Each protocol module holds its physics (set-up,
-driver, measurements) and one `SPEC` (`spec.ProtocolSpec`): its options, how
-it runs, what a batch and the commands read. `PROTOCOLS` is every registered
-spec by name; `PROTOCOLS["box"].run("hooke", 72)` runs one pile."""
+driver, measurements) and one `SPEC` (`spec.ProtocolSpec`): its options and
+how it runs. `PROTOCOLS` is every registered spec by name;
+`PROTOCOLS["box"].run("hooke", 72)` runs one pile. What the commands show of
+a protocol (`jaxpile.cli.presentation`) and what a batch reads of it
+(`jaxpile.batches`) are declared by name in the layers above."""
 
 import importlib
 import pkgutil
 
-from jaxpile.protocols.spec import ProtocolSpec
+from jaxpile.protocols.spec import REGISTERED, ProtocolSpec
 
 
 def _registered() -> dict:
     """`{name: ProtocolSpec}` of every module in this package that declares a
-    `SPEC`, in the order its presentation gives: a new protocol is registered
-    by its own module, with no list here to edit."""
+    `SPEC`, by name: a new protocol is registered by its own module, with no
+    list here to edit."""
     found = {}
     for info in pkgutil.iter_modules(__path__):
         module = importlib.import_module(f"{__name__}.{info.name}")
         spec = getattr(module, "SPEC", None)
         if isinstance(spec, ProtocolSpec):
             found[spec.name] = spec
-    return dict(sorted(found.items(), key=lambda item: item[1].presentation.order))
+    return dict(sorted(found.items()))
 
 
-PROTOCOLS = _registered()
+PROTOCOLS = REGISTERED  # one dict: the spec of a continued protocol is looked up in it
+PROTOCOLS.update(_registered())
 
 
 def get(name: str) -> ProtocolSpec:
@@ -43,10 +46,5 @@ def run(name: str, law: str | None = None, size: int | None = None, **kwargs):
     return get(name).run(law, size, **kwargs)
 
 
-def presentation(name):
-    """How the commands show a registered protocol (`spec.Presentation`), or None for an unknown name."""
-    spec = PROTOCOLS.get(name)
-    return None if spec is None else spec.presentation
 
-
-__all__ = ["PROTOCOLS", "get", "presentation"]
+__all__ = ["PROTOCOLS", "get"]

@@ -78,9 +78,6 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
-from jaxpile.measure import analysis
-from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import outputs
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.drivers import motion, rest_detector
 from jaxpile.protocols.geometry import (
@@ -91,19 +88,26 @@ from jaxpile.protocols.geometry import (
     random_positions,
     take_out,
 )
+from jaxpile.protocols import paper1993
 from jaxpile.protocols.paper1993 import (
     PAPER_SETTING,
+    count_check,
+    default_dt,
     fill_count,
     friction_coefficient,
     gaussian_radii,
     law_and_params,
     law_name,
-    law_setting,
+    max_steps_for,
+    max_time_budget,
     measure_flag,
     radius_law,
+    repose,
+    settled,
+    simulator_running,
     units,
 )
-from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -287,56 +291,10 @@ def setup(o: BoxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 
 
 # ----------------------------------------------------------------- measuring
-def repose(state: SimState, width: float, *, x_min: float = 0.0) -> dict:
-    """The angle of repose (degrees) of the active disks over [x_min, x_min + W]
-    by the three methods of Lee & Herrmann 1993, sec. 3 (columns one mean
-    diameter wide; h(x) the highest disk centre in a column, an empty column
-    between filled ones the line between its neighbours, as the flux's recorded
-    surfaces, and counted in `surface_gaps`); NaN with the reason under
-    `repose_error` when the surface cannot be measured (fewer than 3 columns)."""
-    try:
-        profile = analysis.surface_profile_of(state, x_min=x_min, width=width)
-        angles = analysis.repose_angles(profile, fill_gaps=True)
-    except InputError as error:
-        nan = float("nan")
-        return {"repose_endpoints": nan, "repose_least_squares": nan, "repose_cumulative_parabola": nan,
-                "repose_error": str(error)}
-    return {"repose_endpoints": angles.endpoints, "repose_least_squares": angles.least_squares,
-            "repose_cumulative_parabola": angles.cumulative_parabola,
-            "surface_gaps": int(np.isnan(profile.height[(angles.x[0] <= profile.x) & (profile.x <= angles.x[-1])]).sum()),
-            "surface_x": profile.x.tolist(), "surface_height": profile.height.tolist()}
-
-
-def make_simulator(law="lee-herrmann", *, dt: float | None = None, rotation: bool | None = None,
-                   integrator: str = "velocity_verlet", chunk_steps: int | None = None, driver=None,
-                   law_options: dict | None = None, **kwargs):
-    """A `Simulator` running a 1993 protocol's driver (default: the box `driver`)
-    with a law by name (no rotation unless asked). One simulator serves every
-    set-up of that protocol with this dt."""
-    from jaxpile.engine.simulate import Simulator
-
-    _, contact_law, _ = law_and_params(law, {}, rotation, law_options=law_options)
-    dt = float(law_setting(law)["dt"]) if dt is None else dt
-    if chunk_steps is None:
-        chunk_steps = max(1, int(round(PAPER_SETTING["chunk_time"] * units(law).time / dt)))
-    return Simulator(contact_law, dt, integrator=integrator, driver=globals()["driver"] if driver is None else driver,
-                     chunk_steps=chunk_steps, **kwargs)
-
-
-def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -> int:
-    """`max_time` (paper seconds) in steps of dt."""
-    return ranges.steps_of("max_time", check_positive("max_time", max_time) * units(law).time, dt)
-
-
-def count_check(state: SimState) -> dict:
-    """Where every disk is: in play (active, movable), fixed in play (a
-    floor), out of play (waiting, or gone), or never used (fixed and out of
-    play: a flux floor's spare draws)."""
-    p = state.particles
-    active, fixed = np.asarray(p.active), np.asarray(p.fixed)
-    return {"n_total": int(active.size), "n_in_play": int(np.sum(active & ~fixed)),
-            "n_fixed": int(np.sum(active & fixed)), "n_out_of_play": int(np.sum(~active & ~fixed)),
-            "n_unused": int(np.sum(~active & fixed))}
+def make_simulator(law="lee-herrmann", *, driver=None, **kwargs):
+    """A `Simulator` running the box's `driver` (or `driver`), the rest as
+    `paper1993.make_simulator`."""
+    return paper1993.make_simulator(law, driver=globals()["driver"] if driver is None else driver, **kwargs)
 
 
 def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
@@ -360,42 +318,10 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
     }
 
 
-def simulator_running(driver_function):
-    """The spec's simulator of a 1993 protocol running `driver_function` (`make_simulator`)."""
-
-    def simulator(options, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
-        return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or "velocity_verlet",
-                              chunk_steps=chunk_steps, driver=driver_function, law_options=law_options)
-
-    return simulator
-
-
-def settled(p: Setup, options):
-    """The 1993 family's end (box, flux): the driver's rest detector has fired."""
-    return lambda s: s.protocol_state.settled_at >= 0
-
-
-def max_time_budget(p: Setup, options) -> int:
-    """The 1993 family's budget (box, flux): `max_time` (paper seconds) in steps of the set-up's dt."""
-    return max_steps_for(p.info["law"], p.info["dt"], options.max_time)
-
-
 SPEC = ProtocolSpec(
     name="box", options=BoxOptions, setup=setup, simulator=simulator_running(driver), law_and_params=law_and_params,
-    default_dt=lambda law: float(law_setting(law)["dt"]), finished=settled, budget=max_time_budget, measure=measure,
-    row=("repose_endpoints", "repose_least_squares", "repose_cumulative_parabola", "at_rest", "wall_removed_step",
-         "settled_step", "n_left", "fill_height"),
-    default_law="lee-herrmann",
-    presentation=Presentation(
-        order=3, help="a box filled, its right wall removed (1993 Fig. 1)", flags={"seed": "seed"},
-        headline=("n_total", "n_in_play", "at_rest", "repose_endpoints", "repose_least_squares",
-                  "repose_cumulative_parabola", "theta_ms_theory"),
-        length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
-    batch=Batch(angles=("repose_cumulative_parabola", "repose_least_squares", "repose_endpoints"),
-                readings={"angle_of_repose": "repose_cumulative_parabola"},
-                theory=marginal_stability_overlay, extent=lambda p: ("ground", 0.0, float(p.info["width"])),
-                fit_statistics={"columns": ("repose_least_squares", "repose_cumulative_parabola")},
-                simulator_options=frozenset()))  # the simulator reads no option: set-ups share a compile
+    default_dt=default_dt, finished=settled, budget=max_time_budget, measure=measure,
+    default_law="lee-herrmann")
 """The box (Lee & Herrmann 1993, sec. 3): `SPEC.run("lee-herrmann", width=1.6, height=1.6)` fills the box,
 removes the right wall at rest, lets the pile settle and measures its angle of repose by the three methods."""
 

@@ -37,7 +37,7 @@ How this protocol reads it:
   ~450 000 steps for 15 disks).
 
 Laws and parameters (`SETTING`): the lattice protocol's paper setting
-(`lattice.PAPER_SETTING`), disks that do not spin, on a frictional ground:
+(`paper1992.PAPER_SETTING`), disks that do not spin, on a frictional ground:
 hooke and lee-herrmann with frictionless disks (mu = 0, wall_mu = 1), the
 paper's own law (`liffman`, eq. 46's K_s; its disk friction is viscous, so it
 vanishes at rest, and the ground's static well holds the base), and baxter
@@ -74,12 +74,11 @@ from jaxpile.engine.boundaries import GROUND, make_boundaries
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.measure.dropped_pile import measure
-from jaxpile.protocols import lattice
+from jaxpile.protocols import paper1992
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.drivers import activate, next_inactive
-from jaxpile.protocols.geometry import heap_extent
-from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import COUNT, DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
@@ -96,7 +95,7 @@ SETTING = {
     "max_interval": 10.0,
     "speed_tolerance": 1.0e-5,
     "relax_steps": 1_000_000,
-    "params": {**lattice.PAPER_SETTING["params"],
+    "params": {**paper1992.PAPER_SETTING["params"],
                "baxter": {"n": 36.0, "r0": 1.2, "mu": 0.0, "wall_mu": 1.0}},
 }
 
@@ -418,17 +417,8 @@ def row(m: dict) -> dict:
 SPEC = ProtocolSpec(
     name="drop", options=DropOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(SETTING["dt"]), finished=filled_and_at_rest, budget=step_budget,
-    measure=measure_pile, row=row, row_columns=ROW_COLUMNS, execute=fill_and_relax, report=report,
-    default_law="liffman",
-    presentation=Presentation(
-        order=2, help="disks dropped one at a time (1992 Fig. 20)",
-        flags={"max_steps": "relax_steps", "speed_tol": "speed_tolerance", "hard_collisions": "hard_collisions",
-               "seed": "seed"},
-        headline=("n_particles", "all_inserted", "at_rest", "central_dip", "has_central_dip", "weight_balance")),
-    batch=Batch(angles=("central_dip",), unit="", extent=heap_extent("ground", "axis_x", "n_particles"),
-                fit_statistics={"columns": ("central_dip",), "bins": 9},
-                simulator_options=frozenset({"drop_height", "settle_speed", "quiet_time", "max_interval", "diameter",
-                                             "hard_collisions"})))
+    measure=measure_pile, execute=fill_and_relax, report=report,
+    default_law="liffman")
 """The drop (Liffman, Chan & Hughes 1992, Fig. 20): `SPEC.run("liffman", 968)` drops the disks one at a time,
 relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 

@@ -56,11 +56,9 @@ from jaxpile.engine.boundaries import RIGHT_WALL, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.measure import analysis
-from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import box as boxes
-from jaxpile.protocols import drivers, geometry, outputs, paper1993
+from jaxpile.protocols import drivers, geometry, paper1993
 from jaxpile.protocols.base import Setup
-from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -100,8 +98,8 @@ class FluxOptions(Options):
     max_time: float = option(SETTING["max_time"], range=SIZE, unit="s", help="give up after this long")
 
     def validate(self):
-        boxes.check_positive("gap", self.gap)
-        boxes.measure_flag(self.rest_measure)
+        geometry.check_positive("gap", self.gap)
+        paper1993.measure_flag(self.rest_measure)
 
 
 class FluxState(NamedTuple):
@@ -222,11 +220,11 @@ def pool_size(width: float, *, slope_degrees: float = SETTING["steepest_slope_de
     """Disks enough for a pile of slope `slope_degrees` on a floor of width W
     leaning on the left wall (triangle W^2 tan / 2 at `packing_fraction`), plus half
     again for disks rolling down and out (the paper's units)."""
-    width = boxes.check_positive("width", width)
+    width = geometry.check_positive("width", width)
     if not 0 < slope_degrees < 90:
         raise InputError(f"slope_degrees must be in (0, 90); got {slope_degrees!r}.")
     area = 0.5 * width**2 * math.tan(math.radians(slope_degrees))
-    disk = math.pi * paper1993.mean_square_radius(*boxes.radius_law(radius))
+    disk = math.pi * paper1993.mean_square_radius(*paper1993.radius_law(radius))
     return math.ceil(1.5 * packing_fraction * area / disk) + 10
 
 
@@ -264,7 +262,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     insertions, width, v_cut, gap, hold_time = o.insertions, o.width, o.v_cut, o.gap, o.hold_time
     fixed_base, radius, rest_measure = o.fixed_base, o.radius, o.rest_measure
     u = paper1993.units(law)
-    mean, spread, low, high = boxes.radius_law(radius)
+    mean, spread, low, high = paper1993.radius_law(radius)
     if 2 * high > width:
         raise InputError(f"the floor (W = {width:g}) is narrower than the largest disk ({2 * high:g}).")
     base_count = int(width / (2 * low)) + 2  # the fixed floor's disks, drawn before the row is laid
@@ -287,7 +285,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     s = u.scale
     radius_all = np.concatenate([base_radius[:m], pool_radius, np.full(spare, base_radius[0])]) * s
     base = np.stack([base_x, base_radius[:m]], axis=1) * s
-    spacing = boxes.PARK_SPACING * 2.0 * high * s
+    spacing = geometry.PARK_SPACING * 2.0 * high * s
     park = np.concatenate([base, geometry.parking_grid(pool + spare, spacing, (2.0 * width + 4.0 * high) * s,
                                                            spacing)])
     index = np.arange(base_count + pool)
@@ -307,7 +305,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
         edge=jnp.asarray(width * s, dtype),
         park=jnp.asarray(park, dtype),
         v_cut=jnp.asarray(v_cut * u.speed, dtype),
-        use_max=jnp.asarray(boxes.measure_flag(rest_measure)),
+        use_max=jnp.asarray(paper1993.measure_flag(rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
         # saturates at the step counter's limit: no run is longer, so "never" is the same there
         fallback=jnp.asarray(min(max(4 * hold, 10 * fall_steps), ranges.MAX_STEPS), jnp.int32),
@@ -330,7 +328,7 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     )
     info = {
         "protocol": "flux",
-        "law": boxes.law_name(law),
+        "law": paper1993.law_name(law),
         "insertions": insertions,
         "n": int(base_count + pool),
         "n_base": int(m),
@@ -359,11 +357,11 @@ def setup(o: FluxOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 angles = analysis.recorded_repose_angles  # the angles of each recorded surface (sec. 3's three methods)
 
 
-simulator = boxes.simulator_running(driver)
+simulator = paper1993.simulator_running(driver)
 """The spec's simulator: the flux `driver` with a law by name (`box.make_simulator`)."""
 
 
-law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+law_and_params = paper1993.law_and_params  # the 1993 setting, shared with `box`
 
 
 def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
@@ -392,31 +390,19 @@ def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
         "steady_std": float(np.std(late)) if late.size else nan,
         "steady_max": float(np.max(late)) if late.size else nan,
         "theta_ms_theory": nan if mu is None else math.degrees(float(theory.marginal_stability_angle(mu))),
-        **boxes.repose(state, p.info["width"]),
+        **paper1993.repose(state, p.info["width"]),
         "settled_step": int(ps.settled_at),
         "at_rest": int(ps.settled_at) >= 0,
         "n_left": int(ps.left),
         "starved_steps": int(ps.starved),
-        **boxes.count_check(state),
+        **paper1993.count_check(state),
     }
 
 
 SPEC = ProtocolSpec(
     name="flux", options=FluxOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=boxes.SPEC.default_dt, finished=boxes.settled, budget=boxes.max_time_budget, measure=measure,
-    row=("inserted", "steady_mean", "steady_std", "steady_max", "repose_cumulative_parabola", "at_rest", "settled_step",
-         "n_left"),
-    default_law="lee-herrmann", size="insertions",
-    presentation=Presentation(
-        order=5, help="disks fed at the upper left whenever the pile rests (1993 Fig. 5)", flags={"seed": "seed"},
-        headline=("inserted", "at_rest", "steady_mean", "steady_std", "steady_max", "theta_ms_theory"),
-        base_forces=outputs.substrate_base, length_unit=outputs.cm_for_lee_herrmann,
-        figures=(outputs.angles_figure,)),
-    batch=Batch(angles=("steady_mean", "repose_cumulative_parabola"), theory=marginal_stability_overlay,
-                fit_statistics={"columns": ("steady_mean",)},
-                readings={"angle_of_repose": "steady_mean"},
-                # the simulator reads no option: set-ups share a compile; piles fed out of phase
-                simulator_options=frozenset(), sequential=True))
+    default_dt=paper1993.default_dt, finished=paper1993.settled, budget=paper1993.max_time_budget, measure=measure,
+    default_law="lee-herrmann", size="insertions")
 """The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the
 paper's rule, until it is at rest after the last, and measures the angle before each insertion (Fig. 5)."""
 

@@ -47,7 +47,6 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
-from jaxpile.protocols import outputs
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.drivers import rest_detector, rms_speed
@@ -58,7 +57,7 @@ from jaxpile.protocols.geometry import (
     parking_grid,
     random_positions,
 )
-from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -308,24 +307,6 @@ def measure(sim, params, state: SimState, p: Setup, o: HopperOptions) -> dict:
     }
 
 
-def discharge_figure(measured: dict, title: str, out: str) -> list[str]:
-    """discharge.png: disks out against time since the gate opened, with the flow rate."""
-    from jaxpile import plot
-
-    d = measured.get("discharge") or {}
-    if not d.get("time"):
-        return []
-    t = np.asarray(d["time"])
-    rate = measured.get("flow_rate", float("nan"))
-    series = {"disks out": np.asarray(d["count"], float)}
-    if math.isfinite(rate):
-        middle = t.size // 3
-        series[f"Q = {rate:.3g} disks / time"] = d["count"][middle] + rate * (t - t[middle])
-    plot.series_figure(t, series, xlabel="time since the gate opened (sqrt(d / g))", ylabel="disks out",
-                       title=title + " (Beverloo's law)", path=f"{out}/discharge.png")
-    return ["discharge.png"]
-
-
 # ---------------------------------------------------------------- running it
 def simulator(o: HopperOptions, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
     """A `Simulator` running the hopper's `driver`. It reads no option: one
@@ -350,21 +331,11 @@ def max_time_budget(p: Setup, o: HopperOptions) -> int:
 SPEC = ProtocolSpec(
     name="hopper", options=HopperOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(SETTING["dt"]), finished=stopped, budget=max_time_budget, measure=measure,
-    row=("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density",
-         "dead_zone_angle", "dead_zone_left", "dead_zone_right"),
-    default_law="hooke",
-    presentation=Presentation(
-        order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", flags={"seed": "seed"},
-        headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),
-        base_forces=outputs.substrate_base, figures=(discharge_figure,)),
-    batch=Batch(angles=("flow_rate", "beverloo_c"), unit="disks / time", fit_statistics={"columns": ("flow_rate",)},
-                readings={"flow_rate": "flow_rate"},
-                # one simulator for every set-up: orifices share a compile; silos discharge out of phase
-                simulator_options=frozenset(), sequential=True))
+    default_law="hooke")
 """The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,
 lets it run out, and measures the flow rate against Beverloo's law."""
 
 
 __all__ = ["EXIT_DROP", "FLOOR_Y", "SETTING", "SPEC", "HopperOptions", "HopperState", "beverloo_fit", "budget_steps",
-           "dead_zone_angles", "discharge_figure", "driver", "floor", "flow_rate", "law_and_params",
+           "dead_zone_angles", "driver", "floor", "flow_rate", "law_and_params",
            "max_time_budget", "measure", "setup", "simulator", "stopped"]

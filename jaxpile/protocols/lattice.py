@@ -18,36 +18,11 @@ from jaxpile import budget
 from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.errors import InputError
-from jaxpile.measure.heap import ProfileSetting
 from jaxpile.protocols import loaded_pile
 from jaxpile.protocols.base import Setup
-from jaxpile.protocols.spec import Options, Pathwise, Presentation, option
+from jaxpile.protocols.paper1992 import PAPER_SETTING
+from jaxpile.protocols.spec import Options, option
 from jaxpile.ranges import SIZE, SPEED, STEPS, Range
-
-# The paper's setting (Liffman, Chan & Hughes 1992, eq. 46 and the analytic model's
-# assumptions) expressed for the hooke law: mg / (k_n sigma) = 1e-4, only normal
-# forces between disks (mu = 0, no rotation), and ground friction above
-# (k - 1) / (sqrt(3) (k + 1)) = 0.55 for k = 45.
-PAPER_SETTING = {
-    "layers": 45,
-    "rotation": False,
-    "dt": 1.0e-3,
-    "ramp_steps": 20_000,
-    "speed_tolerance": 1.0e-5,
-    "max_steps": 400_000,
-    "params": {
-        "hooke": {"kn": 1.0e4, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
-        # the same static set-up in reduced units: Hertz with a 4e-3 sigma base
-        # overlap; Baxter's n = 36 law, whose long tail makes same-level
-        # neighbours push apart with ~mg, needs disk friction for the lattice to
-        # stand (so it is not the 1992 frictionless analytic pile)
-        # the paper's own law: K_s from eq. 46; disk friction is viscous, so it
-        # vanishes at rest and the ground's static well holds the base
-        "liffman": {"ks": 1.0e4, "mu_static": 1.0},
-        "lee-herrmann": {"kn": 1.0e5, "gamma_n": 100.0, "mu": 0.0, "wall_mu": 1.0},
-        "baxter": {"n": 36.0, "r0": 1.2, "mu": 1.0, "wall_mu": 1.0},
-    },
-}
 
 
 @dataclass(frozen=True)
@@ -66,17 +41,6 @@ class LatticeOptions(Options):
                                     help="at rest when the fastest disk is below this speed")
     max_steps: int = option(PAPER_SETTING["max_steps"], range=STEPS, help="give up after this many steps, ramp included")
     hard_collisions: object = option(None, help="the Simulator's hard collisions (a HardCollisions), or None")
-
-
-def _theory_lines(measured: dict, base):
-    """N = (k + 1)/2 and H of eq. 44 on profile.png, when every bottom disk is on the ground."""
-    from jaxpile.measure import theory
-
-    layers = measured.get("layers")
-    if not (measured.get("pile_intact") and layers == len(base.x)):
-        return None
-    return (np.full(len(base.x), theory.lattice_ground_normal_force(layers)),
-            theory.lattice_ground_horizontal_force(layers), "Liffman et al. 1992 eqs. 42, 44")
 
 
 def equilateral_positions(layers: int, diameter: float = 1.0, x0: float | None = None, gap: float = 0.0) -> np.ndarray:
@@ -203,68 +167,17 @@ def compare_with_theory(base, layers: int) -> dict:
     }
 
 
-# ------------------------------------------------------------- pathwise fits
-def fit_ramp(layers: int) -> int:
-    """The gravity-ramp steps of the pile a pathwise fit differentiates (it
-    settles for as many again); refuses a pile too small for a profile."""
-    if layers < 2:
-        raise InputError(f"--layers must be >= 2 for a profile; got {layers}.")
-    return max(600, 100 * layers)
-
-
-def pathwise_problem(law, start: dict, *, size: int = 6, seed: int = 0, options: dict | None = None,
-                     bins: int | None = None, window: int | None = None, progress=None):
-    """What `jaxpile fit --estimator pathwise` differentiates: the `size`-layer
-    pile loaded by a gravity ramp and settled, the whole quasi-static loading
-    (2 x ramp steps), its base profile read in `bins` columns (default: one per
-    bottom disk). The pile is the paper's, deterministic, and differentiated
-    whole: `seed`, `options`, `window` and `progress` are not used.
-    Returns `(sim, params, state, steps, setting, window, description)`."""
-    from jaxpile.engine.simulate import Simulator, gravity_ramp
-
-    _, contact_law, params = law_and_params(law, start)
-    ramp = fit_ramp(size)
-    particles, boundaries = equilateral_pile(size)
-    sim = Simulator(contact_law, PAPER_SETTING["dt"], schedule=gravity_ramp(ramp))
-    state = sim.init(params, particles, boundaries)
-    setting = ProfileSetting("ground", 0.5, size + 0.5, bins or size, 0.3)
-    return sim, params, state, 2 * ramp, setting, None, (
-        f"{size}-layer lattice pile, gravity ramped over {ramp} steps and settled for {ramp}: "
-        "the whole loading differentiated")
-
-
-def pathwise_dry_run(law, start: dict, *, size: int = 6, seed: int = 0, options: dict | None = None,
-                     window: int | None = None):
-    """`(what, particles, params, steps of the build, steps differentiated)` of
-    `pathwise_problem`, set up and checked, not run (`seed`, `options` and
-    `window` are not used, as there)."""
-    from jaxpile.engine.simulate import Simulator
-
-    per_step = 2 * fit_ramp(size)
-    _, contact_law, params = law_and_params(law, start)
-    particles, _ = equilateral_pile(size)
-    Simulator(contact_law, PAPER_SETTING["dt"]).check_params(params, particles)
-    return f"a {size}-layer lattice pile", particles, params, {}, per_step
+COMPARED = ("base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal", "max_rel_dev_horizontal",
+            "steps")
+"""The plain numbers of `_compare` a sweep row carries (`jaxpile.batches`)."""
 
 
 SPEC = loaded_pile.spec_of(
     "lattice", options=LatticeOptions, setup=setup, law_and_params=law_and_params, setting=PAPER_SETTING,
-    compare=_compare, compared=("base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal",
-                                "max_rel_dev_horizontal", "steps"),
-    report=_report, angles=("max_rel_dev_normal", "max_rel_dev_horizontal"), size="layers",
-    presentation=Presentation(
-        order=0, help="the 1992 equilateral pile (--layers)",
-        flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
-               "hard_collisions": "hard_collisions"},
-        headline=("layers", "n_particles", "at_rest", "final_max_speed", "max_rel_dev_normal",
-                  "max_rel_dev_horizontal"),
-        profile_theory=_theory_lines,
-        compare=lambda s: f"dev N {s['max_rel_dev_normal']:.2%}, dev H {s['max_rel_dev_horizontal']:.2%}"),
-    pathwise=Pathwise(pathwise_problem, pathwise_dry_run, default_size=6))
+    compare=_compare, report=_report, size="layers")
 """The lattice pile (Liffman et al. 1992, Figs. 7-9): `SPEC.run("hooke", 12)` builds the 12-layer pile, loads
 it by a gravity ramp, runs it to rest and compares its ground forces with eqs. 42 and 44."""
 
 
-__all__ = ["PAPER_SETTING", "SPEC", "LatticeOptions", "compare_with_theory", "equilateral_pile",
-           "equilateral_positions", "fit_ramp", "lattice_angle", "law_and_params", "pathwise_dry_run",
-           "pathwise_problem", "pile_count", "relax", "setup"]
+__all__ = ["COMPARED", "PAPER_SETTING", "SPEC", "LatticeOptions", "compare_with_theory", "equilateral_pile",
+           "equilateral_positions", "lattice_angle", "law_and_params", "pile_count", "relax", "setup"]

@@ -1,8 +1,7 @@
 """The run the 1992 static piles share (the lattice, Figs. 7-9, and the sloped
 pile, Figs. 12-16): gravity ramped in over `ramp_steps`, then a run until the
 fastest disk is below `speed_tolerance`, within `max_steps` in all (`relax`).
-`spec_of` declares such a protocol once (`spec.ProtocolSpec`): its single run,
-its batch and its ensemble fit.
+`spec_of` declares such a protocol once (`spec.ProtocolSpec`).
 
 The piles are deterministic, so a sweep's seeds repeat the same pile and a
 sweep varies the law (K_s, mu_roll, ...). Not a protocol itself (no `SPEC`).
@@ -16,8 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from jaxpile.protocols.geometry import bottom_row_extent
-from jaxpile.protocols.spec import Batch, Pathwise, Presentation, ProtocolSpec
+from jaxpile.protocols.spec import ProtocolSpec
 
 
 def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
@@ -62,13 +60,12 @@ def budget(p, o) -> int:
     return int(o.max_steps)
 
 
-# what `spec_of`'s measurement adds to the comparison with theory, last in a sweep row
+# what `spec_of`'s measurement adds to the comparison with theory, last in a sweep row (`jaxpile.batches`)
 OWN_COLUMNS = ("height", "at_rest", "max_speed")
 
 
 def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callable, setting: dict,
-            compare: Callable, compared: tuple, report: Callable, angles: tuple, presentation: Presentation,
-            size: str = "n", pathwise: Pathwise | None = None) -> ProtocolSpec:
+            compare: Callable, report: Callable, size: str = "n") -> ProtocolSpec:
     """A 1992 static pile declared once.
 
     Args:
@@ -80,14 +77,8 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
       law_and_params: its law lookup (the 1992 setting).
       setting: its defaults (`dt`).
       compare: `(sim, params, state, setup) -> dict` against the paper's theory.
-      compared: the plain numbers of `compare`'s dict a sweep row carries (a
-        sweep row is these, then `OWN_COLUMNS`; declared, so an ensemble fit
-        refuses an unknown statistic before a pile runs).
       report: `(measured, setup, options, RunInfo, samples, seconds) -> dict`, one pile's output.
-      angles: the sweep's summary columns.
-      presentation: how the commands show it.
       size: its size option (`layers` for the lattice).
-      pathwise: its pathwise fit, where it offers one.
     """
 
     def simulator(o, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
@@ -112,10 +103,7 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
     return ProtocolSpec(
         name=name, options=options, setup=setup, simulator=simulator, law_and_params=law_and_params,
         default_dt=lambda law: float(setting["dt"]), finished=finished, budget=budget, measure=measure,
-        row=(*compared, *OWN_COLUMNS),
-        default_law="hooke", presentation=presentation, size=size, execute=execute, report=report,
-        batch=Batch(angles=angles, unit="", extent=bottom_row_extent, fit_statistics={"bins": 9}, deterministic=True),
-        pathwise=pathwise)
+        default_law="hooke", size=size, execute=execute, report=report)
 
 
 __all__ = ["OWN_COLUMNS", "budget", "execute", "finished", "relax", "spec_of"]

@@ -1,5 +1,7 @@
 """Lee & Herrmann 1993's setting, shared by its three protocols (box, tilt,
-flux): the paper's units and how each law runs in them, and its radius law.
+flux): the paper's units and how each law runs in them, its radius law, and
+the pieces the three share: the simulator running a driver, the rest test and
+the step budget, and the angle of repose by the paper's three methods.
 
 The paper's values are in its own units (energies "in erg": cgs). For the
 lee-herrmann law a run is in those units; the other laws run in reduced units
@@ -14,7 +16,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxpile import ranges
+from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
+from jaxpile.measure import analysis
+from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
 from jaxpile.protocols.geometry import check_positive
 
@@ -191,3 +197,80 @@ def measure_flag(rest_measure: str) -> bool:
         raise InputError(f"rest_measure must be 'rms' (mass-weighted rms speed) or 'max' (largest speed); "
                          f"got {rest_measure!r}.")
     return rest_measure == "max"
+
+# ------------------------------------------------- what the three protocols share
+def default_dt(law) -> float:
+    """The time step a law runs the 1993 setting with."""
+    return float(law_setting(law)["dt"])
+
+
+def repose(state: SimState, width: float, *, x_min: float = 0.0) -> dict:
+    """The angle of repose (degrees) of the active disks over [x_min, x_min + W]
+    by the three methods of Lee & Herrmann 1993, sec. 3 (columns one mean
+    diameter wide; h(x) the highest disk centre in a column, an empty column
+    between filled ones the line between its neighbours, as the flux's recorded
+    surfaces, and counted in `surface_gaps`); NaN with the reason under
+    `repose_error` when the surface cannot be measured (fewer than 3 columns)."""
+    try:
+        profile = analysis.surface_profile_of(state, x_min=x_min, width=width)
+        angles = analysis.repose_angles(profile, fill_gaps=True)
+    except InputError as error:
+        nan = float("nan")
+        return {"repose_endpoints": nan, "repose_least_squares": nan, "repose_cumulative_parabola": nan,
+                "repose_error": str(error)}
+    return {"repose_endpoints": angles.endpoints, "repose_least_squares": angles.least_squares,
+            "repose_cumulative_parabola": angles.cumulative_parabola,
+            "surface_gaps": int(np.isnan(profile.height[(angles.x[0] <= profile.x) & (profile.x <= angles.x[-1])]).sum()),
+            "surface_x": profile.x.tolist(), "surface_height": profile.height.tolist()}
+
+
+def make_simulator(law="lee-herrmann", *, driver, dt: float | None = None, rotation: bool | None = None,
+                   integrator: str = "velocity_verlet", chunk_steps: int | None = None,
+                   law_options: dict | None = None, **kwargs):
+    """A `Simulator` running a 1993 protocol's `driver` with a law by name (no
+    rotation unless asked). One simulator serves every set-up of that protocol
+    with this dt."""
+    from jaxpile.engine.simulate import Simulator
+
+    _, contact_law, _ = law_and_params(law, {}, rotation, law_options=law_options)
+    dt = float(law_setting(law)["dt"]) if dt is None else dt
+    if chunk_steps is None:
+        chunk_steps = max(1, int(round(PAPER_SETTING["chunk_time"] * units(law).time / dt)))
+    return Simulator(contact_law, dt, integrator=integrator, driver=driver,
+                     chunk_steps=chunk_steps, **kwargs)
+
+
+def max_steps_for(law, dt: float, max_time: float = PAPER_SETTING["max_time"]) -> int:
+    """`max_time` (paper seconds) in steps of dt."""
+    return ranges.steps_of("max_time", check_positive("max_time", max_time) * units(law).time, dt)
+
+
+def count_check(state: SimState) -> dict:
+    """Where every disk is: in play (active, movable), fixed in play (a
+    floor), out of play (waiting, or gone), or never used (fixed and out of
+    play: a flux floor's spare draws)."""
+    p = state.particles
+    active, fixed = np.asarray(p.active), np.asarray(p.fixed)
+    return {"n_total": int(active.size), "n_in_play": int(np.sum(active & ~fixed)),
+            "n_fixed": int(np.sum(active & fixed)), "n_out_of_play": int(np.sum(~active & ~fixed)),
+            "n_unused": int(np.sum(~active & fixed))}
+
+
+def simulator_running(driver_function):
+    """The spec's simulator of a 1993 protocol running `driver_function` (`make_simulator`)."""
+
+    def simulator(options, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
+        return make_simulator(law, dt=dt, rotation=rotation, integrator=integrator or "velocity_verlet",
+                              chunk_steps=chunk_steps, driver=driver_function, law_options=law_options)
+
+    return simulator
+
+
+def settled(p: Setup, options):
+    """The 1993 family's end (box, flux): the driver's rest detector has fired."""
+    return lambda s: s.protocol_state.settled_at >= 0
+
+
+def max_time_budget(p: Setup, options) -> int:
+    """The 1993 family's budget (box, flux): `max_time` (paper seconds) in steps of the set-up's dt."""
+    return max_steps_for(p.info["law"], p.info["dt"], options.max_time)

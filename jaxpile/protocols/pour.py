@@ -70,19 +70,11 @@ from jaxpile.errors import InputError
 from jaxpile.measure.heap import steepest_heap_height, substrate_size
 
 # the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
-from jaxpile.measure.poured_heap import ROW_COLUMNS, check_options, measure, report, sweep_row
-from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import drivers, geometry, outputs
+from jaxpile.measure.poured_heap import check_options, measure, report
+from jaxpile.protocols import drivers, geometry
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
-from jaxpile.protocols.geometry import heap_extent
-from jaxpile.protocols.spec import (
-    Batch,
-    Options,
-    Presentation,
-    ProtocolSpec,
-    option,
-)
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
@@ -451,23 +443,9 @@ def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict
 SPEC = ProtocolSpec(
     name="pour", options=PourOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
     default_dt=lambda law: float(PAPER_SETTING["dt"]), finished=poured_and_at_rest, budget=step_budget,
-    measure=measure_heap, row=sweep_row, row_columns=ROW_COLUMNS, execute=pour_and_settle, report=report,
+    measure=measure_heap, execute=pour_and_settle, report=report,
     check=check_options,
-    default_law="baxter",
-    presentation=Presentation(
-        order=6, help="a heap poured onto a row of fixed disks (1997)",
-        flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
-        headline=("counts.in_play", "run.at_rest", "height", "base_width", "angle_height_base",
-                  "angle_mid_flank.left", "angle_mid_flank.right",
-                  "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
-                  "m_shape.ratio", "m_shape.m_shaped", "dip_below_flanks"),
-        base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
-        summary=lambda measured: measured["summary"], figures=(outputs.heap_profile_figure,)),
-    batch=Batch(angles=("repose_mean", "angle_height_base"), theory=marginal_stability_overlay,
-                extent=heap_extent("substrate", "centre_x", "n_poured"),
-                fit_statistics={"columns": ("repose_mean",), "bins": 9},
-                readings={"angle_of_repose": "repose_mean", "packing_fraction": "core_packing_fraction"},
-                simulator_options=frozenset(), sequential=True))
+    default_law="baxter")
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
 

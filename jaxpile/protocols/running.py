@@ -8,7 +8,7 @@ checkpoints, bit-identical resume; or the spec's own `execute`), and measures
 it. A spec that `starts_from` another (the tilt from a box) first builds that
 pile, unless it is given one, and continues it with its contact history; each
 stage is checkpointed and resumable. A sweep and an ensemble fit run the same
-functions per member: `member_setup`, `stage_start`, `member_row`.
+functions per member: `member_setup`, `stage_start`.
 """
 
 from __future__ import annotations
@@ -297,19 +297,5 @@ def stage_facts(spec, pile, p: Setup) -> dict:
     return {} if spec.pile_facts is None else spec.pile_facts(pile, p)
 
 
-def member_row(spec, sim, params, state, p: Setup, options) -> dict:
-    """One member's sweep row: `spec.row`'s keys of its measurement, or `spec.row(measured)`."""
-    m = spec.measure(sim, params, state, p, options)
-    return spec.row(m) if callable(spec.row) else {k: m[k] for k in spec.row}
-
-
-def row_columns(spec) -> frozenset | None:
-    """A row's columns where the spec names them (None: its row is computed
-    and the spec does not declare its `row_columns`)."""
-    if not callable(spec.row):
-        return frozenset(spec.row)
-    return None if spec.row_columns is None else frozenset(spec.row_columns)
-
-
-__all__ = ["RUN_RANGES", "continue_pile", "continued_stages", "execute", "member_row", "member_setup", "on_pile", "row_columns",
-           "run", "stage_facts", "stage_options", "stage_start"]
+__all__ = ["RUN_RANGES", "continue_pile", "continued_stages", "execute", "member_setup", "on_pile", "run",
+           "stage_facts", "stage_options", "stage_start"]

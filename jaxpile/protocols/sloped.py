@@ -15,7 +15,7 @@ theory (eqs. 49-59) describes: the left foot is at x = 0, the right at x = B.
 With alpha = 60 deg and B = k + 1 the rows are k, k - 1, ..., 1: the lattice pile.
 
 The pile is loaded by a gravity ramp and relaxed to rest as the lattice protocol
-does (`lattice.relax`), with the same per-law setting (`lattice.PAPER_SETTING`:
+does (`loaded_pile.relax`), with the same per-law setting (`paper1992.PAPER_SETTING`:
 hooke with frictionless disks, mu = 0, on a frictional ground, wall_mu = 1, is
 the paper's analytic assumption). Its base forces are compared with eqs. 54-59,
 in particular the slope dH/dx of eq. 57 between x_c and B - x_c.
@@ -37,11 +37,11 @@ from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.errors import InputError
 
 # the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its name here (`sloped.compare_with_theory`)
-from jaxpile.measure.sloped_pile import COMPARED, check_alpha, check_base, compare_with_theory
-from jaxpile.protocols import lattice, loaded_pile, outputs
+from jaxpile.measure.sloped_pile import check_alpha, check_base, compare_with_theory
+from jaxpile.protocols import loaded_pile, paper1992
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.base import law_and_params as base_law_and_params
-from jaxpile.protocols.spec import Options, Presentation, option
+from jaxpile.protocols.spec import Options, option
 from jaxpile.ranges import DISKS, SIZE, SPEED, STEPS, Range
 
 SQRT3 = math.sqrt(3.0)
@@ -54,7 +54,7 @@ PAPER_PILES = ((30.0, 360), (45.0, 360), (50.0, 360), (55.0, 360), (30.0, 5490))
 # hooke and lee-herrmann, the analytic model's assumptions); the pile is given by
 # its slope and size instead of a number of layers.
 SETTING = {
-    **{k: v for k, v in lattice.PAPER_SETTING.items() if k != "layers"},
+    **{k: v for k, v in paper1992.PAPER_SETTING.items() if k != "layers"},
     "alpha_degrees": 30.0,
     "n": 360,
 }
@@ -221,15 +221,7 @@ def _report(measured: dict, p: Setup, o: SlopedOptions, info, samples, seconds: 
 
 SPEC = loaded_pile.spec_of(
     "sloped", options=SlopedOptions, setup=setup, law_and_params=law_and_params, setting=SETTING,
-    compare=_compare, compared=COMPARED, report=_report, angles=("central_normal_rel_dev", "central_slope_horizontal"),
-    presentation=Presentation(
-        order=1, help="the 1992 close-packed pile with sides at --slope degrees (Figs. 12-16)",
-        # --seed is taken and changes nothing: the pile is deterministic
-        flags={"ramp_steps": "ramp_steps", "max_steps": "max_steps", "speed_tol": "speed_tolerance",
-               "hard_collisions": "hard_collisions", "seed": "seed"},
-        headline=("alpha_degrees", "n_particles", "at_rest", "central_normal_mean", "theory_central_normal",
-                  "central_slope_horizontal", "theory_central_slope_horizontal", "central_slope_rel_dev"),
-        profile_theory=outputs.sloped_theory))
+    compare=_compare, report=_report)
 """The sloped pile (Liffman et al. 1992, Figs. 12-16): `SPEC.run("hooke", 40, alpha_degrees=30.0,
 ramp_steps=2000)` builds the pile of about 40 disks, loads and relaxes it, and compares its base forces with
 eqs. 54-59 (`m["central_slope_horizontal"]` against `m["theory_central_slope_horizontal"]`)."""

@@ -7,7 +7,9 @@ field states its default, valid range, unit and help, and the options are
 checked when they are made. From that one declaration come the protocol's run
 (`jaxpile.protocols.running.run`), its batch in a sweep and an ensemble fit,
 its command-line flags and `--help`, and the inputs table of the docs: nothing
-reads a signature or a docstring.
+reads a signature or a docstring. How the commands show it and what a batch
+reads of it are declared above this layer, by the protocol's name
+(`jaxpile.cli.presentation`, `jaxpile.batches`).
 
 Every function in a spec has one fixed signature, listed on `ProtocolSpec`.
 """
@@ -117,93 +119,9 @@ def ranges_of(options: type) -> dict[str, Range]:
     return {name: o.range for name, o in declared(options).items() if o.range is not None}
 
 
-@dataclass(frozen=True)
-class Presentation:
-    """How the commands show a protocol (`jaxpile pile|sweep|fit|show|compare`).
-
-    Attributes:
-      order: its place in listings (the papers' order).
-      help: one line for `--protocol`'s help.
-      headline: summary keys `jaxpile pile` prints at its end (dotted keys
-        reach into nested dicts).
-      flags: generic flag (`max_steps`, `speed_tol`, `ramp_steps`,
-        `hard_collisions`) -> the option it sets; `seed` -> `seed` where the
-        protocol takes a seed. Absent: the flag is refused.
-      base_forces: `(sim, params, state, measured) -> BaseForces` written to
-        base_forces.csv; None: the ground's (`analysis.base_forces`).
-      summary: `measured -> dict` of plain numbers for summary.json; None:
-        the measurements as they are, arrays as lists.
-      length_unit: `law name -> unit` of pile.png's axes; None: diameters.
-      profile_theory: `(measured, base) -> (N, H, label) | None`, drawn on profile.png.
-      figures: `(measured, title, out) -> [files]`, the protocol's own figures.
-      compare: `summary -> str`, the result column of `jaxpile compare`;
-        None: the headline's first line.
-    """
-
-    order: int
-    help: str
-    headline: tuple = ()
-    flags: dict = field(default_factory=dict)
-    base_forces: Callable | None = None
-    summary: Callable | None = None
-    length_unit: Callable | None = None
-    profile_theory: Callable | None = None
-    figures: tuple = ()
-    compare: Callable | None = None
-
-
-@dataclass(frozen=True)
-class Batch:
-    """What a sweep and an ensemble fit read besides the run itself.
-
-    Attributes:
-      angles: the columns to summarise and plot (the first is the headline).
-      unit: of those columns ("deg", "" for plain numbers).
-      theory: optional `(name, values) -> (label, values)` overlaid on the sweep's figure.
-      extent: optional `setup -> (base, x_left, x_right)`: where a member's
-        base profile is read for fitting; the same for every member of one set-up.
-      fit_statistics: what an ensemble fit compares by default:
-        `{"columns": (...), "bins": b}`.
-      readings: the column a measured quantity is compared with, by the name
-        a measurement file gives it (`fit.measured.READINGS`): e.g.
-        `{"angle_of_repose": "repose_mean"}`.
-      deterministic: every seed builds the same pile: one seed is an ensemble.
-      simulator_options: the options the simulator depends on (None: all);
-        members whose options differ only in others share one compiled batch.
-      sequential: a batch's members advance one after another on one CPU
-        device (`engine.ensemble.Ensemble`): where they act out of phase
-        (heaps poured or fed a disk at a time, silos discharging), so that
-        side by side every member would rebuild its list, or run a driver's
-        branch, whenever any member needs to (docs/performance.md).
-    """
-
-    angles: tuple
-    unit: str = "deg"
-    theory: Callable | None = None
-    extent: Callable | None = None
-    fit_statistics: dict = field(default_factory=dict)
-    readings: dict = field(default_factory=dict)
-    deterministic: bool = False
-    simulator_options: frozenset | None = None
-    sequential: bool = False
-
-
-class Pathwise(NamedTuple):
-    """A protocol's pathwise fit (`jaxpile fit --estimator pathwise`).
-
-    Attributes:
-      problem: `(law, start, *, size, seed, options, bins, window, progress)
-        -> FitProblem`: the pile built with the starting parameters, and the
-        steps differentiated from it.
-      dry_run: `(law, start, *, size, seed, options, window) -> (what,
-        particles, params, build steps, steps differentiated)`, set up and
-        checked, not run.
-      default_size: the pile's size when none is given.
-    """
-
-    problem: Callable
-    dry_run: Callable
-    default_size: int
+REGISTERED: dict = {}
+"""Every registered spec by name: `jaxpile.protocols.PROTOCOLS`, filled when that
+package imports the protocol modules; a spec finds the one it `continues` here."""
 
 
 @dataclass(frozen=True)
@@ -227,9 +145,6 @@ class ProtocolSpec:
     - `budget(setup, options) -> steps`, the run's step budget (counted from
       the set-up's `info["start_step"]` for a continued protocol).
     - `measure(sim, params, state, setup, options) -> dict`: what a run reports.
-    - `row`: the keys of `measure` a sweep row carries, or `measured -> row`;
-      `row_columns`, optional with the latter: the keys that row always holds,
-      so an ensemble fit refuses an unknown statistic before a pile runs.
     - `execute(sim, params, setup, options, *, progress, checkpoint, resume)
       -> (state, RunInfo, samples or None)`, optional: how one pile runs when
       it is not `finished` checked at each chunk's end (the pour: a loading
@@ -247,11 +162,14 @@ class ProtocolSpec:
       options: its options dataclass (an `Options`).
       default_law: the law of its paper.
       size: the option a sweep's and the command line's `--n` (or `--layers`) sets.
-      presentation: how the commands show it.
-      batch: what a sweep and an ensemble fit read.
-      starts_from: the spec whose end state this one continues, contact history
-        kept (the tilt continues a box pile); a batch runs the two as stages.
-      pathwise: its pathwise fit, where it offers one.
+      continues: the name of the protocol whose end state this one continues,
+        contact history kept (the tilt continues a box pile); a batch runs the
+        two as stages. By name, so that no protocol module imports another;
+        `starts_from` is that protocol's spec.
+
+    What the commands show of a protocol is `jaxpile.cli.presentation`'s, what
+    a batch reads `jaxpile.batches`', its pathwise fit `jaxpile.fit.problem`'s,
+    each keyed by the protocol's name.
     """
 
     name: str
@@ -263,24 +181,28 @@ class ProtocolSpec:
     finished: Callable
     budget: Callable
     measure: Callable
-    row: tuple | Callable
     default_law: str
-    presentation: Presentation
-    batch: Batch
     size: str = "n"
     execute: Callable | None = None
     report: Callable | None = None
     check: Callable | None = None
-    starts_from: ProtocolSpec | None = None
+    continues: str | None = None
     pile_facts: Callable | None = None
-    pathwise: Pathwise | None = None
-    row_columns: tuple | None = None
 
     def __post_init__(self):
         if not (isinstance(self.options, type) and issubclass(self.options, Options)):
             raise TypeError(f"{self.name}: options must be an Options dataclass; got {self.options!r}.")
-        if self.starts_from is not None and (self.execute is not None or self.report is not None):
+        if self.continues is not None and (self.execute is not None or self.report is not None):
             raise TypeError(f"{self.name}: a protocol that continues another's pile takes no execute or report.")
+
+    @property
+    def starts_from(self) -> ProtocolSpec | None:
+        """The registered spec whose end state this one continues (`continues`), or None."""
+        if self.continues is None:
+            return None
+        if self.continues not in REGISTERED:
+            raise InputError(f"the {self.name} protocol continues {self.continues!r}, which is not registered.")
+        return REGISTERED[self.continues]
 
     def make_options(self, values: dict | None = None, **more):
         """This protocol's options from a dict and keywords (a sweep's `n` names
@@ -336,5 +258,4 @@ class ProtocolSpec:
         return [self.measure(sim, per_member[k], member(state, k), setups[k], o) for k in range(len(setups))]
 
 
-__all__ = ["Batch", "Option", "Options", "Pathwise", "Presentation", "ProtocolSpec", "declared", "option",
-           "ranges_of"]
+__all__ = ["Option", "Options", "ProtocolSpec", "declared", "option", "ranges_of"]

@@ -44,11 +44,9 @@ from jaxpile import ranges
 from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
 from jaxpile.measure import theory
-from jaxpile.measure.theory import marginal_stability_overlay
-from jaxpile.protocols import box as boxes
-from jaxpile.protocols import drivers, geometry, outputs, paper1993
+from jaxpile.protocols import drivers, geometry, paper1993
 from jaxpile.protocols.base import Setup
-from jaxpile.protocols.spec import Batch, Options, Presentation, ProtocolSpec, option
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import ANGLE, FINITE, SIZE, SPAN, SPEED
 
 Array = Any
@@ -56,9 +54,9 @@ Array = Any
 SETTING = {
     "rate_degrees": 1.0e-3,  # per step: "10^-3 deg/iteration" (sec. 4)
     "move_speed": 1.0,  # cm/s (paper units): the pile moves
-    "rest_speed": boxes.PAPER_SETTING["rest_speed"],  # cm/s: the pile is at rest (v_cut)
-    "rest_measure": boxes.PAPER_SETTING["rest_measure"],
-    "hold_time": boxes.PAPER_SETTING["hold_time"],  # s: the final rest criterion
+    "rest_speed": paper1993.PAPER_SETTING["rest_speed"],  # cm/s: the pile is at rest (v_cut)
+    "rest_measure": paper1993.PAPER_SETTING["rest_measure"],
+    "hold_time": paper1993.PAPER_SETTING["hold_time"],  # s: the final rest criterion
     "max_tilt_degrees": 45.0,  # give up tilting here
     "settle_time": 5.0,  # s: at most this long to come to rest after the pile moved
 }
@@ -91,14 +89,14 @@ class TiltOptions(Options):
 
     def validate(self):
         for name in ("rate_degrees", "move_speed", "rest_speed", "hold_time"):
-            boxes.check_positive(name, getattr(self, name))
+            geometry.check_positive(name, getattr(self, name))
         if not self.rest_speed < self.move_speed:
             raise InputError(f"rest_speed ({self.rest_speed:g}) must be below move_speed ({self.move_speed:g}).")
-        boxes.measure_flag(self.rest_measure)
+        paper1993.measure_flag(self.rest_measure)
         if self.edge is not None:
-            boxes.check_positive("edge", self.edge)
+            geometry.check_positive("edge", self.edge)
         if self.settle:
-            boxes.check_positive("settle_time", self.settle_time)
+            geometry.check_positive("settle_time", self.settle_time)
 
 
 class TiltState(NamedTuple):
@@ -221,12 +219,12 @@ def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
         if not hasattr(before, "edge"):
             raise InputError("give edge (the x where the floor ends) for a pile that is not a box pile.")
         edge = float(before.edge)
-    edge = boxes.check_positive("edge", edge)
+    edge = geometry.check_positive("edge", edge)
     if hasattr(before, "park"):
         park = np.asarray(before.park)
     else:
         r = np.asarray(p.radius)
-        spacing = boxes.PARK_SPACING * 2.0 * float(r.max())
+        spacing = geometry.PARK_SPACING * 2.0 * float(r.max())
         top = float(np.max(np.asarray(p.position)[:, 1] + r))
         park = geometry.parking_grid(p.count, spacing, top + 2 * spacing, spacing)
     left = int(before.left) if hasattr(before, "left") else 0
@@ -240,7 +238,7 @@ def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
         max_tilt=jnp.asarray(math.radians(max_tilt_degrees), dtype),
         move_speed=jnp.asarray(move_speed * u.speed, dtype),
         rest_speed=jnp.asarray(rest_speed * u.speed, dtype),
-        use_max=jnp.asarray(boxes.measure_flag(o.rest_measure)),
+        use_max=jnp.asarray(paper1993.measure_flag(o.rest_measure)),
         hold=jnp.asarray(hold, jnp.int32),
         quiet=jnp.asarray(0, jnp.int32),
         armed=jnp.asarray(False),
@@ -255,7 +253,7 @@ def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
     settings = pile.neighbor_settings
     info = {
         "protocol": "tilt",
-        "law": boxes.law_name(law),
+        "law": paper1993.law_name(law),
         "n": int(p.count),
         "rate_degrees": rate,
         "rate_degrees_per_time": rate / dt,
@@ -273,7 +271,7 @@ def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
                  box=None if settings is None else settings.box, info=info)
 
 
-simulator = boxes.simulator_running(driver)
+simulator = paper1993.simulator_running(driver)
 """The spec's simulator: the tilt `driver` with a law by name (`box.make_simulator`)."""
 
 
@@ -299,13 +297,13 @@ def compare_with_theory(theta_r_degrees: float, theta_t_degrees: float, mu: floa
     return out
 
 
-law_and_params = boxes.law_and_params  # the 1993 setting, shared with `box`
+law_and_params = paper1993.law_and_params  # the 1993 setting, shared with `box`
 
 
 def pile_facts(pile: SimState, p: Setup) -> dict:
     """The pile the tilt takes over: its angles of repose (three methods, at
     the floor's end `edge`) and whether its box run came to rest."""
-    before = boxes.repose(pile, p.info["edge"])
+    before = paper1993.repose(pile, p.info["edge"])
     ps = pile.protocol_state
     return {"pile_repose": {k: v for k, v in before.items() if not k.startswith("surface")},
             "box_settled": bool(int(ps.settled_at) >= 0) if hasattr(ps, "settled_at") else None}
@@ -316,7 +314,7 @@ def _settle_steps(p: Setup, o: TiltOptions) -> int:
     if not o.settle:
         return 0
     u = paper1993.units(p.info["law"])
-    return round(boxes.check_positive("settle_time", o.settle_time) * u.time / p.info["dt"])
+    return round(geometry.check_positive("settle_time", o.settle_time) * u.time / p.info["dt"])
 
 
 def finished(p: Setup, o: TiltOptions):
@@ -369,29 +367,19 @@ def measure(sim, params, state: SimState, p: Setup, o: TiltOptions) -> dict:
         "at_rest": int(ps.settled_at) >= 0,
         "box_settled": p.info["box_settled"],
         "n_left": int(ps.left),
-        **boxes.count_check(state),
+        **paper1993.count_check(state),
     }
     if o.settle and out["at_rest"]:
-        after = boxes.repose(state, p.info["edge"])
+        after = paper1993.repose(state, p.info["edge"])
         out["after_repose_box_frame"] = {k: v for k, v in after.items() if not k.startswith("surface")}
     return out
 
 
 SPEC = ProtocolSpec(
     name="tilt", options=TiltOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=boxes.SPEC.default_dt, finished=finished, budget=budget, measure=measure,
-    row=("theta_t", "theta_r", "moved", "theta_r_plus_theta_t", "theta_ms_theory", "theta_t_theory", "box_settled",
-         "tilt_held", "n_left"),
+    default_dt=paper1993.default_dt, finished=finished, budget=budget, measure=measure,
     default_law="lee-herrmann",
-    presentation=Presentation(
-        order=4, help="a box pile tilted until it moves (1993 Fig. 4)", flags={"seed": "seed"},
-        headline=("moved", "theta_t", "theta_t_theory", "theta_r", "theta_ms_theory"),
-        length_unit=outputs.cm_for_lee_herrmann, figures=(outputs.energy_figure,)),
-    batch=Batch(angles=("theta_t", "theta_r", "theta_r_plus_theta_t"), theory=marginal_stability_overlay,
-                fit_statistics={"columns": ("theta_t", "theta_r")},
-                readings={"angle_of_repose": "theta_r"},
-                simulator_options=frozenset()),  # the simulator reads no option: set-ups share a compile
-    starts_from=boxes.SPEC, pile_facts=pile_facts)
+    continues="box", pile_facts=pile_facts)
 """The tilt (Lee & Herrmann 1993, sec. 4): `SPEC.run("lee-herrmann", pile_options={"width": 1.6, "height": 1.6})`
 builds a box pile (its seed is the run's `seed`; `pile=` a state tilts that one instead, contact history kept),
 tilts it at the paper's rate until it moves, and measures theta_T; the box run's measurements are under "box"."""

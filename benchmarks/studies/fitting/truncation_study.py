@@ -42,7 +42,7 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     import jaxpile
 
     jaxpile.configure()  # float64 and the commands' XLA settings
-    from jaxpile import analysis, fit, sweeps
+    from jaxpile import analysis, batches, fit
     from jaxpile.engine import ensemble
     from jaxpile.engine import pairs as pair_list
     from jaxpile.engine.neighbors import overflowed
@@ -61,7 +61,7 @@ def problem(n: int, seeds: list[int], interval: float, insert_height: float, set
     pairs = pair_list.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))
     start = ensemble.stack([ensemble.at_capacity(ensemble.member(start, i), slots, cells, pairs)
                             for i in range(len(seeds))])
-    _, x_left, x_right = sweeps.spec_of("pour").batch.extent(protocols[0])
+    _, x_left, x_right = batches.batch_of("pour").extent(protocols[0])
 
     def params(theta):
         return base.set(n=jax.numpy.exp(theta[0]))
