@@ -12,6 +12,7 @@ carried `protocol_state`, and the neighbour-list `box`. Running it is
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, Callable, NamedTuple
 
 from jaxpile.errors import InputError
@@ -40,41 +41,69 @@ class Setup(NamedTuple):
     info: dict = {}
 
 
-def law_and_params(law, params=None, rotation=None, *, setting: dict, dtype=None, law_options: dict | None = None):
-    """`(law module, ContactLaw, params)` for a protocol run.
+class Setting(NamedTuple):
+    """The setting a protocol runs its laws in: its paper's law, each law's
+    parameters, the time step and whether disks spin. `law_and_params` is the
+    one way a run builds its law and parameters.
 
-    Args:
-      law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`) or module.
-      params: None (the setting's values for that law), a dict of overrides on
-        top of them, or a ready params pytree of that law.
-      rotation: integrate spins; None for `setting["rotation"]`.
-      setting: a protocol setting with `"params"` (per law name) and
-        `"rotation"` (None: the law's own default).
-      law_options: the law's readings beyond rotation (`hooke.law(rolling="sds")`,
-        baxter's `lever_arm`), passed to its `law(...)`.
+    Attributes:
+      law: the paper's law, a protocol's default.
+      params: `{law name: values}` (a law not named runs with its own
+        defaults), or `law name -> values` (the 1993 setting's units per law).
+      dt: the time step, or `law name -> dt`.
+      rotation: integrate spins; None: each law's own default.
     """
-    from jaxpile.laws import get_law_module
 
-    lawmod = get_law_module(law) if isinstance(law, str) else law
-    if params is None or isinstance(params, dict):
-        values = {**setting["params"].get(lawmod.NAME, {}), **(params or {})}
-        unknown = set(values) - set(lawmod.PARAM_NAMES)
-        if unknown:
-            raise InputError(f"unknown {lawmod.NAME} parameter(s) {sorted(unknown)}; "
-                             f"known: {list(lawmod.PARAM_NAMES)}.")
-        params = lawmod.make_params(dtype=dtype, **values)
-    elif not isinstance(params, lawmod.Params):
-        raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or {lawmod.NAME}.make_params(...); "
-                         f"got {type(params).__name__}.")
-    rotation = setting["rotation"] if rotation is None else bool(rotation)
-    readings = dict(law_options or {})
-    if "rotation" in readings:
-        raise InputError("give rotation as rotation=..., not among the law's options.")
-    if rotation is not None:
-        readings["rotation"] = rotation
-    try:
-        contact_law = lawmod.law(**readings)
-    except TypeError as error:
-        raise InputError(f"the {lawmod.NAME} law does not take {sorted(law_options or {})} "
-                         f"(law() says: {error}).") from None
-    return lawmod, contact_law, params
+    law: str
+    params: Mapping | Callable
+    dt: float | Callable
+    rotation: bool | None = None
+
+    def dt_of(self, law) -> float:
+        """The time step `law` (a name) runs with in this setting."""
+        return float(self.dt(law) if callable(self.dt) else self.dt)
+
+    def params_of(self, name: str) -> dict:
+        """The setting's parameter values for the law `name`."""
+        return dict(self.params(name) if callable(self.params) else self.params.get(name, {}))
+
+    def law_and_params(self, law, params=None, rotation=None, dtype=None, law_options: dict | None = None):
+        """`(law module, ContactLaw, params)` for a run in this setting.
+
+        Args:
+          law: a law name (`hooke`, `liffman`, `lee-herrmann`, `baxter`, a LAMMPS
+            granular line) or module.
+          params: None (the setting's values for that law), a dict of overrides on
+            top of them, or a ready params pytree of that law.
+          rotation: integrate spins; None for the setting's `rotation`.
+          law_options: the law's readings beyond rotation (`hooke.law(rolling="sds")`,
+            baxter's `lever_arm`), passed to its `law(...)`.
+        """
+        from jaxpile.laws import get_law_module
+
+        lawmod = get_law_module(law) if isinstance(law, str) else law
+        if params is None or isinstance(params, dict):
+            values = {**self.params_of(lawmod.NAME), **(params or {})}
+            unknown = set(values) - set(lawmod.PARAM_NAMES)
+            if unknown:
+                raise InputError(f"unknown {lawmod.NAME} parameter(s) {sorted(unknown)}; "
+                                 f"known: {list(lawmod.PARAM_NAMES)}.")
+            params = lawmod.make_params(dtype=dtype, **values)
+        elif not isinstance(params, lawmod.Params):
+            raise InputError(f"params must be None, a dict of {lawmod.NAME} parameters, or "
+                             f"{lawmod.NAME}.make_params(...); got {type(params).__name__}.")
+        rotation = self.rotation if rotation is None else bool(rotation)
+        readings = dict(law_options or {})
+        if "rotation" in readings:
+            raise InputError("give rotation as rotation=..., not among the law's options.")
+        if rotation is not None:
+            readings["rotation"] = rotation
+        try:
+            contact_law = lawmod.law(**readings)
+        except TypeError as error:
+            raise InputError(f"the {lawmod.NAME} law does not take {sorted(law_options or {})} "
+                             f"(law() says: {error}).") from None
+        return lawmod, contact_law, params
+
+
+__all__ = ["Setting", "Setup"]

@@ -90,9 +90,9 @@ from jaxpile.protocols.geometry import (
 )
 from jaxpile.protocols import paper1993
 from jaxpile.protocols.paper1993 import (
+    LAW_SETTING,
     PAPER_SETTING,
     count_check,
-    default_dt,
     fill_count,
     friction_coefficient,
     gaussian_radii,
@@ -319,9 +319,8 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
 
 
 SPEC = ProtocolSpec(
-    name="box", options=BoxOptions, setup=setup, simulator=simulator_running(driver), law_and_params=law_and_params,
-    default_dt=default_dt, finished=settled, budget=max_time_budget, measure=measure,
-    default_law="lee-herrmann")
+    name="box", options=BoxOptions, setting=LAW_SETTING, setup=setup, simulator=simulator_running(driver),
+    finished=settled, budget=max_time_budget, measure=measure)
 """The box (Lee & Herrmann 1993, sec. 3): `SPEC.run("lee-herrmann", width=1.6, height=1.6)` fills the box,
 removes the right wall at rest, lets the pile settle and measures its angle of repose by the three methods."""
 

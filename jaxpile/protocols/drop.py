@@ -75,8 +75,7 @@ from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.measure.dropped_pile import measure
 from jaxpile.protocols import paper1992
-from jaxpile.protocols.base import Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import COUNT, DISKS, SIZE, SPAN, SPEED, STEPS, Range
@@ -296,9 +295,9 @@ def setup(o: DropOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
                  protocol_state=state, box=box, info=info)
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
-    """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
-    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype, law_options=law_options)
+LAW_SETTING = Setting(law="liffman", params=SETTING["params"], dt=SETTING["dt"], rotation=SETTING["rotation"])
+"""The drop's laws: the 1992 setting, disks that do not spin."""
+law_and_params = LAW_SETTING.law_and_params
 
 
 def _with_phase(checkpoint, phase: str, **facts):
@@ -415,10 +414,8 @@ def row(m: dict) -> dict:
 
 
 SPEC = ProtocolSpec(
-    name="drop", options=DropOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=lambda law: float(SETTING["dt"]), finished=filled_and_at_rest, budget=step_budget,
-    measure=measure_pile, execute=fill_and_relax, report=report,
-    default_law="liffman")
+    name="drop", options=DropOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
+    finished=filled_and_at_rest, budget=step_budget, measure=measure_pile, execute=fill_and_relax, report=report)
 """The drop (Liffman, Chan & Hughes 1992, Fig. 20): `SPEC.run("liffman", 968)` drops the disks one at a time,
 relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 

@@ -400,9 +400,8 @@ def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
 
 
 SPEC = ProtocolSpec(
-    name="flux", options=FluxOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=paper1993.default_dt, finished=paper1993.settled, budget=paper1993.max_time_budget, measure=measure,
-    default_law="lee-herrmann", size="insertions")
+    name="flux", options=FluxOptions, setting=paper1993.LAW_SETTING, setup=setup, simulator=simulator,
+    finished=paper1993.settled, budget=paper1993.max_time_budget, measure=measure, size="insertions")
 """The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the
 paper's rule, until it is at rest after the last, and measures the angle before each insertion (Fig. 5)."""
 

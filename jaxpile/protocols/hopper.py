@@ -47,8 +47,7 @@ from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import GROUND, make_boundaries, set_wall
 from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
-from jaxpile.protocols.base import Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.drivers import rest_detector, rms_speed
 from jaxpile.protocols.geometry import (
     PARK_SPACING,
@@ -110,9 +109,9 @@ def budget_steps(max_time: float, dt: float) -> int:
     return ranges.steps_of("max_time", max_time, dt)
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
-    """`(law module, ContactLaw, params)`: `SETTING["params"]` under the overrides; rotation on."""
-    return base_law_and_params(law, params, rotation, setting=SETTING, dtype=dtype, law_options=law_options)
+LAW_SETTING = Setting(law="hooke", params=SETTING["params"], dt=SETTING["dt"], rotation=SETTING["rotation"])
+"""The hopper's laws: `SETTING["params"]` (other laws their own defaults), rotation on."""
+law_and_params = LAW_SETTING.law_and_params
 
 
 class HopperState(NamedTuple):
@@ -329,9 +328,8 @@ def max_time_budget(p: Setup, o: HopperOptions) -> int:
 
 
 SPEC = ProtocolSpec(
-    name="hopper", options=HopperOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=lambda law: float(SETTING["dt"]), finished=stopped, budget=max_time_budget, measure=measure,
-    default_law="hooke")
+    name="hopper", options=HopperOptions, setting=LAW_SETTING, setup=setup, simulator=simulator, finished=stopped,
+    budget=max_time_budget, measure=measure)
 """The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,
 lets it run out, and measures the flow rate against Beverloo's law."""
 

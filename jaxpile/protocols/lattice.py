@@ -19,7 +19,7 @@ from jaxpile.engine.boundaries import make_boundaries
 from jaxpile.engine.state import Boundaries, Particles, make_particles
 from jaxpile.errors import InputError
 from jaxpile.protocols import loaded_pile
-from jaxpile.protocols.base import Setup
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.paper1992 import PAPER_SETTING
 from jaxpile.protocols.spec import Options, option
 from jaxpile.ranges import SIZE, SPEED, STEPS, Range
@@ -92,11 +92,10 @@ def pile_count(layers: int) -> int:
     return layers * (layers + 1) // 2
 
 
-def law_and_params(law, params=None, rotation=None, dtype=None, law_options: dict | None = None):
-    """`(law module, ContactLaw, params)` with `PAPER_SETTING` (see `base.law_and_params`)."""
-    from jaxpile.protocols.base import law_and_params as base_law_and_params
-
-    return base_law_and_params(law, params, rotation, setting=PAPER_SETTING, dtype=dtype, law_options=law_options)
+LAW_SETTING = Setting(law="hooke", params=PAPER_SETTING["params"], dt=PAPER_SETTING["dt"],
+                      rotation=PAPER_SETTING["rotation"])
+"""The lattice's laws: the 1992 setting."""
+law_and_params = LAW_SETTING.law_and_params
 
 
 relax = loaded_pile.relax  # gravity ramped in, then a run to rest (shared with the sloped pile)
@@ -173,8 +172,8 @@ COMPARED = ("base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal
 
 
 SPEC = loaded_pile.spec_of(
-    "lattice", options=LatticeOptions, setup=setup, law_and_params=law_and_params, setting=PAPER_SETTING,
-    compare=_compare, report=_report, size="layers")
+    "lattice", options=LatticeOptions, setting=LAW_SETTING, setup=setup, compare=_compare, report=_report,
+    size="layers")
 """The lattice pile (Liffman et al. 1992, Figs. 7-9): `SPEC.run("hooke", 12)` builds the 12-layer pile, loads
 it by a gravity ramp, runs it to rest and compares its ground forces with eqs. 42 and 44."""
 

@@ -15,6 +15,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from jaxpile.protocols.base import Setting
 from jaxpile.protocols.spec import ProtocolSpec
 
 
@@ -64,8 +65,8 @@ def budget(p, o) -> int:
 OWN_COLUMNS = ("height", "at_rest", "max_speed")
 
 
-def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callable, setting: dict,
-            compare: Callable, report: Callable, size: str = "n") -> ProtocolSpec:
+def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, compare: Callable, report: Callable,
+            size: str = "n") -> ProtocolSpec:
     """A 1992 static pile declared once.
 
     Args:
@@ -74,8 +75,7 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
         `max_steps` and `hard_collisions` among its fields).
       setup: its set-up, `setup(options, *, law, seed, dt, dtype) -> Setup`
         (no schedule: the gravity ramp is the simulator's).
-      law_and_params: its law lookup (the 1992 setting).
-      setting: its defaults (`dt`).
+      setting: its laws, their parameters and dt (the 1992 setting).
       compare: `(sim, params, state, setup) -> dict` against the paper's theory.
       report: `(measured, setup, options, RunInfo, samples, seconds) -> dict`, one pile's output.
       size: its size option (`layers` for the lattice).
@@ -84,7 +84,7 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
     def simulator(o, *, law, dt, rotation=None, integrator=None, chunk_steps=None, law_options=None):
         from jaxpile.engine.simulate import Simulator, gravity_ramp
 
-        _, contact_law, _ = law_and_params(law, None, rotation, law_options=law_options)
+        _, contact_law, _ = setting.law_and_params(law, None, rotation, law_options=law_options)
         kwargs = {} if chunk_steps is None else {"chunk_steps": chunk_steps}
         return Simulator(contact_law, dt, schedule=gravity_ramp(int(o.ramp_steps)),
                          integrator=integrator or "velocity_verlet", hard_collisions=o.hard_collisions, **kwargs)
@@ -101,9 +101,8 @@ def spec_of(name: str, *, options: type, setup: Callable, law_and_params: Callab
                 "at_rest": bool(fastest < float(o.speed_tolerance)), "max_speed": fastest}
 
     return ProtocolSpec(
-        name=name, options=options, setup=setup, simulator=simulator, law_and_params=law_and_params,
-        default_dt=lambda law: float(setting["dt"]), finished=finished, budget=budget, measure=measure,
-        default_law="hooke", size=size, execute=execute, report=report)
+        name=name, options=options, setting=setting, setup=setup, simulator=simulator,
+        finished=finished, budget=budget, measure=measure, size=size, execute=execute, report=report)
 
 
 __all__ = ["OWN_COLUMNS", "budget", "execute", "finished", "relax", "spec_of"]

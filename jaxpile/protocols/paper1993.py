@@ -20,8 +20,7 @@ from jaxpile import ranges
 from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
 from jaxpile.measure import analysis
-from jaxpile.protocols.base import Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.geometry import check_positive
 
 
@@ -109,6 +108,11 @@ def units(law) -> Units:
     return Units(scale=scale, gravity=gravity, time=t, speed=scale / t, sphere_density=s["sphere_density"])
 
 
+LAW_SETTING = Setting(law="lee-herrmann", params=lambda name: law_setting(name)["params"],
+                      dt=lambda law: float(law_setting(law)["dt"]), rotation=PAPER_SETTING["rotation"])
+"""The 1993 protocols' laws: each in its own units (`law_setting`), the paper's disks not spinning."""
+
+
 def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
     """`(law module, ContactLaw, params)` for this paper's protocols.
 
@@ -117,11 +121,9 @@ def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, l
       params: None (the setting's values), a dict of overrides on top of them,
         or a ready params pytree of that law.
       rotation: integrate spins; default off (the paper's disks do not rotate).
-      law_options: the law's readings beyond rotation (`base.law_and_params`).
+      law_options: the law's readings beyond rotation (`base.Setting.law_and_params`).
     """
-    name = law_name(law)
-    setting = {"params": {name: law_setting(name)["params"]}, "rotation": PAPER_SETTING["rotation"]}
-    return base_law_and_params(name, params, rotation, setting=setting, dtype=dtype, law_options=law_options)
+    return LAW_SETTING.law_and_params(law_name(law), params, rotation, dtype, law_options)
 
 
 def friction_coefficient(params) -> float | None:
@@ -201,7 +203,7 @@ def measure_flag(rest_measure: str) -> bool:
 # ------------------------------------------------- what the three protocols share
 def default_dt(law) -> float:
     """The time step a law runs the 1993 setting with."""
-    return float(law_setting(law)["dt"])
+    return LAW_SETTING.dt_of(law)
 
 
 def repose(state: SimState, width: float, *, x_min: float = 0.0) -> dict:

@@ -72,8 +72,7 @@ from jaxpile.measure.heap import steepest_heap_height, substrate_size
 # the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
 from jaxpile.measure.poured_heap import check_options, measure, report
 from jaxpile.protocols import drivers, geometry
-from jaxpile.protocols.base import Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
@@ -348,12 +347,9 @@ def law_params(law: str, dtype=None, **overrides):
     return law_and_params(law, overrides, dtype=dtype)[2]
 
 
-def law_and_params(law, params=None, rotation: bool | None = None, dtype=None, law_options: dict | None = None):
-    """`(law module, ContactLaw, params)` with the pour setting: params None (the
-    setting's values), a dict of overrides on top of them, or a params pytree;
-    rotation None keeps the law's own default."""
-    return base_law_and_params(law, params, rotation, setting={**PAPER_SETTING, "rotation": None}, dtype=dtype,
-                               law_options=law_options)
+LAW_SETTING = Setting(law="baxter", params=PAPER_SETTING["params"], dt=PAPER_SETTING["dt"])
+"""The pour's laws: the paper's values; rotation each law's own default."""
+law_and_params = LAW_SETTING.law_and_params
 
 
 def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rotation: bool | None = None,
@@ -441,11 +437,9 @@ def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict
 
 
 SPEC = ProtocolSpec(
-    name="pour", options=PourOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=lambda law: float(PAPER_SETTING["dt"]), finished=poured_and_at_rest, budget=step_budget,
-    measure=measure_heap, execute=pour_and_settle, report=report,
-    check=check_options,
-    default_law="baxter")
+    name="pour", options=PourOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
+    finished=poured_and_at_rest, budget=step_budget, measure=measure_heap, execute=pour_and_settle, report=report,
+    check=check_options)
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
 

@@ -39,8 +39,7 @@ from jaxpile.errors import InputError
 # the comparison with eqs. 54-59 (`jaxpile.measure.sloped_pile`), also under its name here (`sloped.compare_with_theory`)
 from jaxpile.measure.sloped_pile import check_alpha, check_base, compare_with_theory
 from jaxpile.protocols import loaded_pile, paper1992
-from jaxpile.protocols.base import Setup
-from jaxpile.protocols.base import law_and_params as base_law_and_params
+from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, option
 from jaxpile.ranges import DISKS, SIZE, SPEED, STEPS, Range
 
@@ -194,10 +193,9 @@ def setup(o: SlopedOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     return Setup(particles=particles, boundaries=boundaries, info=info)
 
 
-def law_and_params(law, params=None, rotation=None, dtype=None, law_options: dict | None = None, *,
-                   setting: dict = SETTING):
-    """`(law module, ContactLaw, params)` with this protocol's setting (see `base.law_and_params`)."""
-    return base_law_and_params(law, params, rotation, setting=setting, dtype=dtype, law_options=law_options)
+LAW_SETTING = Setting(law="hooke", params=SETTING["params"], dt=SETTING["dt"], rotation=SETTING["rotation"])
+"""The sloped pile's laws: the 1992 setting."""
+law_and_params = LAW_SETTING.law_and_params
 
 
 def _compare(sim, params, state, p) -> dict:
@@ -220,8 +218,7 @@ def _report(measured: dict, p: Setup, o: SlopedOptions, info, samples, seconds: 
 
 
 SPEC = loaded_pile.spec_of(
-    "sloped", options=SlopedOptions, setup=setup, law_and_params=law_and_params, setting=SETTING,
-    compare=_compare, report=_report)
+    "sloped", options=SlopedOptions, setting=LAW_SETTING, setup=setup, compare=_compare, report=_report)
 """The sloped pile (Liffman et al. 1992, Figs. 12-16): `SPEC.run("hooke", 40, alpha_degrees=30.0,
 ramp_steps=2000)` builds the pile of about 40 disks, loads and relaxes it, and compares its base forces with
 eqs. 54-59 (`m["central_slope_horizontal"]` against `m["theory_central_slope_horizontal"]`)."""

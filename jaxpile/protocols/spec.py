@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 
 from jaxpile import ranges
 from jaxpile.errors import InputError
+from jaxpile.protocols.base import Setting
 from jaxpile.protocols.running import run as run_protocol
 from jaxpile.ranges import Range
 
@@ -137,10 +138,6 @@ class ProtocolSpec:
       law_options) -> Simulator` (None for `rotation`, `integrator`,
       `chunk_steps`: the protocol's own; `law_options`: the law's readings
       beyond rotation, such as `{"rolling": "sds"}`).
-    - `law_and_params(law, params, rotation, dtype, law_options) -> (law
-      module, ContactLaw, params)`, params None (the protocol's setting), a
-      dict of overrides, or a params pytree.
-    - `default_dt(law name) -> dt`.
     - `finished(setup, options) -> (state -> bool array)`, traceable.
     - `budget(setup, options) -> steps`, the run's step budget (counted from
       the set-up's `info["start_step"]` for a continued protocol).
@@ -160,7 +157,8 @@ class ProtocolSpec:
     Attributes:
       name: the protocol's registered name.
       options: its options dataclass (an `Options`).
-      default_law: the law of its paper.
+      setting: its paper's law, each law's parameters, dt and rotation
+        (`base.Setting`: `law_and_params`, `default_dt` and `default_law` read it).
       size: the option a sweep's and the command line's `--n` (or `--layers`) sets.
       continues: the name of the protocol whose end state this one continues,
         contact history kept (the tilt continues a box pile); a batch runs the
@@ -174,14 +172,12 @@ class ProtocolSpec:
 
     name: str
     options: type
+    setting: Setting
     setup: Callable
     simulator: Callable
-    law_and_params: Callable
-    default_dt: Callable
     finished: Callable
     budget: Callable
     measure: Callable
-    default_law: str
     size: str = "n"
     execute: Callable | None = None
     report: Callable | None = None
@@ -203,6 +199,19 @@ class ProtocolSpec:
         if self.continues not in REGISTERED:
             raise InputError(f"the {self.name} protocol continues {self.continues!r}, which is not registered.")
         return REGISTERED[self.continues]
+
+    @property
+    def default_law(self) -> str:
+        """The law of its paper (`setting.law`)."""
+        return self.setting.law
+
+    def default_dt(self, law) -> float:
+        """The time step `law` runs this protocol with (`setting.dt_of`)."""
+        return self.setting.dt_of(law)
+
+    def law_and_params(self, law, params=None, rotation=None, dtype=None, law_options: dict | None = None):
+        """`(law module, ContactLaw, params)` of a run (`Setting.law_and_params`)."""
+        return self.setting.law_and_params(law, params, rotation, dtype, law_options)
 
     def make_options(self, values: dict | None = None, **more):
         """This protocol's options from a dict and keywords (a sweep's `n` names

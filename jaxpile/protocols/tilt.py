@@ -376,10 +376,8 @@ def measure(sim, params, state: SimState, p: Setup, o: TiltOptions) -> dict:
 
 
 SPEC = ProtocolSpec(
-    name="tilt", options=TiltOptions, setup=setup, simulator=simulator, law_and_params=law_and_params,
-    default_dt=paper1993.default_dt, finished=finished, budget=budget, measure=measure,
-    default_law="lee-herrmann",
-    continues="box", pile_facts=pile_facts)
+    name="tilt", options=TiltOptions, setting=paper1993.LAW_SETTING, setup=setup, simulator=simulator,
+    finished=finished, budget=budget, measure=measure, continues="box", pile_facts=pile_facts)
 """The tilt (Lee & Herrmann 1993, sec. 4): `SPEC.run("lee-herrmann", pile_options={"width": 1.6, "height": 1.6})`
 builds a box pile (its seed is the run's `seed`; `pile=` a state tilts that one instead, contact history kept),
 tilts it at the paper's rate until it moves, and measures theta_T; the box run's measurements are under "box"."""
