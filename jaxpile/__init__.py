@@ -9,7 +9,9 @@
     jp.summarise(rows, "mu", "repose_cumulative_parabola")              # mean +- s.e. per mu
     result = jp.calibrate("pour", "heap.csv", "mu", options={"n": 100})  # a law fitted to a measurement
 
-`import jaxpile` changes nothing in JAX, XLA or the environment;
+`import jaxpile` changes nothing in JAX, XLA or the environment, and puts
+nothing in `sys.modules` but its own modules and the libraries it imports
+(jax-md's modules without its package `__init__`: `jaxpile._jax_md`);
 `jaxpile.configure()` sets what the commands set (float64, and on a CPU the XLA
 settings that make a script's result for a seed the command's, bit for bit; see
 `jaxpile.config`). The modules behind these names: `protocols` (the papers'
@@ -18,10 +20,6 @@ piles, one spec each), `sweeps` (batches), `fit` (gradients and fits), `laws`,
 """
 
 from jaxpile.config import configure, settings  # noqa: E402
-
-from jaxpile.engine import _jax_md  # noqa: E402
-
-_jax_md.register()  # jax-md's neighbour lists without the rest of jax-md's slow import (see _jax_md)
 
 from jaxpile import fit, laws, protocols, sweeps  # noqa: E402
 from jaxpile.engine import boundaries, ensemble  # noqa: E402

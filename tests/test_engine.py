@@ -362,7 +362,9 @@ def test_a_slot_list_that_overflows_grows_to_the_neighbours_its_chunk_found():
     16 (a rebuild 1.3-1.6x dearer, benchmarks/packed_lists_ab.py): the slots
     now follow the most neighbours a rebuild found (Contacts.slot_demand)."""
     from types import SimpleNamespace
-    from jax_md.partition import PEC
+    from jaxpile._jax_md import partition
+
+    PEC = partition.PEC
 
     state = SimpleNamespace(neighbors=SimpleNamespace(max_occupancy=16, cell_list_capacity=24))
 

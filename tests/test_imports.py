@@ -1,5 +1,6 @@
 """`import jaxpile` changes nothing in JAX, XLA or the environment and loads
-only the jax-md modules it uses (jaxpile/_jax_md.py); `jaxpile.configure()`
+only the jax-md modules it uses, leaving no package of its own in
+`sys.modules` (jaxpile/_jax_md.py); `jaxpile.configure()`
 sets what the commands set (a script that calls it gets the commands'
 numbers for the same seed, bit for bit: tests/test_readme.py runs a sweep both
 ways)."""
@@ -43,6 +44,9 @@ def test_import_changes_nothing_and_configure_sets_float64_and_the_commands_xla_
             "assert dict(os.environ) == env and jax.config.jax_enable_x64 == x64 == False\n"
             "loaded = sorted(m for m in sys.modules if m.startswith('jax_md'))\n"
             "assert 'jax_md.energy' not in loaded and 'jax_md.rigid_body' not in loaded, loaded\n"
+            # jax-md's own modules, run as written; no stand-in package of jaxpile's
+            "assert 'jax_md' not in sys.modules and 'jax_md.partition' in loaded, loaded\n"
+            "assert all(os.path.join('jax_md', m.split('.')[1] + '.py') in sys.modules[m].__file__ for m in loaded), loaded\n"
             # and starts no XLA backend: threads, host devices and jax.distributed are still the user's to set
             "from jax._src import xla_bridge\n"
             "assert not xla_bridge.backends_are_initialized()\n"
@@ -72,6 +76,8 @@ def test_import_changes_nothing_and_configure_sets_float64_and_the_commands_xla_
             # and jax-md stays whole for a user who imports it after jaxpile
             "import jax_md\n"
             "assert callable(jax_md.energy.soft_sphere) and callable(jax_md.simulate.nve)\n"
+            "from jaxpile.engine import state\n"
+            "assert jax_md.partition.NeighborList is state.partition.NeighborList  # one class for both\n"
             "from jax_md import quantity\n"
             "assert callable(quantity.force)\n")
     python(code, clean_env())

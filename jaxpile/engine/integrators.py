@@ -36,7 +36,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 from jax import lax
-from jax_md import dataclasses
+from jaxpile._jax_md import dataclasses
 
 from jaxpile.errors import InputError
 from jaxpile.engine.state import Particles

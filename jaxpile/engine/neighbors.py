@@ -54,7 +54,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jax_md import partition
+from jaxpile._jax_md import partition
 
 from jaxpile.engine import host_lists, transfer
 from jaxpile.engine.cells import cell_grid, cell_index

@@ -15,8 +15,7 @@ from typing import Any
 
 import jax
 import numpy as np
-from jax_md import dataclasses
-from jax_md.partition import NeighborList
+from jaxpile._jax_md import dataclasses, partition
 
 from jaxpile.errors import InputError
 from jaxpile.engine import transfer
@@ -144,7 +143,7 @@ class SimState:
     particles: Particles
     contacts: Contacts
     boundaries: Boundaries
-    neighbors: NeighborList
+    neighbors: partition.NeighborList
     step: Array
     neighbor_settings: Any = dataclasses.static_field()
     integrator_state: Any = None

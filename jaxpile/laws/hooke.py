@@ -45,7 +45,7 @@ import math
 from typing import Any
 
 import jax.numpy as jnp
-from jax_md import dataclasses
+from jaxpile._jax_md import dataclasses
 
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_

@@ -41,7 +41,7 @@ import math
 from typing import Any
 
 import jax.numpy as jnp
-from jax_md import dataclasses
+from jaxpile._jax_md import dataclasses
 
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, with_set, dot2,
