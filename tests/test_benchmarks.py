@@ -412,3 +412,29 @@ def test_the_instruction_set_table_is_the_one_the_results_give():
     assert isa_box.rewrite_page(check=True), "run `python benchmarks/studies/reproducibility/isa_box.py --table`"
     record = json.loads(isa_box.RESULT.read_text())
     assert all(sum(r["summary"]["missing"]) == 0 for r in record["results"].values())
+
+
+def test_a_study_keeps_its_finished_piles_in_its_summary_when_the_per_pile_files_are_gone(tmp_path):
+    """The papers' studies commit one summary.json, not a file per pile: a
+    finished heap's or pile's row goes into it as the pile ends (`keep_heaps`,
+    `keep_piles`), so a study stopped early, on a fresh clone without the
+    per-pile files, still has every pile it finished, and a rerun skips them."""
+    import baxter_readings as br
+    import paper_ensembles as pe
+
+    heaps = tmp_path / "n10"
+    heaps.mkdir()
+    for seed in (1, 0):
+        (heaps / f"mu0.2_seed{seed}.json").write_text(json.dumps({"setting": "mu0.2", "seed": seed, "n": 10}))
+    (heaps / "summary.json").write_text(json.dumps({"n": 10, "settings": {"mu0.2": {"heaps": 2}}}))
+    assert br.keep_heaps(heaps) == 2
+    for f in heaps.glob("*_seed*.json"):
+        f.unlink()
+    assert [(r["setting"], r["seed"]) for r in br.heap_rows(heaps)] == [("mu0.2", 0), ("mu0.2", 1)]
+    assert json.loads((heaps / "summary.json").read_text())["settings"] == {"mu0.2": {"heaps": 2}}  # kept
+    piles = tmp_path / "tilt_n5"
+    piles.mkdir()
+    (piles / "mu0.1_seed0.json").write_text(json.dumps({"mu": 0.1, "seed": 0}))
+    pe.keep_piles(piles, "tilt", 5)
+    (piles / "mu0.1_seed0.json").unlink()
+    assert pe.pile_rows(piles) == [{"mu": 0.1, "seed": 0}]

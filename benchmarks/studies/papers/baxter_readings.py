@@ -26,8 +26,8 @@ state at the end). A rerun skips the jobs already done and resumes a heap in
 progress from its last saved state, so a long study continues where it stopped.
 Those per-heap files are the study's workings and are not committed: what is
 committed is `<out>/n<N>/summary.json`, each setting's mean +- standard error
-with the command that made it and every heap's row (`heaps`), which the papers
-table and the figures read. Rerunning the committed commands costs about 2.3 h
+with the command that made it and every heap's row (`heaps`, written as each
+heap finishes, `keep_heaps`), which the papers table and the figures read. Rerunning the committed commands costs about 2.3 h
 (n = 300), 18 h (n = 1000) and 3.5 h (n = 1334) of one CPU core.
 `--workers 2` runs two heaps at once (one pile keeps about one core busy).
 On a GPU, run many at once (`--workers 16` on a 16-core host: measured on one
@@ -345,6 +345,21 @@ def heap_rows(folder) -> list[dict]:
     return [rows[key] for key in sorted(rows)]
 
 
+def keep_heaps(folder) -> int:
+    """Writes every finished heap's row in `folder` into its summary.json
+    (`heaps`), so that a study stopped before its end keeps what it has done
+    in the one committed file (the per-heap files are not committed). Returns
+    the number of heaps kept."""
+    folder = pathlib.Path(folder)
+    summary_file = folder / "summary.json"
+    out = json.loads(summary_file.read_text()) if summary_file.exists() else {"n": None, "settings": {}}
+    out["heaps"] = heap_rows(folder)
+    if out["n"] is None and out["heaps"]:
+        out["n"] = out["heaps"][0]["n"]
+    summary_file.write_text(json.dumps(out, indent=1))
+    return len(out["heaps"])
+
+
 def rows_of(rows: list[dict], name: str) -> list[dict]:
     return [r for r in rows if name_of(r) == name]
 
@@ -390,6 +405,7 @@ def main(argv=None) -> dict:
                                    args.checkpoint_every) for group, seeds in batches]
             for future in concurrent.futures.as_completed(futures):
                 for row in future.result():
+                    keep_heaps(folder)
                     print(f"  {name_of(row):28s} seed {row['seed']}: mid flank {angle(row, 'mid_flank')}, "
                           f"atan(2h/B) {row.get('angle_height_base'):.1f}, at rest {row['run']['at_rest']}, "
                           f"batch of {row['run']['batch_members']}: {row['seconds']:.0f} s", flush=True)
@@ -398,6 +414,7 @@ def main(argv=None) -> dict:
         futures = {pool.submit(one_heap, r, s, args.n, path, args.insert_height, args.checkpoint_every): (r, s) for r, s, path in todo}
         for future in concurrent.futures.as_completed(futures):
             row = future.result()
+            keep_heaps(folder)  # a study stopped early keeps the heaps it finished
             print(f"  {name_of(row):28s} seed {row['seed']}: angle (least squares) "
                   f"{angle(row, 'least_squares'):.1f}, mid flank {angle(row, 'mid_flank')}, atan(2h/B) {row.get('angle_height_base'):.1f}, "
                   f"M ratio {(row.get('m_shape') or {}).get('ratio')}, {row['seconds']:.0f} s", flush=True)

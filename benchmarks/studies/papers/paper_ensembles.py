@@ -194,6 +194,17 @@ def pile_rows(folder) -> list[dict]:
     return [rows[key] for key in sorted(rows, key=lambda k: (k[0] or 0.0, k[1]))]
 
 
+def keep_piles(folder, study: str, n: int) -> None:
+    """Writes every finished pile's row in `folder` into its summary.json
+    (`piles`), so that a study stopped before its end keeps what it has done
+    in the one committed file."""
+    folder = pathlib.Path(folder)
+    summary_file = folder / "summary.json"
+    out = json.loads(summary_file.read_text()) if summary_file.exists() else {"study": study, "n": n}
+    out["piles"] = pile_rows(folder)
+    summary_file.write_text(json.dumps(out, indent=1))
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("study", choices=["tilt", "drop"])
@@ -224,6 +235,7 @@ def main(argv=None) -> dict:
         futures = [pool.submit(*run(k, p)) for k, p in todo]
         for future in concurrent.futures.as_completed(futures):
             row = future.result()
+            keep_piles(folder, args.study, n)  # a study stopped early keeps the piles it finished
             shown = {k: row.get(k) for k in ("mu", "seed", "theta_r", "theta_t", "central_dip", "seconds") if k in row}
             print("  " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in shown.items()),
                   flush=True)

@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -486,7 +486,52 @@ def rows_1997() -> list[list[str]]:
                        + f": mid-flank angle {d:+.1f}° from the 1334-disk heaps'")
         rows.append(["1997", f"1000-disk heaps, {what} ({count})", says,
                      f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}", verdict])
+    rows.extend(_rows_mu(heaps))
+    rows.extend(_rows_n144(heaps))
     return rows
+
+
+def _rows_n144(heaps: dict) -> list[list[str]]:
+    """Sec. III: at 1000 disks "the angle of repose was 35 deg as opposed to 31 deg
+    for the n = 36 case": the n = 144 heaps (both tails) against the paper's law's."""
+    import baxter_readings as br
+
+    what = "1000-disk heaps, n = 144 against n = 36 (sec. III)"
+    if not heaps.get("contact-point/hold"):
+        return [["1997", what, "35° against 31°: n = 144 steeper by 4°", _missing("heap1000_n36"), "—"]]
+    base = br.summarise(heaps["contact-point/hold"])["contact-point/hold"]["angle"]["mid_flank"]
+    rows = []
+    for name, tail in (("n144-r1.2", "long tail, r0 = 1.2 σ"), ("n144-r1.047", "short tail, r0 = 1.047 σ")):
+        if not heaps.get(name):
+            continue
+        a = br.summarise(heaps[name])[name]["angle"]["mid_flank"]
+        d = a["mean"] - base["mean"]
+        rows.append(["1997", f"{what}: {tail} ({len(heaps[name])} and {len(heaps['contact-point/hold'])} heaps)",
+                     "35° against 31°: steeper by 4°",
+                     f"mid-flank {_pm(a)} against {_pm(base)}: {d:+.1f}°",
+                     _sign(d, _se(a), _se(base), agree="agrees (steeper)", differ="differs (flatter)")])
+    return rows
+
+
+def _rows_mu(heaps: dict) -> list[list[str]]:
+    """Sec. III's "heap properties ... relatively insensitive to the value of the
+    friction coefficient in the sensible range 0.2 < mu < 0.6", as the 1000-disk
+    heaps at mu = 0.2 and 0.6 measure it: the mid-flank angle and the base force's
+    flank/centre ratio, each difference against two combined standard errors."""
+    import baxter_readings as br
+
+    if not (heaps.get("mu0.2") and heaps.get("mu0.6")):
+        return []
+    low, high = (br.summarise(heaps[k])[k] for k in ("mu0.2", "mu0.6"))
+    a_low, a_high = low["angle"]["mid_flank"], high["angle"]["mid_flank"]
+    f_low, f_high = low["flank_over_centre"], high["flank_over_centre"]
+    d_angle, d_force = a_high["mean"] - a_low["mean"], f_high["mean"] - f_low["mean"]
+    return [["1997", f"1000-disk heaps, μ = 0.6 against μ = 0.2 ({len(heaps['mu0.6'])} and {len(heaps['mu0.2'])} heaps)",
+             "heap properties insensitive to μ in 0.2–0.6",
+             f"mid-flank angle {d_angle:+.1f}° ({_pm(a_high)} against {_pm(a_low)}); base flank/centre "
+             f"{d_force:+.2f} ({_pm(f_high, 2, '')} against {_pm(f_low, 2, '')})",
+             "angle: " + _close(d_angle, _se(a_high), _se(a_low)) + "; base force: "
+             + _close(d_force, _se(f_high), _se(f_low)).replace("agrees", "insensitive").replace("differs", "depends on μ")]]
 
 
 # ----------------------------------------------------- rolling resistance
@@ -795,9 +840,13 @@ def run(studies: list[str]) -> None:
         import baxter_readings as br
 
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(HEAP_SETTINGS), "--workers", "1"])
+    if "heap1000_n36" in studies:  # the paper's law at 1000 disks, beside its n = 144 heaps (sec. III: 31 against 35 deg)
+        import baxter_readings as br
+
+        br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "contact-point/hold", "--workers", "2"])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000")
+STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36")
 
 
 def main(argv=None) -> int:
