@@ -438,3 +438,18 @@ def test_a_study_keeps_its_finished_piles_in_its_summary_when_the_per_pile_files
     pe.keep_piles(piles, "tilt", 5)
     (piles / "mu0.1_seed0.json").unlink()
     assert pe.pile_rows(piles) == [{"mu": 0.1, "seed": 0}]
+
+
+def test_the_1997_voidage_study_reads_the_poured_disks_packing_under_the_apex():
+    """`baxter_voidage.py` (Baxter et al. 1997, Figs. 2d, 5a, 8): on a saved
+    heap, each band of the column under the apex is packed as a disk heap is
+    (0.7-1: the soft law's overlaps count twice), the heap is wider than high,
+    and the summary's differences are the heaps' own."""
+    import baxter_voidage as bv
+
+    saved = pathlib.Path(__file__).resolve().parents[1] / "tests/data/baxter_heaps/contact-point_hold_seed4.npz"
+    heap = bv.heap_packing(str(saved))
+    assert len(heap["bands"]) == len(bv.BANDS) and all(0.7 < b < 1.0 for b in heap["bands"]), heap
+    assert 0.0 < heap["edges"] < 1.0 and heap["height"] > 5 and heap["base_width"] > 2 * heap["height"]
+    s = bv.summarise([heap, {**heap, "bands": [b - 0.01 for b in heap["bands"]]}])
+    assert s["heaps"] == 2 and s["base_minus_middle"]["mean"] == pytest.approx(heap["bands"][0] - heap["bands"][2])

@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,voidage]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -488,6 +488,56 @@ def rows_1997() -> list[list[str]]:
                      f"{m}: flank/centre {_pm(s['flank_over_centre'], 2, '')}; angle {_angles(s)}", verdict])
     rows.extend(_rows_mu(heaps))
     rows.extend(_rows_n144(heaps))
+    rows.extend(_rows_voidage())
+    return rows
+
+
+def _voidage(n: int) -> dict:
+    """`baxter_voidage.py`'s summary of the n-disk heaps, by setting (file prefix)."""
+    found = _load(HEAPS / f"n{n}" / "voidage.json")
+    return {} if found is None else found["settings"]
+
+
+def _rows_voidage() -> list[list[str]]:
+    """Figs. 2d, 5a and 8 as measured statements: the poured disks' area
+    fraction in bands of the apex height in the column under the apex, and at
+    the edges (`baxter_voidage.py`); each difference against two standard errors."""
+    rows = []
+    paper = _voidage(1334).get("contact-point_hold")
+    if paper:
+        bands = ", ".join(f"{b['mean']:.3f}" for b in paper["bands"])
+        d = {k: paper[k] for k in ("base_minus_middle", "middle_minus_top", "centre_minus_edges")}
+        rows.append(["1997", f"1334-disk heaps ({paper['heaps']}): packing by height under the apex (Fig. 2d; "
+                             "`docs/baxter1997_voidage_n1334.png`)",
+                     "most dense near the base, low density about halfway up, looser towards the apex and edges",
+                     f"area fraction {bands} from the base band to 0.6–0.8 of the height; edges "
+                     f"{_pm(paper['edges'], 3, '')} (the soft law's overlaps count twice)",
+                     "base above halfway: " + _sign(d["base_minus_middle"]["mean"], _se(d["base_minus_middle"]))
+                     + "; halfway above the top: " + _sign(d["middle_minus_top"]["mean"], _se(d["middle_minus_top"]))
+                     + "; centre above the edges: " + _sign(d["centre_minus_edges"]["mean"], _se(d["centre_minus_edges"]))])
+    hooke = _voidage(1000).get("hooke-k500")
+    if hooke:
+        d = hooke["centre_minus_edges"]
+        rows.append(["1997", f"1000-disk heaps, the equivalent Hooke law ({hooke['heaps']}): packing under the apex "
+                             "against the wings (Fig. 5a)", "a large region of low voidage below the apex, moderately "
+                     "dense wings", f"base band under the apex {_pm(hooke['bands'][0], 3, '')}, edges "
+                     f"{_pm(hooke['edges'], 3, '')}: {d['mean']:+.3f}",
+                     "denser under the apex: " + _sign(d["mean"], _se(d))])
+    mono = _voidage(1000).get("contact-point_hold")
+    for name, what in (("poly5", "5 %"), ("poly10", "10 %")):
+        poly = _voidage(1000).get(name)
+        if not poly:
+            continue
+        if not mono:
+            rows.append(["1997", f"1000-disk heaps, {what} polydisperse against monodisperse: packing (Fig. 8)",
+                         "much higher compaction", _missing("heap1000_n36,voidage"), "—"])
+            continue
+        mean = lambda s: sum(b["mean"] for b in s["bands"]) / len(s["bands"])
+        err = lambda s: math.sqrt(sum(_se(b) ** 2 for b in s["bands"])) / len(s["bands"])
+        rows.append(["1997", f"1000-disk heaps, {what} polydisperse against monodisperse ({poly['heaps']} and "
+                             f"{mono['heaps']}): packing under the apex (Fig. 8)", "much higher compaction",
+                     f"{mean(poly):.3f} against {mean(mono):.3f}",
+                     "higher: " + _sign(mean(poly) - mean(mono), err(poly), err(mono))])
     return rows
 
 
@@ -717,6 +767,11 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
     if "1993" in papers and (tilts := pe.pile_rows(TILT.parent)):
         drawn.append(str(folder / "lee_herrmann1993_tilt_ensemble.png"))
         pe.figure_tilt(tilts, drawn[-1])
+    if "1997" in papers and (voids := _load(HEAPS / "n1334" / "voidage.json")):
+        import baxter_voidage as bv
+
+        drawn.append(str(folder / "baxter1997_voidage_n1334.png"))
+        bv.figure(voids, drawn[-1])
     for n in ((1334, 1000) if "1997" in papers else ()):
         if heaps := br.heap_rows(HEAPS / f"n{n}"):
             drawn.append(str(folder / f"baxter1997_n{n}.png"))
@@ -844,9 +899,14 @@ def run(studies: list[str]) -> None:
         import baxter_readings as br
 
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "contact-point/hold", "--workers", "2"])
+    if "voidage" in studies:  # from the saved states of the heap studies' runs (seconds)
+        import baxter_voidage as bv
+
+        bv.main(["--folder", str(HEAPS / "n1334"), "--figure", str(ROOT / "docs" / "baxter1997_voidage_n1334.png")])
+        bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36")
+STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "voidage")
 
 
 def main(argv=None) -> int:
