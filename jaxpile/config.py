@@ -9,32 +9,28 @@ What it sets:
 
 - **float64** (`jax_enable_x64`): static force analysis with stiff springs
   (mg / (k sigma) = 1e-4) needs it, and a pile in float64 is refused without it
-  (`make_particles` says so in one line). Arrays made as float32 stay float32,
-  so a large dynamic run can still use single precision.
+  (`make_particles` says so in one line). Arrays made as float32 stay float32.
 - On a CPU, XLA settings that XLA reads once, when JAX first compiles (so call
   `configure` before any JAX computation; afterwards they are left as they are,
   with a warning):
-  - 512-bit vectors (`--xla_cpu_prefer_vector_width=512`): XLA vectorises at
-    256 bits by default even where the CPU has 512-bit registers; the step's
-    kernels are elementwise over pairs and disks, so wider vectors pay (same
-    arithmetic, same bits; docs/choices.md#vector-width);
-  - XLA:CPU's multi-output fusion: one fusion computes a law's shared
-    arithmetic once for the force, its two scatters and the new history, where
-    XLA would otherwise copy it into each (the law runs three to five times a
-    step without it; docs/choices.md#multi-output-fusion). It changes
-    results at round-off, which a pile's dynamics then grow, hence one setting
-    for commands and scripts. `multi_output_fusion=False` leaves it off: XLA's
-    newer emitters abort the process compiling a multi-output fusion of some
-    scatter-adds, such as those of the derivative of `jnp.interp` on traced
-    values; a loss of your own that holds one needs it off (jaxpile's own
-    losses hold none);
-  - one XLA thread per process (`PJRT_NPROC=1`) unless `threads=True`: one
-    small pile's kernels (a few microseconds each) cost more to split than they
-    save (docs/choices.md#why-one-thread-per-pile-on-a-cpu); a batch's, or
-    one pile's from about 2000 disks, are large enough. Threads never change results;
-  - `host_devices=N` (or `JAXPILE_HOST_DEVICES=N` in the environment): the host
-    split into N JAX devices, one core each, over which `Ensemble` and sweeps
-    shard a batch. The device count changes results at round-off.
+  - 512-bit vectors (`--xla_cpu_prefer_vector_width=512`, XLA's default being
+    256 bits even on 512-bit CPUs): the step's kernels are elementwise over pairs
+    and disks, so wider vectors pay, with the same bits
+    (docs/choices.md#vector-width);
+  - XLA:CPU's multi-output fusion: one fusion computes a law's shared arithmetic
+    once for the force, its two scatters and the new history, where XLA would
+    otherwise repeat it in each (docs/choices.md#multi-output-fusion). It moves
+    results at round-off, hence one setting for commands and scripts.
+    `multi_output_fusion=False` leaves it off, as a loss of your own needs if it
+    holds scatter-adds such as the derivative of `jnp.interp` on traced values
+    (XLA's newer emitters abort compiling them fused; jaxpile's losses hold none);
+  - one XLA thread per process (`PJRT_NPROC=1`) unless `threads=True`: a small
+    pile's kernels cost more to split than they save; a batch's, or one pile's
+    from about 2000 disks, are large enough
+    (docs/choices.md#why-one-thread-per-pile-on-a-cpu). Threads never change results;
+  - `host_devices=N` (or `JAXPILE_HOST_DEVICES=N`): the host split into N JAX
+    devices, one core each, over which `Ensemble` and sweeps shard a batch. The
+    device count changes results at round-off.
 
 A setting already in the environment wins (`XLA_FLAGS`, `PJRT_NPROC`), and
 `JAXPILE_MULTI_OUTPUT_FUSION=0` (or 1) decides the fusion for the commands too.

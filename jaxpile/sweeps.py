@@ -234,33 +234,30 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
     Args:
       protocol: a registered protocol's name (`jaxpile.protocols.PROTOCOLS`) or a `ProtocolSpec`.
       law: the contact law (default: the protocol paper's).
-      vary: name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`: law parameters,
-        or options of the protocol (`{"orifice": [4, 6, 8]}` for the
-        hopper; a name that is both, as the pour's `n`, is the law's). Members
-        with different options run in batches of their own.
+      vary: name -> values, e.g. `{"mu": [0.1, 0.2, 0.3]}`: law parameters or protocol
+        options (`{"orifice": [4, 6, 8]}`; a name that is both, as the pour's `n`, is the
+        law's); members with different options run in batches of their own.
       seeds: a count (seeds 0..n-1) or a list of seeds.
       params: fixed overrides of the protocol's law setting.
-      options: the protocol's options (e.g. `n`, `width`, `height`); for a
-        protocol of several stages (the tilt after the box), each stage takes
-        the names it has.
+      options: the protocol's options (e.g. `n`, `width`); each stage of a protocol of
+        several (the tilt after the box) takes the names it has.
       dt, rotation: for the simulator (default: the protocol's).
       law_options: the law's readings beyond rotation, e.g. `{"rolling": "sds"}`.
-      max_steps: step budget of the first stage (default: the protocol's;
-        a later stage, e.g. the tilt, has its own).
-      batch_size: members per compiled batch (default: all at once; across
-        the processes of a distributed run, one batch a process).
+      max_steps: step budget of the first stage (default: the protocol's; a later stage
+        has its own).
+      batch_size: members per compiled batch (default: all; in a distributed run, one
+        batch a process).
       devices: to shard each batch over (default: this process's, `jax.local_devices()`).
       progress: progress bars (default: when stderr is a terminal).
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`: the running
-        batch is saved every `every` steps, with the rows of the batches
-        already measured, the batch it belongs to and the grid.
-      resume: a checkpoint file of this same sweep: the batches it had
-        measured are taken from it, its batch is continued from the saved
-        state, and the sweep ends as the uninterrupted one would (rows equal).
-      points: instead of `vary`'s product grid, these law-parameter points
-        (dicts), each run with every seed (a fit's perturbed parameters).
-      extra_measure: `(sim, params, state, setup) -> dict` merged into each
-        member's row (e.g. its base profile as an array).
+      dtype: the piles' float dtype (default float64).
+      checkpoint: `(path, every[, extra])` as in `Simulator.run`: the running batch saved
+        every `every` steps, with the rows already measured, its batch and the grid.
+      resume: a checkpoint file of this same sweep: its measured batches are kept, its batch
+        continued from the saved state, and the rows end equal to the uninterrupted sweep's.
+      points: instead of `vary`'s product grid, these law-parameter points (dicts), each
+        run with every seed (a fit's perturbed parameters).
+      extra_measure: `(sim, params, state, setup) -> dict` merged into each member's row
+        (e.g. its base profile as an array).
 
     Returns:
       `SweepResult`.

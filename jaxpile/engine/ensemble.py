@@ -4,47 +4,38 @@ A `Simulator`'s pure step is mapped with `jax.vmap` over a leading batch axis
 of the state and of the law parameters, so 16 seeds x 8 friction values of a
 protocol are one compiled loop. What makes that work for DEM:
 
-* Shapes. Every member has the same number of disks and the same neighbour
-  list shape: the batch shares one capacity (slots per disk and per cell),
-  taken as the largest any member needs (`stack_states`). A member's list is
-  rebuilt at that capacity; the extra slots stay empty and cost a little work.
-* Decisions. jax-md rebuilds a list with a `lax.cond`, which under `vmap`
-  becomes a select: every member would rebuild at every step. The batched step
-  (`make_step(..., axis_name="batch")`) instead ors the per-member need over
-  the batch (`neighbors.any_member`, a `lax.pmax` over the named axis), so the
-  rebuild runs only on steps where some member needs it, for the whole batch;
-  members that did not move keep their lists, and the contact history is
-  carried onto the new pairs inside the same branch.
-  `benchmarks/ensemble_throughput.py` measures the difference.
-* Members one after another. Where members act out of phase, side by side
-  costs: poured heaps each rebuild every ~8 steps while their disks fall, so
-  an or over 16 of them rebuilds nearly every step (silos draining too); and
-  a driver's `cond` is a select under vmap, so a flux pile's insertion branch
-  runs at every step for every member. There `sequential=True` (a
-  protocol's `Batch.sequential`) advances the
-  members one after another inside the same compiled call (`lax.map` of each
-  member's own loop of the single pile's step): each rebuilds, and runs its
-  driver's branch, on its own steps. XLA compiles the two programs apart, so
-  their states agree bit for bit where the docs page below says so, and at
-  round-off elsewhere. It applies on one CPU device; boxes and drops gain
-  little from it and run side by side
+* Shapes. Every member has the same number of disks and one shared neighbour
+  list capacity (slots per disk and per cell), the largest any member needs
+  (`stack_states`); the extra slots stay empty and cost a little work.
+* Decisions. jax-md's `lax.cond` rebuild becomes a select under `vmap`, so every
+  member would rebuild at every step. The batched step (`make_step(...,
+  axis_name="batch")`) ors the members' needs (`neighbors.any_member`, a
+  `lax.pmax` over the named axis) and rebuilds the whole batch only on steps
+  where some member needs it, carrying the contact history onto the new pairs
+  in the same branch (`benchmarks/ensemble_throughput.py` measures it).
+* Members one after another. Members acting out of phase (poured heaps, silos)
+  make that or rebuild nearly every step, and a driver's `cond` (a flux pile's
+  insertion) runs every step for every member. With `sequential=True` (a
+  protocol's `Batch.sequential`), on one CPU device, the members run one after
+  another inside the same compiled call (`lax.map` of each member's own loop),
+  each rebuilding and running its driver's branch on its own steps; boxes and
+  drops gain little and stay side by side. XLA compiles the two programs apart,
+  so their states agree bit for bit or at round-off
   (docs/choices.md#members-side-by-side-or-one-after-another).
 * Overflow. After each chunk the host checks every member; if any list
   overflowed, the whole batch gets a larger common capacity and the chunk is
   re-run from its start (no contact is ever dropped).
 * Finished members. With `until`, a member whose predicate holds at the start
-  of a chunk is frozen (the chunk's result for it is discarded), so it ends
-  exactly where it would have ended run alone with `Simulator.run(until=...)`.
-  The run stops when every member has finished.
+  of a chunk is frozen, so it ends exactly where `Simulator.run(until=...)`
+  would have ended it alone; the run stops when every member has finished.
 * Devices. With several `jax.devices()` (GPUs, or CPU devices from
   `XLA_FLAGS=--xla_force_host_platform_device_count=N`) the batch axis is
-  sharded over them with `jax.sharding` (`NamedSharding` on a one-axis mesh):
-  each device advances its share, and the batch-wide rebuild decision becomes
-  one small all-reduce per step. The batch is padded with copies of its last
-  member to a multiple of the device count (the padding is dropped from the
-  results). A batch stays on its process's own devices (`jax.local_devices()`):
-  across processes and hosts a sweep runs whole batches on each
-  (`jaxpile.distributed`), so no step waits for the network.
+  sharded over them (`NamedSharding` on a one-axis mesh), the rebuild decision
+  becoming one small all-reduce per step; the batch is padded with copies of
+  its last member to a multiple of the device count (the padding dropped from
+  the results). A batch stays on its process's `jax.local_devices()`: across
+  processes and hosts a sweep runs whole batches on each (`jaxpile.distributed`),
+  so no step waits for the network.
 """
 
 from __future__ import annotations

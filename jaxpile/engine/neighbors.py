@@ -7,39 +7,30 @@ skin) in one of K slots (`idx[n, K]`, empty = n, each row in increasing index
 order). It is built by sorting the disks by cell: the three cells of a row next
 to a disk are then one contiguous run of the sorted keys, whose start is read
 from a table of each cell's first disk (or found by binary search in a box far
-larger than its disks), read through a window of W entries (`_build`).
-jax-md's own cell list (a dense grid of cells, shifted nine times) costs
-several times as much per rebuild on a CPU, and a pour rebuilds every ~8 steps
-while disks fall; this build, its half pair list and history carry included,
-avoids chains of small XLA kernels (binary searches, argsorts, long cumsums)
-and takes a third of jax-md's temporary memory (measured:
-docs/choices.md#neighbour-lists). The list keeps
-jax-md's `NeighborList` type and its overflow flags: `max_occupancy` is K,
-`cell_list_capacity` is W.
+larger than its disks), read through a window of W entries (`_build`). It costs
+a fraction of jax-md's own cell list per rebuild on a CPU, and a third of its
+temporary memory, by avoiding chains of small XLA kernels
+(docs/choices.md#neighbour-lists). The list keeps jax-md's `NeighborList` type
+and its overflow flags: `max_occupancy` is K, `cell_list_capacity` is W.
 
-The contact laws do not run on those slots.
-Each rebuild compacts the full list into a *half* list, `pairs[P, 2]` with
-i < j, each pair once (row-major: sorted by i, so the gathers of x_i walk
-memory in order; empty entries (n, n)). The law is then evaluated once per
-pair and the reaction on j is added by a scatter, as LAMMPS does with its half
-list: on the 1035-disk lattice pile, 2970 pairs against 9315 full-list slots,
-and one law evaluation per pair instead of two.
+The contact laws run on a *half* list instead, `pairs[P, 2]` with i < j, each
+pair once, compacted from the full list at each rebuild (sorted by i, so the
+gathers of x_i walk memory in order; empty entries (n, n)): the law is
+evaluated once per pair and the reaction on j added by a scatter, as LAMMPS
+does with its half list, on about a third of the full list's slots.
 
-The half list has a capacity of its own, P (`pair_capacity_for`): room for 3
-pairs per disk (a close-packed 2D pile of equal disks, the most any packing of
-them has) or 10% over the pairs at allocation, whichever is more, and never
-more than ceil(n K / 2), which holds every pair of the full list. The full
-list's K carries head-room for its densest row; P only for the mean, so padding
-costs far less (the lattice: 2970 pairs in 3328 entries instead of 4658). A
-pour's list is sized for its whole heap from the start: one sized for the pairs
-at allocation re-allocates as the heap grows, each time re-running a chunk. A
-rebuild that finds more pairs than P keeps the first P, records the demand in
-`Contacts.demand` and raises the list's overflow flag, so the runner re-allocates and re-runs the chunk exactly
-as for an overflow of the full list (no contact is ever dropped); so does a
-window too small for a crowded run of cells. Every rebuild also records the
-most neighbours of any disk (`Contacts.slot_demand`): a re-allocation sizes
-the slots by it (`slots_needed`), the pair room by the pair demand
-(`pairs_needed`). `allocate` runs outside jit,
+The half list's capacity P (`pair_capacity_for`) is room for 3 pairs per disk
+(the most any packing of equal disks has in 2D) or 10% over the pairs at
+allocation, whichever is more, and never more than ceil(n K / 2); K carries
+head-room for the densest row, P only for the mean, so its padding costs far
+less. A pour's list is sized for its whole heap from the start, so it is not
+re-allocated (and a chunk re-run) as the heap grows. A rebuild that finds more
+pairs than P keeps the first P, records the demand in `Contacts.demand` and
+raises the overflow flag, so the runner re-allocates and re-runs the chunk as
+for an overflow of the full list (no contact is ever dropped); so does a window
+too small for a crowded run of cells. A re-allocation sizes the slots by the
+most neighbours any rebuild found (`Contacts.slot_demand`, `slots_needed`) and
+the pair room by the pair demand (`pairs_needed`). `allocate` runs outside jit,
 `update` inside; the runner checks `overflowed(state)` after each chunk (see
 `simulate`).
 """

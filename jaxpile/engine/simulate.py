@@ -220,34 +220,28 @@ class Simulator:
     Args:
       law: a `ContactLaw`.
       dt: the time step.
-      schedule: optional `state -> Boundaries` in force at each step (see
-        `make_step`), e.g. `gravity_ramp(steps)`.
+      schedule: optional `state -> Boundaries` in force at each step
+        (`make_step`), e.g. `gravity_ramp(steps)`.
       integrator: `velocity_verlet` (default), `leapfrog` (Baxter et al. 1997),
         `gear` (fifth-order predictor-corrector, Lee & Herrmann 1993),
-        `implicit_midpoint` (Liffman et al. 1992, eq. 24), or an `Integrator`
-        (e.g. `integrators.implicit_midpoint(relaxation=0.6, iterations=12)`).
-      driver: optional `state -> state` run at the start of every step inside
-        the compiled loop (see `make_step`): protocols insert disks, remove
-        walls and tilt gravity with it.
+        `implicit_midpoint` (Liffman et al. 1992, eq. 24), or an `Integrator`.
+      driver: optional `state -> state` run at the start of every compiled step
+        (`make_step`): protocols insert disks, remove walls, tilt gravity.
       hard_collisions: optional `collisions.HardCollisions(restitution, mu)`:
-        fast approaches collide impulsively (Liffman et al. 1992, eqs. 1-22);
-        off by default (every contact is soft).
+        fast approaches collide impulsively (Liffman et al. 1992, eqs. 1-22).
       skin: neighbour-list skin (default: 20% of the largest diameter).
       capacity_multiplier: head-room of the neighbour slots at allocation.
       packed_lists: size the neighbour list from the start for the disks
-        close-packed (`neighbors.packed_capacity`), so disks that start apart
-        and fall, flow or are pressed into a pile keep their list; False sizes
-        it for the disks as they start (smallest; re-allocated as they pack,
-        each time a new compile of the step loop and a chunk run again).
+        close-packed (`neighbors.packed_capacity`), so disks that fall, flow or
+        are pressed into a pile keep their list; False sizes it for the start
+        (smallest, re-allocated as they pack: a compile and a chunk re-run each).
       chunk_steps: steps per compiled chunk between host checks.
       max_initial_overlap: largest allowed start overlap as a fraction of the
         contact distance r_i + r_j (deeper means the start positions are wrong).
-      in_play: optional `(state, steps) -> m`, host-side: no disk past the
-        first m can be in play (active, moved by the driver) during the next
-        `steps` steps from `state`. A protocol that brings parked disks into
-        play in index order (a pour) gives it, and each chunk then runs on the
-        smallest block of leading disks that holds them (`jaxpile.engine.blocks`):
-        the same result bit for bit, at the cost of the disks in play.
+      in_play: optional host-side `(state, steps) -> m`: no disk past the first
+        m is in play during the next `steps` steps. A pour gives it, and each
+        chunk runs on the smallest leading block of disks that holds them
+        (`jaxpile.engine.blocks`): the same result bit for bit, cheaper.
     """
 
     def __init__(

@@ -12,26 +12,16 @@ law parameters (so `jax.grad` runs through a whole `Simulator.rollout`):
   for the features Smid & Novosad's experiment is reported to show).
 
 `descend` then runs an optax optimiser over chosen parameters in log space
-(`Transform`), keeping the rest of the params pytree fixed.
-
-The pieces live in one module each, and every name below is re-exported here:
-
-- `profiles`: base loads, smooth and normalised profiles, and the features
-  read off a profile (`dip_below_peak`, `central_slope`);
-- `targets`: `ProfileTarget`, from a CSV file, Smid & Novosad's declared
-  shape, or a computed profile;
-- `losses`: a predicted profile against a target;
-- `simulated`: the profile and the loss of a rollout (`ProfileSetting`, which
-  says how the profile is read, lives in `jaxpile.measure.heap`);
-- `problem`: the pile a pathwise fit differentiates (`FitProblem`), built
-  from a protocol that offers one;
-- `optimise`: the log-space `Transform`, forward or reverse gradients, the
-  optax loop `descend` and its figure.
-
-Fits to the ensembles that a protocol builds are in `ensemble_fit` (with
-`estimators`, `construction`, `regression`, `stats`, `verdict`); a fit to a
-measurement (`measured`: `Measurement`, `load_measurement`) in one call is
-`calibrate` (also `jaxpile.calibrate`), what `jaxpile fit --target FILE` does.
+(`Transform`), keeping the rest of the params pytree fixed. Every name below is
+re-exported here from its module: `profiles` (base loads, profiles and their
+features), `targets` (`ProfileTarget`), `losses`, `simulated` (the profile and
+loss of a rollout; `ProfileSetting` lives in `jaxpile.measure.heap`),
+`problem` (`FitProblem`, the pile a pathwise fit differentiates) and
+`optimise` (`Transform`, forward or reverse gradients, `descend`, its figure).
+Fits to a protocol's ensembles are in `ensemble_fit` (with `estimators`,
+`construction`, `regression`, `stats`, `verdict`); `calibrate` (also
+`jaxpile.calibrate`) fits a measurement (`measured`) in one call, as
+`jaxpile fit --target FILE` does.
 
 Example:
   >>> import jax.numpy as jnp
@@ -44,11 +34,10 @@ Example:
   >>> float(result.params.mu)  # doctest: +SKIP
   0.3...
 
-Limits of the gradients: contacts switching on or off, a Coulomb cap switching
-between sticking and sliding, and the plain maximum of `normalise` are
-differentiable almost everywhere, not everywhere; a loss is smooth in a
-parameter only as long as no such switch happens within the step the optimiser
-takes.
+A loss is smooth in a parameter only as long as no contact switches on or off,
+no Coulomb cap switches between sticking and sliding and no maximum of
+`normalise` changes hands within the optimiser's step: these are
+differentiable almost everywhere, not everywhere (docs/gradients.md#what-works).
 """
 
 from jaxpile.fit.calibrate import calibrate

@@ -1,59 +1,47 @@
 """Fitting law parameters to the ensemble a protocol builds.
 
-A pile built at random (a box emptied by an avalanche, a poured heap, a
-dropped pile) is one draw from the distribution that a protocol makes at
-given law parameters. What a measurement can pin down is a property of that
-distribution, so the fit compares a target with the *ensemble mean* of per-pile
+A pile built at random (a box emptied by an avalanche, a poured heap, a dropped
+pile) is one draw from the distribution a protocol makes at given law
+parameters, so the fit compares a target with the *ensemble mean* of per-pile
 statistics (an angle of repose, a binned base-force profile):
 
     F(theta) = mean_k w_k (mean_b s_bk(exp theta) - t_k)^2,
 
-over log-parameters theta, with w_k = 1 / (the target's spread of s_k over
-piles)^2, so every statistic counts in units of its own pile-to-pile noise.
-Every ensemble is run with the same seeds at every theta (common random
-numbers): a difference between two thetas is then not buried under the
-difference between two packings.
+over log-parameters theta, with w_k = 1 / (the target's pile-to-pile spread of
+s_k)^2, so every statistic counts in units of its own noise. Every ensemble is
+run with the same seeds at every theta (common random numbers), so that a
+difference between two thetas is not buried under that between two packings.
 
-The gradient through a chaotic construction explodes (docs/gradients.md,
-long horizons), so the estimators here use the construction as a
-black box, batched:
+The gradient through a chaotic construction explodes (docs/gradients.md), so
+the estimators use the construction as a black box, batched:
 
 - `"central"`: central differences of the ensemble means at theta +- h e_i
-  (`estimators.central_from_members`); all 2d + 1 ensembles in one batched
-  run. They give the Jacobian J of the means as well, so the default
-  optimiser is Gauss-Newton, theta <- theta - (J^T W J)^-1 J^T W r
-  (r: the mean minus the target), with its steps clipped to `max_step`.
-- `"smoothing"`: the gradient of the Gaussian-smoothed F from antithetic
-  pairs (`estimators.antithetic_smoothing`), all pairs in one batched run;
-  for an optax optimiser.
-- `"truncated"`: the pathwise gradient through the construction cut into
-  windows (`estimators.truncated_pathwise` over `construction.Construction`:
-  the pour, its base profile alone); for an optax optimiser. Wrong in sign
-  on 40-disk heaps in the estimator study (docs/fitting.md); there for trying elsewhere.
+  (`estimators.central_from_members`), all 2d + 1 ensembles in one batched run;
+  their Jacobian J drives the default Gauss-Newton step theta <- theta -
+  (J^T W J)^-1 J^T W r (r: the mean minus the target), clipped to `max_step`.
+- `"smoothing"` (`estimators.antithetic_smoothing`) and `"truncated"`
+  (`estimators.truncated_pathwise` over `construction.Construction`: the pour's
+  base profile), for an optax optimiser; the truncated gradient was wrong in
+  sign on 40-disk heaps (docs/fitting.md#the-estimator-study).
 
-The answer carries a confidence interval from the ensembles' own spread: near
-the optimum theta_hat is linear in the two ensemble means, so (the sandwich)
+The answer's confidence interval comes from the ensembles' own spread: near the
+optimum theta_hat is linear in the two ensemble means, so (the sandwich)
 Cov(theta_hat) = H^-1 J^T W (Sigma_fit / B + Sigma_target / B_t) W J H^-1 with
-H = J^T W J and Sigma the covariance of one pile's statistics.
-
-None of these formulas is in the three papers (they fit no parameters):
-Gauss-Newton with Levenberg-Marquardt damping (Levenberg 1944, Marquardt
-1963); the sandwich covariance of an M-estimator (Huber 1967, White 1982),
-with a Student-t quantile for its B - 1 degrees of freedom; for a
-deterministic pile, the nonlinear-least-squares covariance s^2 H^-1.
-tests/test_ensemble_fit.py checks each on a toy whose answer is known.
+H = J^T W J and Sigma the covariance of one pile's statistics. None of this is
+in the three papers: Gauss-Newton with Levenberg-Marquardt damping (Levenberg
+1944, Marquardt 1963); the sandwich covariance of an M-estimator (Huber 1967,
+White 1982) with a Student-t quantile for B - 1 degrees of freedom; for a
+deterministic pile, the nonlinear-least-squares covariance s^2 H^-1
+(tests/test_ensemble_fit.py checks each on a toy whose answer is known).
 
 A fit checkpoints its history to JSON before its first iteration and after
-every one; `resume` replays it (optax states are rebuilt by replaying the
-recorded gradients, which makes the resumed fit step for step the
-uninterrupted one). An iteration of paper-size piles on a CPU can outlast a
-working session: `batch_checkpoint` saves the running batch of piles as a
-sweep does, and a resumed fit continues that batch where it stopped.
-
-How the ensembles are built and what each pile contributes are in
-`ensemble_runs` (`Runner`, `Statistics`), the targets in `ensemble_targets`
+every one; `resume` replays it (optax states rebuilt from the recorded
+gradients, so the resumed fit is step for step the uninterrupted one), and
+`batch_checkpoint` saves the running batch of piles as a sweep does, for
+iterations that outlast a working session. The ensembles are built in
+`ensemble_runs` (`Runner`, `Statistics`) and the targets in `ensemble_targets`
 (`EnsembleTarget`, `make_target`, `smid_novosad_target`); their names are
-re-exported here, where callers have always found them.
+re-exported here, so one import serves a fit.
 """
 
 from __future__ import annotations

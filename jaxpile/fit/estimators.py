@@ -1,42 +1,37 @@
 """Gradient estimators of an ensemble-mean loss.
 
-A pile built at random is one draw from the distribution a protocol makes at
-given parameters; what a fit can match is a property of that distribution. So
-the quantity to differentiate is F(theta) = objective(mean over members of
+The quantity to differentiate is F(theta) = objective(mean over members of
 s_b(theta)): `members(theta) -> [B, k]` runs an ensemble of B piles at the
 (log-)parameters theta and returns k statistics per pile (base-force bins, an
 angle...), and `objective([k]) -> scalar` compares their ensemble mean with a
-target. Every estimator here uses common random numbers: `members` must build
-member b from the same seed at every theta, so that the difference between
-two thetas is not buried under the difference between two packings.
+target. Every estimator uses common random numbers: `members` must build member
+b from the same seed at every theta, so that the difference between two thetas
+is not buried under the difference between two packings.
 
 - `pathwise`: jax.grad through the whole construction (the baseline; through a
-  chaotic pour it explodes: docs/gradients.md).
+  chaotic pour it explodes: docs/gradients.md#what-is-chaotic).
 - `central_differences`: (F(theta + h e_i) - F(theta - h e_i)) / 2h, 2d runs of
   the ensemble; the reference, and a usable estimator for one or two parameters.
-- `truncated_pathwise`: the construction cut into windows of W steps; each
-  window's sensitivity to theta is taken through that window alone (forward
-  mode, its start held fixed) and the windows' sensitivities are summed (or
-  averaged) and carried to the end as they are. W = the whole construction is `pathwise`;
-  shorter windows cut the products of step Jacobians that explode in a chaotic
-  pour, at the price of a bias (bias traded for variance, W set by measuring).
+- `truncated_pathwise`: the construction cut into windows of W steps, each
+  window's sensitivity to theta taken through that window alone (forward mode,
+  its start held fixed), summed or averaged and carried to the end. Short
+  windows cut the products of step Jacobians that explode in a chaotic pour, at
+  the price of a bias (W set by measuring; W = the whole run is `pathwise`).
 - `antithetic_smoothing`: the gradient of the Gaussian-smoothed F,
   (1 / 2 sigma K) sum_k [F(theta + sigma u_k) - F(theta - sigma u_k)] u_k over K
-  antithetic pairs, all 2K ensembles in one batched call. Bias: the smoothing
-  (none for a quadratic F); variance: falls as 1/K.
+  antithetic pairs, all 2K ensembles in one batched call; biased by the
+  smoothing (not for a quadratic F), its variance falling as 1/K.
 
-None of these formulas is in the three papers: the smoothed-gradient estimator
-is Nesterov & Spokoiny's Gaussian smoothing (Found. Comput. Math. 17, 2017) with antithetic
-pairs; the truncation of the sensitivity's history is Williams & Peng's truncated
-back-propagation through time (Neural Comput. 2, 1990) in forward mode, with the windows laid end
-to end over the whole construction; the standard error of a leave-one-out set is Quenouille-Tukey's jackknife
-(var = (B - 1)/B sum (g_(b) - mean)^2). tests/test_estimators.py checks each
-against exact gradients of synthetic ensembles.
-
-Each returns an `Estimate` with the standard error of every component: over
-the K pairs for the smoothing, and by the jackknife over members (leave one
-pile out, the same pile at every theta) for the others, which is right for a
-loss that is a nonlinear function of the ensemble mean.
+Each returns an `Estimate` with the standard error of every component: over the
+K pairs for the smoothing, and by the jackknife over members (leave one pile
+out, the same pile at every theta) for the others, which is right for a loss
+that is a nonlinear function of the ensemble mean. None of this is in the three
+papers: Gaussian smoothing with antithetic pairs is Nesterov & Spokoiny's (Found.
+Comput. Math. 17, 2017); the truncation is Williams & Peng's truncated
+back-propagation through time (Neural Comput. 2, 1990) in forward mode, its
+windows laid end to end; the jackknife is Quenouille-Tukey's (var = (B - 1)/B
+sum (g_(b) - mean)^2). tests/test_estimators.py checks each against exact
+gradients of synthetic ensembles.
 """
 
 from __future__ import annotations

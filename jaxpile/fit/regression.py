@@ -1,38 +1,32 @@
 """The fitted parameters from a regression over every ensemble a fit ran.
 
-Gauss-Newton answers with its last iterate and a Jacobian from the last
-central difference. In a chaotic protocol (a silo's discharge, a pour) the
-ensembles at theta and theta +- h differ by more than the parameter change
-explains, even with the same seeds: common random numbers do not cancel
-chaos. The last step is then one noisy step, and an interval built on one
-finite-difference Jacobian is too narrow (measured on the hopper:
-docs/fitting.md).
+Gauss-Newton answers with its last iterate and a Jacobian from the last central
+difference. In a chaotic protocol (a silo's discharge, a pour) the ensembles at
+theta and theta +- h differ by more than the parameter change explains, even
+with the same seeds (common random numbers do not cancel chaos), so the last
+step is one noisy step and an interval built on one finite-difference Jacobian
+is too narrow (docs/fitting.md#the-hopper).
 
 Every ensemble of the fit is a point (theta_n, m_n) on the response of the
 ensemble means to the log-parameters. A straight line through all of them,
-m(theta) = a + J theta (least squares, per statistic), is estimated from
-3 (iterations + 1) ensembles instead of 3; its parameters where it best meets
-the target t, in the fit's weights W,
+m(theta) = a + J theta (least squares, per statistic), rests on 3 (iterations +
+1) ensembles instead of 3; its parameters where it best meets the target t, in
+the fit's weights W,
 
     theta* = (J^T W J)^-1 J^T W (t - a),
 
-is classical inverse regression, the calibration problem (Eisenhart 1939,
-Ann. Math. Statist. 10, 162; reviewed by Osborne 1991, Int. Statist. Rev.
-59, 309); the three papers fit no parameters. Its covariance is the delta
-method through theta*'s equation J^T W (a + J theta* - t) = 0 (H = J^T W J):
-the line's own noise (its coefficients' covariance, the residual covariance
-times (X^T X)^-1) moves theta* through the line's level at theta* and, where
-the target is missed (r = a + J theta* - t not 0), through its slope, the
-term a fit that cannot reach its target needs; the target's sampling noise
-(Sigma_t / B_t) and that of the fit's seeds (Sigma / B: the piles the whole
-line was built on) enter as H^-1 J^T W (Sigma_t / B_t + Sigma / B) W J H^-1,
-the sandwich of `ensemble_fit.confidence` (Huber 1967, White 1982). The interval is Student-t
-with the residuals' N - d - 1 degrees of freedom. A straight line is the
-model: over iterates far apart on a curved response it is biased, so the
-estimate is for fits whose iterates stay near the answer (after the first
-steps), which is where Gauss-Newton's noise matters.
-tests/test_ensemble_fit.py checks it: exact on a line, and an interval that
-holds the truth on a chaotic toy where Gauss-Newton's misses it.
+are classical inverse regression, the calibration problem (Eisenhart 1939, Ann.
+Math. Statist. 10, 162; Osborne 1991, Int. Statist. Rev. 59, 309). Their
+covariance is the delta method through J^T W (a + J theta* - t) = 0 (H = J^T W
+J): the line's own noise (the residual covariance times (X^T X)^-1) moves theta*
+through the line's level and, where the target is missed, its slope; the
+target's and the seeds' noise enter as the sandwich H^-1 J^T W (Sigma_t / B_t +
+Sigma / B) W J H^-1 of `ensemble_fit.confidence` (Huber 1967, White 1982). The
+interval is Student-t with the residuals' N - d - 1 degrees of freedom. A
+straight line is biased over iterates far apart on a curved response, so the
+estimate is for fits whose iterates stay near the answer, where Gauss-Newton's
+noise matters. tests/test_ensemble_fit.py checks it: exact on a line, and an
+interval that holds the truth on a chaotic toy where Gauss-Newton's misses it.
 """
 
 from __future__ import annotations

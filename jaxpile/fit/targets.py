@@ -214,38 +214,24 @@ and cite the experiment as qualitatively very similar)."""
 
 
 def smid_novosad_profile(points: int = 41, *, dip: float = 0.25, peak_offset: float = 0.25) -> ProfileTarget:
-    """A target built from the features of Smid & Novosad's experiment (1981) that
-    the papers report in words. It is built from reported features, NOT from
-    measured points: the papers print no table of the experiment's values (Liffman
-    et al. 1992 plot them in Fig. 17, which we do not digitise), so the curves
-    below are a declared shape that has those features, and nothing more.
+    """A target built from the reported features of Smid & Novosad's experiment (1981).
 
-    The features (Liffman, Chan & Hughes 1992, Introduction and text of Fig. 17;
-    Baxter et al. 1997, sec. III, ref. 13):
+    It is built from reported features, NOT from measured points: the papers print
+    no table of the experiment's values (Liffman et al. 1992 plot them in Fig. 17,
+    not digitised here), so the curves are a declared shape with these features
+    (Liffman, Chan & Hughes 1992, Introduction and Fig. 17; Baxter et al. 1997,
+    sec. III, ref. 13): an angle of repose of 32.6 degrees; a central minimum of
+    the base normal stress 20-30% below its maximum; a shear stress zero at the
+    centre and linear around it with the slope of eq. 57.
 
-    * angle of repose 32.6 degrees;
-    * the base normal stress has a central minimum under the apex, 20-30% below
-      its maximum (`dip` = 0.25, the middle, by default);
-    * the shear stress is zero at the centre, by symmetry, and linear in the
-      central region with the slope of eq. 57, which simulation and experiment
-      share.
-
-    How the curves are built, with u = x/B and s = |u - 1/2| (d = `peak_offset`):
-
-    * normal (max 1): 1 - dip (1 - (s/d)^2)^2 for s <= d, and 1 - ((s - d)/(1/2 - d))^2
-      for d < s <= 1/2: a smooth M, 1 - dip at the centre, maxima of exactly 1 at
-      u = 1/2 +- d with zero slope there (C1), and 0 at the feet u = 0, 1 with a
-      finite slope (the linear rise of eq. 54 near a foot). The position of the
-      maxima is not reported; d = 0.25 is our choice.
-    * horizontal: the continuum sloped pile's H(x) (eqs. 55, 57, 59, `theory.
-      continuum_ground_horizontal_force`) at alpha = 32.6 degrees and B = 1,
-      divided by its maximum normal force (eq. 56, the flat central value of
-      `theory.continuum_ground_normal_force`). Zero at the centre, odd about it,
-      slope 2/sqrt(3) per unit x/B for |u - 1/2| < 1/2 - x_c/B = 0.185 (eq. 57 over
-      eq. 56; x_c from `theory.continuum_critical_distance`), and falling
-      linearly to zero at the feet (eqs. 55, 59). The sign convention of
-      `analysis.base_forces`: the pile pushes the base outwards, negative on the
-      left half.
+    With u = x/B, s = |u - 1/2| and d = `peak_offset`, the normal curve is
+    1 - dip (1 - (s/d)^2)^2 for s <= d and 1 - ((s - d)/(1/2 - d))^2 beyond: a
+    smooth M with maxima of exactly 1 at s = d (their position is not reported)
+    and 0 at the feet with a finite slope (eq. 54). The horizontal curve is the
+    continuum sloped pile's H(x) (eqs. 55, 57, 59, `theory.continuum_ground_horizontal_force`)
+    at alpha = 32.6 degrees over its central normal force (eq. 56): odd about
+    the centre, slope 2/sqrt(3) per unit x/B for s < 1/2 - x_c/B = 0.185, then
+    linear to zero at the feet, negative on the left half (`analysis.base_forces`).
 
     Args:
       points: an odd number (>= 5) of equally spaced positions from x/B = 0 to

@@ -19,34 +19,24 @@ n = (x_i - x_j) / r and t = z x n:
   stiffness (eq. 7): k_T = 3 mu F_e^N / (2 delta_max) (1 - |delta_F|/delta_max)^{1/2},
   damping (eq. 8): C_T = f 2 sqrt(m k_T).
 
-Readings of the printed equations. Where the text admits two, both are options
-of `law(...)` (named after what they mean), measured against the paper's heap in
-`benchmarks/studies/papers/baxter_readings.py`:
-- The exponent's sign. The text's form would give a force that grows with r. It
-  must fall with r and equal mg at r = sigma, so that two disks stacked under
-  gravity rest at exactly r = sigma. (One reading only.)
-- The lever arm in eqs. 6 and 13, `lever_arm`. Eq. 6 prints
-  (theta_i' + theta_j') r_ij and eq. 13 T_i = r_ij x F_ij: the centre-to-centre
-  distance. `"contact-point"` (default) uses the arms from each centre to the
-  contact point, r a_i / (a_i + a_j) and r a_j / (a_i + a_j) (r/2 each for equal
-  disks), in both: the relative velocity of the touching surfaces, zero for a
-  pair turning rigidly. `"centre-distance"` is the printed text: both arms are
-  r, so a disk's spin moves delta_F (and feels its torque) twice as strongly, a
-  disk rolling on another without slip still strains the contact (rolling is
-  resisted), and a pair turning rigidly strains it too.
-- What delta_F does at gross sliding, `slip`. Eq. 5 is defined for
-  |delta_F| <= delta_max, and delta_max = alpha mu delta_N shrinks as a pair
-  separates. `"hold"` (default) clips delta_F to +-delta_max at every step (the
-  contact slides: F^T = mu F_e^N and the stored strain is what the spring can
-  hold). `"accumulate"` keeps integrating delta_F past delta_max and only caps the
-  force (the reserve 1 - |delta_F|/delta_max is floored at 0): a contact that
-  slid far must be strained back by as much before its force turns.
-- The mass m in C_c = 2 sqrt(m k) (eqs. 3 and 8), `damping_mass`. `"pair"`
-  (default) takes 2 m_i m_j / (m_i + m_j): the paper's m for two equal disks,
-  the same on both sides of a pair, and 2 m_i against a wall or a fixed disk
-  (the substrate). `"disk"` is the printed m against a fixed partner too: the
-  moving disk's own m_i there (its substrate contacts damped sqrt(2) less), and
-  2 m_i m_j / (m_i + m_j) between free disks, as `"pair"` does.
+Readings of the printed equations: where the text admits two, both are options
+of `law(...)`, named after what they mean (docs/baxter1997_audit.md#the-law
+reads each against the paper and measures it on poured heaps):
+- The exponent's sign (one reading only): the printed form would give a force
+  that grows with r; it must fall with r and equal mg at r = sigma, so that two
+  disks stacked under gravity rest at exactly r = sigma.
+- `lever_arm`, the arm in eqs. 6 and 13. `"contact-point"` (default): from each
+  centre to the contact point, r a_i / (a_i + a_j), in both, so a pair turning
+  rigidly does not strain its contact. `"centre-distance"`: the printed r_ij for
+  both disks, so rolling without slip, and rigid turning, strain the contact.
+- `slip`, delta_F at gross sliding (eq. 5 holds for |delta_F| <= delta_max,
+  which shrinks as a pair separates). `"hold"` (default) clips delta_F to
+  +-delta_max at every step; `"accumulate"` keeps integrating it and caps only
+  the force, so a contact that slid far must be strained back as far.
+- `damping_mass`, the m of C_c = 2 sqrt(m k) (eqs. 3 and 8). `"pair"` (default):
+  2 m_i m_j / (m_i + m_j), the paper's m for two equal disks, and 2 m_i against
+  a wall or a fixed disk; `"disk"`: the printed m against a fixed partner too,
+  m_i (its substrate contacts damped sqrt(2) less).
 
 Walls act as partners of zero radius: sigma_ij = a_i, so a disk rests on the
 ground with its centre exactly a_i above it.

@@ -21,14 +21,13 @@ With cohesion (the surface energy w, `cohesion`):                 (N4-N5)
   dmt E nu w:   F_ne = 4/3 E_eff a delta - 4 pi w R  (Derjaguin, Muller &
       Toporov 1975), in contact while delta > 0;
   jkr E nu w:   F_ne = 4/3 E_eff a^3 / R - 2 pi a^2 sqrt(4 w E_eff / (pi a))
-      (Johnson, Kendall & Roberts 1971), a the contact radius from delta =
-      a^2 / R - 2 sqrt(pi w a / E_eff) (the root LAMMPS writes in closed
-      form). A contact made at delta = 0 (where F_ne = -8/9 F_pulloff) holds,
-      a history entry remembering the touch, until delta falls to the
-      pull-off overlap a0^2 / R - 2 sqrt(pi w a0 / E_eff) < 0,
-      a0 = (9 pi w R^2 / (4 E_eff))^(1/3), where F_ne = -F_pulloff =
-      -3 pi w R, JKR's pull-off force (their 3/2 pi w' R with the work of
-      adhesion w' = 2 w).
+      (Johnson, Kendall & Roberts 1971), a from delta = a^2 / R - 2 sqrt(pi w
+      a / E_eff) (LAMMPS's closed-form root). A contact made at delta = 0
+      (F_ne = -8/9 F_pulloff there) holds, a history entry remembering the
+      touch, until delta falls to the pull-off overlap a0^2 / R - 2 sqrt(pi
+      w a0 / E_eff) < 0, a0 = (9 pi w R^2 / (4 E_eff))^(1/3), where F_ne =
+      -F_pulloff = -3 pi w R (JKR's 3/2 pi w' R, the work of adhesion w' =
+      2 w).
 
 Damping, F_n = F_ne - eta_n v_n with                               (D1-D4)
 
@@ -38,10 +37,9 @@ Damping, F_n = F_ne - eta_n v_n with                               (D1-D4)
   tsuji e:                   eta_n = alpha(e) sqrt(m_eff k),
       alpha(e) = 1.2728 - 4.2783 e + 11.087 e^2 - 22.348 e^3 + 27.467 e^4
                  - 18.022 e^5 + 4.8218 e^6   (Tsuji, Tanaka & Ishida 1992)
-      as LAMMPS has it: a head-on Hertzian contact then rebounds with more
-      than e (0.44, 0.70, 0.93 at e = 0.3, 0.6, 0.9, whatever the speed);
-      the polynomial gives e itself when the mass is 2 m_eff
-      (tests/test_granular.py).
+      with m_eff as LAMMPS has it, so a head-on Hertzian contact rebounds
+      faster than e; the polynomial gives e itself with the mass 2 m_eff
+      (docs/lammps.md#the-traps).
 
 Tangential, capped at mu F_crit (`jaxpile.laws.tangential`), F_crit = |F_n|,
 or |F_ne + 2 F_pulloff| with cohesion (F_pulloff = 3 pi w R for jkr, 4 pi w R
@@ -65,36 +63,30 @@ is -(r_i - delta/2) n x F_t, on j -(r_j - delta/2) n x F_t (the arm to the
 contact point); against a wall r_i.
 
 Rolling: `rolling sds k_roll gamma_roll mu_roll` (`jaxpile.laws.rolling`),
-capped at mu_roll F_crit; or jaxpile's `constant`.
+capped at mu_roll F_crit; or jaxpile's `constant`. `limit_damping` (a keyword
+of the line): a normal force the damping would make attractive is zero
+instead (not with dmt or jkr, as in LAMMPS).
 
-`limit_damping` (a keyword of the line): a normal force the damping would
-make attractive is zero instead (not with dmt or jkr, as in LAMMPS).
-
-Walls (`fix wall/gran granular` with the same model) use the same values, a
-wall being a partner of zero radius and infinite mass, with the differences
-LAMMPS 29Sep2021's wall has (each measured against `lmp`): E_eff = E / (2 (1 -
-nu)) for the material models (W1), not E / (2 (1 - nu^2)); the mindlin models'
-kt NULL is E (2 - nu)(1 + nu) / 4 (W2), not 8 G_eff; and jkr's pull-off is
-computed with r_i where R^2 belongs and added to the reach where the pair
-subtracts it, so that a touching wall contact holds to r_i + a0^2 (1 / r_i -
-4 / (3 sqrt(r_i))) with a0 = (9 pi w r_i / (4 E_eff))^(1/3): beyond contact
-for r_i < 9/16 in the length unit, and breaking while it still overlaps above
-(W4, `wall_pulloff_overlap`). `law(..., walls="lammps")`, the
+Walls (`fix wall/gran granular` with the same model) are partners of zero
+radius and infinite mass. LAMMPS's wall differs from its pair in three
+formulas: E_eff = E / (2 (1 - nu)) for the material models (W1); the mindlin
+models' kt NULL is E (2 - nu)(1 + nu) / 4 (W2); and jkr's pull-off is computed
+with r_i where R^2 belongs and added to the reach, so that a touching wall
+contact holds to r_i + a0^2 (1 / r_i - 4 / (3 sqrt(r_i))), a0 = (9 pi w r_i /
+(4 E_eff))^(1/3) (W4, `wall_pulloff_overlap`). `law(..., walls="lammps")`, the
 default, does as LAMMPS does, so that a LAMMPS input is reproduced;
 `walls="pair"` takes the pair's formulas at R = r_i, as LAMMPS's manual
-describes the wall (docs/lammps.md names these traps).
+describes the wall (docs/lammps.md#the-traps).
 
-dmt's F_crit (W3): LAMMPS 29Sep2021's `pair_style granular` computes F_pulloff
-= 4 pi w R from a variable it sets only for jkr, so its dmt friction cap
-depends on what that variable holds (measured: mu |F_ne| in one run, other
-values in another); jaxpile takes its manual's |F_ne + 2 F_pulloff|, and
-twins dmt without friction.
+dmt's F_crit (W3): jaxpile takes LAMMPS's manual's |F_ne + 2 F_pulloff|;
+LAMMPS's `pair_style granular` computes dmt's F_pulloff from a variable it
+sets only for jkr, which leaves its dmt friction cap undefined, so dmt is
+twinned without friction (docs/lammps.md#the-traps).
 
-A `pair_coeff` line is also a law's name: `jaxpile.laws.get_law_module`
-takes the line's text where it takes `hooke`, and gives a `Composition`, a law
-module whose parameters default to the line's coefficients (`--law "hertz/material
-1e7 0.3 0.3 damping tsuji tangential mindlin NULL 1.0 0.5"` on the command line).
-
+A `pair_coeff` line is also a law's name: `jaxpile.laws.get_law_module` takes
+its text where it takes `hooke` and gives a `Composition`, a law module whose
+parameters default to the line's coefficients (`--law "hertz/material 1e7 0.3
+0.3 damping tsuji tangential mindlin NULL 1.0 0.5"` on the command line).
 Not in this module: twisting (a 3D torque), and LAMMPS's per-type coefficients
 and `cutoff` (one material here).
 """

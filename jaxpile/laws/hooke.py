@@ -18,25 +18,23 @@ pair separates). Walls and the ground use `wall_kn, wall_kt, wall_gamma_n,
 wall_gamma_t, wall_mu`, each defaulting to the disk value when left `None`.
 
 Rolling resistance (`law(rolling="sds" | "constant")`, `jaxpile.laws.rolling`):
-a torque R_eff f_r on i and -R_eff f_r on j added after F_n is known, with
-`k_roll, gamma_roll, mu_roll` (`"sds"`, LAMMPS `rolling sds`) or `mu_roll`
-alone (`"constant"`), carried as a third history entry. Walls use the same
-values.
+a torque R_eff f_r on i and -R_eff f_r on j once F_n is known, with `k_roll,
+gamma_roll, mu_roll` (`"sds"`, LAMMPS `rolling sds`) or `mu_roll` alone
+(`"constant"`), carried as a third history entry; walls use the same values.
 
-The tangential spring's reading (`law(pair_style=...)`). `"gran/hooke/history"`
-(the default) is the above, as LAMMPS's `pair_style gran/hooke/history`.
-`"granular"` is LAMMPS's `pair_style granular hooke kn gamma_n damping
-mass_velocity tangential linear_history kt gamma_t/gamma_n mu` (29Sep2021), which
-differs in two places: before the step's increment the spring is turned into
-the current tangent plane keeping its length (when |s . n| k_t > 1e-10 mu |F_n|),
-s <- (s - (s . n) n) |s| / |s - (s . n) n|, then s <- s + v_tr dt; and the torque
-arm is the distance to the contact point, r_i - delta/2 on i and r_j - delta/2 on
-j (walls, `fix wall/gran granular`: r_i). It is what a LAMMPS run with rolling
-resistance (which only `pair_style granular` has) computes.
+`law(pair_style="granular")` reads the spring as LAMMPS's `pair_style granular
+hooke kn gamma_n damping mass_velocity tangential linear_history kt
+gamma_t/gamma_n mu` (29Sep2021) does, which a LAMMPS run with rolling
+resistance needs (only that style has it). It differs from the default
+`"gran/hooke/history"` in two places: before the step's increment the spring is
+turned into the tangent plane keeping its length (when |s . n| k_t > 1e-10 mu
+|F_n|), s <- (s - (s . n) n) |s| / |s - (s . n) n|; and the torque arm is the
+distance to the contact point, r_i - delta/2 on i and r_j - delta/2 on j (r_i
+against a wall, `fix wall/gran granular`).
 
 The 1992 static-pile analysis (Liffman, Chan & Hughes, eqs. 42 and 44) assumes
-only normal forces between disks at rest; with this law that means disk-disk
-`mu = 0` and rotation off, and enough ground friction (`wall_mu`).
+only normal forces between disks at rest: with this law, disk-disk `mu = 0`,
+rotation off, and enough ground friction (`wall_mu`).
 """
 
 from __future__ import annotations

@@ -16,21 +16,18 @@ Sliding (`law(slip=...)`). The paper says it uses the scheme of Cundall & Strack
 delta_s is set back to sign(delta_s) mu F_n / k_s, so a reversal of the motion
 reverses the friction at once and sliding dissipates mu F_n |v_s| (the default,
 `slip="cundall-strack"`). Eq. 2b read literally (`slip="literal"`) caps only the
-force: delta_s keeps growing while the pair slides and a reversal must first
-undo it, so a contact rocking back and forth in the slip regime returns the
-work it took, and with the paper's gamma_s = gamma_n / 100 piles never come to
-rest (measured; see `protocols.box`).
+force: delta_s keeps growing while the pair slides, so a contact rocking in the
+slip regime returns the work it took, and with the paper's gamma_s = gamma_n /
+100 piles never come to rest (docs/choices.md#sliding-in-the-1993-law).
 
 Walls have the same form with a_j = 0 and m_j = infinity (m_e = m_i), with their
 own stiffness (`wall_kn`, 2e6 in the paper). The paper's particles do not rotate:
 `law()` freezes rotation by default; with `rotation=True` the spins enter the
-contact velocity and F_s exerts a torque, as for the other laws.
-
-Rolling resistance (`law(rolling="sds" | "constant")`, with rotation on;
-`jaxpile.laws.rolling`; not in the paper, whose disks do not rotate): a torque
-R_eff f_r on i and -R_eff f_r on j added once F_n (eq. 2a) is known, capped at
-mu_roll |F_n| R_eff, carried as a second history entry. Walls use the same
-values.
+contact velocity and F_s exerts a torque, as for the other laws. Rolling
+resistance (`law(rolling="sds" | "constant")`, with rotation on, not in the
+paper; `jaxpile.laws.rolling`): a torque R_eff f_r on i and -R_eff f_r on j once
+F_n (eq. 2a) is known, capped at mu_roll |F_n| R_eff, carried as a second
+history entry; walls use the same values.
 
 Units: the paper's values (`paper_params`) are in its own units (cgs-like: radii
 around 0.1). It gives neither g nor the density; the protocols using this preset

@@ -2,30 +2,25 @@
 `pair_force` once its normal force F_n is known (`hooke`, `lee_herrmann`,
 `baxter` take them with `law(rolling=...)`).
 
-Geometry and sign convention (2D, jaxpile's): n = (x_i - x_j) / |x_i - x_j|,
-t = z x n (`laws.base.perp`), spins counter-clockwise positive,
-R_eff = r_i r_j / (r_i + r_j) between disks and R_eff = r_i against a wall
-(a partner of zero radius: LAMMPS's `fix wall/gran` takes R_eff = r_i for a
-flat wall, `rwall = 0`, and so do we; the formula would give 0).
+Geometry and signs (2D): n = (x_i - x_j) / |x_i - x_j|, t = z x n
+(`laws.base.perp`), spins counter-clockwise positive, R_eff = r_i r_j / (r_i +
+r_j) between disks and R_eff = r_i against a wall (a partner of zero radius,
+for which the formula would give 0; LAMMPS's `fix wall/gran` takes r_i for a
+flat wall, `rwall = 0`).
 
 Relative rolling velocity. LAMMPS (`src/GRANULAR/pair_granular.cpp`, 29Sep2021,
 after Wang et al., Particuology 23, 49 (2015), eq. 31) uses, in 3D,
-
-  v_roll = R_eff (omega_i - omega_j) x n.
-
-With omega = omega z and n in the plane, z x n = t, so in 2D
+v_roll = R_eff (omega_i - omega_j) x n; with omega = omega z and z x n = t,
 
   v_roll = R_eff (omega_i - omega_j) t,                                 (1)
 
-a vector along the tangent: we carry its component v_r = R_eff (omega_i - omega_j)
-(a scalar, the lever arm R_eff on both disks).
+of which we carry the scalar v_r = R_eff (omega_i - omega_j).
 
 `"sds"`: LAMMPS `rolling sds k_roll gamma_roll mu_roll` (type C of Ai et al.,
-Powder Technol. 206, 269 (2011): an elastic-plastic spring-dashpot-slider on the
-relative rolling displacement psi). LAMMPS keeps psi as a 3-vector, rotates it
-into the current tangent plane keeping its length, then adds v_roll dt; in 2D a
-vector along t rotated into the new tangent keeping its length is the same
-scalar along the new t, so psi is one number per pair (one history entry):
+Powder Technol. 206, 269 (2011): a spring-dashpot-slider on the relative
+rolling displacement psi). LAMMPS keeps psi as a 3-vector turned into the
+current tangent plane keeping its length; in 2D that is the same scalar along
+the new t, so psi is one history entry:
 
   psi <- psi + v_r dt
   f_r = -k_roll psi - gamma_roll v_r                                    (2)
@@ -34,37 +29,30 @@ scalar along the new t, so psi is one number per pair (one history entry):
                              (as LAMMPS: when psi = 0 there, f_r = 0)
   torque on i: R_eff n x (f_r t) = R_eff f_r;  on j: -R_eff f_r          (4)
 
-|F_n| is the whole normal force, damping included (LAMMPS's `Fncrit` for its
-Hooke and Hertz models), so the torque is capped at mu_roll |F_n| R_eff.
-gamma_roll is LAMMPS's: force per velocity, not scaled by the mass.
+|F_n| is the whole normal force, damping included (LAMMPS's `Fncrit`), so the
+torque is capped at mu_roll |F_n| R_eff; gamma_roll is a force per velocity,
+not scaled by the mass.
 
 `"constant"`: the constant torque of Zhou et al., Physica A 269, 536 (1999)
 (type A of Ai et al. 2011), M = -mu_roll R_eff |F_n| sign(omega_i - omega_j) on
-i while the pair rolls (Zhou's arm is each disk's own radius; here it is the
-pair's R_eff, so that the two torques cancel and the pair conserves angular
-momentum). The sign function as such cannot be integrated by an explicit step
-(the torque flips every step around omega_i = omega_j and a pile held by it
-chatters), and a smooth sign, tanh(omega_rel / omega_0), cannot hold a torque
-below the cap without turning (the pile creeps at omega ~ omega_0): measured in
-docs/rolling_resistance.md.
-So the sign is regularised by a stiff slider instead: eqs. 2-4 with a spring
-and dashpot set from the time step and the pair's effective mass,
+i while the pair rolls (the pair's R_eff as the arm, not Zhou's own radius, so
+the two torques cancel and the pair conserves angular momentum). An explicit
+step cannot integrate the sign as such (the pile chatters) nor a smooth tanh
+(the pile creeps) (docs/rolling_resistance.md#the-constant-torque-at-rest), so
+the sign is regularised by a stiff slider: eqs. 2-4 with
 
   k = STIFFNESS m_eff / dt^2,  gamma = 2 DAMPING_RATIO sqrt(k m_eff),     (5)
 
-which turn a pair's relative rotation at omega dt <= ~0.3 (stable; STIFFNESS =
-0.05) damped at 30% of critical. While the pair rolls the torque is exactly
-mu_roll R_eff |F_n| against it (the slider); below the cap the spring holds
-the pair still with a rolling displacement of at most mu_roll |F_n| dt^2 /
-(0.05 m_eff), which vanishes as dt -> 0: the set-valued sign of rigid rolling
-friction. Its history
-entry holds the spring's force f_e (not the displacement), so that a force
-evaluated without a step (dt = 0: the start, the measurements) still gives the
-torque the spring holds:
+stable for a relative rotation of omega dt <= ~0.3 (STIFFNESS = 0.05), damped
+at 30% of critical. While the pair rolls the torque is exactly mu_roll R_eff
+|F_n| against it; below the cap the spring holds the pair with a rolling
+displacement of at most mu_roll |F_n| dt^2 / (0.05 m_eff), which vanishes as
+dt -> 0 (the set-valued sign of rigid rolling friction). The history holds the
+spring's force f_e, not the displacement, so a force evaluated without a step
+(dt = 0: the start, the measurements) still gives the torque the spring holds:
 
   f_e <- f_e - k v_r dt,  f_r = f_e - gamma v_r,
   if |f_r| > mu_roll |F_n|:  f_r <- mu_roll |F_n| f_r / |f_r|,  f_e <- f_r + gamma v_r.   (6)
-
 """
 
 from __future__ import annotations

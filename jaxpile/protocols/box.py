@@ -10,58 +10,46 @@ the surface h(x) (columns one mean diameter wide) by three methods (sec. 3;
 `analysis.repose_angles`); the paper keeps method (3). Fig. 1(b) is the kinetic
 energy per particle over the whole run.
 
-Here, everything happens inside one compiled loop with fixed shapes: the
-`driver` (run before every step) removes the right wall the first time the
-filled box has come to rest (its speed below `rest_speed` for `hold`
-consecutive steps, after the disks have first moved), records the step, then
-detects the final rest the same way; the host only reads a flag between
-chunks, and samples the kinetic energy per disk once per chunk (Fig. 1(b)).
+Everything happens inside one compiled loop with fixed shapes: the `driver`
+(run before every step) removes the right wall the first time the filled box
+has come to rest (its speed below `rest_speed` for `hold` consecutive steps,
+after the disks have first moved), records the step, then detects the final
+rest the same way; the host reads a flag and samples the kinetic energy per
+disk (Fig. 1(b)) once per chunk.
 
 Reading of the paper, and our choices:
 
-* Radii: "drawn from a Gaussian distribution with a mean of 0.1 and a width of
-  0.02, and the maximum (minimum) cut-off radius of a particle is 0.13 (0.07)"
-  (sec. 4); `gaussian_radii` redraws values outside the cut-offs (width = the
-  standard deviation).
-* N: not printed for W = H = 4. The paper's "400 particle system" (sec. 3) is
-  what fills a 4 x 4 box at the packing fraction of a random polydisperse
-  packing, 0.82; the default N (`fill_count`) fills W x H that way ("they fill
-  the box"). Disks that overlap cannot be placed that densely, so they are
-  placed without overlap at random (random sequential addition) in the box
-  made as tall as needed for an area fraction of `placement_fraction` = 0.4.
+* Radii: Gaussian, mean 0.1, width 0.02, cut off at 0.07 and 0.13 (sec. 4);
+  `gaussian_radii` redraws values outside the cut-offs (width = the standard
+  deviation).
+* N: not printed for W = H = 4. The default (`fill_count`) fills W x H at the
+  packing fraction of a random polydisperse packing, 0.82 (the paper's "400
+  particle system", "they fill the box"). Disks cannot be placed that densely
+  without overlap, so they are placed at random without overlap in the box made
+  as tall as an area fraction of `placement_fraction` = 0.4 needs.
 * "Move out of the box": the floor ends with the box, at x = W; a disk whose
-  centre passes x = W has left (it falls off the edge). It is taken out of play
-  (inactive) and parked on a grid above the box, and counted in
-  `BoxState.left`; the total disk count never changes.
-* Units. The paper's values are in its own units (energies "in erg": cgs). For
-  the lee-herrmann law the run is in those units: lengths in cm (W = 4 cm,
-  radii ~0.1 cm), g = 981 cm/s^2, and, as the paper gives no density, glass
-  spheres (rho = 2.5 g/cm^3, m = 4 pi rho a^3 / 3: the law is the 3D Hertz
-  contact). k_n = 1e6 then gives a 0.5% radius overlap under one disk's weight
-  and a restitution of about 0.7. The other laws run in their reduced units:
-  the paper's lengths times 5 (mean diameter 1), g = 1, a disk of diameter 1
-  has mass 1; speeds and times given in the paper's units (rest speed, v_cut,
-  hold time) are converted by Froude scaling (speed sqrt(g L), time sqrt(L / g)).
-* Laws other than the paper's, with mu = 0.2 (the paper's) where the law has
-  one and no rotation (the paper's disks do not rotate): hooke k_n = 1e4 mg/sigma
-  (0.2% overlap under one weight), gamma_n = 50; baxter n = 36, r0 = 1.2 (its
-  paper's law); liffman its paper values (disk friction is viscous, so its piles
-  creep and come out flat).
-* Rest: the mass-weighted rms speed (`rms_speed`, the kinetic energy per disk
-  of Fig. 1(b) as a speed) below the paper's v_cut = 0.1 cm/s (sec. 5) for
-  0.005 s. The largest speed (`rest_measure="max"`) is stricter than "no
-  significant motion": a single rocking disk holds it up.
+  centre passes x = W has left: it is taken out of play, parked above the box
+  and counted in `BoxState.left` (the total disk count never changes).
+* Units. For the lee-herrmann law the run is in the paper's cgs units (W = 4 cm,
+  radii ~0.1 cm, g = 981 cm/s^2) with glass spheres (rho = 2.5 g/cm^3, m = 4 pi
+  rho a^3 / 3, the law being the 3D Hertz contact), as the paper gives no
+  density; k_n = 1e6 then gives a 0.5% overlap under one disk's weight and a
+  restitution of about 0.7. The other laws run in reduced units (the paper's
+  lengths times 5: mean diameter 1, g = 1, mass 1), the paper's speeds and
+  times converted by Froude scaling (speed sqrt(g L), time sqrt(L / g)).
+* Laws other than the paper's, with its mu = 0.2 where the law has one and no
+  rotation (the paper's disks do not rotate): hooke k_n = 1e4 mg/sigma (0.2%
+  overlap under one weight), gamma_n = 50; baxter n = 36, r0 = 1.2 (its paper's
+  law); liffman its paper's values (viscous disk friction: its piles creep flat).
+* Rest: the mass-weighted rms speed (`rms_speed`) below the paper's v_cut = 0.1
+  cm/s (sec. 5) for 0.005 s. The largest speed (`rest_measure="max"`) is
+  stricter than "no significant motion": a single rocking disk holds it up.
 
-Sliding in the paper's law (measured with this protocol). Read literally, eq.
-2b caps only the force and lets the shear displacement delta_s grow while a
-contact slides; a contact rocking in the slip regime then gives back the work it
-took, and with the paper's gamma_s = gamma_n / 100 (a 0.2% damping ratio for the
-shear spring) piles never come to rest: with `lee_herrmann.law(slip="literal")`
-the 409-disk W = H = 4 box still has an rms speed of 0.25 cm/s after 3 s
-(150 000 steps) and its wall is never removed. The law's default lets the
-spring slip at mu F_n / k_s (Cundall & Strack 1979, whose scheme the paper says
-it uses); the same box then settles by step 64 000 with theta_R = 24.8 deg
-(method 3; the paper: 17.9 +- 1.8 deg), and the 72-disk test box by step 47 000.
+Sliding in the paper's law: eq. 2b read literally (`lee_herrmann.law(slip=
+"literal")`) lets a contact rocking in the slip regime give back its work, and
+with the paper's gamma_s = gamma_n / 100 the box never comes to rest; the law's
+default slips the spring as Cundall & Strack 1979 do, whose scheme the paper
+says it uses, and the box settles (docs/choices.md#sliding-in-the-1993-law).
 """
 
 from __future__ import annotations

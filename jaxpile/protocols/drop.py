@@ -10,53 +10,36 @@ profile (Fig. 20(b)) and finds, in one pile, a slight central dip.
 
 How this protocol reads it:
 
-* Where: the paper does not say where across the pile a disk is dropped. Its
-  piles are single heaps, so we drop every disk over one point, the pile's axis,
-  shifted by a small random amount, uniform in +-`jitter` (default 0.1 sigma)
-  drawn from the seed. Without it the disks would balance on one another on the
-  axis (an exact, if unstable, equilibrium that floating point keeps); the paper
-  calls its piles random and says they differ from one another, so the seed
-  makes them differ.
-* How high: the dropped disk's lowest point starts `drop_height` = 2 sigma above
-  the highest point of the disks already in (the top of the highest disk, or
-  the ground for the first), at rest.
-* When: "one at a time" means each disk meets a pile that has (nearly) stopped
-  moving. The next disk is inserted once every disk in has been slower than
-  `settle_speed` (default 0.05 sqrt(g sigma), 2.5% of the 2 sqrt(g sigma) a
-  disk reaches falling 2 sigma) for `quiet_time` in a row (default 0.25
-  sqrt(sigma/g)). The window must be longer than settle_speed / g, the time a
-  newly released disk is still slower than the threshold, and longer than the
-  2 settle_speed / g a bouncing disk spends below it around the top of a
-  bounce, so neither counts as settled. A disk that never settles (a slow creep
-  on the slope) does not stall the pile: after `max_interval` (default 10
-  sqrt(sigma/g), five fall times) the next disk goes in anyway.
-  All of this runs in the driver, inside the compiled loop; disks not yet
-  dropped are parked inactive on a grid above the pile, 2.5 sigma apart.
-* After the last disk is in, the pile is relaxed to rest (`speed_tolerance`,
-  within `relax_steps`; lee-herrmann's frictionless disks rattle longest,
-  ~450 000 steps for 15 disks).
+* Where: not printed. Every disk is dropped over the pile's axis, shifted by a
+  random amount uniform in +-`jitter` (default 0.1 sigma) drawn from the seed:
+  without it the disks would balance on one another on the axis (an unstable
+  equilibrium that floating point keeps), and the paper's piles are random.
+* How high: the disk's lowest point starts at rest `drop_height` = 2 sigma above
+  the highest point of the disks already in (the ground for the first).
+* When: each disk meets a pile that has (nearly) stopped. The next is inserted
+  once every disk in has been slower than `settle_speed` (default 0.05
+  sqrt(g sigma), 2.5% of the speed of a 2 sigma fall) for `quiet_time` in a row
+  (default 0.25 sqrt(sigma/g)): longer than the settle_speed / g a released disk
+  and the 2 settle_speed / g a bouncing one spend below the threshold, so
+  neither counts as settled. A disk that never settles (a slow creep on the
+  slope) does not stall the pile: after `max_interval` (default 10 sqrt(sigma/g),
+  five fall times) the next goes in anyway. All of this runs in the driver,
+  inside the compiled loop; disks not yet dropped are parked inactive above.
+* After the last disk, the pile is relaxed to rest (`speed_tolerance`, within
+  `relax_steps`).
 
-Laws and parameters (`SETTING`): the lattice protocol's paper setting
-(`paper1992.PAPER_SETTING`), disks that do not spin, on a frictional ground:
-hooke and lee-herrmann with frictionless disks (mu = 0, wall_mu = 1), the
-paper's own law (`liffman`, eq. 46's K_s; its disk friction is viscous, so it
-vanishes at rest, and the ground's static well holds the base), and baxter
-(n = 36, r0 = 1.2) with mu = 0 and wall_mu = 1. Why no spin and no static disk
-friction: on the flat ground a spinning disk rolls without slip, which none of
-the laws dissipates (liffman's eq. 29 acts on the slip too), so the first
-disks would roll away for ever; and disks that cannot spin but hold each other
-by Coulomb friction stack into a vertical tower (a disk landing within
-sin(atan mu) of the top disk's axis sticks: with mu = 0.5 or 1, measured, all
-30 disks stood in one column). Frictionless-at-rest disks on a frictional
-ground are the 1992 analytic model's assumption and what the paper's own law
-gives at rest; they slide off until they find a pocket and build a heap
-(measured on 30 disks: 9-19 disks on the ground, height 2.7-4.4 diameters).
-Pass `rotation=True` or `params={"mu": ...}` to `SPEC.run` to try otherwise.
-
-Cost: a drop takes about 4-7 sqrt(sigma/g) (the fall, then the disk sliding off
-and the pile coming to rest), 4000-7000 steps at dt = 1e-3, so 968 disks need
-about 6e6 steps over all 968 disks (inactive ones included): an accelerator's
-job; tests use 20.
+Laws (`SETTING`): the lattice protocol's paper setting (`paper1992.PAPER_SETTING`),
+disks that do not spin, on a frictional ground: hooke, lee-herrmann and baxter
+(n = 36, r0 = 1.2) with frictionless disks (mu = 0, wall_mu = 1), and the
+paper's own law (`liffman`, eq. 46's K_s; its viscous disk friction vanishes at
+rest, and the ground's static well holds the base). On the flat ground a
+spinning disk rolls without slip, which no law dissipates (liffman's eq. 29
+acts on the slip too), and disks that cannot spin but hold each other by
+Coulomb friction stack into a vertical tower; frictionless-at-rest disks on a
+frictional ground, the 1992 analytic model's assumption, slide into pockets and
+build a heap (docs/choices.md#the-dropped-pile). Pass `rotation=True` or
+`params={"mu": ...}` to `SPEC.run` to try otherwise. A paper-size pile is an
+accelerator's job (its cost: the same page); tests use 20 disks.
 """
 
 from __future__ import annotations

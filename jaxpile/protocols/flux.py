@@ -13,32 +13,29 @@ angle of marginal stability theta_MS, above theta_R.
 Design (everything inside the compiled loop, fixed shapes):
 
 * The bottom layer: disks with the paper's Gaussian radii side by side on the
-  floor from the left wall to x = W, *fixed* (our reading of "put one layer of
-  particles at the bottom": a rough floor that the pile cannot push away;
+  floor from the left wall to x = W, *fixed* (our reading of "one layer of
+  particles at the bottom": a rough floor the pile cannot push away;
   `fixed_base=False` makes them ordinary disks).
-* A pool of disks waits parked and inactive above the box. Every step the
-  driver takes out of play the disks that passed the floor's end (x > W: they
-  left the box, as in `box`), parking them again, so they return to the pool;
+* A pool of disks waits parked and inactive above the box; disks that pass the
+  floor's end (x > W) leave, as in `box`, and are parked back into the pool, so
   a long run needs only as many disks as are ever in play at once (`pool`).
-* Insertion (`drivers.when`, a `lax.cond`): when the largest speed has been
-  below v_cut (after the last inserted disk moved at all), the first waiting disk
-  (`drivers.next_inactive`) is put at rest (`drivers.activate`) `gap` above
+* Insertion (`drivers.when`, a `lax.cond`): once the largest speed has been
+  below v_cut (after the last inserted disk moved at all), the first waiting
+  disk (`drivers.next_inactive`, `drivers.activate`) is put at rest `gap` above
   the highest disk under it, at a random distance between 0 and `spread` (one
-  mean diameter) from the left wall: the top of the pile is there. (Dropped
-  always touching the wall, the disks stack into a tower against it.)
-* "The angle of the pile just before a new particle is inserted": fitting lines
-  inside the loop is needless; just before each insertion the driver writes the
-  pile's surface h(x) (the highest active centre in each column one mean
-  diameter wide over [0, W], the definition of `analysis.surface_profile`) and
-  the step into fixed arrays of `FluxState`. The host turns each record into
-  the three angles of sec. 3 afterwards (`angles`), so one record gives every
-  method and the loop stays free of fits.
+  mean diameter) from the left wall, where the top of the pile is; dropped
+  always touching the wall, the disks would stack into a tower against it.
+* "The angle of the pile just before a new particle is inserted": just before
+  each insertion the driver records the step and the surface h(x) (the highest
+  active centre in each column one mean diameter wide, `analysis.surface_profile`)
+  in fixed arrays of `FluxState`; the host turns each record into the three
+  angles of sec. 3 afterwards (`angles`), so the loop stays free of fits.
 * The run ends when every insertion is done and the pile is at rest again.
 
-Units as in `box` (the paper's cm, s for lee-herrmann; reduced units for the
-other laws, speeds Froude-scaled). With `lee_herrmann.law(slip="literal")`
-and the paper's gamma_s some disk keeps rocking faster than v_cut (see `box`)
-and the insertions stop.
+Units as in `box` (the paper's cm, s for lee-herrmann; reduced, Froude-scaled
+units for the other laws). With `lee_herrmann.law(slip="literal")` and the
+paper's gamma_s some disk keeps rocking faster than v_cut and the insertions
+stop (docs/choices.md#sliding-in-the-1993-law).
 """
 
 from __future__ import annotations

@@ -1,37 +1,32 @@
 """A flat-bottomed silo emptied through an orifice, against Beverloo's law.
 
-None of the three papers has it; it is what DEM users ask for next, and it
-shows that a new protocol is one module: this file and its test, with
-nothing to edit elsewhere (the registry finds its `SPEC`, from which come its
-run, its batch in a sweep and an ensemble fit, and its command line).
+None of the three papers has it; it shows that a new protocol is one module:
+this file and its test, nothing to edit elsewhere (the registry finds its
+`SPEC`, from which come its run, its batch in a sweep and an ensemble fit, and
+its command line). Units: the mean diameter d = 1, g = 1, a unit disk of mass 1.
 
-The set-up, in units of the mean diameter d = 1, g = 1, a disk of diameter 1
-of mass 1 (the 1993 protocols' reduced units):
-
-* a silo of width W between two walls; its floor is a row of fixed unit disks,
-  touching, at y = `FLOOR_Y`. The floor disks in the middle of width D (the
-  orifice, measured between the edges of the floor disks on either side) are
-  the gate: in place while the silo fills, taken away when it has come to rest.
-  Every orifice uses the same number of floor slots (the unused ones parked), so
-  piles with different orifices have the same shapes;
-* n disks of diameters uniform in d (1 +- `dispersity`) (polydisperse, so that
-  the 2D packing does not crystallise), placed at random without overlap above
-  the floor (`geometry.random_positions`), fall and settle;
-* one compiled `driver` runs the stages: 0 filling (the 1993 rest detector,
+* A silo of width W between two walls, its floor a row of fixed, touching unit
+  disks at y = `FLOOR_Y`. The floor disks across the middle width D (the
+  orifice, between the edges of the floor disks beside it) are the gate, in
+  place while the silo fills. Every orifice uses the same number of floor slots
+  (the unused ones parked), so piles with different orifices share shapes.
+* n disks of diameters uniform in d (1 +- `dispersity`) (polydisperse, so the 2D
+  packing does not crystallise), placed at random without overlap above the
+  floor (`geometry.random_positions`), fall and settle.
+* One compiled `driver` runs the stages: 0 filling (the 1993 rest detector,
   `drivers.rest_detector`, on the rms speed); 1 discharging: the gate goes, and a
-  disk more than `EXIT_DROP` below the floor's centres is taken out and its step
+  disk more than `EXIT_DROP` below the floor's centres is taken out, its step
   logged; 2 stopped, when every disk is out or none has come out for
-  `clog_time` (an arch over the orifice, or the dead zones beside it that a
-  flat bottom keeps).
+  `clog_time` (an arch over the orifice, or the dead zones a flat bottom keeps).
 
 Measured: the discharge N(t) and its flow rate Q (disks per unit time, the
 least-squares slope of N(t) between 10 % and 60 % of the disks that came out,
-where the rate is steady), and Beverloo's law in 2D (Beverloo, Leniger & van de
-Velde 1961, written for a slot): Q = C n_A sqrt(g) (D - k d)^(3/2), with n_A the
-number of disks per unit area of the filled silo. `beverloo_c` is C at the
-given k; `beverloo_fit` finds C and k from runs at several orifices. The dead
-zones left beside the orifice stand at an angle of repose (`dead_zone_angles`):
-the statistic that sees the disk friction, which Beverloo's law does not.
+where the rate is steady), against Beverloo's law in 2D (Beverloo, Leniger &
+van de Velde 1961, for a slot): Q = C n_A sqrt(g) (D - k d)^(3/2), n_A the disks
+per unit area of the filled silo. `beverloo_c` is C at a given k; `beverloo_fit`
+finds C and k from runs at several orifices. The dead zones beside the orifice
+stand at an angle of repose (`dead_zone_angles`), which sees the disk friction
+that Beverloo's law does not.
 """
 
 from __future__ import annotations

@@ -1,50 +1,45 @@
 """Heaps poured onto a rough base (Baxter, Tuzun, Burnell & Heyes 1997).
 
-The paper's procedure (sec. II, last two paragraphs; sec. III):
+The paper's procedure (sec. II, last two paragraphs; sec. III), read line by
+line in docs/baxter1997_audit.md#the-pour:
 
 * the base is "a static substrate consisting of a row of equally spaced
   particles, interacting with the dynamic grains with the same interaction
-  laws"; a flat structureless floor gave no stable heap. Here: fixed disks of
-  diameter sigma, centres a distance `spacing` = S apart (S = 1.1 sigma, where the
-  paper's angle of repose reaches its plateau), standing on the line y = 0
-  (centres at y = sigma / 2). No wall is active: the row is the only support;
+  laws" (a flat floor gave no stable heap): fixed disks of diameter sigma,
+  centres `spacing` = S = 1.1 sigma apart (where the paper's angle of repose
+  reaches its plateau), standing on y = 0; no wall is active;
 * the grains "fall under gravity in the y direction onto the substrate from an
   initial height of ~100 sigma with initial lateral x coordinates chosen from a
   uniform random distribution in an interval +-3 sigma": released at rest,
-  `release_height` = 100 sigma above the substrate's centre line, x uniform in
-  the middle of the row +-3 sigma;
-* the rate is not printed. Fig. 2's caption fixes it: 869 disks deposited at
-  1.40e3 time units, 900 at 1.45e3, 931 at 1.50e3, 1334 at 2.15e3 (Fig. 1). With
-  one disk every Delta from t = 0 the four counts need 1.6117 < Delta <= 1.6129:
-  one disk every 1.612 time units (0.62 per time unit), i.e. every 1612 steps at
-  the paper's dt = 1e-3 (sigma/g)^(1/2). Released at rest, a disk is then
-  g Delta^2 / 2 = 1.30 sigma below the next one when that is released, just
-  beyond the law's reach (1.2 sigma), so falling disks never meet;
-* monodisperse, or delta% polydisperse: diameters uniform in ((1 - delta) sigma, sigma)
-  (delta = 5%, 10% in the paper). Masses follow the area (uniform areal density:
-  a disk of diameter sigma has mass m = 1); the paper does not say;
+  `release_height` = 100 sigma above the row's centre line, x in its middle
+  +-3 sigma;
+* the rate, not printed, follows from Fig. 2's caption (869, 900, 931 and 1334
+  disks at 1.40e3, 1.45e3, 1.50e3 and 2.15e3 time units need one disk every
+  1.6117 to 1.6129): one every 1.612 time units, 1612 steps at the paper's dt =
+  1e-3 (sigma/g)^(1/2). A disk is then g Delta^2 / 2 = 1.30 sigma below the next
+  when that is released, beyond the law's reach (1.2 sigma): falling disks
+  never meet;
+* monodisperse, or diameters uniform in ((1 - delta) sigma, sigma) (delta = 5%,
+  10% in the paper), masses following the area (the paper does not say);
 * 1334 disks (Fig. 1; 1000 in Figs. 5-8), then left to come to rest.
 
 Everything happens inside the compiled loop with fixed shapes: all disks exist
 from the start, parked inactive on a grid above the release point (2.5 sigma
-apart, so they never interact); `driver` releases the next one every `interval`
-and takes a disk that falls off an end of the row out of play (parked again,
-inactive, and counted in `PourState.lost`). It reads everything it needs from
-`SimState.protocol_state`, so one `Simulator` serves every pour set-up.
+apart: they never interact); `driver` releases the
+next every `interval` and takes a disk that falls off an end of the row out of
+play (counted in `PourState.lost`), reading all it needs from
+`SimState.protocol_state`, so one `Simulator` serves every pour. `insert_height`
+(an option) shortens the 14-time-unit fall from 100 sigma exactly: disks appear
+at that height moving down at the speed of the fall from `release_height`, so
+each hits the heap as released from there (uniform gravity, no drag); only the
+arrival times shift, all by the same amount.
 
-The free fall from 100 sigma is long (14 time units, 14000 steps). `insert_height`
-is an exact shortcut for small runs: disks then appear at that height moving down
-with the speed sqrt(2 g (release_height - insert_height)) they would have after
-falling from `release_height`, so every disk hits the heap as in a release from
-`release_height` (gravity is uniform and there is no air drag; only the
-arrival times shift, all by the same amount). It is an option, not the default.
-
-Measurements (`measure`): the forces between the heap and the substrate
-(`substrate_forces`, the paper's base force F_B/mg of Figs. 3(b), 5(b), 7), their
-binned normalised profile (x/B, F/F_max) and its M shape (flank maxima over the
-central value; the paper: 20-30% above the centre for n = 36, r0 = 1.2 sigma), the
-angle of repose of each flank by the three methods of Lee & Herrmann 1993
-(paper: 35 +- 5 deg), and the voidage map (Figs. 2, 5, 6, 8).
+Measurements (`measure`): the forces between heap and substrate (the paper's
+base force F_B/mg of Figs. 3(b), 5(b), 7), their binned normalised profile
+(x/B, F/F_max) and its M shape (flank maxima over the centre; the paper: 20-30%
+above it for n = 36, r0 = 1.2 sigma), each flank's angle of repose by Lee &
+Herrmann's three methods (the paper: 35 +- 5 deg), and the voidage map (Figs.
+2, 5, 6, 8).
 """
 
 from __future__ import annotations

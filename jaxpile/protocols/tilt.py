@@ -8,27 +8,25 @@ counter-clockwise in the box's frame (`boundaries.gravity_vector`): the walls,
 the floor and its end at x = W stay put, and gravity gains a component along
 +x, down the pile's slope.
 
-Everything happens in the compiled loop: the `driver` sets gravity to
-g (sin a, -cos a) with a = rate x (steps since the start) before every step,
-and watches the pile's speed (`drivers.motion`: the mass-weighted rms speed by
-default, the kinetic energy per disk of Fig. 1(b) as a speed):
+In the compiled loop the `driver` sets gravity to g (sin a, -cos a), a = rate x
+(steps since the start), before every step, and watches the pile's speed
+(`drivers.motion`: by default the mass-weighted rms speed, Fig. 1(b)'s kinetic
+energy per disk as a speed):
 
-* "starts to move", made precise: the speed exceeds `move_speed` (1 cm/s in
-  the paper's units, about 7% of sqrt(g d), d the mean diameter). theta_T is
-  the tilt at the *onset* of that motion: the last step at which the speed rose
-  above `rest_speed` (0.1 cm/s, the paper's v_cut, which a pile at rest stays
-  under) before it went on to exceed `move_speed` without dropping back. An
-  avalanche takes a while to reach `move_speed`; timing it from its onset
-  removes that delay (about a degree at the paper's rate) from theta_T.
-* The run ends there (the paper's stopping rule); with `settle` the tilt is
-  held where it is and the pile is run until it is at rest again.
-* Disks that leave past the floor's end are taken out of play as in the box
-  protocol (`geometry.take_out`).
+* "Starts to move": the speed exceeds `move_speed` (1 cm/s in the paper's units,
+  about 7% of sqrt(g d)). theta_T is the tilt at the *onset* of that motion, the
+  last step at which the speed rose above `rest_speed` (the paper's v_cut, 0.1
+  cm/s) before it went on past `move_speed` without dropping back, so the time
+  an avalanche takes to gather speed does not add to theta_T
+  (docs/choices.md#the-tilting-angles-onset).
+* The run ends there (the paper's stopping rule); with `settle` the tilt is held
+  and the pile run until it is at rest again. Disks that leave past the floor's
+  end are taken out of play as in the box protocol (`geometry.take_out`).
 
-The measurements are compared with the paper's theory (sec. 6):
-theta_MS = arctan(3 mu) (eq. 3, `theory.marginal_stability_angle`), the
-measured theta_R + theta_T against it (Fig. 7(a)), and theta_T from eq. 4
-with the pile's own theta_R (method 3) and mu (`theory.tilting_angle`, Fig. 7(b)).
+The measurements are compared with the paper's theory (sec. 6): theta_MS =
+arctan(3 mu) (eq. 3, `theory.marginal_stability_angle`), the measured theta_R +
+theta_T against it (Fig. 7(a)), and theta_T from eq. 4 with the pile's own
+theta_R (method 3) and mu (`theory.tilting_angle`, Fig. 7(b)).
 """
 
 from __future__ import annotations
