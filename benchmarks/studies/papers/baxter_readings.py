@@ -13,7 +13,8 @@ Settings (`--settings`, comma-separated; see SETTINGS):
   (polydisperse, Fig. 8), `mu0.2`, `mu0.6`;
 - the row's length, which the paper does not print: `row35`, `row30`, rows
   just long enough for a heap of the n disks at 35 / 30 deg, which a flatter
-  heap spills over (the default row holds a 15 deg heap and 5 sigma more).
+  heap spills over (the default row holds a 15 deg heap and 5 sigma more);
+- the row's spacing S (the paper's 1.1 sigma): `S1.0`, `S1.05`, `S1.2`, `S1.3`.
 The paper: angle of repose 35 +- 5 deg (1334 disks; 31 deg for n = 36 beside
 35 deg for n = 144, 1000 disks), base force M-shaped with flank maxima 20-30%
 above the centre for n = 36, r0 = 1.2; no clear M for n = 144 short tail and
@@ -86,6 +87,11 @@ SETTINGS = {
     # (no margin), which a flatter heap spills over (disks past an end are lost)
     "row35": {"row_angle": 35.0},
     "row30": {"row_angle": 30.0},
+    # the substrate's spacing S (sec. III: the angle falls as S grows, a plateau for S >= 1.1 sigma)
+    "S1.0": {"pour": {"spacing": 1.0}},
+    "S1.05": {"pour": {"spacing": 1.05}},
+    "S1.2": {"pour": {"spacing": 1.2}},
+    "S1.3": {"pour": {"spacing": 1.3}},
 }
 READINGS = tuple(SETTINGS)[:5]
 ANGLE_METHODS = ("mid_flank", "endpoints", "least_squares", "cumulative_parabola")

@@ -95,12 +95,10 @@ def figure(out: dict, path: str) -> None:
         err = [b["stderr"] or 0.0 for b in s["bands"]]
         ax.errorbar(mean, middle, xerr=err, marker="o", color=f"C{k}", capsize=3,
                     label=f"{name} ({s['heaps']} heaps)")
-    ax.set_xlabel("packing fraction of the column under the apex")
-    ax.set_ylabel("height / apex height")
-    ax.set_title(f"Baxter et al. 1997: packing by height, heaps of {out['n']} disks")
+    ax.set(xlabel="packing fraction of the column under the apex", ylabel="height / apex height",
+           title=f"Baxter et al. 1997: packing by height, heaps of {out['n']} disks")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 

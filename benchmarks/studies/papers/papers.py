@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,voidage]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -489,7 +489,35 @@ def rows_1997() -> list[list[str]]:
     rows.extend(_rows_mu(heaps))
     rows.extend(_rows_n144(heaps))
     rows.extend(_rows_voidage())
+    rows.extend(_rows_spacing())
     return rows
+
+
+SPACINGS = {1.0: "S1.0", 1.05: "S1.05", 1.1: "contact-point/hold", 1.2: "S1.2", 1.3: "S1.3"}
+"""The substrate spacings S (sigma) of the 300-disk heaps, by their setting (1.1: the paper's)."""
+
+
+def _rows_spacing() -> list[list[str]]:
+    """Sec. III: "the angle of repose was found to decrease with increasing
+    substrate particle spacing S, with a local plateau in the range S >= 1.1
+    sigma": the 300-disk heaps' mid-flank angle at each S."""
+    import baxter_readings as br
+
+    heaps = _heaps(300)
+    what = "300-disk heaps: the angle against the substrate's spacing S (sec. III)"
+    says = "falls as S grows, a plateau for S ≥ 1.1 σ"
+    if not all(heaps.get(name) for name in SPACINGS.values()):
+        return [["1997", what, says, _missing("spacing"), "—"]]
+    angle = {S: br.summarise(heaps[name])[name]["angle"]["mid_flank"] for S, name in SPACINGS.items()}
+    shown = ", ".join(f"{S:g}: {_pm(a)}" for S, a in angle.items())
+    falls = angle[1.3]["mean"] - angle[1.0]["mean"]
+    plateau = [angle[S] for S in (1.1, 1.2, 1.3)]
+    spread = max(a["mean"] for a in plateau) - min(a["mean"] for a in plateau)
+    bound = 2.0 * math.hypot(*sorted((_se(a) for a in plateau), reverse=True)[:2])
+    return [["1997", f"{what}, {min(len(heaps[n]) for n in SPACINGS.values())} heaps a value", says,
+             f"mid-flank angle at S = {shown}",
+             "falls from 1.0 to 1.3: " + _sign(-falls, _se(angle[1.3]), _se(angle[1.0]))
+             + f"; plateau from 1.1: {'agrees' if spread <= bound else 'differs'} (spread {spread:.1f}°, 2 s.e. {bound:.1f}°)"]]
 
 
 def _voidage(n: int) -> dict:
@@ -899,6 +927,10 @@ def run(studies: list[str]) -> None:
         import baxter_readings as br
 
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "contact-point/hold", "--workers", "2"])
+    if "spacing" in studies:  # sec. III: the angle against the substrate's spacing S (300-disk heaps, ~2 min each)
+        import baxter_readings as br
+
+        br.main(["--n", "300", "--seeds", str(PILES), "--settings", "S1.0,S1.05,S1.2,S1.3", "--workers", "2"])
     if "voidage" in studies:  # from the saved states of the heap studies' runs (seconds)
         import baxter_voidage as bv
 
@@ -906,7 +938,7 @@ def run(studies: list[str]) -> None:
         bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "voidage")
+STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage")
 
 
 def main(argv=None) -> int:
