@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage,height,width]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -235,9 +235,109 @@ def rows_1993() -> list[list[str]]:
         ["1993", "θ_R + θ_T against θ_MS = arctan 3μ (Fig. 7a)", "below θ_MS (\"there is a difference\")",
          f"{series('theta_r_plus_theta_t')} against {ms} (`docs/lee_herrmann1993_tilt_ensemble.png`)",
          below_ms("theta_r_plus_theta_t")],
+        row_linear_in_mu({float(m): s[m]["theta_r"] for m in mus}),
         row_flux(at_02),
         *rows_kn_gamma(),
+        row_height(),
+        *rows_width(),
     ]
+
+
+def rows_width() -> list[list[str]]:
+    """Fig. 2(b): theta_R against the box's width W at H / W = 2. The text: at mu
+    = 0.2 the angle falls for small sizes and saturates from about W = 3.5; at mu
+    = 0.3 it falls until W = 4; at mu = 0.1 no obvious trend down to W = 1.5.
+    Tested as the slope of theta_R against W over the smaller widths (W <= 3)
+    and over the larger (W >= 3), each against two standard errors."""
+    what = "θ_R against the box's width W, H / W = 2 (Fig. 2b)"
+    if not all((WIDTH / f"w{w:g}" / "sweep.csv").exists() for w in WIDTHS):
+        return [["1993", what, "falls, then saturates: from W ≈ 3.5 at μ = 0.2, later at 0.3, no trend at 0.1",
+                 _missing("width"), "—"]]
+    rows = [{**r, "width": w} for w in WIDTHS for r in _sweep_csv(WIDTH / f"w{w:g}" / "sweep.csv")]
+    says = {0.1: ("no obvious trend down to W = 1.5", ("flat", "flat")),
+            0.2: ("falls for small W, saturates from W ≈ 3.5", ("falls", "flat")),
+            0.3: ("falls until W = 4", ("falls", "falls"))}
+
+    def verdict(found: tuple, expected: tuple) -> str:
+        if found == expected:
+            return "agrees"
+        if any(f != "flat" and e == "flat" or f == "rises" for f, e in zip(found, expected)):
+            return "differs"
+        return "not resolved (a fall the piles do not resolve)"
+
+    out = []
+    for mu, (said, expected) in says.items():
+        stats = [_angle([r for r in rows if float(r["mu"]) == mu and r["width"] == w]) for w in WIDTHS]
+        small, large = [(w, a) for w, a in zip(WIDTHS, stats) if w <= 3.0], [(w, a) for w, a in zip(WIDTHS, stats) if w >= 3.0]
+        s_small, e_small = _trend(*zip(*small))
+        s_large, e_large = _trend(*zip(*large))
+        judge = lambda slope, se: ("falls" if slope < -2 * se else "rises" if slope > 2 * se else "flat")
+        shown = ", ".join(f"{w:g}: {_pm(a)}" for w, a in zip(WIDTHS, stats))
+        out.append(["1993", f"{what}, μ = {mu:g}, {min(a['count'] for a in stats)} piles a width", said,
+                    f"θ_R (method 3) at W = {shown}; slope {s_small:+.1f} ± {e_small:.1f}°/W up to W = 3, "
+                    f"{s_large:+.1f} ± {e_large:.1f}°/W from W = 3",
+                    f"{verdict((judge(s_small, e_small), judge(s_large, e_large)), expected)}: W ≤ 3 "
+                    f"{judge(s_small, e_small)}, W ≥ 3 {judge(s_large, e_large)} (at 2 s.e.)"])
+    return out
+
+
+def row_linear_in_mu(theta_r: dict) -> list[str]:
+    """Sec. 4 (Fig. 3): "in the range of mu we studied, there seems to be a
+    linear relation between the angle and mu" (and it "cannot be true for the
+    entire range"): the curvature of a weighted quadratic fit of theta_R over
+    mu, against two standard errors, at small mu (<= 0.3, the paper's figure
+    does not print its range) and over the whole ensemble."""
+    import numpy as np
+
+    def curvature(mus):
+        x = np.asarray(mus)
+        y = np.asarray([theta_r[m]["mean"] for m in mus])
+        w = 1.0 / np.asarray([max(_se(theta_r[m]), 1e-12) for m in mus])
+        coef, cov = np.polyfit(x, y, 2, w=w, cov="unscaled")
+        return float(coef[0]), float(np.sqrt(cov[0, 0]))
+
+    mus = sorted(theta_r)
+    parts = []
+    for label, chosen in (("μ ≤ 0.3", [m for m in mus if m <= 0.3]), (f"μ ≤ {mus[-1]:g}", mus)):
+        if len(chosen) < 3:
+            continue
+        c, se = curvature(chosen)
+        parts.append((label, c, se, "linear" if abs(c) <= 2 * se else ("concave" if c < 0 else "convex")))
+    return ["1993", "θ_R linear in μ (Fig. 3; the box ensemble above)", "linear in the range studied, "
+            "not for every μ", "; ".join(f"{label}: curvature {c:+.0f} ± {se:.0f}°/μ²" for label, c, se, _ in parts),
+            "; ".join(f"{label}: {shape}" for label, _, _, shape in parts)
+            + ("" if not parts else "; " + ("agrees" if parts[0][3] == "linear" else "differs") + " at small μ")]
+
+
+def _trend(xs: list[float], stats: list[dict]) -> tuple[float, float]:
+    """The slope of a weighted least-squares line through `(x, mean +- stderr)`, with its standard error."""
+    import numpy as np
+
+    x = np.asarray(xs, float)
+    y = np.asarray([s["mean"] for s in stats], float)
+    w = 1.0 / np.asarray([max(_se(s), 1e-12) ** 2 for s in stats], float)
+    xm = np.sum(w * x) / np.sum(w)
+    slope = np.sum(w * (x - xm) * (y - np.sum(w * y) / np.sum(w))) / np.sum(w * (x - xm) ** 2)
+    return float(slope), float(1.0 / np.sqrt(np.sum(w * (x - xm) ** 2)))
+
+
+def row_height() -> list[str]:
+    """Fig. 2(a): theta_R against the box's height H at W = 2, mu = 0.2: "no
+    systematic dependency", tested as the slope of theta_R against H."""
+    what = "θ_R against the box's height H, W = 2, μ = 0.2 (Fig. 2a)"
+    says = "no systematic dependence on H"
+    path = HEIGHT / "sweep.csv"
+    if not path.exists():
+        return ["1993", what, says, _missing("height"), "—"]
+    rows = _sweep_csv(path)
+    heights = sorted({float(r["height"]) for r in rows})
+    stats = [_angle([r for r in rows if float(r["height"]) == h]) for h in heights]
+    slope, se = _trend(heights, stats)
+    shown = ", ".join(f"{h:g}: {_pm(a)}" for h, a in zip(heights, stats))
+    return ["1993", f"{what}, {min(a['count'] for a in stats)} piles a height", says,
+            f"θ_R (method 3) at H = {shown}; slope {slope:+.2f} ± {se:.2f}° per unit H",
+            ("agrees (no trend: slope within 2 s.e.)" if abs(slope) <= 2 * se else
+             f"differs (a trend of {slope:+.2f}° per unit H, beyond 2 s.e.)")]
 
 
 KN_GAMMA = RESULTS / "lee_herrmann_1993" / "kn_gamma"
@@ -252,6 +352,16 @@ KN_GAMMA_SWEEPS = {
 """The paper's box (W = H = 4, mu = 0.2, its law: k_n = 1e6, gamma_n = 500, gamma_s = gamma_n / 100) at
 its three k_n and its three gamma_n (500 is the k_n sweep's 1e6 point), `PILES` piles each (the paper's 20
 take 2.5 times the CPU: about 1.5 hours on 2 cores for the k_n sweep alone)."""
+HEIGHT_SWEEP = ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--mu", "0.2", "--seeds", str(PILES), "--option",
+                "width=2", "--vary", "height=1,2,3,4,5", "--checkpoint-every", "20000", "--no-progress"]
+"""Fig. 2(a): theta_R against the box's height H at W = 2, mu = 0.2 (the paper's H values are not printed)."""
+HEIGHT = RESULTS / "lee_herrmann_1993" / "height_w2"
+WIDTHS = (1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
+WIDTH_SWEEPS = {w: ["sweep", "--protocol", "box", "--law", "lee-herrmann", "--seeds", str(PILES), "--option",
+                    f"width={w:g}", "--option", f"height={2 * w:g}", "--vary", "mu=0.1,0.2,0.3", "--checkpoint-every",
+                    "20000", "--no-progress"] for w in WIDTHS}
+"""Fig. 2(b): theta_R against the box's width W at aspect ratio H / W = 2, mu = 0.1, 0.2, 0.3: one sweep a W."""
+WIDTH = RESULTS / "lee_herrmann_1993" / "width_aspect2"
 KN_PAPER = {1e4: (16.53, 0.73), 1e5: (18.65, 0.70), 1e6: (17.99, 0.64)}
 GAMMA_PAPER = {50.0: (16.47, 0.75), 100.0: (17.15, 0.62), 500.0: (17.99, 0.64)}
 METHODS_PAPER = {"repose_endpoints": (20.14, 2.15), "repose_least_squares": (18.90, 1.49),
@@ -792,6 +902,9 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
     if "1992" in papers and all(path.exists() for path in SLOPED_ANGLES.values()):
         drawn.append(str(folder / "liffman1992_sloped_angles.png"))
         figure_sloped_angles({a: _load(path) for a, path in SLOPED_ANGLES.items()}, drawn[-1])
+    if "1993" in papers and all((WIDTH / f"w{w:g}" / "sweep.csv").exists() for w in WIDTHS):
+        drawn.append(str(folder / "lee_herrmann1993_size.png"))
+        figure_size(drawn[-1])
     if "1993" in papers and (tilts := pe.pile_rows(TILT.parent)):
         drawn.append(str(folder / "lee_herrmann1993_tilt_ensemble.png"))
         pe.figure_tilt(tilts, drawn[-1])
@@ -805,6 +918,40 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
             drawn.append(str(folder / f"baxter1997_n{n}.png"))
             br.figure(heaps, drawn[-1], f"Baxter et al. 1997 heaps of {n} disks, poured onto S = 1.1 sigma")
     return drawn
+
+
+def _sweep_csv(path: pathlib.Path) -> list[dict]:
+    import csv
+
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def figure_size(path: str) -> None:
+    """Fig. 2: theta_R (method 3) against the box's height H at W = 2 (a) and
+    against its width W at H / W = 2 for three mu (b), mean +- s.e. over piles."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (by_h, by_w) = plt.subplots(1, 2, figsize=(10, 4))
+    if (HEIGHT / "sweep.csv").exists():
+        rows = _sweep_csv(HEIGHT / "sweep.csv")
+        heights = sorted({float(r["height"]) for r in rows})
+        stats = [_angle([r for r in rows if float(r["height"]) == h]) for h in heights]
+        by_h.errorbar(heights, [a["mean"] for a in stats], yerr=[_se(a) for a in stats], marker="s", capsize=3)
+    by_h.set(xlabel="H", ylabel="θ_R (deg)", title="(a) against H, W = 2, μ = 0.2")
+    rows = [{**r, "width": w} for w in WIDTHS for r in _sweep_csv(WIDTH / f"w{w:g}" / "sweep.csv")]
+    for mu, marker in ((0.1, "D"), (0.2, "s"), (0.3, "o")):
+        stats = [_angle([r for r in rows if float(r["mu"]) == mu and r["width"] == w]) for w in WIDTHS]
+        by_w.errorbar(WIDTHS, [a["mean"] for a in stats], yerr=[_se(a) for a in stats], marker=marker, capsize=3,
+                      label=f"μ = {mu:g}")
+    by_w.set(xlabel="W", ylabel="θ_R (deg)", title="(b) against W, H / W = 2")
+    by_w.legend(fontsize=8)
+    fig.suptitle(f"Lee & Herrmann 1993 Fig. 2: the box's size, {PILES} piles a point")
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
 
 
 def figure_sloped_angles(piles: dict, path: str) -> None:
@@ -878,6 +1025,17 @@ def _pile_summary(args: list[str], dest: pathlib.Path, base_forces: bool = False
         shutil.rmtree(scratch, ignore_errors=True)
 
 
+def _sweep_into(out: pathlib.Path, sweep: list[str]) -> None:
+    """`jaxpile SWEEP --out OUT` (resumed from OUT/checkpoint.npz when a run stopped), unless OUT holds its
+    sweep.csv already; the command is kept as OUT/command.txt."""
+    if (out / "sweep.csv").exists():
+        return
+    jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
+    resumed = (out / "checkpoint.npz").exists()
+    subprocess.run([jaxpile, *(["sweep", "--resume", str(out)] if resumed else [*sweep, "--out", str(out)])], check=True)
+    (out / "command.txt").write_text("jaxpile " + " ".join(sweep) + f" --out {out.relative_to(ROOT)}\n")
+
+
 def run(studies: list[str]) -> None:
     """Runs each study that has fewer results than its target (each resumes)."""
     if "lattice" in studies and not LATTICE.exists():
@@ -893,22 +1051,16 @@ def run(studies: list[str]) -> None:
 
         pe.main(["tilt", "--seeds", str(PILES), "--checkpoint-every", "20000",
                  "--figure", str(ROOT / "docs" / "lee_herrmann1993_tilt_ensemble.png")])
-    if "flux" in studies and not (FLUX / "sweep.csv").exists():
-        jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
-        resumed = (FLUX / "checkpoint.npz").exists()
-        argv = ["sweep", "--resume", str(FLUX)] if resumed else [*FLUX_SWEEP, "--out", str(FLUX)]
-        subprocess.run([jaxpile, *argv], check=True)
-        (FLUX / "command.txt").write_text("jaxpile " + " ".join(FLUX_SWEEP) + f" --out {FLUX.relative_to(ROOT)}\n")
+    if "flux" in studies:
+        _sweep_into(FLUX, FLUX_SWEEP)
+    if "height" in studies:
+        _sweep_into(HEIGHT, HEIGHT_SWEEP)
+    if "width" in studies:
+        for w, sweep in WIDTH_SWEEPS.items():
+            _sweep_into(WIDTH / f"w{w:g}", sweep)
     if "kn_gamma" in studies:
-        jaxpile = shutil.which("jaxpile") or str(pathlib.Path(sys.executable).with_name("jaxpile"))
         for name, sweep in KN_GAMMA_SWEEPS.items():
-            out = KN_GAMMA / name
-            if (out / "sweep.csv").exists():
-                continue
-            resumed = (out / "checkpoint.npz").exists()
-            subprocess.run([jaxpile, *(["sweep", "--resume", str(out)] if resumed else [*sweep, "--out", str(out)])],
-                           check=True)
-            (out / "command.txt").write_text("jaxpile " + " ".join(sweep) + f" --out {out.relative_to(ROOT)}\n")
+            _sweep_into(KN_GAMMA / name, sweep)
     if "drop" in studies:
         import paper_ensembles as pe
 
@@ -938,7 +1090,7 @@ def run(studies: list[str]) -> None:
         bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage")
+STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage", "height", "width")
 
 
 def main(argv=None) -> int:
