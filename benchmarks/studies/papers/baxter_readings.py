@@ -335,20 +335,26 @@ def figure(rows: list[dict], path: str, title: str) -> None:
     plt.close(fig)
 
 
-def heap_rows(folder) -> list[dict]:
-    """Every heap's row in `folder` (one heap size): the committed summary's
-    `heaps`, with any heap whose own file is there (a run in progress) read from
-    that file instead. Sorted by setting, then seed."""
+def study_rows(folder, entry: str, key, pattern: str) -> list[dict]:
+    """A study's rows in `folder`: its committed summary.json's `entry` list, with
+    any row whose own file (`pattern`: a run in progress) is there read from
+    that file instead; one row per `key(row)`, sorted by it."""
     folder = pathlib.Path(folder)
     summary_file = folder / "summary.json"
     rows = {}
     if summary_file.exists():
-        for row in json.loads(summary_file.read_text()).get("heaps", []):
-            rows[(name_of(row), row["seed"])] = row
-    for path in folder.glob("*_seed*.json"):
+        for row in json.loads(summary_file.read_text()).get(entry, []):
+            rows[key(row)] = row
+    for path in folder.glob(pattern):
         row = json.loads(path.read_text())
-        rows[(name_of(row), row["seed"])] = row
-    return [rows[key] for key in sorted(rows)]
+        rows[key(row)] = row
+    return [rows[k] for k in sorted(rows)]
+
+
+def heap_rows(folder) -> list[dict]:
+    """Every heap's row in `folder` (one heap size): the committed summary's
+    `heaps` and any heap's own file (`study_rows`), by setting, then seed."""
+    return study_rows(folder, "heaps", lambda row: (name_of(row), row["seed"]), "*_seed*.json")
 
 
 def keep_heaps(folder) -> int:

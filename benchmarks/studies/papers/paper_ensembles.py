@@ -181,17 +181,11 @@ def figure_drop(rows, path):
 def pile_rows(folder) -> list[dict]:
     """Every pile's row of a study in `folder`: the committed summary's `piles`,
     with any pile whose own file is there (`seed<k>.json`, `mu<mu>_seed<k>.json`:
-    the workings of a run, not committed) read from that file instead."""
-    folder = pathlib.Path(folder)
-    summary_file = folder / "summary.json"
-    rows = {}
-    if summary_file.exists():
-        for row in json.loads(summary_file.read_text()).get("piles", []):
-            rows[(row.get("mu"), row["seed"])] = row
-    for path in folder.glob("*seed*.json"):
-        row = json.loads(path.read_text())
-        rows[(row.get("mu"), row["seed"])] = row
-    return [rows[key] for key in sorted(rows, key=lambda k: (k[0] or 0.0, k[1]))]
+    the workings of a run, not committed) read from that file instead
+    (`baxter_readings.study_rows`)."""
+    from baxter_readings import study_rows
+
+    return study_rows(folder, "piles", lambda row: (row.get("mu") or 0.0, row["seed"]), "*seed*.json")
 
 
 def keep_piles(folder, study: str, n: int) -> None:
