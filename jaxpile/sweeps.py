@@ -40,7 +40,7 @@ from jaxpile.errors import InputError, SimulationError
 from jaxpile import ranges
 from jaxpile.ranges import COUNT, SEED
 from jaxpile.engine.simulate import RunInfo
-from jaxpile.protocols import PROTOCOLS, running
+from jaxpile.protocols import PROTOCOLS, running, stages
 from jaxpile.protocols.spec import ProtocolSpec
 
 
@@ -400,7 +400,6 @@ def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dt
     at_stage = int(saved.get("stage", 0)) if saved is not None else 0
     for k, (stage, options) in enumerate(zip(chain, stage_options)):
         stage_ens = ens if k == 0 else ensemble_for(stage, law, dt, rotation, options, law_options, devices)
-        done = 0
         if k > 0:
             piles = [ensemble.member(state, i) for i in range(len(chunk))]
             started = [running.stage_start(stage, law, dt, options, pile) for pile in piles]
@@ -408,23 +407,21 @@ def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dt
             state = stage_ens.shard(ensemble.stack_states([s for s, _ in started]))
         if k < at_stage:  # a resume past this stage: its start only shapes the template
             continue
-        if k > 0 and k == at_stage:  # the saved stage: its start steps and measured infos come from the file
+        if k > 0 and k == at_stage:  # the saved stage: its members' measured infos come from the file
             setups = [p._replace(info=i) for p, i in zip(setups, saved["stage_infos"])]
-            starts = [int(x) for x in saved["stage_start_steps"]]
         elif k > 0:
             setups = [p._replace(info={**p.info, **running.stage_facts(stage, pile, p)})
                       for pile, p in zip(piles, setups)]
-            starts = [int(pile.step) for pile in piles]
+        position = None
         if k == at_stage and saved is not None:
             state = stage_ens.shard(ckpt.restore(resume, state, stage_ens.sim.law, saved_params))
-            done = (ckpt.step_of(state) if k == 0 else
-                    max(int(m.step) - s0 for m, s0 in zip(ensemble.members(state, len(chunk)), starts)))
-        stage_facts = {} if k == 0 else dict(stage_start_steps=starts, stage_infos=[p.info for p in setups])
+            position = stages.Position.saved(saved, resume)
+        stage_facts = {} if k == 0 else dict(stage_infos=[p.info for p in setups])
         # the rows list is written as it stands at each save: the batches measured so far
-        spec_ = ckpt.with_facts(checkpoint, **facts, stage=k, **stage_facts)
-        budget = max_steps if k == 0 and max_steps is not None else stage.budget(setups[0], options)
-        state = stage_ens.run(prms, state, max(int(budget) - done, 0), until=stage.finished(setups[0], options),
-                              progress=progress, info=info, checkpoint=spec_)
+        saves = ckpt.with_facts(checkpoint, **facts, stage=k, **stage_facts)
+        state, _ = stages.run_phases(stage_ens, prms, state, stage.phases(setups[0], options), count=len(chunk),
+                                     max_steps=max_steps if k == 0 else None, position=position, progress=progress,
+                                     info=info, checkpoint=saves)
     return state, setups, stage_ens.sim
 
 

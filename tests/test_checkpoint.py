@@ -238,20 +238,20 @@ def test_a_nan_mid_run_reports_step_and_particle_and_saves_the_last_good_state(t
 
 
 def test_a_pour_resumed_mid_pour_ends_bit_identical(tmp_path):
-    """The pour's two phases (pouring, settling) resume from the step count:
-    restored halfway through the pour, the run ends where the uninterrupted one did."""
-    from jaxpile.protocols import pour
+    """The pour's two phases (pouring, settling) resume from the phase each save
+    records: restored halfway through the pour, the run ends where the
+    uninterrupted one did."""
+    from jaxpile.protocols import pour, running
 
     sim = pour.make_simulator("hooke", chunk_steps=500)
     params = pour.law_params("hooke")
-    protocol = pour.SPEC.set_up("hooke", 12, release_height=14.0, seed=5)
+    o = pour.PourOptions(n=12, release_height=14.0, max_settle_steps=3000)
+    protocol = pour.setup(o, law="hooke", seed=5, dt=sim.dt)
     steps = protocol.info["pour_steps"]
     every = 500 * max(1, steps // 1000)  # a checkpoint about halfway through the pour
     path = str(tmp_path / "pour-{step}.npz")
-    whole, info = pour.execute(sim, params, protocol, max_settle_steps=3000, progress=False,
-                               checkpoint=(path, every))
-    resumed, rest = pour.execute(sim, params, protocol, max_settle_steps=3000, progress=False,
-                                 resume=path.format(step=every))
+    whole, info, _ = running.run_setup(pour.SPEC, sim, params, protocol, o, checkpoint=(path, every))
+    resumed, rest, _ = running.run_setup(pour.SPEC, sim, params, protocol, o, resume=path.format(step=every))
     assert int(resumed.step) == int(whole.step) and rest.steps == info.steps - every
     mid = checkpoint.restore(path.format(step=every), sim.init(params, protocol.particles, protocol.boundaries,
                                                                box=protocol.box, protocol_state=protocol.protocol_state),

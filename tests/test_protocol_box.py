@@ -33,7 +33,7 @@ def hooke_box_one_chunk():
     steps = box.max_steps_for("hooke", p.info["dt"], 1.2)
     assert box.SPEC.budget(p, o) == steps
     sim = box.SPEC.simulator(o, law="hooke", dt=p.info["dt"], chunk_steps=steps)
-    state, info, samples = running.execute(box.SPEC, sim, params, p, o)
+    state, info, samples = running.run_setup(box.SPEC, sim, params, p, o)
     return p, state, info, samples
 
 

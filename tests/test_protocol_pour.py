@@ -11,7 +11,7 @@ import pytest
 import jaxpile
 from jaxpile.errors import InputError
 from jaxpile.cli.presentation import presentation
-from jaxpile.protocols import pour
+from jaxpile.protocols import pour, running
 from jaxpile.measure import analysis, poured_heap
 from jaxpile.measure import heap
 
@@ -23,9 +23,10 @@ TOLERANCE = 1.0e-4  # rest: every disk slower than this, (sigma g)^(1/2)
 def _heap(law, polydispersity, seed):
     sim = pour.make_simulator(law)
     params = pour.law_params(law)
-    protocol = pour.SPEC.set_up(law, N, release_height=RELEASE, polydispersity=polydispersity, seed=seed)
-    state, info = pour.execute(sim, params, protocol, speed_tolerance=TOLERANCE, max_settle_steps=150_000,
-                               progress=False)
+    o = pour.PourOptions(n=N, release_height=RELEASE, polydispersity=polydispersity, speed_tolerance=TOLERANCE,
+                         max_settle_steps=150_000)
+    protocol = pour.setup(o, law=law, seed=seed, dt=sim.dt)
+    state, info, _ = running.run_setup(pour.SPEC, sim, params, protocol, o)
     return sim, params, protocol, state, info, poured_heap.measure(sim, params, state)
 
 
@@ -111,8 +112,8 @@ def test_bad_arguments_raise_input_errors():
     with pytest.raises(InputError, match="bins .* at most the substrate"):  # 1e12 bins: the same, after the pour
         pour.SPEC.run("hooke", 6, release_height=10, bins=1e12)
     with pytest.raises(InputError, match="dt"):
-        pour.execute(pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
-                     pour.SPEC.set_up("hooke", 10, release_height=20))
+        running.run_setup(pour.SPEC, pour.make_simulator("hooke", dt=5e-4), pour.law_params("hooke"),
+                          pour.SPEC.set_up("hooke", 10, release_height=20), pour.PourOptions(n=10, release_height=20))
     with pytest.raises(InputError, match="unknown law"):
         pour.SPEC.run("sand", 10)
 

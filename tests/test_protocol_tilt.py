@@ -117,8 +117,8 @@ def test_bad_arguments_raise_input_error(pile):
     p = tilt.setup(state, o, law="lee-herrmann", dt=tilt.SPEC.default_dt("lee-herrmann"))
     sim = tilt.SPEC.simulator(o, law="lee-herrmann", dt=p.info["dt"])
     with pytest.raises(InputError, match="not the state"):
-        running.continue_pile(tilt.SPEC, sim, box.law_and_params("lee-herrmann")[2], p, o,
-                              state.set(step=state.step + 1))
+        running.run_setup(tilt.SPEC, sim, box.law_and_params("lee-herrmann")[2], p, o,
+                          state.set(step=state.step + 1))
 
 
 def test_with_settle_the_run_ends_settle_time_after_the_pile_moved(pile):

@@ -28,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 import zipfile
-from typing import Any
+from typing import Any, NamedTuple
 
 import warnings
 
@@ -142,16 +142,43 @@ def save(path, state: SimState, law, params, **extra) -> None:
     atomic_write(path, lambda f: np.savez(f, **arrays))
 
 
-def with_facts(spec, path=None, **facts):
-    """A run's `checkpoint=(path, every[, extra])` spec with more facts in
-    `extra` (and, given `path`, another file): how a protocol of several phases
-    records which phase a checkpoint belongs to. None stays None."""
-    if spec is None:
-        return None
-    if not isinstance(spec, tuple) or len(spec) not in (2, 3):
-        raise InputError(f"checkpoint must be (path, every) or (path, every, extra); got {spec!r}.")
-    old_path, every, extra = (*spec, {})[:3]
-    return (old_path if path is None else path, every, {**extra, **facts})
+class Checkpoint(NamedTuple):
+    """Where a run saves itself, how often, and the facts recorded with each save.
+
+    `Simulator.run(checkpoint=...)`, `Ensemble.run`, a protocol's run and a
+    sweep take one (or the plain tuple `(path, every[, facts])` it is).
+
+    Attributes:
+      path: the `.npz` file; it may hold `{step}` (one file per save).
+      every: the save interval in steps (at the first chunk boundary at or past
+        each multiple, and at the run's end).
+      facts: JSON-able facts written with each save, as they stand then (a
+        log that grows is saved up to date).
+    """
+
+    path: str
+    every: int
+    facts: dict = {}
+
+    @classmethod
+    def of(cls, value) -> "Checkpoint | None":
+        """`value` (None, a `Checkpoint` or `(path, every[, facts])`) as a `Checkpoint`, or None."""
+        if value is None or isinstance(value, cls):
+            return value
+        if not isinstance(value, tuple) or len(value) not in (2, 3):
+            raise InputError(f"checkpoint must be (path, every) or (path, every, extra); got {value!r}.")
+        return cls(*value)
+
+    def with_facts(self, path=None, **facts) -> "Checkpoint":
+        """This checkpoint with more facts (and, given `path`, another file):
+        how a run of several stages or phases records where a save belongs."""
+        return Checkpoint(self.path if path is None else path, self.every, {**self.facts, **facts})
+
+
+def with_facts(spec, path=None, **facts) -> Checkpoint | None:
+    """`Checkpoint.of(spec).with_facts(path, **facts)`; None stays None."""
+    spec = Checkpoint.of(spec)
+    return None if spec is None else spec.with_facts(path, **facts)
 
 
 def sibling(path, stage: str) -> str:

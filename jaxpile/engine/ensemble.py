@@ -272,7 +272,8 @@ class Ensemble:
         return size, max(blocks.pair_room(m, size, known.get(size, 0)) for m in each)
 
     def run(self, params, state: SimState, n_steps: int, *, until: Callable[[SimState], Array] | None = None,
-            progress: bool | None = None, info: RunInfo | None = None, checkpoint: tuple | None = None) -> SimState:
+            progress: bool | None = None, info: RunInfo | None = None, checkpoint: tuple | None = None,
+            resumed: bool = False) -> SimState:
         """Advances every member up to `n_steps`, in chunks of the simulator's
         `chunk_steps`, with batch-wide overflow handling and NaN checks.
 
@@ -292,6 +293,9 @@ class Ensemble:
             `checkpoint.step_of(state)` for members started at step 0):
             members frozen at the save stay frozen, and the batch ends
             bit-identical to the uninterrupted run.
+          resumed: `state` is a save of this same run: `until` is evaluated on
+            it first (as it was when saved), so members finished there stay
+            frozen; a fresh run checks `until` only at chunk boundaries.
 
         Returns:
           The batched state (padding members included when sharded; use
@@ -308,7 +312,7 @@ class Ensemble:
         info = RunInfo() if info is None else info
         info.particles = count * state.particles.position.shape[1]
         finished = jax.jit(jax.vmap(until)) if until is not None else None
-        last = [finished(state) if finished is not None else jnp.zeros(count, bool)]
+        last = [finished(state) if finished is not None and resumed else jnp.zeros(count, bool)]
 
         def status(s: SimState):
             if finished is not None:

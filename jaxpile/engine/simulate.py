@@ -134,33 +134,6 @@ def gravity_ramp(steps: int) -> Callable[[SimState], Boundaries]:
     return schedule
 
 
-def load_then_settle(sim, params, state, *, load_steps: int, max_settle_steps: int, speed_tolerance: float,
-                     progress=None, checkpoint: tuple | None = None):
-    """`load_steps` steps (a gravity ramp, a pour), then run until at rest within
-    `max_settle_steps`: the two phases of the lattice and pour protocols.
-
-    Resumable: the phase and the steps left are read from `state.step` (the run
-    started at step 0), so a state restored from a checkpoint of this run
-    continues where it stopped and ends bit-identical to the uninterrupted run.
-
-    Returns:
-      (state, RunInfo) over both phases (the steps of this call).
-    """
-    step = int(state.step)
-    info = RunInfo()
-    state = sim.run(params, state, max(int(load_steps) - step, 0), progress=progress, info=info,
-                    checkpoint=checkpoint)
-    settle = max(int(max_settle_steps) - max(step - int(load_steps), 0), 0)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=speed_tolerance, max_steps=settle,
-                                     progress=progress, checkpoint=checkpoint, resumed=step > int(load_steps))
-    rest.steps += info.steps
-    rest.wall_seconds += info.wall_seconds
-    rest.compile_seconds += info.compile_seconds
-    rest.reallocations += info.reallocations
-    rest.particles = state.particles.count
-    return state, rest
-
-
 @dataclass
 class RunInfo:
     """What a run did (host-side numbers, for summaries and benchmarks)."""
@@ -175,6 +148,9 @@ class RunInfo:
 
     particles: int = 0
     """Disks advanced each step (every member's, for a batch): the rate's numerator."""
+
+    phases: dict = field(default_factory=dict)
+    """A protocol's run: the step each of its phases ended at (`protocols.stages`)."""
 
     @property
     def particle_steps_per_second(self) -> float:

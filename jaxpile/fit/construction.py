@@ -29,7 +29,7 @@ from jaxpile.engine import pairs as pair_list
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import smooth_base_profile
 from jaxpile.measure import analysis
-from jaxpile.protocols import PROTOCOLS, running
+from jaxpile.protocols import PROTOCOLS, running, stages
 
 
 def rolled_out() -> tuple[str, ...]:
@@ -87,9 +87,8 @@ class Construction:
         self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics
         p0 = pieces.params(jnp.asarray(theta))
         start = pieces.ensemble.init([p0] * len(protocols), protocols)
-        budget = runner.max_steps if runner.max_steps is not None else spec.budget(protocols[0], options)
-        end = pieces.ensemble.run([p0] * len(protocols), start, int(budget),
-                                  until=spec.finished(protocols[0], options), progress=False)
+        end, _ = stages.run_phases(pieces.ensemble, [p0] * len(protocols), start, spec.phases(protocols[0], options),
+                                   count=len(protocols), max_steps=runner.max_steps, progress=False)
         self.steps = max(int(m.step) for m in ensemble.members(end, len(protocols)))
         slots = int(end.neighbors.max_occupancy) + 8
         pairs = pair_list.aligned(int(1.5 * int(end.contacts.pairs.shape[-2])))

@@ -96,6 +96,7 @@ from jaxpile.protocols.paper1993 import (
     units,
 )
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import one_phase
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -308,7 +309,7 @@ def measure(sim, params, state: SimState, p: Setup, options: dict) -> dict:
 
 SPEC = ProtocolSpec(
     name="box", options=BoxOptions, setting=LAW_SETTING, setup=setup, simulator=simulator_running(driver),
-    finished=settled, budget=max_time_budget, measure=measure)
+    phases=one_phase(settled, max_time_budget), measure=measure)
 """The box (Lee & Herrmann 1993, sec. 3): `SPEC.run("lee-herrmann", width=1.6, height=1.6)` fills the box,
 removes the right wall at rest, lets the pile settle and measures its angle of repose by the three methods."""
 

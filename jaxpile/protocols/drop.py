@@ -61,6 +61,7 @@ from jaxpile.protocols import paper1992
 from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.drivers import activate, next_inactive
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import Phase
 from jaxpile.ranges import COUNT, DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
@@ -283,12 +284,6 @@ LAW_SETTING = Setting(law="liffman", params=SETTING["params"], dt=SETTING["dt"],
 law_and_params = LAW_SETTING.law_and_params
 
 
-def _with_phase(checkpoint, phase: str, **facts):
-    from jaxpile.engine import checkpoint as ckpt
-
-    return ckpt.with_facts(checkpoint, phase=phase, **facts)
-
-
 def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None, law_options=None):
     """A `Simulator` running the drop driver of the options `o` (its constants
     are the same for every seed and every n), velocity Verlet unless another
@@ -304,59 +299,29 @@ def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None,
                      hard_collisions=o.hard_collisions, in_play=make_in_play(rule["quiet_steps"]), **extra)
 
 
-def fill_and_relax(sim, params, p: Setup, o: DropOptions, *, progress=None, checkpoint=None, resume=None):
-    """One pile: the fill (every disk dropped), then the relaxation to rest,
-    each phase recorded with its checkpoints (a resume continues either)."""
-    from types import SimpleNamespace
-
-    from jaxpile.engine.simulate import RunInfo
-
-    state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    fill_steps = None  # known once the fill phase is over
-    if resume is not None:
-        from jaxpile.engine import checkpoint as ckpt
-
-        state = ckpt.restore(resume, state, sim.law, params)
-        fill_steps = ckpt.read_metadata(resume)["extra"].get("fill_steps")
-    fill = RunInfo()
-    fill.particles = state.particles.count
-    if fill_steps is None:
-        budget = p.info["n_particles"] * p.info["max_interval_steps"] + sim.chunk_steps
-        state = sim.run(params, state, max(budget - int(state.step), 0), progress=progress, info=fill,
-                        until=lambda s: bool(np.asarray(s.particles.active).all()),
-                        checkpoint=_with_phase(checkpoint, "fill"), resumed=int(state.step) > 0)
-        fill_steps = int(state.step)
-    relax_left = o.relax_steps - (int(state.step) - fill_steps)
-    state, rest = sim.run_until_rest(params, state, speed_tolerance=o.speed_tolerance,
-                                     max_steps=max(relax_left, 0), progress=progress,
-                                     resumed=int(state.step) > fill_steps,
-                                     checkpoint=_with_phase(checkpoint, "relax", fill_steps=fill_steps))
-    return state, SimpleNamespace(fill=fill, rest=rest, fill_steps=fill_steps, law=sim.law.name,
-                                  forced=int(state.protocol_state.forced), steps=int(state.step)), None
-
-
 def report(measured: dict, p: Setup, o: DropOptions, info, samples, seconds: float) -> dict:
     """One pile's output: the run's phases and timings, then the measurements."""
     n = p.info["n_particles"]
     out = {
         "protocol": "drop",
-        "law": info.law,
+        "law": measured["law"],
         "n_particles": measured["n_in"],
         "n_requested": n,
         "all_inserted": measured["all_inserted"],
         "seed": p.info["seed"],
-        "fill_steps": info.fill_steps,
-        "mean_steps_per_drop": info.fill_steps / n,
-        "forced_drops": info.forced,
-        "steps": info.steps,
-        "wall_seconds": info.fill.wall_seconds + info.rest.wall_seconds,
-        "compile_seconds": info.fill.compile_seconds + info.rest.compile_seconds,
+        "fill_steps": info.phases["fill"],
+        "mean_steps_per_drop": info.phases["fill"] / n,
+        "forced_drops": measured["forced_drops"],
+        "steps": info.phases["relax"],
+        "wall_seconds": info.wall_seconds,
+        "compile_seconds": info.compile_seconds,
         "total_seconds": seconds,
-        "at_rest": bool(info.rest.at_rest),
-        "final_max_speed": info.rest.max_speed,
+        "at_rest": bool(info.at_rest),
+        "final_max_speed": info.max_speed,
         "speed_tolerance": o.speed_tolerance,
     }
-    out.update({k: v for k, v in measured.items() if k not in ("n_in", "all_inserted", "max_speed")})
+    out.update({k: v for k, v in measured.items()
+                if k not in ("n_in", "all_inserted", "max_speed", "law", "forced_drops")})
     return out
 
 
@@ -366,23 +331,20 @@ def measure_pile(sim, params, state: SimState, p: Setup, o: DropOptions) -> dict
 
     active = np.asarray(state.particles.active)
     return {"n_in": int(active.sum()), "all_inserted": bool(active.all()), "max_speed": float(max_speed(state)),
+            "law": sim.law.name, "forced_drops": int(state.protocol_state.forced),
             **measure(sim, params, state, bins=o.bins, dip_threshold=o.dip_threshold)}
 
 
-def filled_and_at_rest(p: Setup, o: DropOptions):
-    """A batch's end for one pile: every disk in, the last one in for `quiet_time`,
-    and its fastest disk below `speed_tolerance` (a single run fills, then
-    relaxes; the batch checks both at each chunk's end)."""
+def phases(p: Setup, o: DropOptions) -> tuple[Phase, ...]:
+    """The fill (until every disk is in, within every drop at its longest wait
+    and a chunk's slack), then the relaxation until the fastest disk is below
+    `speed_tolerance`, within `relax_steps`."""
     from jaxpile.engine.simulate import max_speed
 
-    quiet, tolerance = int(p.info["quiet_steps"]), float(o.speed_tolerance)
-    return lambda s: (jnp.all(s.particles.active) & (s.step - s.protocol_state.last_insert >= quiet)
-                      & (max_speed(s) < tolerance))
-
-
-def step_budget(p: Setup, o: DropOptions) -> int:
-    """Every drop at its longest wait, a chunk's slack, then the relaxation's budget."""
-    return int(p.info["n_particles"]) * int(p.info["max_interval_steps"]) + 1000 + int(o.relax_steps)
+    tolerance = float(o.speed_tolerance)
+    fill = int(p.info["n_particles"]) * int(p.info["max_interval_steps"]) + 1000
+    return (Phase("fill", fill, lambda s: jnp.all(s.particles.active)),
+            Phase("relax", int(o.relax_steps), lambda s: max_speed(s) < tolerance))
 
 
 ROW_COLUMNS = ("all_inserted", "max_speed", "base_contacts", "total_normal", "weight_balance", "total_horizontal",
@@ -393,16 +355,16 @@ ROW_COLUMNS = ("all_inserted", "max_speed", "base_contacts", "total_normal", "we
 
 def row(m: dict) -> dict:
     """A sweep row: the measurements' plain numbers and flags."""
-    return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k != "n_in"}
+    return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k not in ("n_in", "forced_drops")}
 
 
 SPEC = ProtocolSpec(
     name="drop", options=DropOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
-    finished=filled_and_at_rest, budget=step_budget, measure=measure_pile, execute=fill_and_relax, report=report)
+    phases=phases, measure=measure_pile, report=report)
 """The drop (Liffman, Chan & Hughes 1992, Fig. 20): `SPEC.run("liffman", 968)` drops the disks one at a time,
 relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 
 
 __all__ = ["PARK_SPACING", "ROW_COLUMNS", "SETTING", "SPEC", "DropOptions", "DropState", "driver_setting",
-           "fill_and_relax", "filled_and_at_rest", "law_and_params", "layout", "make_driver", "make_in_play",
-           "measure_pile", "report", "row", "setup", "simulator", "step_budget"]
+           "law_and_params", "layout", "make_driver", "make_in_play",
+           "measure_pile", "phases", "report", "row", "setup", "simulator"]

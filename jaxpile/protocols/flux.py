@@ -56,6 +56,7 @@ from jaxpile.measure import analysis
 from jaxpile.protocols import drivers, geometry, paper1993
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import one_phase
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -398,7 +399,7 @@ def measure(sim, params, state: SimState, p: Setup, o: FluxOptions) -> dict:
 
 SPEC = ProtocolSpec(
     name="flux", options=FluxOptions, setting=paper1993.LAW_SETTING, setup=setup, simulator=simulator,
-    finished=paper1993.settled, budget=paper1993.max_time_budget, measure=measure, size="insertions")
+    phases=one_phase(paper1993.settled, paper1993.max_time_budget), measure=measure, size="insertions")
 """The flux pile (Lee & Herrmann 1993, sec. 5): `SPEC.run("lee-herrmann", 300)` feeds the pile 300 disks at the
 paper's rule, until it is at rest after the last, and measures the angle before each insertion (Fig. 5)."""
 

@@ -52,6 +52,7 @@ from jaxpile.protocols.geometry import (
     random_positions,
 )
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import one_phase
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, Range
 
 Array = Any
@@ -323,8 +324,8 @@ def max_time_budget(p: Setup, o: HopperOptions) -> int:
 
 
 SPEC = ProtocolSpec(
-    name="hopper", options=HopperOptions, setting=LAW_SETTING, setup=setup, simulator=simulator, finished=stopped,
-    budget=max_time_budget, measure=measure)
+    name="hopper", options=HopperOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
+    phases=one_phase(stopped, max_time_budget), measure=measure)
 """The hopper: `SPEC.run("hooke", 60, width=10.0, orifice=4.0, seed=0)` fills the silo, opens the gate at rest,
 lets it run out, and measures the flow rate against Beverloo's law."""
 

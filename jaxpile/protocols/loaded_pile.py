@@ -1,6 +1,6 @@
 """The run the 1992 static piles share (the lattice, Figs. 7-9, and the sloped
 pile, Figs. 12-16): gravity ramped in over `ramp_steps`, then a run until the
-fastest disk is below `speed_tolerance`, within `max_steps` in all (`relax`).
+fastest disk is below `speed_tolerance`, within `max_steps` in all (`phases`).
 `spec_of` declares such a protocol once (`spec.ProtocolSpec`).
 
 The piles are deterministic, so a sweep's seeds repeat the same pile and a
@@ -15,50 +15,44 @@ from collections.abc import Callable
 
 import numpy as np
 
+from jaxpile.protocols import stages
 from jaxpile.protocols.base import Setting
 from jaxpile.protocols.spec import ProtocolSpec
+from jaxpile.protocols.stages import Phase
+
+
+def load_and_settle(ramp_steps: int, speed_tolerance: float, max_steps: int) -> tuple[Phase, ...]:
+    """The phases: the gravity ramp (`ramp_steps`, within `max_steps`), then a
+    run until the fastest disk is below `speed_tolerance`, `max_steps` in all."""
+    from jaxpile.engine.simulate import max_speed
+
+    ramp, tolerance = min(int(ramp_steps), int(max_steps)), float(speed_tolerance)
+    return (Phase("ramp", ramp), Phase("settle", int(max_steps) - ramp, lambda s: max_speed(s) < tolerance))
+
+
+def phases(p, o) -> tuple[Phase, ...]:
+    """A static pile's phases from its options (`load_and_settle`)."""
+    return load_and_settle(o.ramp_steps, o.speed_tolerance, o.max_steps)
 
 
 def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_steps: int, progress=None,
           checkpoint=None):
-    """Loads the pile (gravity ramped in by `sim.schedule`) and runs it to rest.
-
-    Resumable from a checkpoint of the same run (`checkpoint` as in
-    `Simulator.run`; see `simulate.load_then_settle`).
+    """Loads a fresh pile `state` (gravity ramped in by `sim.schedule`) and runs
+    it to rest: `load_and_settle`'s phases (a protocol's run, `SPEC.run`, also
+    resumes from its checkpoints).
 
     Returns:
-      (state, RunInfo) with the steps of both phases.
+      (state, RunInfo) with the steps of both phases; `at_rest` at the end.
     """
-    from jaxpile.engine.simulate import load_then_settle
+    from jaxpile.engine.simulate import RunInfo, max_speed
 
-    ramp = min(ramp_steps, max_steps)
-    return load_then_settle(sim, params, state, load_steps=ramp, max_settle_steps=max_steps - ramp,
-                            speed_tolerance=speed_tolerance, progress=progress, checkpoint=checkpoint)
-
-
-def execute(sim, params, p, o, *, progress=None, checkpoint=None, resume=None):
-    """One pile: started (or resumed from `resume`) and `relax`ed."""
-    from jaxpile.engine import checkpoint as ckpt
-
-    state = sim.init(params, p.particles, p.boundaries, box=p.box)
-    if resume is not None:
-        state = ckpt.restore(resume, state, sim.law, params)
-    state, info = relax(sim, params, state, ramp_steps=int(o.ramp_steps), speed_tolerance=float(o.speed_tolerance),
-                        max_steps=int(o.max_steps), progress=progress, checkpoint=checkpoint)
-    return state, info, None
-
-
-def finished(p, o):
-    """At rest: past the ramp, the fastest disk below `speed_tolerance`."""
-    from jaxpile.engine.simulate import max_speed
-
-    ramp, tolerance = int(o.ramp_steps), float(o.speed_tolerance)
-    return lambda s: (s.step >= ramp) & (max_speed(s) < tolerance)
-
-
-def budget(p, o) -> int:
-    """`max_steps`, ramp included."""
-    return int(o.max_steps)
+    info = RunInfo()
+    state, _ = stages.run_phases(sim, params, state, load_and_settle(ramp_steps, speed_tolerance, max_steps),
+                                 progress=progress, info=info, checkpoint=checkpoint)
+    info.max_speed = float(max_speed(state))
+    info.at_rest = info.max_speed < speed_tolerance
+    info.particles = state.particles.count
+    return state, info
 
 
 # what `spec_of`'s measurement adds to the comparison with theory, last in a sweep row (`jaxpile.batches`)
@@ -102,7 +96,7 @@ def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, comp
 
     return ProtocolSpec(
         name=name, options=options, setting=setting, setup=setup, simulator=simulator,
-        finished=finished, budget=budget, measure=measure, size=size, execute=execute, report=report)
+        phases=phases, measure=measure, size=size, report=report)
 
 
-__all__ = ["OWN_COLUMNS", "budget", "execute", "finished", "relax", "spec_of"]
+__all__ = ["OWN_COLUMNS", "load_and_settle", "phases", "relax", "spec_of"]

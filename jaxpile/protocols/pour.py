@@ -69,6 +69,7 @@ from jaxpile.measure.poured_heap import check_options, measure, report
 from jaxpile.protocols import drivers, geometry
 from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import Phase
 from jaxpile.ranges import DISKS, SIZE, SPAN, SPEED, STEPS, Range
 
 Array = Any
@@ -368,36 +369,6 @@ def make_simulator(law: str = "baxter", *, dt: float = PAPER_SETTING["dt"], rota
     return Simulator(contact_law, dt, integrator=integrator, driver=driver, chunk_steps=chunk_steps, **kwargs)
 
 
-def execute(sim, params, protocol: Setup, *, speed_tolerance: float = PAPER_SETTING["speed_tolerance"],
-            max_settle_steps: int = PAPER_SETTING["max_settle_steps"], progress=None, checkpoint=None,
-            resume=None):
-    """Pours every disk (`info["pour_steps"]` steps) and runs until at rest.
-
-    Args:
-      checkpoint: `(path, every[, extra])` as in `Simulator.run`.
-      resume: a checkpoint file of this same run to continue from (bit-identical
-        to the uninterrupted run).
-
-    Returns:
-      (state, RunInfo): the run's steps and timings over both phases, `at_rest`
-      and the final `max_speed` from the settling phase.
-    """
-    from jaxpile.engine import checkpoint as ckpt
-    from jaxpile.engine.simulate import load_then_settle
-    from jaxpile.protocols import runner
-
-    runner.check_dt(sim, protocol)
-    if int(max_settle_steps) != max_settle_steps or max_settle_steps < 1:
-        raise InputError(f"max_settle_steps must be a whole number >= 1; got {max_settle_steps!r}.")
-    state = sim.init(params, protocol.particles, protocol.boundaries, box=protocol.box,
-                     protocol_state=protocol.protocol_state)
-    if resume is not None:
-        state = ckpt.restore(resume, state, sim.law, params)
-    return load_then_settle(sim, params, state, load_steps=protocol.info["pour_steps"],
-                            max_settle_steps=int(max_settle_steps), speed_tolerance=speed_tolerance,
-                            progress=progress, checkpoint=checkpoint)
-
-
 def simulator(o: PourOptions, *, law, dt: float, rotation=None, integrator=None, chunk_steps=None, law_options=None):
     """The spec's simulator: `make_simulator` with the law's readings
     `law_options`, leapfrog (the paper's eqs. 9-12) unless another integrator
@@ -406,24 +377,14 @@ def simulator(o: PourOptions, *, law, dt: float, rotation=None, integrator=None,
                           law_options=law_options, **({} if chunk_steps is None else {"chunk_steps": chunk_steps}))
 
 
-def pour_and_settle(sim, params, p: Setup, o: PourOptions, *, progress=None, checkpoint=None, resume=None):
-    """One heap: `execute` (every disk poured, then a run to rest checked from there)."""
-    state, info = execute(sim, params, p, speed_tolerance=o.speed_tolerance, max_settle_steps=o.max_settle_steps,
-                          progress=progress, checkpoint=checkpoint, resume=resume)
-    return state, info, None
-
-
-def poured_and_at_rest(p: Setup, o: PourOptions):
-    """A batch's end for one heap: every disk poured, then its fastest disk below the tolerance."""
+def phases(p: Setup, o: PourOptions) -> tuple[Phase, ...]:
+    """Every disk poured (`info["pour_steps"]`), then a run until the fastest
+    disk is below `speed_tolerance`, within `max_settle_steps`."""
     from jaxpile.engine.simulate import max_speed
 
-    pour_steps, tolerance = int(p.info["pour_steps"]), float(o.speed_tolerance)
-    return lambda s: (s.step >= pour_steps) & (max_speed(s) < tolerance)
-
-
-def step_budget(p: Setup, o: PourOptions) -> int:
-    """The pour's steps, then at most `max_settle_steps` of settling."""
-    return int(p.info["pour_steps"]) + int(o.max_settle_steps)
+    tolerance = float(o.speed_tolerance)
+    return (Phase("pour", int(p.info["pour_steps"])),
+            Phase("settle", int(o.max_settle_steps), lambda s: max_speed(s) < tolerance))
 
 
 def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict:
@@ -433,12 +394,11 @@ def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict
 
 SPEC = ProtocolSpec(
     name="pour", options=PourOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
-    finished=poured_and_at_rest, budget=step_budget, measure=measure_heap, execute=pour_and_settle, report=report,
-    check=check_options)
+    phases=phases, measure=measure_heap, report=report, check=check_options)
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
 
 
 __all__ = ["LOST_DEPTH", "MIN_RELEASE_GAP", "PAPER_SETTING", "PARK_SPACING", "SPEC", "PourOptions", "PourState",
-           "driver", "execute", "in_play", "law_and_params", "law_params", "make_simulator", "measure_heap",
-           "poured_and_at_rest", "setup", "simulator", "step_budget"]
+           "driver", "in_play", "law_and_params", "law_params", "make_simulator", "measure_heap", "phases",
+           "setup", "simulator"]

@@ -2,13 +2,14 @@
 per-member steps a batch takes with the same spec.
 
 `run(spec, law, size, **options)` builds the options (checked), the law's
-parameters, the set-up and the simulator, runs the pile until the spec says it
-is finished or its budget is spent (`runner.run_to_finish`: samples,
-checkpoints, bit-identical resume; or the spec's own `execute`), and measures
-it. A spec that `starts_from` another (the tilt from a box) first builds that
-pile, unless it is given one, and continues it with its contact history; each
-stage is checkpointed and resumable. A sweep and an ensemble fit run the same
-functions per member: `member_setup`, `stage_start`.
+parameters, the set-up and the simulator, runs the pile through the spec's
+phases (`run_setup`: the one stage runner, `stages.run_phases`, with the
+kinetic energy sampled once per chunk, checkpoints and bit-identical resume),
+and measures it. A spec that `starts_from` another (the tilt from a box) first
+builds that pile, unless it is given one, and continues it with its contact
+history; each stage is checkpointed and resumable. A sweep and an ensemble fit
+run the same phases on a batch, with the same functions per member:
+`member_setup`, `stage_start`.
 """
 
 from __future__ import annotations
@@ -18,16 +19,15 @@ import os
 import time
 from typing import Any
 
+import jax
+import jax.numpy as jnp
+
 from jaxpile import ranges
 from jaxpile.errors import InputError
+
+from jaxpile.engine import checkpoint as ckpt
+from jaxpile.protocols import stages
 from jaxpile.protocols.base import Setup
-from jaxpile.protocols.runner import (
-    check_dt,
-    restore_sampled,
-    run_record,
-    run_sampled,
-    run_to_finish,
-)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -121,12 +121,8 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
     sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
                          chunk_steps=chunk_steps, law_options=law_options)
     t0 = time.perf_counter()
-    if spec.execute is None:
-        state, info, samples = execute(spec, sim, params, p, o, progress=progress, checkpoint=checkpoint,
-                                       resume=resume)
-    else:
-        state, info, samples = spec.execute(sim, params, p, o, progress=progress, checkpoint=checkpoint,
-                                            resume=resume)
+    state, info, samples = run_setup(spec, sim, params, p, o, progress=progress, checkpoint=checkpoint,
+                                     resume=resume)
     seconds = time.perf_counter() - t0
     measured = spec.measure(sim, params, state, p, o)
     if spec.report is not None:
@@ -151,19 +147,100 @@ def _check_run(dt, chunk_steps, seed):
     return checked["dt"]
 
 
-def execute(spec, sim, params, p: Setup, options, *, progress=None, checkpoint=None, resume=None):
-    """Runs the set-up `p` until `spec.finished` (checked after each chunk) or
-    its budget. Returns `(state, RunInfo, samples)` as `runner.run_sampled`."""
-    done = spec.finished(p, options)
-    return run_to_finish(sim, params, p, max_steps=spec.budget(p, options), finished=lambda s: bool(done(s)),
-                         progress=progress, checkpoint=checkpoint, resume=resume)
+def run_record(info, t0: float) -> dict:
+    """Steps and timings of a run, for the measurements dict."""
+    return {
+        "steps": info.steps,
+        "wall_seconds": info.wall_seconds,
+        "compile_seconds": info.compile_seconds,
+        "total_seconds": time.perf_counter() - t0,
+        "neighbor_reallocations": info.reallocations,
+    }
+
+
+def check_dt(sim, p: Setup) -> None:
+    """InputError unless the simulator steps with the dt the protocol was set up for."""
+    if abs(sim.dt - p.info["dt"]) > 1e-12 * p.info["dt"]:
+        raise InputError(f"the protocol was set up for dt = {p.info['dt']:g} but the simulator uses "
+                         f"dt = {sim.dt:g}; pass the same dt to both.")
+
+
+def _sample(state):
+    """(step, kinetic energy per movable disk, max_speed): `analysis.mean_kinetic_energy` on device."""
+    from jaxpile.engine.simulate import max_speed
+
+    p = state.particles
+    energy = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.angular_velocity**2
+    count = jnp.maximum(jnp.sum(p.movable), 1)
+    return state.step, jnp.sum(jnp.where(p.movable, energy, 0.0)) / count, max_speed(state)
+
+
+_sample_jit = jax.jit(_sample)
+
+
+def run_setup(spec, sim, params, p: Setup, options, pile=None, *, progress=None, checkpoint=None, resume=None):
+    """Runs the set-up `p` of `spec` through its phases (`stages.run_phases`),
+    sampling the kinetic energy once per chunk.
+
+    Args:
+      pile: for a continued protocol, the state `p` was built on (contact
+        history kept; None: `p.particles` with a fresh history). Its phases
+        count from the pile's last step.
+      checkpoint: a `Checkpoint` or `(path, every[, facts])`; each save
+        records the samples so far, where the run stands and, for a continued
+        protocol, `stage=spec.name`.
+      resume: a checkpoint file of this same run: it ends bit-identical to the
+        uninterrupted one, samples included.
+
+    Returns:
+      `(state, RunInfo, samples)`: samples is a dict of per-chunk lists `step`,
+      `time`, `kinetic_energy` (per movable disk; Fig. 1(b) of 1993) and
+      `max_speed`, from the run's first state; `RunInfo.at_rest` says whether
+      the last phase's `until` held at the end.
+    """
+    from jaxpile.engine.simulate import RunInfo, max_speed
+
+    check_dt(sim, p)
+    if pile is None:
+        state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
+    else:
+        if int(pile.step) != int(p.info["start_step"]) or pile.particles.count != p.info["n"]:
+            raise InputError(f"pile is not the state this {spec.name} protocol was built from.")
+        state = pile.set(protocol_state=p.protocol_state)
+    samples = {"step": [], "time": [], "kinetic_energy": [], "max_speed": []}
+    position = None
+    if resume is not None:
+        state = ckpt.restore(resume, state, sim.law, params)
+        extra = ckpt.read_metadata(resume)["extra"]
+        if extra.get("samples") is None:
+            raise InputError(f"{resume} does not hold a protocol's run (no samples recorded with it).")
+        samples = {k: list(v) for k, v in extra["samples"].items()}
+        position = stages.Position.saved(extra, resume)
+
+    def sample(s) -> None:
+        step, energy, speed = (x.item() for x in _sample_jit(s))
+        samples["step"].append(int(step))
+        samples["time"].append(int(step) * sim.dt)
+        samples["kinetic_energy"].append(float(energy))
+        samples["max_speed"].append(float(speed))
+
+    phases = spec.phases(p, options)
+    if checkpoint is not None:  # the samples dict is written as it stands at each save: always up to date
+        checkpoint = ckpt.with_facts(checkpoint, samples=samples,
+                                     **({} if spec.starts_from is None else {"stage": spec.name}))
+    info = RunInfo()
+    info.particles = state.particles.count
+    state, ends = stages.run_phases(sim, params, state, phases, position=position, progress=progress, info=info,
+                                    checkpoint=checkpoint, observe=sample)
+    info.phases = {name: steps[0] for name, steps in ends.items()}
+    info.max_speed = float(max_speed(state))
+    info.at_rest = phases[-1].until is None or bool(phases[-1].until(state))
+    return state, info, samples
 
 
 def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rotation, dt, integrator, chunk_steps,
                    seed, progress, dtype, checkpoint, resume, law_options):
     """`run` of a spec that continues another's pile (see `run`)."""
-    from jaxpile.engine import checkpoint as ckpt
-
     base = spec.starts_from
     _, _, stage_params = spec.law_and_params(law, params, rotation, dtype, law_options)
     built = None
@@ -184,8 +261,8 @@ def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rot
     sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
                          chunk_steps=chunk_steps, law_options=law_options)
     t0 = time.perf_counter()
-    state, info, samples = continue_pile(spec, sim, stage_params, p, o, pile, progress=progress,
-                                         checkpoint=checkpoint, resume=resume)
+    state, info, samples = run_setup(spec, sim, stage_params, p, o, pile, progress=progress, checkpoint=checkpoint,
+                                     resume=resume)
     measured = spec.measure(sim, stage_params, state, p, o)
     out = {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
     if built is not None:
@@ -203,42 +280,12 @@ def on_pile(spec, pile, law, dt, options, *, facts: bool = True) -> Setup:
     return p if spec.pile_facts is None or not facts else p._replace(info={**p.info, **spec.pile_facts(pile, p)})
 
 
-def continue_pile(spec, sim, params, p: Setup, options, pile=None, *, progress=None, checkpoint=None, resume=None):
-    """Runs the set-up `p` of a continued protocol from `pile`, the state it
-    was built on (contact history kept; None: `p.particles` with a fresh
-    history), until `spec.finished` or its budget, counted from the pile's last
-    step. Each save records `stage=spec.name`; `resume` continues such a save.
-
-    Returns:
-      `(state, RunInfo, samples)` as `runner.run_sampled`.
-    """
-    from jaxpile.engine import checkpoint as ckpt
-
-    check_dt(sim, p)
-    start = int(p.info["start_step"])
-    if pile is None:
-        state = sim.init(params, p.particles, p.boundaries, box=p.box, protocol_state=p.protocol_state)
-    else:
-        if int(pile.step) != start or pile.particles.count != p.info["n"]:
-            raise InputError(f"pile is not the state this {spec.name} protocol was built from.")
-        state = pile.set(protocol_state=p.protocol_state)
-    samples = None
-    if resume is not None:
-        state, samples = restore_sampled(resume, state, sim, params)
-    done = spec.finished(p, options)
-    budget = spec.budget(p, options) - (int(state.step) - start)
-    return run_sampled(sim, params, state, max_steps=budget, finished=lambda s: bool(done(s)), progress=progress,
-                       checkpoint=ckpt.with_facts(checkpoint, stage=spec.name), samples=samples)
-
-
 def continued_stages(spec, resume) -> tuple[str | None, str | None]:
     """`(pile run's checkpoint, this stage's checkpoint)` to resume a continued
     protocol that builds its own pile from `resume`: a save of this stage
     (which names its pile's file), a save of the pile's run, or this stage's
     fixed path when the run stopped before the stage began (then only its
     `checkpoint.sibling(resume, pile name)` exists)."""
-    from jaxpile.engine import checkpoint as ckpt
-
     base = spec.starts_from.name
     if resume is None:
         return None, None
@@ -297,5 +344,5 @@ def stage_facts(spec, pile, p: Setup) -> dict:
     return {} if spec.pile_facts is None else spec.pile_facts(pile, p)
 
 
-__all__ = ["RUN_RANGES", "continue_pile", "continued_stages", "execute", "member_setup", "on_pile", "run",
+__all__ = ["RUN_RANGES", "check_dt", "continued_stages", "member_setup", "on_pile", "run", "run_record", "run_setup",
            "stage_facts", "stage_options", "stage_start"]

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 
 from jaxpile import ranges
 from jaxpile.errors import InputError
+from jaxpile.protocols import stages
 from jaxpile.protocols.base import Setting
 from jaxpile.protocols.running import run as run_protocol
 from jaxpile.ranges import Range
@@ -138,14 +139,12 @@ class ProtocolSpec:
       law_options) -> Simulator` (None for `rotation`, `integrator`,
       `chunk_steps`: the protocol's own; `law_options`: the law's readings
       beyond rotation, such as `{"rolling": "sds"}`).
-    - `finished(setup, options) -> (state -> bool array)`, traceable.
-    - `budget(setup, options) -> steps`, the run's step budget (counted from
-      the set-up's `info["start_step"]` for a continued protocol).
+    - `phases(setup, options) -> tuple[stages.Phase, ...]`: the run, as
+      phases of at most so many steps, each ended early where its traceable
+      `until` holds at a chunk's end (the pour: every disk poured, then a run
+      to rest). One pile and a batch run them alike (`stages.run_phases`);
+      they count from the set-up's `info["start_step"]` for a continued protocol.
     - `measure(sim, params, state, setup, options) -> dict`: what a run reports.
-    - `execute(sim, params, setup, options, *, progress, checkpoint, resume)
-      -> (state, RunInfo, samples or None)`, optional: how one pile runs when
-      it is not `finished` checked at each chunk's end (the pour: a loading
-      phase of fixed length, then a run to rest; a batch still uses `finished`).
     - `report(measured, setup, options, RunInfo, samples, seconds) -> dict`,
       optional: one pile's whole output, when it is not the default
       `{"protocol", **measured, "kinetic_energy", **run record, "info"}`.
@@ -175,11 +174,9 @@ class ProtocolSpec:
     setting: Setting
     setup: Callable
     simulator: Callable
-    finished: Callable
-    budget: Callable
+    phases: Callable
     measure: Callable
     size: str = "n"
-    execute: Callable | None = None
     report: Callable | None = None
     check: Callable | None = None
     continues: str | None = None
@@ -188,8 +185,8 @@ class ProtocolSpec:
     def __post_init__(self):
         if not (isinstance(self.options, type) and issubclass(self.options, Options)):
             raise TypeError(f"{self.name}: options must be an Options dataclass; got {self.options!r}.")
-        if self.continues is not None and (self.execute is not None or self.report is not None):
-            raise TypeError(f"{self.name}: a protocol that continues another's pile takes no execute or report.")
+        if self.continues is not None and self.report is not None:
+            raise TypeError(f"{self.name}: a protocol that continues another's pile takes no report.")
 
     @property
     def starts_from(self) -> ProtocolSpec | None:
@@ -199,6 +196,10 @@ class ProtocolSpec:
         if self.continues not in REGISTERED:
             raise InputError(f"the {self.name} protocol continues {self.continues!r}, which is not registered.")
         return REGISTERED[self.continues]
+
+    def budget(self, p, options) -> int:
+        """The most steps the set-up `p` runs: its phases' in all."""
+        return stages.budget(self.phases(p, options))
 
     @property
     def default_law(self) -> str:

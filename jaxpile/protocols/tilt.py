@@ -45,6 +45,7 @@ from jaxpile.measure import theory
 from jaxpile.protocols import drivers, geometry, paper1993
 from jaxpile.protocols.base import Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import one_phase
 from jaxpile.ranges import ANGLE, FINITE, SIZE, SPAN, SPEED
 
 Array = Any
@@ -189,7 +190,7 @@ def setup(pile: SimState, o: TiltOptions, *, law, dt: float) -> Setup:
     Args:
       pile: the settled pile, e.g. the state `box.SPEC.run` returns. Its
         particles, walls and gravity (untilted, pointing down) are the start.
-        `SPEC.run(..., pile=...)` and `running.continue_pile` continue this
+        `SPEC.run(..., pile=...)` and `running.run_setup` continue this
         state, keeping its contact history; starting from `Setup.particles`
         instead loses the tangential springs.
       o: the tilt's options; `edge` None takes the box pile's (`BoxState.edge`).
@@ -375,7 +376,7 @@ def measure(sim, params, state: SimState, p: Setup, o: TiltOptions) -> dict:
 
 SPEC = ProtocolSpec(
     name="tilt", options=TiltOptions, setting=paper1993.LAW_SETTING, setup=setup, simulator=simulator,
-    finished=finished, budget=budget, measure=measure, continues="box", pile_facts=pile_facts)
+    phases=one_phase(finished, budget, "tilt"), measure=measure, continues="box", pile_facts=pile_facts)
 """The tilt (Lee & Herrmann 1993, sec. 4): `SPEC.run("lee-herrmann", pile_options={"width": 1.6, "height": 1.6})`
 builds a box pile (its seed is the run's `seed`; `pile=` a state tilts that one instead, contact history kept),
 tilts it at the paper's rate until it moves, and measures theta_T; the box run's measurements are under "box"."""
