@@ -65,7 +65,7 @@ def option_names(spec: ProtocolSpec) -> frozenset:
 def first_setup(spec: ProtocolSpec, law: str, seed: int, dt: float, options: dict, dtype=None):
     """The first stage's set-up of a member with these sweep options (what `plan` checks per batch)."""
     first = spec.chain()[0]
-    return running.member_setup(first, law, seed, dt, running.stage_options(spec, options)[0], dtype)
+    return first.setup(running.stage_options(spec, options)[0], law=law, seed=seed, dt=dt, dtype=dtype)
 
 
 # ---------------------------------------------------------------------- sweep
@@ -394,7 +394,7 @@ def _run_batch(chain, stage_options, law, dt, rotation, devices, chunk, prms, dt
 
     first = chain[0]
     ens = ensemble_for(first, law, dt, rotation, stage_options[0], law_options, devices)
-    setups = [running.member_setup(first, law, seed, dt, stage_options[0], dtype) for _, seed in chunk]
+    setups = [first.setup(stage_options[0], law=law, seed=seed, dt=dt, dtype=dtype) for _, seed in chunk]
     state = ens.init(prms, setups)
     saved_params = ens.as_batch(prms, ensemble.batch_size(state))  # as `Ensemble.run` records them
     at_stage = int(saved.get("stage", 0)) if saved is not None else 0

@@ -53,7 +53,7 @@ def test_a_tilt_resumes_mid_tilt_from_its_save_and_the_pile_it_names(tilted):
     resumed, r = tilt.SPEC.run("hooke", resume=str(mid), **TILT)
     assert_identical(resumed, whole)
     assert r["theta_t"] == m["theta_t"] and r["kinetic_energy"] == m["kinetic_energy"]
-    assert r["steps"] < m["steps"]
+    assert r["steps_run"] < m["steps"] == r["steps"]
 
 
 def test_a_tilt_killed_while_building_its_pile_resumes_the_box_run_then_tilts(tilted, tmp_path):
@@ -79,7 +79,7 @@ DROP = dict(seed=0, speed_tolerance=1e-6, relax_steps=200_000, chunk_steps=1000)
 
 def test_a_drop_resumes_in_its_fill_phase_at_its_end_and_in_its_relax_phase(tmp_path):
     whole, m = drop.SPEC.run("hooke", 8, checkpoint=(str(tmp_path / "ck-{step}.npz"), 2000), **DROP)
-    steps, fill = saved_steps(tmp_path), m["fill_steps"]
+    steps, fill = saved_steps(tmp_path), m["phases"]["fill"]
     assert fill in steps, "the fill phase's last chunk is saved"
     relax = [s for s in steps if s > fill]
     assert checkpoint.read_metadata(tmp_path / f"ck-{fill}.npz")["extra"]["phase"] == "fill"
@@ -89,7 +89,7 @@ def test_a_drop_resumes_in_its_fill_phase_at_its_end_and_in_its_relax_phase(tmp_
     for step in (steps[1], fill, relax[0], steps[-1]):
         resumed, r = drop.SPEC.run("hooke", 8, resume=str(tmp_path / f"ck-{step}.npz"), **DROP)
         assert_identical(resumed, whole)
-        assert r["fill_steps"] == fill and r["central_dip"] == m["central_dip"]
+        assert r["phases"]["fill"] == fill and r["central_dip"] == m["central_dip"]
 
 
 def test_flux_resumes_with_its_insertion_record_and_a_finished_run_takes_no_step(tmp_path):
@@ -102,7 +102,7 @@ def test_flux_resumes_with_its_insertion_record_and_a_finished_run_takes_no_step
     assert r["insert_step"] == m["insert_step"] and r["kinetic_energy"] == m["kinetic_energy"]
     finished, f = flux.SPEC.run("hooke", 8, resume=str(tmp_path / f"ck-{steps[-1]}.npz"), **kw)
     assert_identical(finished, whole)
-    assert f["steps"] == 0 and f["at_rest"]
+    assert f["steps_run"] == 0 and f["steps"] == m["steps"] and f["at_rest"]
 
 
 def test_a_sloped_pile_resumes_on_its_gravity_ramp(tmp_path):
@@ -110,7 +110,7 @@ def test_a_sloped_pile_resumes_on_its_gravity_ramp(tmp_path):
     whole, m = sloped.SPEC.run("hooke", alpha_degrees=30.0, checkpoint=(str(tmp_path / "ck-{step}.npz"), 1000), **kw)
     resumed, r = sloped.SPEC.run("hooke", alpha_degrees=30.0, resume=str(tmp_path / "ck-1000.npz"), **kw)
     assert_identical(resumed, whole)
-    assert r["steps"] == m["steps"] - 1000 and r["central_slope_horizontal"] == m["central_slope_horizontal"]
+    assert r["steps_run"] == m["steps"] - 1000 and r["steps"] == m["steps"] and r["central_slope_horizontal"] == m["central_slope_horizontal"]
 
 
 def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_same_rows(tmp_path):

@@ -55,6 +55,21 @@ def parse_options(items) -> dict:
     return options
 
 
+def hard_collisions_of(text):
+    """`--hard-collisions EPS,MU` as a checked `HardCollisions`, or None."""
+    from jaxpile.engine.collisions import HardCollisions
+
+    if text is None:
+        return None
+    try:
+        eps, mu = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--hard-collisions takes EPS,MU (e.g. 0.5,0.3); got {text!r}.") from None
+    hard = HardCollisions(restitution=eps, mu=mu)
+    hard.check()
+    return hard
+
+
 def law_options_of(args) -> dict:
     """The law's readings the flags ask for (`--rolling`), for `law(...)`."""
     return {} if getattr(args, "rolling", None) is None else {"rolling": args.rolling}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import time
 
 from jaxpile.cli.dry_run import dry_run_report
-from jaxpile.cli.parsing import law_options_of, parse_options, parse_set
+from jaxpile.cli.parsing import hard_collisions_of, law_options_of, parse_options, parse_set
 from jaxpile.cli.pile_outputs import trajectory, write_outputs
 from jaxpile.cli.run_folder import checkpoint_spec, replacing_earlier, resume_point
 from jaxpile.errors import InputError
@@ -83,7 +83,7 @@ def _run_keywords(args, spec, size_flag: str, kwargs: dict) -> dict:
     if args.slope is not None:
         kwargs["alpha_degrees"] = args.slope
     flags = {"ramp_steps": args.ramp_steps, "max_steps": args.max_steps, "speed_tol": args.speed_tol,
-             "hard_collisions": _parse_hard_collisions(args.hard_collisions),
+             "hard_collisions": hard_collisions_of(args.hard_collisions),
              "seed": args.seed if args.seed != 0 else None}
     for flag, value in flags.items():
         if value is None:
@@ -118,27 +118,11 @@ def _split_stages(spec, kwargs: dict) -> dict:
     return {**out, "pile_options": pile} if pile else out
 
 
-def _parse_hard_collisions(text):
-    """`--hard-collisions EPS,MU` as a checked `HardCollisions`, or None."""
-    from jaxpile.engine.collisions import HardCollisions
-
-    if text is None:
-        return None
-    try:
-        eps, mu = (float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"--hard-collisions takes EPS,MU (e.g. 0.5,0.3); got {text!r}.") from None
-    hard = HardCollisions(restitution=eps, mu=mu)
-    hard.check()
-    return hard
-
-
 def _dry_run_protocol(args, spec, kwargs, contact_law) -> dict:
     """`--dry-run` for a protocol: the set-up of its first stage (the box's
     for a tilt), every stage's options checked, the law's parameters and the
     time step's stability checked, as the run would check them."""
     from jaxpile.engine.simulate import Simulator
-    from jaxpile.protocols import running
 
     name = args.protocol
     law = args.law or spec.default_law
@@ -148,7 +132,7 @@ def _dry_run_protocol(args, spec, kwargs, contact_law) -> dict:
     first = spec.chain()[0]
     first_options = first.make_options(split.get("pile_options", {})) if spec.starts_from is not None else options
     dt = kwargs.get("dt") or first.default_dt(law)
-    p = running.member_setup(first, law, kwargs.get("seed", 0), dt, first_options, kwargs.get("dtype"))
+    p = first.setup(first_options, law=law, seed=kwargs.get("seed", 0), dt=dt, dtype=kwargs.get("dtype"))
     Simulator(contact_law, p.info.get("dt", dt), integrator=args.integrator).check_params(kwargs["params"],
                                                                                          p.particles)
     steps = {"max_steps": int(first.budget(p, first_options))}

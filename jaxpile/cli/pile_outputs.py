@@ -12,6 +12,7 @@ import numpy as np
 from jaxpile import config
 from jaxpile.errors import InputError
 from jaxpile.io import plain
+from jaxpile.cli.parsing import hard_collisions_of
 from jaxpile.cli.presentation import presentation
 
 
@@ -52,8 +53,8 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
             else registered.base_forces(sim, params, state, m))  # e.g. the fixed row a heap stands on
     network = analysis.contact_network(sim, params, state)
     active = np.asarray(state.particles.active)
-    run = m.get("run", m)
-    steps, wall = int(run.get("steps", 0)), float(run.get("wall_seconds", 0.0))
+    hard = hard_collisions_of(getattr(args, "hard_collisions", None))
+    steps, wall = int(m.get("steps_run", 0)), float(m.get("wall_seconds", 0.0))  # this call's steps and time
     summary = {
         "protocol": name,
         "law": contact_law.name,
@@ -62,6 +63,7 @@ def write_outputs(args, spec, state, m, contact_law, params, options: dict, tota
         "params": {k: float(v) for k, v in vars(params).items() if v is not None},
         "dt": dt,
         "integrator": args.integrator,
+        "hard_collisions": None if hard is None else hard._asdict(),  # --hard-collisions EPS,MU
         "precision": args.precision,
         "settings": config.settings(),  # float64 and XLA's, which decide the numbers at round-off (jaxpile.config)
         "seed": args.seed,

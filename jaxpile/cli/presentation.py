@@ -112,6 +112,17 @@ def heap_profile_figure(measured: dict, title: str, out: str) -> list[str]:
     return ["heap_profile.png"]
 
 
+def heap_summary(measured: dict) -> dict:
+    """A poured heap's summary.json: its plain numbers (`poured_heap.summary`:
+    the rest are maps and arrays), the run (`run`) and the set-up (`setup`)."""
+    from jaxpile.measure import poured_heap
+
+    run = {"steps": measured["steps"], "at_rest": measured["at_rest"], "max_speed": measured["final_max_speed"],
+           **{k: measured[k] for k in ("wall_seconds", "compile_seconds", "total_seconds", "neighbor_reallocations")}}
+    setup = {k: v for k, v in measured["info"].items() if k != "law_options"}
+    return {**poured_heap.summary(measured), "run": run, "setup": setup}
+
+
 def sloped_theory(measured: dict, base) -> tuple | None:
     """The continuum N(x), H(x) of Liffman et al. 1992 eqs. 54-59 at the base's x,
     for the profile figure, with its label."""
@@ -210,7 +221,7 @@ PRESENTATIONS: dict[str, Presentation] = {
                   "angle_of_repose.left.cumulative_parabola", "angle_of_repose.right.cumulative_parabola",
                   "m_shape.ratio", "m_shape.m_shaped", "dip_below_flanks"),
         base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
-        summary=lambda measured: measured["summary"], figures=(heap_profile_figure,)),
+        summary=heap_summary, figures=(heap_profile_figure,)),
     "hopper": Presentation(
         order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", flags={"seed": "seed"},
         headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),

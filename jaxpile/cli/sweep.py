@@ -120,7 +120,7 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
                       law_options=law_options_of(args))
     dt = planned.dt
     first = running.stage_options(spec, options)[0]
-    setup = running.member_setup(spec.chain()[0], law, 0, dt, first, dtype)
+    setup = spec.chain()[0].setup(first, law=law, seed=0, dt=dt, dtype=dtype)
     batch = min(planned.batch_size, members)  # of a --distributed sweep (joined by now): the members over the processes
     steps = spec.chain()[0].budget(setup, first) if args.max_steps is None else int(args.max_steps)
     report = dry_run_report(f"one {args.protocol} member", setup.particles, {}, args.precision,

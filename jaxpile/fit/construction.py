@@ -81,7 +81,7 @@ class Construction:
         dt = spec.default_dt(law) if runner.dt is None else float(runner.dt)  # as the sweep's piles: the schedule too
         options = spec.make_options(runner.options or {})
         # set up and checked as the sweep's piles (e.g. a voidage map too fine for the memory)
-        protocols = [running.member_setup(spec, law, s, dt, options, runner.dtype) for s in seeds]
+        protocols = [spec.setup(options, law=law, seed=s, dt=dt, dtype=runner.dtype) for s in seeds]
         extent = tuple(batch_of(spec).extent(protocols[0]))
         pieces = _pieces(spec, law, dt, options, runner, tuple(names), extent, statistics)
         self.sim, self.advance, self.statistics = pieces.sim, pieces.advance, pieces.statistics

@@ -184,33 +184,17 @@ def sweep_row(full: dict) -> dict:
     return out
 
 
-def report(measured: dict, protocol, options, info, samples, seconds: float) -> dict:
-    """One heap's output (the pour's `ProtocolSpec.report`): `measure`'s dict
-    plus `run` (the pour's `RunInfo`), `info` (the set-up, with the run's
-    `law_options`) and `summary`; `options` are the pour's (`PourOptions`)."""
-    result = dict(measured)
-    result["run"] = {"steps": info.steps, "at_rest": info.at_rest, "max_speed": info.max_speed,
-                     "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
-                     "total_seconds": seconds, "neighbor_reallocations": info.reallocations}
-    setup = {k: v for k, v in protocol.info.items() if k != "law_options"}
-    result["info"] = dict(setup)
-    result["summary"] = {**summary(result), "run": result["run"], "setup": setup}
-    result["info"]["law_options"] = dict(protocol.info.get("law_options") or {})
-    return result
-
-
-def check_options(protocol, options) -> None:
-    """The pour's `ProtocolSpec.check`: refuses, before the pour, more profile
-    bins than substrate disks (a bin narrower than a substrate spacing holds
-    no contact) and a voidage map whose cells are too fine for this machine's
-    memory (the map covers at most the substrate row and the steepest heap of
-    the disks poured); `options` are the pour's (`PourOptions`)."""
-    info = protocol.info
+def check_options(options, *, n_substrate: int, substrate_length: float, n_poured: int) -> None:
+    """Refuses, before a pour is built, more profile bins than substrate disks
+    (a bin narrower than a substrate spacing holds no contact) and a voidage
+    map whose cells are too fine for this machine's memory (the map covers at
+    most the substrate row and the steepest heap of the disks poured);
+    `options` are the pour's (`PourOptions`)."""
     bins, cell = options.bins, options.voidage_cell
-    if bins is not None and bins > info["n_substrate"]:
-        raise InputError(f"bins ({bins:g}) must be at most the substrate's {info['n_substrate']} disks: a bin "
+    if bins is not None and bins > n_substrate:
+        raise InputError(f"bins ({bins:g}) must be at most the substrate's {n_substrate} disks: a bin "
                          "narrower than a substrate spacing holds no contact.")
-    width, height = info["substrate_length"], steepest_heap_height(info["n_poured"]) + 2.0
-    need = voidage_map_bytes(width, height, cell, info["n_poured"], 0.5)
+    width, height = substrate_length, steepest_heap_height(n_poured) + 2.0
+    need = voidage_map_bytes(width, height, cell, n_poured, 0.5)
     budget.check_host(need, f"the voidage map (voidage_cell = {cell:g} sigma over up to "
                             f"{width:.0f} x {height:.0f} sigma)", "Give a larger voidage_cell (the default is 3).")

@@ -299,39 +299,16 @@ def simulator(o: DropOptions, *, law, dt: float, rotation=None, integrator=None,
                      hard_collisions=o.hard_collisions, in_play=make_in_play(rule["quiet_steps"]), **extra)
 
 
-def report(measured: dict, p: Setup, o: DropOptions, info, samples, seconds: float) -> dict:
-    """One pile's output: the run's phases and timings, then the measurements."""
-    n = p.info["n_particles"]
-    out = {
-        "protocol": "drop",
-        "law": measured["law"],
-        "n_particles": measured["n_in"],
-        "n_requested": n,
-        "all_inserted": measured["all_inserted"],
-        "seed": p.info["seed"],
-        "fill_steps": info.phases["fill"],
-        "mean_steps_per_drop": info.phases["fill"] / n,
-        "forced_drops": measured["forced_drops"],
-        "steps": info.phases["relax"],
-        "wall_seconds": info.wall_seconds,
-        "compile_seconds": info.compile_seconds,
-        "total_seconds": seconds,
-        "at_rest": bool(info.at_rest),
-        "final_max_speed": info.max_speed,
-        "speed_tolerance": o.speed_tolerance,
-    }
-    out.update({k: v for k, v in measured.items()
-                if k not in ("n_in", "all_inserted", "max_speed", "law", "forced_drops")})
-    return out
-
-
 def measure_pile(sim, params, state: SimState, p: Setup, o: DropOptions) -> dict:
-    """`measure` with the options' bins and threshold, and the pile's counts and speed (a sweep row's too)."""
+    """`measure` with the options' bins and threshold, and the pile's counts,
+    seed and speed (a sweep row's too): `n_particles` dropped of `n_requested`,
+    `forced_drops` released before the pile was quiet."""
     from jaxpile.engine.simulate import max_speed
 
     active = np.asarray(state.particles.active)
-    return {"n_in": int(active.sum()), "all_inserted": bool(active.all()), "max_speed": float(max_speed(state)),
-            "law": sim.law.name, "forced_drops": int(state.protocol_state.forced),
+    return {"law": sim.law.name, "n_particles": int(active.sum()), "n_requested": int(p.info["n_particles"]),
+            "all_inserted": bool(active.all()), "seed": p.info["seed"], "forced_drops": int(state.protocol_state.forced),
+            "max_speed": float(max_speed(state)),
             **measure(sim, params, state, bins=o.bins, dip_threshold=o.dip_threshold)}
 
 
@@ -353,14 +330,18 @@ ROW_COLUMNS = ("all_inserted", "max_speed", "base_contacts", "total_normal", "we
 """Every key a `row` may hold (a pile too small for a base profile has no `base_width` to `has_central_dip`)."""
 
 
+_NOT_IN_ROW = ("n_particles", "n_requested", "seed", "forced_drops")
+"""The pile's counts and settings: a batch's member columns say them."""
+
+
 def row(m: dict) -> dict:
     """A sweep row: the measurements' plain numbers and flags."""
-    return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k not in ("n_in", "forced_drops")}
+    return {k: v for k, v in m.items() if np.ndim(v) == 0 and not isinstance(v, str) and k not in _NOT_IN_ROW}
 
 
 SPEC = ProtocolSpec(
     name="drop", options=DropOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
-    phases=phases, measure=measure_pile, report=report)
+    phases=phases, measure=measure_pile)
 """The drop (Liffman, Chan & Hughes 1992, Fig. 20): `SPEC.run("liffman", 968)` drops the disks one at a time,
 relaxes the pile to rest and measures its base normal force profile, its central dip and its flanks."""
 

@@ -110,29 +110,13 @@ def setup(o: LatticeOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 
 
 def _compare(sim, params, state, p) -> dict:
-    from jaxpile.measure import analysis
-
-    return {**compare_with_theory(analysis.base_forces(sim, params, state), p.info["layers"]),
-            "steps": int(state.step)}
-
-
-def _report(measured: dict, p: Setup, o: LatticeOptions, info, samples, seconds: float) -> dict:
-    """One pile's output: the comparison with eqs. 42 and 44, the run's steps,
-    times, whether it ended at rest, the ground friction the pile needs, and
-    the hard collisions it ran with."""
-    from jaxpile.measure import theory
+    """`compare_with_theory` of the pile's ground forces, with its layers, steps
+    and the ground friction a static pile needs (the largest |H| / N)."""
+    from jaxpile.measure import analysis, theory
 
     layers = p.info["layers"]
-    return {
-        "protocol": "lattice", "layers": layers, "n_particles": int(p.particles.count),
-        "steps": measured["steps"], "wall_seconds": info.wall_seconds, "compile_seconds": info.compile_seconds,
-        "total_seconds": seconds, "neighbor_reallocations": info.reallocations,
-        "final_max_speed": info.max_speed, "at_rest": info.at_rest, "speed_tolerance": o.speed_tolerance,
-        "base_contacts": measured["base_contacts"], "pile_intact": measured["pile_intact"],
-        "theory_normal_mg": measured["theory_normal"], "max_rel_dev_normal": measured["max_rel_dev_normal"],
-        "max_rel_dev_horizontal": measured["max_rel_dev_horizontal"],
-        "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "info": dict(p.info),
-        "hard_collisions": None if o.hard_collisions is None else o.hard_collisions._asdict()}
+    return {"layers": layers, **compare_with_theory(analysis.base_forces(sim, params, state), layers),
+            "ground_friction_needed": theory.lattice_ground_friction_needed(int(layers)), "steps": int(state.step)}
 
 
 def compare_with_theory(base, layers: int) -> dict:
@@ -166,14 +150,13 @@ def compare_with_theory(base, layers: int) -> dict:
     }
 
 
-COMPARED = ("base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal", "max_rel_dev_horizontal",
-            "steps")
+COMPARED = ("layers", "base_contacts", "pile_intact", "theory_normal", "max_rel_dev_normal", "max_rel_dev_horizontal",
+            "ground_friction_needed", "steps")
 """The plain numbers of `_compare` a sweep row carries (`jaxpile.batches`)."""
 
 
 SPEC = loaded_pile.spec_of(
-    "lattice", options=LatticeOptions, setting=LAW_SETTING, setup=setup, compare=_compare, report=_report,
-    size="layers")
+    "lattice", options=LatticeOptions, setting=LAW_SETTING, setup=setup, compare=_compare, size="layers")
 """The lattice pile (Liffman et al. 1992, Figs. 7-9): `SPEC.run("hooke", 12)` builds the 12-layer pile, loads
 it by a gravity ramp, runs it to rest and compares its ground forces with eqs. 42 and 44."""
 

@@ -56,10 +56,10 @@ def relax(sim, params, state, *, ramp_steps: int, speed_tolerance: float, max_st
 
 
 # what `spec_of`'s measurement adds to the comparison with theory, last in a sweep row (`jaxpile.batches`)
-OWN_COLUMNS = ("height", "at_rest", "max_speed")
+OWN_COLUMNS = ("n_particles", "height", "at_rest", "max_speed")
 
 
-def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, compare: Callable, report: Callable,
+def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, compare: Callable,
             size: str = "n") -> ProtocolSpec:
     """A 1992 static pile declared once.
 
@@ -71,7 +71,6 @@ def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, comp
         (no schedule: the gravity ramp is the simulator's).
       setting: its laws, their parameters and dt (the 1992 setting).
       compare: `(sim, params, state, setup) -> dict` against the paper's theory.
-      report: `(measured, setup, options, RunInfo, samples, seconds) -> dict`, one pile's output.
       size: its size option (`layers` for the lattice).
     """
 
@@ -91,12 +90,12 @@ def spec_of(name: str, *, options: type, setting: Setting, setup: Callable, comp
         # the pile's top above the ground: it sinks by the contacts' compression, ~ weight / K_s
         height = float(np.max((np.asarray(particles.position[:, 1]) + np.asarray(particles.radius))[active]))
         fastest = float(max_speed(state))
-        return {**compare(sim, params, state, p), "height": height,
+        return {**compare(sim, params, state, p), "n_particles": int(active.sum()), "height": height,
                 "at_rest": bool(fastest < float(o.speed_tolerance)), "max_speed": fastest}
 
     return ProtocolSpec(
         name=name, options=options, setting=setting, setup=setup, simulator=simulator,
-        phases=phases, measure=measure, size=size, report=report)
+        phases=phases, measure=measure, size=size)
 
 
 __all__ = ["OWN_COLUMNS", "load_and_settle", "phases", "relax", "spec_of"]

@@ -64,8 +64,8 @@ from jaxpile.engine.state import SimState, make_particles
 from jaxpile.errors import InputError
 from jaxpile.measure.heap import steepest_heap_height, substrate_size
 
-# the heap's measurements, and the pour's report and check of its options (`jaxpile.measure.poured_heap`)
-from jaxpile.measure.poured_heap import check_options, measure, report
+# the heap's measurements, and the check of the options that read it (`jaxpile.measure.poured_heap`)
+from jaxpile.measure.poured_heap import check_options, measure
 from jaxpile.protocols import drivers, geometry
 from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
@@ -251,7 +251,8 @@ def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
 
     Raises:
       InputError: on heights below the steepest heap of n disks, an interval
-        too short for that dt, or a pile too big for the machine.
+        too short for that dt, a pile too big for the machine, more bins
+        than substrate disks or a voidage map too fine for its memory.
     """
     n, spacing, polydispersity, interval = o.n, o.spacing, o.polydispersity, o.interval
     release_height, insert_height, substrate_disks = o.release_height, o.insert_height, o.substrate_disks
@@ -278,6 +279,7 @@ def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
             "(the paper's 1.612 leaves 1.30 sigma).")
     rows = int(substrate_size(n, spacing) if substrate_disks is None else substrate_disks)
     budget.check(n + rows, dtype or "float64", what="a pour with its substrate row")  # a row given too long
+    check_options(o, n_substrate=rows, substrate_length=spacing * (rows - 1) + 1.0, n_poured=n)
 
     rng = np.random.default_rng(int(seed))  # a whole float (0.0) passes the range check
     diameter = 1.0 - polydispersity * rng.uniform(0.0, 1.0, n) if polydispersity > 0 else np.ones(n)
@@ -394,7 +396,7 @@ def measure_heap(sim, params, state: SimState, p: Setup, o: PourOptions) -> dict
 
 SPEC = ProtocolSpec(
     name="pour", options=PourOptions, setting=LAW_SETTING, setup=setup, simulator=simulator,
-    phases=phases, measure=measure_heap, report=report, check=check_options)
+    phases=phases, measure=measure_heap)
 """The pour (Baxter et al. 1997): `SPEC.run("baxter", 1334)` pours the paper's heap at its rate onto a row of
 fixed disks, lets it come to rest, and measures its base forces, flank angles and voidage."""
 

@@ -8,8 +8,8 @@ kinetic energy sampled once per chunk, checkpoints and bit-identical resume),
 and measures it. A spec that `starts_from` another (the tilt from a box) first
 builds that pile, unless it is given one, and continues it with its contact
 history; each stage is checkpointed and resumable. A sweep and an ensemble fit
-run the same phases on a batch, with the same functions per member:
-`member_setup`, `stage_start`.
+run the same phases on a batch, with the same functions per member
+(`spec.setup`, `stage_start`).
 """
 
 from __future__ import annotations
@@ -93,8 +93,9 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
 
     Returns:
       a `PileRun` (unpacks as `(state, measurements)`); its measurements are
-      `{"protocol": name, **measure(...), "kinetic_energy": samples, **run
-      record, "info": set-up info}`, or the spec's `report`; a continued
+      `record`'s: `{"protocol": name, **measure(...), "kinetic_energy":
+      samples, steps, phases, at_rest, final_max_speed, timings, "info": set-up
+      info}`; a continued
       protocol that built its pile adds the pile's measurements under the pile
       protocol's name.
     """
@@ -116,19 +117,13 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
     _, _, params = spec.law_and_params(law, params, rotation, dtype, law_options)
     p = _with_law_options(spec.setup(o, law=law, seed=seed, dt=spec.default_dt(law) if dt is None else dt,
                                      dtype=dtype), law_options)
-    if spec.check is not None:
-        spec.check(p, o)
     sim = spec.simulator(o, law=law, dt=p.info["dt"], rotation=rotation, integrator=integrator,
                          chunk_steps=chunk_steps, law_options=law_options)
     t0 = time.perf_counter()
     state, info, samples = run_setup(spec, sim, params, p, o, progress=progress, checkpoint=checkpoint,
                                      resume=resume)
-    seconds = time.perf_counter() - t0
     measured = spec.measure(sim, params, state, p, o)
-    if spec.report is not None:
-        return PileRun(state, spec.report(measured, p, o, info, samples, seconds), sim, params)
-    return PileRun(state, {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0),
-                           "info": dict(p.info)}, sim, params)
+    return PileRun(state, record(spec, measured, p, info, samples, t0), sim, params)
 
 
 def _with_law_options(p: Setup, law_options: dict | None) -> Setup:
@@ -147,10 +142,28 @@ def _check_run(dt, chunk_steps, seed):
     return checked["dt"]
 
 
-def run_record(info, t0: float) -> dict:
-    """Steps and timings of a run, for the measurements dict."""
+def record(spec, measured: dict, p: Setup, info, samples, t0: float) -> dict:
+    """One pile's output, the same for every protocol: `{"protocol", **measured,
+    "kinetic_energy": samples, **run_record, "info": the set-up's info}`; a
+    measurement keeps its own reading of a name the run also records (the
+    tilt's `at_rest` is its pile's, not its phase's end)."""
+    run_facts = run_record(info, t0, start=int(p.info.get("start_step", 0)))
+    return {"protocol": spec.name, **measured, "kinetic_energy": samples,
+            **{k: v for k, v in run_facts.items() if k not in measured}, "info": dict(p.info)}
+
+
+def run_record(info, t0: float, start: int = 0) -> dict:
+    """Steps, phases, rest and timings of a run, for the measurements dict:
+    `steps` the protocol's from `start` to its end (a resumed run's are the
+    uninterrupted one's), `steps_run` those this call ran, `phases` the step
+    each phase ended at (`{"fill": 1200, "relax": 2000}`), `at_rest` whether
+    the last phase's `until` held at the end."""
     return {
-        "steps": info.steps,
+        "steps": max(info.phases.values(), default=start + info.steps) - start,
+        "steps_run": info.steps,
+        "phases": dict(info.phases),
+        "at_rest": bool(info.at_rest),
+        "final_max_speed": info.max_speed,
         "wall_seconds": info.wall_seconds,
         "compile_seconds": info.compile_seconds,
         "total_seconds": time.perf_counter() - t0,
@@ -264,19 +277,17 @@ def _run_continued(spec, law, o, *, params, pile, pile_params, pile_options, rot
     state, info, samples = run_setup(spec, sim, stage_params, p, o, pile, progress=progress, checkpoint=checkpoint,
                                      resume=resume)
     measured = spec.measure(sim, stage_params, state, p, o)
-    out = {"protocol": spec.name, **measured, "kinetic_energy": samples, **run_record(info, t0), "info": dict(p.info)}
+    out = record(spec, measured, p, info, samples, t0)
     if built is not None:
         out[base.name] = {k: v for k, v in built.items() if k != "kinetic_energy"}
     return PileRun(state, out, sim, stage_params)
 
 
 def on_pile(spec, pile, law, dt, options, *, facts: bool = True) -> Setup:
-    """The set-up of `spec` on the state `pile`, checked (`spec.check`), with
-    the pile's facts (`spec.pile_facts`) in its info unless `facts` is False
-    (a batch adds them as its stage starts)."""
+    """The set-up of `spec` on the state `pile`, with the pile's facts
+    (`spec.pile_facts`) in its info unless `facts` is False (a batch adds them
+    as its stage starts)."""
     p = spec.setup(pile, options, law=law, dt=dt)
-    if spec.check is not None:
-        spec.check(p, options)
     return p if spec.pile_facts is None or not facts else p._replace(info={**p.info, **spec.pile_facts(pile, p)})
 
 
@@ -322,14 +333,6 @@ def stage_options(spec, options: dict) -> list:
     return out
 
 
-def member_setup(spec, law, seed, dt, options, dtype=None) -> Setup:
-    """The first stage's set-up of one member (`spec` is that stage's), checked."""
-    p = spec.setup(options, law=law, seed=seed, dt=dt, dtype=dtype)
-    if spec.check is not None:
-        spec.check(p, options)
-    return p
-
-
 def stage_start(spec, law, dt, options, pile):
     """A later stage's start for one member: `(state, setup)` on the member's
     end state `pile` of the stage before, contact history kept. Structure
@@ -344,5 +347,5 @@ def stage_facts(spec, pile, p: Setup) -> dict:
     return {} if spec.pile_facts is None else spec.pile_facts(pile, p)
 
 
-__all__ = ["RUN_RANGES", "check_dt", "continued_stages", "member_setup", "on_pile", "run", "run_record", "run_setup",
+__all__ = ["RUN_RANGES", "check_dt", "continued_stages", "on_pile", "run", "run_record", "run_setup",
            "stage_facts", "stage_options", "stage_start"]

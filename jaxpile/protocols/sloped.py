@@ -206,19 +206,8 @@ def _compare(sim, params, state, p) -> dict:
                                   p.info["base"], n_particles=n_in), "law": sim.law.name}
 
 
-def _report(measured: dict, p: Setup, o: SlopedOptions, info, samples, seconds: float) -> dict:
-    """One pile's output: the comparison with eqs. 54-59, the run's steps and
-    times, whether it ended at rest, the disk count and the pile's geometry."""
-    out = {k: v for k, v in measured.items() if k not in ("height", "max_speed")}
-    out.update(protocol="sloped", n_particles=int(np.asarray(p.particles.active).sum()),
-               rows=len(p.info["rows"]), bottom_row=int(p.info["rows"][0]), steps=int(info.steps),
-               wall_seconds=info.wall_seconds, compile_seconds=info.compile_seconds, total_seconds=seconds,
-               at_rest=bool(info.at_rest), final_max_speed=info.max_speed, speed_tolerance=o.speed_tolerance)
-    return out
-
-
 SPEC = loaded_pile.spec_of(
-    "sloped", options=SlopedOptions, setting=LAW_SETTING, setup=setup, compare=_compare, report=_report)
+    "sloped", options=SlopedOptions, setting=LAW_SETTING, setup=setup, compare=_compare)
 """The sloped pile (Liffman et al. 1992, Figs. 12-16): `SPEC.run("hooke", 40, alpha_degrees=30.0,
 ramp_steps=2000)` builds the pile of about 40 disks, loads and relaxes it, and compares its base forces with
 eqs. 54-59 (`m["central_slope_horizontal"]` against `m["theory_central_slope_horizontal"]`)."""

@@ -145,11 +145,10 @@ class ProtocolSpec:
       to rest). One pile and a batch run them alike (`stages.run_phases`);
       they count from the set-up's `info["start_step"]` for a continued protocol.
     - `measure(sim, params, state, setup, options) -> dict`: what a run reports.
-    - `report(measured, setup, options, RunInfo, samples, seconds) -> dict`,
-      optional: one pile's whole output, when it is not the default
-      `{"protocol", **measured, "kinetic_energy", **run record, "info"}`.
-    - `check(setup, options) -> None`, optional: raises `InputError` when the
-      options cannot work with this set-up (a voidage map too fine for memory).
+      One pile's whole output is the same for every protocol
+      (`running.record`: the measurements, the run's steps, phases, rest and
+      timings, the set-up's info); `setup` refuses options that cannot work
+      with the pile it builds.
     - `pile_facts(pile, setup) -> dict`, optional with `starts_from`: what the
       pile was when this protocol took it over (the tilt: its angle of repose).
 
@@ -177,16 +176,12 @@ class ProtocolSpec:
     phases: Callable
     measure: Callable
     size: str = "n"
-    report: Callable | None = None
-    check: Callable | None = None
     continues: str | None = None
     pile_facts: Callable | None = None
 
     def __post_init__(self):
         if not (isinstance(self.options, type) and issubclass(self.options, Options)):
             raise TypeError(f"{self.name}: options must be an Options dataclass; got {self.options!r}.")
-        if self.continues is not None and self.report is not None:
-            raise TypeError(f"{self.name}: a protocol that continues another's pile takes no report.")
 
     @property
     def starts_from(self) -> ProtocolSpec | None:
