@@ -278,3 +278,38 @@ def test_no_protocol_module_holds_more_than_300_lines_of_code():
     sizes = {path.name: _code_lines(path) for path in sorted(folder.glob("*.py"))}
     assert len(sizes) >= 10 and sizes["pour.py"] > 100, sizes  # the count sees code
     assert {name: n for name, n in sizes.items() if n > 300} == {}, sizes
+
+
+def test_jaxpile_run_reaches_the_force_kernel_in_the_12_calls_the_layout_page_lists(monkeypatch):
+    """The path from `jaxpile.run` to the law's kernel, traced on a 3-layer
+    lattice, is the one docs/layout.md tabulates, and is at most 12 calls."""
+    import re
+    import traceback
+
+    import jaxpile
+    from jaxpile.engine import interactions
+
+    kernel_over, seen = interactions._kernel_over, []
+    package = os.path.dirname(jaxpile.__file__) + os.sep
+
+    def spy(law):
+        kernel = kernel_over(law)
+
+        def traced(*args):
+            stack = traceback.extract_stack()
+            if not seen and any(frame.name == "run_chunks" for frame in stack):
+                seen.append([frame.name for frame in stack if frame.filename.startswith(package)])
+            return kernel(*args)
+
+        return traced
+
+    monkeypatch.setattr(interactions, "_kernel_over", spy)
+    jaxpile.run("lattice", "hooke", 3, params={"mu": 0.3}, ramp_steps=200, max_steps=400)
+    path = seen[0]
+    # the compile helpers hand the chunk its jitted advance; at run time the chunk calls it directly
+    path = [name for name in path[path.index("run"):] if name not in ("_compiled_advance", "compiled_for")]
+    page = open(os.path.join(os.path.dirname(__file__), "..", "docs", "layout.md")).read()
+    listed = re.findall(r"^\| (\d+) \| `([^`]+)`", page, re.M)
+    names = [call.split(".")[-1] for _, call in listed]
+    assert path[1:] == names[:-1] and names[-1] == "pair_force", (path, names)  # the law's kernel last
+    assert [int(k) for k, _ in listed] == list(range(1, len(listed) + 1)) and len(listed) <= 12

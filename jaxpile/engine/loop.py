@@ -66,29 +66,26 @@ class Advance(NamedTuple):
 
 def chunk(advance: Advance, params, state: SimState, frozen, n: int, info, known_pairs: dict) -> SimState:
     """`n` steps from `state`, on a block of its leading disks where
-    `advance.block` allows (a pour pays for the disks poured so far)."""
+    `advance.block` allows (a pour pays for the disks poured so far); on
+    overflow, the lists are re-allocated and the steps run again from `state`."""
     block = advance.block(state, n, known_pairs)
-    if block is None:
-        return _chunk_on(advance, params, state, frozen, n, info)
-    size, room = block
-    new = _chunk_on(advance, params, advance.take(state, size, room), frozen, n, info)
-    known_pairs[size] = max(room, int(new.contacts.pairs.shape[-2]))
-    return advance.put(state, new)
-
-
-def _chunk_on(advance: Advance, params, state: SimState, frozen, n: int, info) -> SimState:
-    """`n` steps; on overflow, re-allocate and run them again from `state`."""
+    start = state if block is None else advance.take(state, *block)
     for _ in range(MAX_REALLOCATIONS):
-        fn = advance.compiled(params, state, frozen, info)
+        fn = advance.compiled(params, start, frozen, info)
         t0 = time.perf_counter()
-        new = fn(params, state, frozen, jnp.int32(n))
+        new = fn(params, start, frozen, jnp.int32(n))
         jax.block_until_ready(new)
         info.wall_seconds += time.perf_counter() - t0
         if not bool(np.any(nb.overflowed(new))):
-            return new
+            break
         info.reallocations += 1
-        state = advance.reallocate(state, new)
-    raise SimulationError(f"{advance.name} kept overflowing after {MAX_REALLOCATIONS} re-allocations.", state)
+        start = advance.reallocate(start, new)
+    else:
+        raise SimulationError(f"{advance.name} kept overflowing after {MAX_REALLOCATIONS} re-allocations.", start)
+    if block is None:
+        return new
+    known_pairs[block[0]] = max(block[1], int(new.contacts.pairs.shape[-2]))
+    return advance.put(state, new)
 
 
 def run_chunks(advance: Advance, params, state: SimState, n_steps: int, *, chunk_steps: int, info,

@@ -8,7 +8,9 @@ a protocol (`jaxpile.cli.presentation`) and what a batch reads of it
 import importlib
 import pkgutil
 
-from jaxpile.protocols.spec import REGISTERED, ProtocolSpec
+from jaxpile.protocols.base import REGISTERED, registered
+from jaxpile.protocols.running import run
+from jaxpile.protocols.spec import ProtocolSpec
 
 
 def _registered() -> dict:
@@ -30,21 +32,7 @@ PROTOCOLS.update(_registered())
 
 def get(name: str) -> ProtocolSpec:
     """A registered protocol's spec by name, or `InputError` naming the known ones."""
-    from jaxpile.errors import InputError
-
-    if name not in PROTOCOLS:
-        raise InputError(f"unknown protocol {name!r}; known: {', '.join(PROTOCOLS)}.")
-    return PROTOCOLS[name]
-
-
-def run(name: str, law: str | None = None, size: int | None = None, **kwargs):
-    """One pile of the protocol `name`, set up, run to its end and measured:
-    `get(name).run(law, size, **kwargs)` (`protocols.running.run`: `params`,
-    `seed`, `dt`, `checkpoint`, `resume`, ... and the protocol's options).
-    Returns a `PileRun` (`state`, `measurements`, `simulator`, `params`;
-    unpacks as `(state, measurements)`)."""
-    return get(name).run(law, size, **kwargs)
-
+    return registered(name)
 
 
 __all__ = ["PROTOCOLS", "get"]

@@ -106,4 +106,16 @@ class Setting(NamedTuple):
         return lawmod, contact_law, params
 
 
-__all__ = ["Setting", "Setup"]
+REGISTERED: dict = {}
+"""Every registered spec by name: `jaxpile.protocols.PROTOCOLS`, filled when that
+package imports the protocol modules; a spec finds the one it `continues` here."""
+
+
+def registered(name: str):
+    """A registered protocol's spec by name, or `InputError` naming the known ones."""
+    if name not in REGISTERED:
+        raise InputError(f"unknown protocol {name!r}; known: {', '.join(REGISTERED)}.")
+    return REGISTERED[name]
+
+
+__all__ = ["REGISTERED", "Setting", "Setup", "registered"]

@@ -27,7 +27,7 @@ from jaxpile.errors import InputError
 
 from jaxpile.engine import checkpoint as ckpt
 from jaxpile.protocols import stages
-from jaxpile.protocols.base import Setup
+from jaxpile.protocols.base import Setup, registered
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -62,14 +62,14 @@ class PileRun:
         return 2
 
 
-def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None, dt: float | None = None,
+def run(protocol, law=None, size=None, *, params=None, rotation: bool | None = None, dt: float | None = None,
         integrator: str | None = None, chunk_steps: int | None = None, seed: int = 0, progress=False, dtype=None,
         checkpoint=None, resume=None, pile=None, pile_params=None, pile_options: dict | None = None,
         law_options: dict | None = None, **options):
-    """One pile of `spec` from set-up to its end, and its measurements.
+    """One pile of `protocol` from set-up to its end, and its measurements.
 
     Args:
-      spec: the protocol's `ProtocolSpec`.
+      protocol: the protocol's name (`"box"`) or its `ProtocolSpec`.
       law: a law name (default: the protocol's paper's).
       size: the protocol's size option (`spec.size`: disks, layers, insertions).
       params: None (the protocol's setting for the law), a dict of overrides,
@@ -99,6 +99,7 @@ def run(spec, law=None, size=None, *, params=None, rotation: bool | None = None,
       protocol that built its pile adds the pile's measurements under the pile
       protocol's name.
     """
+    spec = registered(protocol) if isinstance(protocol, str) else protocol
     law = law or spec.default_law
     if size is not None and spec.starts_from is not None and spec.size not in spec.options.names():
         pile_options = {**(pile_options or {}), spec.starts_from.size: size}  # the size of the pile it builds

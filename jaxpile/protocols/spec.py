@@ -24,7 +24,7 @@ from typing import Any, NamedTuple
 from jaxpile import ranges
 from jaxpile.errors import InputError
 from jaxpile.protocols import stages
-from jaxpile.protocols.base import Setting
+from jaxpile.protocols.base import REGISTERED, Setting
 from jaxpile.protocols.running import run as run_protocol
 from jaxpile.ranges import Range
 
@@ -120,10 +120,6 @@ def ranges_of(options: type) -> dict[str, Range]:
     """`{name: Range}` of the options that have one."""
     return {name: o.range for name, o in declared(options).items() if o.range is not None}
 
-
-REGISTERED: dict = {}
-"""Every registered spec by name: `jaxpile.protocols.PROTOCOLS`, filled when that
-package imports the protocol modules; a spec finds the one it `continues` here."""
 
 
 @dataclass(frozen=True)

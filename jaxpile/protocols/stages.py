@@ -141,31 +141,27 @@ def run_phases(stepper, params, state, phases, *, count: int | None = None, max_
         if max_steps is not None:
             left = min(left, int(max_steps) - position.stage_steps - done)
         saves = None if checkpoint is None else checkpoint.with_facts(**position.facts())
-        if left > 0:
-            state = _run(stepper, params, state, left, phase.until, batch=not one, resumed=resumed,
-                         progress=progress, info=info, checkpoint=saves, observe=observe)
+        if left > 0 and not one:  # an Ensemble: `until` is vmapped over its members
+            state = stepper.run(params, state, left, until=phase.until, progress=progress, info=info,
+                                checkpoint=saves, resumed=resumed)
+        elif left > 0 and not (resumed and phase.until is not None and bool(phase.until(state))):  # one pile
+            state = stepper.run(params, state, left, progress=progress, info=info, checkpoint=saves,
+                                until=_host_stop(phase.until, observe))
         now = member_steps(state, count)
         done = max(n - s for n, s in zip(now, position.phase_starts))
         ends[phase.name] = now
     return state, ends
 
 
-def _run(stepper, params, state, steps: int, until, *, batch: bool, resumed: bool, progress, info, checkpoint,
-         observe):
-    """One phase's steps on the stepper, `until` checked after each chunk (and
-    first, on a resumed save)."""
-    if batch:  # an Ensemble: `until` is vmapped over its members
-        return stepper.run(params, state, steps, until=until, progress=progress, info=info, checkpoint=checkpoint,
-                           resumed=resumed)
-    if resumed and until is not None and bool(until(state)):
-        return state
+def _host_stop(until, observe):
+    """One pile's `Simulator.run(until=...)`: `observe` the chunk's end, then `until` on it."""
 
     def stop(s) -> bool:
         if observe is not None:
             observe(s)
         return until is not None and bool(until(s))
 
-    return stepper.run(params, state, steps, progress=progress, info=info, until=stop, checkpoint=checkpoint)
+    return stop
 
 
 __all__ = ["Phase", "Position", "budget", "member_steps", "one_phase", "run_phases"]
