@@ -182,7 +182,7 @@ def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(m
     """A registered `ProtocolSpec` is all a new protocol needs for the commands to take it."""
     import dataclasses
 
-    from jaxpile import cli, sweeps
+    from jaxpile import batches, cli
     from jaxpile.batches import BATCHES
     from jaxpile.cli.presentation import PRESENTATIONS
     from jaxpile.protocols import PROTOCOLS
@@ -193,7 +193,7 @@ def test_a_new_protocol_spec_appears_in_pile_sweep_and_fit_by_declaring_itself(m
     monkeypatch.setitem(PRESENTATIONS, "silo", dataclasses.replace(
         PRESENTATIONS["box"], order=99, help="a silo emptied through an orifice"))
     monkeypatch.setitem(BATCHES, "silo", BATCHES["box"])
-    assert cli.sweep_protocols()[-1] == "silo" and sweeps.spec_of("silo") is silo
+    assert cli.sweep_protocols()[-1] == "silo" and batches.spec_of("silo") is silo
     for command in ("pile", "sweep", "fit"):
         argv = [command, "--protocol", "silo", "--out", "x"] + (["--params", "mu"] if command == "fit" else [])
         assert cli.build_parser(argv).parse_args(argv).protocol == "silo"

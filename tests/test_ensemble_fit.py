@@ -316,10 +316,10 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
                saving=ef.Saving(checkpoint=history, batch=(str(batch), 200)))
     monkeypatch.setattr(ckpt, "save", save)
     assert saves == [str(batch)] and ckpt.read_metadata(batch)["extra"]["batch_start"] == 0
-    from jaxpile import sweeps
+    from jaxpile import batches
 
-    resumes, sweep = [], sweeps.sweep
-    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
+    resumes, sweep = [], batches.sweep
+    monkeypatch.setattr(batches, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
     resumed = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **kw,
                      saving=ef.Saving(checkpoint=history, resume=history, batch=(str(batch), 200)))
     assert resumes == [str(batch), None]  # the iteration's batch from its save, the final one afresh
@@ -353,7 +353,7 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
         if len(calls) == 2:
             raise _Stopped
 
-    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: calls.append(k["resume"]) or sweep(*a, **k))
+    monkeypatch.setattr(batches, "sweep", lambda *a, **k: calls.append(k["resume"]) or sweep(*a, **k))
     monkeypatch.setattr(ckpt, "save", save_in_final)
     with pytest.raises(_Stopped):
         ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **{**kw, "interval": True},
@@ -382,7 +382,7 @@ def test_a_fit_stopped_inside_an_iteration_resumes_its_batch_and_ends_as_the_uni
     both = ef.fit(runner, ["ks"], {"ks": 9_000.0}, target, **two)
     assert len(both.history) == 2 and later.values == both.values
     assert [same(h) for h in later.history] == [same(h) for h in both.history]
-    monkeypatch.setattr(sweeps, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
+    monkeypatch.setattr(batches, "sweep", lambda *a, **k: resumes.append(k["resume"]) or sweep(*a, **k))
 
     # the command line: OUT/fit_batch.npz, and OUT/target_batch.npz for a target stopped before the fit began,
     # which --resume continues

@@ -236,8 +236,9 @@ def test_a_sweep_refuses_a_bad_member_before_any_batch_runs(protocol, vary, opti
     of a grid used to fail only after the batches before it (or, for a tilt,
     the box stage) had run."""
     from jaxpile import sweeps
+    from jaxpile.batches import runs
 
-    monkeypatch.setattr(sweeps, "ensemble_for",
+    monkeypatch.setattr(runs, "ensemble_for",
                         lambda *a, **k: pytest.fail("a batch was built before the grid was checked"))
     with pytest.raises(InputError):
         sweeps.sweep(protocol, vary=vary, seeds=1, options=options, progress=False)
@@ -298,14 +299,14 @@ def test_a_damaged_or_foreign_json_file_gets_one_line_not_a_traceback(content, t
     ({"vary": {"mu": [0.1, math.nan]}}, "lee-herrmann parameter mu"),  # the law's own range and message
 ])
 def test_the_sweep_api_answers_a_bad_grid_with_an_input_error(kwargs, says):
-    """`sweeps.plan` (what `sweep` checks first) from Python: a seed that is not
+    """`batches.plan` (what `sweep` checks first) from Python: a seed that is not
     whole was truncated in silence (1.5 ran seed 1), a string of values was
     iterated character by character (a ValueError)."""
-    from jaxpile import sweeps
+    from jaxpile import batches
 
     args = {"vary": {"mu": [0.1]}, "seeds": 1, **kwargs}
     with pytest.raises(InputError, match=says):
-        sweeps.plan("box", options={"n": 20}, **args)
+        batches.plan("box", options={"n": 20}, **args)
 
 
 def test_run_refuses_a_step_count_that_is_not_one_and_a_write_to_a_folder(tmp_path):

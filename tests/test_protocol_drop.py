@@ -169,11 +169,11 @@ def test_the_drop_declares_the_columns_of_its_rows(tmp_path, capsys):
     """`drop.ROW_COLUMNS`: a sweep row holds exactly those columns (besides the
     sweep's own and the point's), so an ensemble fit refuses a statistic the
     drop does not measure before a pile is dropped (the pour's dip_below_flanks)."""
-    from jaxpile import cli, sweeps
+    from jaxpile import batches, cli, sweeps
 
     result = sweeps.sweep("drop", "hooke", vary={"mu": [0.3]}, seeds=1, options={"n": 6, **RUN}, progress=False)
     (member,) = result.rows
-    assert set(member) - set(sweeps.MEMBER_COLUMNS) - {"mu"} == set(drop.ROW_COLUMNS)
+    assert set(member) - set(batches.MEMBER_COLUMNS) - {"mu"} == set(drop.ROW_COLUMNS)
     assert cli.main(["fit", "--protocol", "drop", "--params", "mu_roll", "--target", "smid-novosad", "--estimator",
                      "central", "--statistics", "dip_below_flanks", "--dry-run", "--out", str(tmp_path)]) == 2
     assert "no column 'dip_below_flanks'" in capsys.readouterr().err

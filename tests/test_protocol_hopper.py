@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxpile import sweeps
+from jaxpile.batches import runs
 from jaxpile.cli import main
 from jaxpile.errors import InputError
 from jaxpile.protocols import PROTOCOLS, hopper
@@ -21,9 +22,9 @@ SMALL = dict(width=10.0, orifice=4.0, seed=0)  # 60 disks run out in ~45k steps
 
 def test_the_hopper_registers_itself_for_every_command():
     assert PROTOCOLS["hopper"] is hopper.SPEC
-    from jaxpile import cli, sweeps
+    from jaxpile import batches, cli
 
-    assert "hopper" in cli.sweep_protocols() and sweeps.spec_of("hopper").default_law == "hooke"
+    assert "hopper" in cli.sweep_protocols() and batches.spec_of("hopper").default_law == "hooke"
 
 
 @pytest.mark.parametrize("orifice", [1.0, 2.5, 4.0, 5.3, 7.9])
@@ -129,7 +130,7 @@ def test_pile_resume_show_sweep_and_fit_take_the_hopper(tmp_path, capsys):
                  "10", "--beverloo-k", "2", "--no-progress", "--out", str(tmp_path / "sweep")]) == 0
     narrow, wide = sweeps.read(tmp_path / "sweep").rows
     # the simulator ignores the orifice (Adapter.simulator_options): both batches ran on one compiled ensemble
-    assert len([key for key in sweeps._ENSEMBLES if key[0] == "hopper"]) == 1
+    assert len([key for key in runs._ENSEMBLES if key[0] == "hopper"]) == 1
     assert (narrow["orifice"], wide["orifice"]) == (4.0, 7.0)
     # a batch sums forces in another order, and a discharge is chaotic: a member
     # is a pile of its own (5.1 vs 3.5 disks / time measured at D = 4), not the single run

@@ -72,7 +72,7 @@ def _fit_inputs(args, spec) -> tuple:
     """`(law, names, start, fixed, options)`: the law, the parameters fitted and
     their starting values (`--set`, else the law's defaults), the law values
     held fixed, and the protocol's options, each checked."""
-    from jaxpile import sweeps
+    from jaxpile import batches
     from jaxpile.laws import get_law_module
 
     law = get_law_module(args.law or spec.default_law).NAME
@@ -98,7 +98,7 @@ def _fit_inputs(args, spec) -> tuple:
     options = parse_options(args.option)
     if args.n is not None:
         options["n"] = args.n
-    known = sweeps.option_names(spec)
+    known = batches.option_names(spec)
     if spec.size == "layers" and "layers" not in options:  # the protocols built in layers (the lattice)
         options["layers"] = args.layers
     unknown = set(options) - known
@@ -115,11 +115,11 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     and after every one, the running batch to OUT/fit_batch.npz (a target's
     to OUT/target_batch.npz) every `--checkpoint-every` steps, and `--resume`
     continues from them."""
-    from jaxpile import distributed, io, sweeps
+    from jaxpile import batches, distributed, io
     from jaxpile.fit import ensemble_fit, ensemble_runs
     from jaxpile.laws import get_law_module
 
-    a = sweeps.spec_of(args.protocol)
+    a = batches.spec_of(args.protocol)
     law, names, start, fixed, options = _fit_inputs(args, a)
     runner = ensemble_fit.Runner(args.protocol, law, params=fixed or None, options=options or None,
                                  law_options=law_options_of(args) or None, rotation=args.rotation,
@@ -168,12 +168,12 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     for n in names:
         POSITIVE.check(f"the starting {n} (fitted in log space)", start[n], scalar=True)
     for values in (start, truth) if truth else (start,):  # a fitted parameter the law needs is in both
-        sweeps.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options,
+        batches.plan(args.protocol, law, points=[values], seeds=1, params=fixed, options=options,
                    rotation=runner.rotation, law_options=runner.law_options)
     # 8: the smoothing's 4 antithetic pairs; 3: the truncated estimator's host run and two rollouts
     per_iteration = {"central": 2 * len(names) + 1, "truncated": 3}.get(estimator, 8)
     if args.dry_run:
-        setup = sweeps.first_setup(a, law, 0, a.default_dt(law), options)
+        setup = batches.first_setup(a, law, 0, a.default_dt(law), options)
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
               f"{setup.particles.count} disks a pile): {b} piles per ensemble, at most {steps} iterations of "
               f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "

@@ -72,7 +72,7 @@ def _run_keywords(args, spec, size_flag: str, kwargs: dict) -> dict:
     (its size, the slope, the time step, the generic flags the protocol's
     presentation maps, `--option`s); returns the `--option`s. A flag the
     protocol does not use, or an option it does not know, is refused."""
-    from jaxpile.sweeps import option_names
+    from jaxpile.batches import option_names
 
     name = args.protocol
     if args.dt is not None:

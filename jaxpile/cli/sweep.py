@@ -18,12 +18,12 @@ def run_sweep(args) -> dict:
     """`jaxpile sweep`: batched protocol runs over a parameter grid and seeds."""
     import jax.numpy as jnp
 
-    from jaxpile import distributed, io
+    from jaxpile import batches, distributed, io
     from jaxpile import sweeps as sw
     from jaxpile.laws import get_law_module
 
-    law = get_law_module(args.law or sw.spec_of(args.protocol).default_law).NAME
-    vary = _grid(args, get_law_module(law).PARAM_NAMES, sw.option_names(sw.spec_of(args.protocol)))
+    law = get_law_module(args.law or batches.spec_of(args.protocol).default_law).NAME
+    vary = _grid(args, get_law_module(law).PARAM_NAMES, batches.option_names(batches.spec_of(args.protocol)))
     if args.seeds < 1:
         raise InputError(f"--seeds must be >= 1; got {args.seeds}.")
     lawmod = get_law_module(law)
@@ -109,13 +109,11 @@ def _dry_run_sweep(args, law: str, vary: dict, fixed: dict, options: dict, dtype
     """`sweep --dry-run`: every member's parameters and every batch's set-up
     checked as the sweep checks them before it runs, one member set up, and
     the memory a batch needs."""
-    from jaxpile import budget
-    from jaxpile import sweeps as sw
-
+    from jaxpile import batches, budget
     from jaxpile.protocols import running
 
-    spec = sw.spec_of(args.protocol)
-    planned = sw.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
+    spec = batches.spec_of(args.protocol)
+    planned = batches.plan(args.protocol, law, vary=vary, seeds=args.seeds, params=fixed, options=options, dt=args.dt,
                       batch_size=args.batch_size, dtype=dtype, rotation=args.rotation,
                       law_options=law_options_of(args))
     dt = planned.dt

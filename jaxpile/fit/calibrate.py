@@ -61,11 +61,11 @@ def calibrate(protocol: str, measurement: str | os.PathLike | Measurement, param
       `result` (`descend`'s: the fitted `params`, the loss path) and the
       pile's profile `before` and `after`.
     """
-    from jaxpile import sweeps
+    from jaxpile import batches
 
     if resume and checkpoint is None:
         raise InputError("resume=True continues the fit saved at checkpoint=PATH: give the checkpoint.")
-    spec = sweeps.spec_of(protocol)
+    spec = batches.spec_of(protocol)
     if not isinstance(measurement, Measurement):
         measurement = load_measurement(measurement, normalised_by)
     names = [n.strip() for n in params.split(",")] if isinstance(params, str) else list(params)

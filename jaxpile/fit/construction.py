@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxpile import sweeps
+from jaxpile import batches
 from jaxpile.batches import batch_of
 from jaxpile.engine import batch, ensemble
 from jaxpile.engine import neighbors as nb
@@ -29,7 +29,7 @@ from jaxpile.engine import pairs as pair_list
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import smooth_base_profile
 from jaxpile.measure import analysis
-from jaxpile.protocols import PROTOCOLS, running, stages
+from jaxpile.protocols import PROTOCOLS, stages
 
 
 def rolled_out() -> tuple[str, ...]:
@@ -124,7 +124,7 @@ def _pieces(spec, law: str, dt: float, options, runner, names: tuple, extent: tu
     iterate, and with the same functions its host run, its checking rollout
     and the estimator's windows (`estimators.truncated_pathwise`, keyed by
     `advance`) compile once for the whole fit. The batch is the sweep's own
-    (`sweeps.ensemble_for`), so its host run compiles nothing a sweep at
+    (`batches.ensemble_for`), so its host run compiles nothing a sweep at
     these settings has not."""
     bins, bandwidth, horizontal = int(statistics.bins), statistics.bandwidth, bool(statistics.horizontal)
     fixed, rotation, law_options = runner.params or {}, runner.rotation, runner.law_options
@@ -133,7 +133,7 @@ def _pieces(spec, law: str, dt: float, options, runner, names: tuple, extent: tu
            horizontal)
     if key in _PIECES:
         return _PIECES[key]
-    runs = sweeps.ensemble_for(spec, law, dt, rotation, options, law_options)
+    runs = batches.ensemble_for(spec, law, dt, rotation, options, law_options)
     sim = runs.sim
     base = spec.law_and_params(law, dict(fixed), rotation, runner.dtype, law_options)[2]
     base_name, x_left, x_right = extent

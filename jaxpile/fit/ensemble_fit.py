@@ -237,7 +237,7 @@ class Saving(NamedTuple):
       resume: a checkpoint JSON of this fit to continue from.
       batch: `(path, every)`: each batch of piles the runner runs (an
         iteration's ensembles, the final ones) is saved to the `.npz` `path`
-        every `every` steps (`sweeps.sweep`'s checkpoint), continued from it
+        every `every` steps (`batches.sweep`'s checkpoint), continued from it
         when the fit is resumed, and removed when the batch ends; without
         `resume` a file left there is removed first. The central and
         smoothing estimators' batches (the truncated estimator's rollouts are

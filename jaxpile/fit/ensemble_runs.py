@@ -1,5 +1,5 @@
 """How the ensembles of an ensemble fit are built (`Runner`: the protocol,
-law and set-up, run through `sweeps.sweep`) and what each pile contributes to
+law and set-up, run through `batches.sweep`) and what each pile contributes to
 it (`Statistics`: columns of the sweep's row, the base profile)."""
 
 from __future__ import annotations
@@ -12,13 +12,13 @@ from typing import Callable, NamedTuple, Sequence
 
 import numpy as np
 
-from jaxpile import budget, sweeps
+from jaxpile import batches, budget
 from jaxpile.batches import batch_of
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import base_load, smooth_base_profile
 from jaxpile.measure.base_reading import profile_at_points
 from jaxpile.measure.forces import base_forces
-from jaxpile.sweeps import MEMBER_COLUMNS
+from jaxpile.batches import MEMBER_COLUMNS
 
 
 class Statistics(NamedTuple):
@@ -137,7 +137,7 @@ def _row_statistics(row: dict, statistics: Statistics) -> np.ndarray:
 
 
 class Runner(NamedTuple):
-    """How the ensembles of a fit are built: everything `sweeps.sweep` takes
+    """How the ensembles of a fit are built: everything `batches.sweep` takes
     except the parameter points and seeds."""
 
     protocol: str
@@ -152,7 +152,7 @@ class Runner(NamedTuple):
     rotation: bool | None = None
 
     def spec(self):
-        return sweeps.spec_of(self.protocol)
+        return batches.spec_of(self.protocol)
 
     def check(self, statistics: Statistics) -> Statistics:
         """The statistics, checked against what the protocol can measure."""
@@ -172,18 +172,18 @@ class Runner(NamedTuple):
             resume=None) -> tuple[np.ndarray, dict]:
         """`[len(points), B, k]` statistics (the B seeds at every point, one
         batched run) and the sweep's record (`n_particles`, `batch_steps`,
-        `total_seconds` are used). `checkpoint`, `resume`: as `sweeps.sweep`'s
+        `total_seconds` are used). `checkpoint`, `resume`: as `batches.sweep`'s
         (a long batch saved as it runs, and continued)."""
         spec = self.spec()
         statistics = _check_statistics(statistics, spec)
         seeds = [int(s) for s in seeds]
         if statistics.bins and seeds:  # each pile's profile is a [contacts, bins] array: refuse one too big first
             law = self.law_name()
-            p = sweeps.first_setup(spec, law, seeds[0], self.dt or spec.default_dt(law), self.options or {}, self.dtype)
+            p = batches.first_setup(spec, law, seeds[0], self.dt or spec.default_dt(law), self.options or {}, self.dtype)
             budget.check_host(24.0 * int(statistics.bins) * int(p.particles.count),
                               f"the base profile on {int(statistics.bins):,} bins of a {int(p.particles.count):,}-disk "
                               "pile", "Give fewer --bins.")
-        result = sweeps.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
+        result = batches.sweep(self.protocol, self.law, points=list(points), seeds=seeds, params=self.params,
                              options=self.options, dt=self.dt, max_steps=self.max_steps,
                              batch_size=self.batch_size, progress=progress, dtype=self.dtype,
                              extra_measure=_profile_hook(spec, statistics), checkpoint=checkpoint, resume=resume,

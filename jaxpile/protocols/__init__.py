@@ -35,4 +35,4 @@ def get(name: str) -> ProtocolSpec:
     return registered(name)
 
 
-__all__ = ["PROTOCOLS", "get"]
+__all__ = ["PROTOCOLS", "get", "run"]

@@ -348,4 +348,4 @@ relaxes the pile to rest and measures its base normal force profile, its central
 
 __all__ = ["PARK_SPACING", "ROW_COLUMNS", "SETTING", "SPEC", "DropOptions", "DropState", "driver_setting",
            "law_and_params", "layout", "make_driver", "make_in_play",
-           "measure_pile", "phases", "report", "row", "setup", "simulator"]
+           "measure_pile", "phases", "row", "setup", "simulator"]
