@@ -34,7 +34,7 @@ import numpy as np
 
 import jaxpile
 from jaxpile import io
-from jaxpile.engine.batch import member
+from jaxpile.engine.ensemble import member
 from jaxpile.engine.ensemble import Ensemble
 from jaxpile.protocols import PROTOCOLS, pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)

@@ -43,7 +43,7 @@ import jaxpile
 from jaxpile import io
 from jaxpile import fit
 from jaxpile.engine.boundaries import GROUND
-from jaxpile.engine.simulate import Simulator
+from jaxpile.engine import Simulator
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)

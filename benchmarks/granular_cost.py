@@ -21,7 +21,7 @@ import os
 import time
 
 import jaxpile
-from jaxpile.engine.simulate import Simulator, gravity_ramp
+from jaxpile.engine import Simulator, gravity_ramp
 from jaxpile.laws import get_law_module, hooke
 from jaxpile.protocols import lattice
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)

@@ -32,7 +32,7 @@ from jax import lax
 
 import jaxpile
 from jaxpile import io
-from jaxpile.engine.simulate import Simulator, gravity_ramp
+from jaxpile.engine import Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)

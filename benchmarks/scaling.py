@@ -31,8 +31,8 @@ import numpy as np
 import jaxpile
 from jaxpile import io
 from jaxpile.engine.boundaries import make_boundaries
-from jaxpile.engine.simulate import RunInfo, Simulator
-from jaxpile.engine.state import make_particles
+from jaxpile.engine import RunInfo, Simulator
+from jaxpile.engine import make_particles
 from jaxpile.laws import hooke
 from machine import describe  # benchmarks/machine.py (scripts run from benchmarks/)
 

@@ -85,10 +85,10 @@ import numpy as np
 import jaxpile
 from jaxpile import analysis, io
 from jaxpile.engine import ensemble
-from jaxpile.engine.simulate import RunInfo, Simulator, gravity_ramp
+from jaxpile.engine import RunInfo, Simulator, gravity_ramp
 from jaxpile.laws import hooke
 from jaxpile.protocols import lattice, pour
-from jaxpile.protocols.base import Setup
+from jaxpile.protocols import Setup
 from jaxpile.measure import heap
 
 try:

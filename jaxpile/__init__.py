@@ -15,8 +15,16 @@ nothing in `sys.modules` but its own modules and the libraries it imports
 `jaxpile.configure()` sets what the commands set (float64, and on a CPU the XLA
 settings that make a script's result for a seed the command's, bit for bit; see
 `jaxpile.config`). The modules behind these names: `protocols` (the papers'
-piles, one spec each), `sweeps` (batches), `fit` (gradients and fits), `laws`,
-`measure`, `engine` (state, simulator, ensembles).
+piles, one spec each), `sweeps` (a sweep study), `batches` (the batch runner),
+`fit` (gradients and fits), `laws`, `measure`, `engine` (state, simulator,
+ensembles), and `io`, `plot`, `export`, `distributed`, `cli`.
+
+The public API is `__all__` here and, in each public module, its `__all__`
+(or, where it has none, its own names without a leading underscore); a
+public package's modules are public where its `__all__` names them. The
+rest (`jaxpile.engine.loop`, `jaxpile.protocols.stages`, ...) is internal and
+may change. Benchmarks, notebooks, docs and README use the public API only
+(`tests/test_public_api.py`).
 """
 
 from jaxpile.config import configure, settings  # noqa: E402
@@ -62,11 +70,19 @@ __all__ = [
     "make_step",
     "max_speed",
     "set_wall",
-    # the modules
+    # the modules; in the subpackages, the names their own __all__ lists (tests/test_public_api.py)
     "analysis",
+    "batches",
     "boundaries",
+    "cli",
+    "distributed",
+    "engine",
     "ensemble",
+    "export",
+    "io",
     "laws",
+    "measure",
+    "plot",
     "protocols",
     "sweeps",
     "theory",

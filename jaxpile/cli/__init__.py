@@ -1,15 +1,15 @@
 """The `jaxpile` command.
 
-  jaxpile pile --protocol lattice --layers 45 --law hooke --out DIR [--set NAME=VALUE ...]
-  jaxpile pile --protocol sloped --slope 45 --n 360 --out DIR
-  jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
-  jaxpile pile|sweep ... --checkpoint-every STEPS --out DIR;  jaxpile pile|sweep --resume DIR
-  jaxpile show DIR [--out DIR2] [--checkpoint]   (a pile run, a checkpoint, a sweep or a fit)
-  jaxpile compare DIR [DIR ...]
-  jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
-  jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
-  jaxpile fit --protocol box|pour|drop|lattice|sloped|flux --params mu --truth mu=0.273 --set mu=0.19
-              --ensemble 16 [--estimator central|smoothing|truncated] --out DIR   (ensemble fits; --resume)
+    jaxpile pile --protocol lattice --layers 45 --law hooke --out DIR [--set NAME=VALUE ...]
+    jaxpile pile --protocol sloped --slope 45 --n 360 --out DIR
+    jaxpile pile --protocol drop | box | tilt | flux | pour [--n N] [--option NAME=VALUE ...] --out DIR
+    jaxpile pile|sweep ... --checkpoint-every STEPS --out DIR;  jaxpile pile|sweep --resume DIR
+    jaxpile show DIR [--out DIR2] [--checkpoint]   (a pile run, a checkpoint, a sweep or a fit)
+    jaxpile compare DIR [DIR ...]
+    jaxpile sweep --protocol box --law lee-herrmann --mu 0.05,0.1,0.2 --seeds 16 --out DIR
+    jaxpile fit --target FILE|smid-novosad --protocol lattice|pour --law hooke --params mu,kt --out DIR
+    jaxpile fit --protocol box|pour|drop|lattice|sloped|flux --params mu --truth mu=0.273 --set mu=0.19
+                --ensemble 16 [--estimator central|smoothing|truncated] --out DIR   (ensemble fits; --resume)
 
 Every protocol writes summary.json (the set-up and the protocol's measurements),
 base_forces.csv, contacts.csv (the force network), state.npz, final.xyz

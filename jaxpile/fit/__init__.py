@@ -40,6 +40,8 @@ no Coulomb cap switches between sticking and sliding and no maximum of
 differentiable almost everywhere, not everywhere (docs/gradients.md#what-works).
 """
 
+from jaxpile.fit import (construction, ensemble_fit, ensemble_runs, ensemble_targets, estimators, regression, stats,
+                         targets, verdict)
 from jaxpile.fit.calibrate import calibrate
 from jaxpile.fit.losses import dip_loss, feature_loss, profile_loss
 from jaxpile.fit.measured import Measurement, load_measurement
@@ -121,4 +123,14 @@ __all__ = [
     "to_constrained",
     "to_unconstrained",
     "value_and_gradient",
+    # the ensemble fit's modules, public as modules
+    "construction",
+    "ensemble_fit",
+    "ensemble_runs",
+    "ensemble_targets",
+    "estimators",
+    "regression",
+    "stats",
+    "targets",
+    "verdict",
 ]

@@ -1,6 +1,6 @@
 """How piles are built. Each protocol module holds its physics (set-up,
-driver, measurements) and one `SPEC` (`spec.ProtocolSpec`): its options and
-how it runs. `PROTOCOLS` is every registered spec by name;
+driver, measurements) and one `SPEC` (`ProtocolSpec`): its options and how
+it runs. `PROTOCOLS` is every registered spec by name;
 `PROTOCOLS["box"].run("hooke", 72)` runs one pile. What the commands show of
 a protocol (`jaxpile.cli.presentation`) and what a batch reads of it
 (`jaxpile.batches`) are declared by name in the layers above."""
@@ -8,9 +8,11 @@ a protocol (`jaxpile.cli.presentation`) and what a batch reads of it
 import importlib
 import pkgutil
 
-from jaxpile.protocols.base import REGISTERED, registered
-from jaxpile.protocols.running import run
-from jaxpile.protocols.spec import ProtocolSpec
+from jaxpile.protocols import drivers, geometry
+from jaxpile.protocols.base import REGISTERED, Setting, Setup, registered
+from jaxpile.protocols.running import PileRun, run, run_setup
+from jaxpile.protocols.spec import Options, ProtocolSpec, option
+from jaxpile.protocols.stages import Phase, one_phase
 
 
 def _registered() -> dict:
@@ -35,4 +37,13 @@ def get(name: str) -> ProtocolSpec:
     return registered(name)
 
 
-__all__ = ["PROTOCOLS", "get", "run"]
+from jaxpile.protocols import box, drop, flux, hopper, lattice, pour, sloped, tilt  # noqa: E402  (registered above)
+
+__all__ = [
+    # running one: `run` a registered protocol, or `run_setup` a set-up of your own through its phases
+    "PROTOCOLS", "PileRun", "get", "run", "run_setup",
+    # the protocols, one module each
+    "box", "drop", "flux", "hopper", "lattice", "pour", "sloped", "tilt",
+    # writing one (docs/extending.md): its declaration, options, phases, set-up, and the shared pieces
+    "Options", "Phase", "ProtocolSpec", "Setting", "Setup", "drivers", "geometry", "one_phase", "option",
+]

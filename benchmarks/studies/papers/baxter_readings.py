@@ -159,7 +159,7 @@ def heap_batch(settings: list[str], seeds: list[int], n: int, folder: str, inser
     from jaxpile import sweeps
     from jaxpile.measure import heap, poured_heap
     from jaxpile.protocols import pour
-    from jaxpile.engine.simulate import max_speed
+    from jaxpile.engine import max_speed
 
     specs = [setting_of(name) for name in settings]
     if len(groups(settings)) != 1:
