@@ -140,6 +140,24 @@ def test_papers_table_is_the_one_the_results_give():
     assert "| 1993 | θ_T against" in papers.table()
 
 
+def test_the_1992_networks_summary_holds_what_its_analytic_parts_give_and_draws_its_figure(tmp_path):
+    """liffman_networks.py's tents (Figs. 18-19) and SLIP/NOSLIP collisions
+    (eqs. 4-19) recomputed here are the committed summary's (to round-off),
+    and its figure is drawn from the summary alone."""
+    import liffman_networks as ln
+
+    saved = json.loads(ln.OUT.read_text())
+    for name, tent in ln.tents().items():
+        for key, value in tent.items():
+            assert value == pytest.approx(saved["tents"][name][key], rel=1e-9, abs=1e-12), (name, key)
+    for name, case in ln.collisions().items():
+        for key, value in case.items():
+            assert value == pytest.approx(saved["collisions"][name][key], rel=1e-9, abs=1e-12), (name, key)
+    assert saved["collisions"]["noslip"]["slipping"] is False and saved["collisions"]["slip"]["slipping"] is True
+    ln.figure(saved, tmp_path / "lines.png")
+    assert (tmp_path / "lines.png").stat().st_size > 20_000
+
+
 def test_the_cli_fit_row_says_whether_the_recovery_held_its_truth(tmp_path, monkeypatch):
     """papers.py's row for `jaxpile fit --target smid-novosad` (issue 50): the fitted value with
     both intervals, the dip and angle of the fitted heaps as mean +- s.e., and whether every

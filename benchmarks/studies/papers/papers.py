@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage,height,width]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,networks,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage,height,width]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -96,6 +96,71 @@ SLOPED = RESULTS / "liffman_1992" / "sloped30_n5490.json"
 SLOPED_ANGLES = {a: RESULTS / "liffman_1992" / "sloped_n360" / f"alpha{a}.json" for a in (30, 45, 50, 55)}
 """The paper's piles of Figs. 12-14: about 360 disks at each angle of repose (sec. 5)."""
 DROP = RESULTS / "liffman_1992" / "drop_n968"
+NETWORKS = RESULTS / "liffman_1992" / "networks.json"
+"""The sink, the force lines, the 32.6 deg pile, the tents and the collisions (`liffman_networks.py`)."""
+
+
+def _rows_networks() -> list[list[str]]:
+    """The 1992 results read off one pile each (deterministic): the base
+    disks' sink (sec. 4), the force lines (Figs. 10, 16), the 32.6 deg pile
+    against Smid-Novosad (Fig. 17), the tents (Figs. 18-19) and the SLIP /
+    NOSLIP collisions (eqs. 4-19)."""
+    net = _load(NETWORKS)
+    if net is None:
+        return [["1992", "the base's sink, the force lines, the 32.6° pile, the tents, SLIP/NOSLIP",
+                 "sec. 4, Figs. 10, 16–19, eqs. 4–19", _missing("networks"), "—"]]
+    lat, s30, s326, tents, hard = net["lattice"], net["sloped30"], net["sloped32_6"], net["tents"], net["collisions"]
+    sink_off = lat["max_sink_sigma"] / lat["theory_max_sink_sigma"] - 1
+    strong, weak = lat["lines"]["strongest"], lat["lines"]["weakest"]
+    mirrored = min(strong["left_at_60"], strong["right_at_120"]) > 0.5 or min(strong["left_at_120"],
+                                                                              strong["right_at_60"]) > 0.5
+    horizontal = lat["lines"]["largest_horizontal_force_mg"] / lat["lines"]["mean_contact_force_mg"]
+    s_strong, s_weak = s30["lines"]["strongest"], s30["lines"]["weakest"]
+    peaked, flat = tents["peaked_30_45"], tents["flattened_45_30"]
+    noslip, slip = hard["noslip"], hard["slip"]
+    eq8 = abs(noslip["tangential_velocity_after"]) < 1e-12 and not noslip["slipping"]
+    eq7 = (slip["slipping"] and abs(slip["impulse_ratio_t_over_n"] - slip["mu"]) < 1e-12
+           and 0 < slip["tangential_velocity_after"] / slip["tangential_velocity_before"] < 1)
+    kept = max(abs(c[k]) for c in (noslip, slip) for k in ("restitution_residual", "momentum_residual")) < 1e-12
+    return [
+        ["1992", f"45-layer lattice (`liffman` law): the bottom row's sink into the ground (sec. 4, eqs. 42, 45–46)",
+         "about 2.3e-3 σ", f"{lat['max_sink_sigma']:.3g} σ at most ({lat['centre_sink_sigma']:.3g} σ at the centre); "
+         f"(k + 1)/2 mg / K_s = {lat['theory_max_sink_sigma']:.3g} σ",
+         "agrees (within 5%)" if abs(sink_off) < 0.05 else f"differs ({100 * sink_off:+.0f}%)"],
+        ["1992", "the same pile: the lines of strongest and weakest force (Fig. 10, eqs. 47–48; "
+                 "`docs/liffman1992_force_lines.png`)",
+         "at π/3 or 2π/3, one diagonal each side of the centre; no horizontal forces",
+         f"strongest at π/3 or 2π/3 for {100 * strong['at_60_or_120']:.0f}% of {strong['lines']} disks (left half "
+         f"{100 * strong['left_at_60']:.0f}% / {100 * strong['left_at_120']:.0f}% at π/3 / 2π/3, right half "
+         f"{100 * strong['right_at_60']:.0f}% / {100 * strong['right_at_120']:.0f}%); weakest at π/3 or 2π/3 for "
+         f"{100 * weak['at_60_or_120']:.0f}%; " + ("no two disks of one level in contact" if not lat["lines"]["horizontal_pairs"]
+                                             else f"the largest horizontal pair force {horizontal:.1e} of the mean"),
+         "agrees" if strong["at_60_or_120"] > 0.95 and mirrored and horizontal < 1e-3 else "differs"],
+        ["1992", f"sloped pile 30°, {s30['n_particles']} disks: the force lines (Fig. 16; the same figure)",
+         "strongest still at π/3 or 2π/3; weakest now horizontal, some at π/3",
+         f"strongest at π/3 or 2π/3 for {100 * s_strong['at_60_or_120']:.0f}%; weakest horizontal for "
+         f"{100 * s_weak['horizontal']:.0f}%, at π/3 or 2π/3 for {100 * s_weak['at_60_or_120']:.0f}%",
+         "agrees" if s_strong["at_60_or_120"] > 0.9 and s_weak["horizontal"] > 0.25 and s_weak["at_60_or_120"] > 0
+         else "differs"],
+        ["1992", f"sloped pile 32.6° (Smid–Novosad's angle), {s326['n_particles']} disks (Fig. 17)",
+         "H as the experiment's; N without its central depression",
+         f"central slope of H {100 * s326['central_slope_rel_dev']:+.0f}% from eq. 57; central N "
+         f"{100 * s326['central_normal_rel_dev']:+.1f}% from eq. 56, dip {100 * s326['central_normal_dip']:.1f}%",
+         "agrees: no dip in N (H against the experiment not judged: its points are not in the tree)"
+         if s326["central_normal_dip"] < 0.05 else "differs: a dip in N"],
+        ["1992", "tent piles, analytic (Figs. 18–19): α1 = 30°, α2 = 45°, X1 = 0.38 B, and α1 = 45°, α2 = 30°",
+         "a central depression of N only when α2 > α1",
+         f"dip {100 * peaked['central_dip']:.1f}% (maximum at x/B = {peaked['x_over_b_of_max']:.2f}); "
+         f"flattened: dip {100 * flat['central_dip']:.1f}%",
+         "agrees" if peaked["central_dip"] > 0.01 and flat["central_dip"] < 1e-3 else "differs"],
+        ["1992", "hard collisions, SLIP and NOSLIP (eqs. 4–19): two spinning disks of unlike size, oblique",
+         "NOSLIP stops the contact point's slip (eq. 8); SLIP takes the tangential impulse μ times the normal "
+         "(eq. 7), the slip reduced",
+         f"μ = {noslip['mu']:g}: NOSLIP, slip after {noslip['tangential_velocity_after']:.1e}; μ = {slip['mu']:g}: "
+         f"SLIP, tangential over normal impulse {slip['impulse_ratio_t_over_n']:.15g}, slip {slip['tangential_velocity_before']:.3f} "
+         f"-> {slip['tangential_velocity_after']:.3f}; eqs. 4, 6 to round-off",
+         "agrees (to round-off)" if eq8 and eq7 and kept else "differs"],
+    ]
 
 
 def _rows_sloped_angles() -> list[list[str]]:
@@ -164,6 +229,7 @@ def rows_1992() -> list[list[str]]:
         rows.append(["1992", "sloped pile 30°, 5490 disks: central N and H vs eqs. 56, 57", "plateau, no dip",
                      _missing("sloped"), "—"])
     rows.extend(_rows_sloped_angles())
+    rows.extend(_rows_networks())
     import paper_ensembles as pe
 
     piles = pe.pile_rows(DROP)
@@ -1042,6 +1108,8 @@ def run(studies: list[str]) -> None:
         _pile_summary(["--protocol", "lattice", "--layers", "45", "--law", "liffman"], LATTICE)
     if "sloped" in studies and not SLOPED.exists():
         _pile_summary(["--protocol", "sloped", "--slope", "30", "--n", "5490"], SLOPED)
+    if "networks" in studies and not NETWORKS.exists():
+        subprocess.run([sys.executable, str(HERE / "liffman_networks.py")], check=True)
     if "sloped_angles" in studies:
         for alpha, dest in SLOPED_ANGLES.items():
             if not dest.exists():
@@ -1090,7 +1158,7 @@ def run(studies: list[str]) -> None:
         bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage", "height", "width")
+STUDIES = ("lattice", "sloped", "sloped_angles", "networks", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage", "height", "width")
 
 
 def main(argv=None) -> int:
