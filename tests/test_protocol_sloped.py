@@ -166,3 +166,22 @@ def test_the_1992_piles_declare_the_columns_of_their_rows(spec, size, options, t
     assert main(["fit", "--protocol", spec.name, "--params", "kn", "--truth", "kn=2e5", "--statistics", "repose",
                  "--dry-run", "--out", str(tmp_path)]) == 2
     assert "no column 'repose'" in capsys.readouterr().err
+
+
+def test_a_tent_pile_follows_fig_18s_two_slopes_and_is_the_plain_pile_when_they_are_equal():
+    """`top_alpha_degrees` and `knee` build the tent of Figs. 18-19 (alpha up
+    to the knees at X_1 = knee B, alpha2 above); with alpha2 = alpha it is the
+    plain pile, and one of the two alone is refused."""
+    for alpha in (30.0, 45.0):
+        for base in (20.5, 46.5, 100.0):
+            assert sloped.row_lengths(base, alpha, (alpha, 0.3)) == sloped.row_lengths(base, alpha)
+    plain, tent = sloped.row_lengths(46.0, 30.0), sloped.row_lengths(46.0, 30.0, (45.0, 0.38))
+    knee_rows = sum(1 for j in range(len(tent)) if (j + 0.5) * np.sqrt(3) / 2 <= 0.38 * 46.0 * np.tan(np.pi / 6))
+    assert tent[:knee_rows] == plain[:knee_rows] and len(tent) > len(plain) and sum(tent) > sum(plain)
+    # above the knees each row loses sqrt(3) / tan(45 deg) = 1.73 disks on average, not 3
+    top = np.diff(tent[knee_rows:])
+    assert set(top) <= {-1, -3} and abs(top.mean() + np.sqrt(3)) < 0.35
+    p = sloped.SPEC.set_up("hooke", base=46.0, alpha_degrees=30.0, top_alpha_degrees=45.0, knee=0.38)
+    assert p.info["rows"] == tent and (p.info["top_alpha_degrees"], p.info["knee"]) == (45.0, 0.38)
+    with pytest.raises(InputError, match="together"):
+        sloped.SPEC.set_up("hooke", 40, knee=0.3)

@@ -13,6 +13,8 @@ slope. The rows' cells (area sqrt(3)/2 each) then cover the triangle's area
 B^2 tan(alpha) / 4 to within the stepped edges, which is the pile the continuum
 theory (eqs. 49-59) describes: the left foot is at x = 0, the right at x = B.
 With alpha = 60 deg and B = k + 1 the rows are k, k - 1, ..., 1: the lattice pile.
+With `top_alpha_degrees` and `knee` the surface is the 'tent' of Figs. 18-19:
+alpha up to the knees at X_1 = knee B from each foot, alpha2 above them.
 
 The pile is loaded by a gravity ramp and relaxed to rest as the lattice protocol
 does (`loaded_pile.relax`), with the same per-law setting (`paper1992.PAPER_SETTING`:
@@ -75,15 +77,44 @@ class SlopedOptions(Options):
                                     help="at rest when the fastest disk is below this speed")
     max_steps: int = option(SETTING["max_steps"], range=STEPS, help="give up after this many steps, ramp included")
     hard_collisions: object = option(None, help="the Simulator's hard collisions (a HardCollisions), or None")
+    top_alpha_degrees: float | None = option(None, range=Range(low=1, high=60, why="degrees, as alpha"),
+                                             help="a tent pile (Figs. 18-19): alpha2, the slope above the knees "
+                                                  "(with knee; alpha is the slope below them)")
+    knee: float | None = option(None, range=Range(low=0, high=0.5, low_open=True, why="X_1 / B: a knee in each half"),
+                                help="a tent pile: X_1 / B, the knees' distance from each foot over the base")
+
+    def validate(self) -> None:
+        if (self.top_alpha_degrees is None) != (self.knee is None):
+            raise InputError("a tent pile takes top_alpha_degrees and knee together (Fig. 18: alpha2 above the "
+                             "knees at X_1 = knee B); give both or neither.")
+
+    @property
+    def top(self) -> tuple[float, float] | None:
+        """`(alpha2 in degrees, X_1 / B)` of a tent pile, or None."""
+        return None if self.knee is None else (float(self.top_alpha_degrees), float(self.knee))
 
 
-def row_lengths(base: float, alpha_degrees: float) -> list[int]:
+def tent_width(base: float, alpha_degrees: float, top: tuple[float, float], y: float) -> float:
+    """The width at height `y` of the tent pile of Fig. 18: slope alpha from
+    each foot up to the knees at X_1 = knee B, then alpha2 (`top = (alpha2
+    in degrees, knee)`), as `theory.tent_height` draws it."""
+    alpha1, alpha2 = math.radians(check_alpha(alpha_degrees)), math.radians(check_alpha(top[0]))
+    knee = top[1] * base
+    rise = knee * math.tan(alpha1)  # the knees' height
+    if y <= rise:
+        return base - 2.0 * y / math.tan(alpha1)
+    return base - 2.0 * knee - 2.0 * (y - rise) / math.tan(alpha2)
+
+
+def row_lengths(base: float, alpha_degrees: float, top: tuple[float, float] | None = None) -> list[int]:
     """Disks per row, bottom row first, of the pile of base `base` (diameters)
-    and slope `alpha_degrees`.
+    and slope `alpha_degrees` (a tent's: `top = (alpha2 in degrees, knee)`,
+    alpha2 above the knees at X_1 = knee B, Fig. 18).
 
     Row j holds the count closest to w_j = B - (2j + 1) sqrt(3) / (2 tan alpha)
-    (ties rounded down) whose parity differs from row j - 1's, and at most one
-    fewer than row j - 1. Rows stop at the first that would be empty.
+    (the tent's width at the row's mid-height; ties rounded down) whose parity
+    differs from row j - 1's, and at most one fewer than row j - 1. Rows stop
+    at the first that would be empty.
     """
     alpha = math.radians(check_alpha(alpha_degrees))
     base = check_base(base)
@@ -91,7 +122,8 @@ def row_lengths(base: float, alpha_degrees: float) -> list[int]:
     rows: list[int] = []
     j = 0
     while True:
-        width = base - (j + 0.5) * per_row
+        width = base - (j + 0.5) * per_row if top is None else tent_width(base, alpha_degrees, top,
+                                                                           (j + 0.5) * SQRT3 / 2.0)
         if j == 0:
             count = math.ceil(width - 0.5 - 1e-9)
         else:
@@ -104,18 +136,19 @@ def row_lengths(base: float, alpha_degrees: float) -> list[int]:
         j += 1
 
 
-def pile_count(base: float, alpha_degrees: float) -> int:
-    """Number of disks in the pile of base `base` and slope `alpha_degrees`."""
-    return sum(row_lengths(base, alpha_degrees))
+def pile_count(base: float, alpha_degrees: float, top: tuple[float, float] | None = None) -> int:
+    """Number of disks in the pile of base `base` and slope `alpha_degrees` (a tent's with `top`)."""
+    return sum(row_lengths(base, alpha_degrees, top))
 
 
-def base_for_count(n: int, alpha_degrees: float) -> float:
+def base_for_count(n: int, alpha_degrees: float, top: tuple[float, float] | None = None) -> float:
     """The base B (diameters) whose pile holds the disk count closest to `n`.
 
     B^2 tan(alpha) / (2 sqrt 3) disks fill the continuum triangle (area
     B^2 tan(alpha) / 4, sqrt(3)/2 per disk); B is searched on a 0.01 grid around
     that estimate, ties going to the B nearest the estimate. E.g. 360 disks:
-    B = 46.5 at 30 deg, 29.5 at 55 deg; 5490 disks at 30 deg: B = 181.5.
+    B = 46.5 at 30 deg, 29.5 at 55 deg; 5490 disks at 30 deg: B = 181.5. A
+    tent (`top`) is searched around the same estimate.
     """
     if int(n) != n or n < 1:
         raise InputError(f"the disk count must be a positive whole number; got {n!r}.")
@@ -125,7 +158,7 @@ def base_for_count(n: int, alpha_degrees: float) -> float:
     for spread in (0.02, 0.2):  # the estimate is good to ~1%; widen only if no exact hit
         half = spread * estimate + 2.0
         grid = np.round(np.arange(max(1.0, estimate - half), estimate + half, 0.01), 2)
-        counts = np.array([pile_count(b, alpha_degrees) for b in grid])
+        counts = np.array([pile_count(b, alpha_degrees, top) for b in grid])
         score = np.abs(counts - n) * 1e3 + np.abs(grid - estimate)
         best = float(grid[int(np.argmin(score))])
         if counts.min() <= n <= counts.max() and np.any(counts == n):
@@ -133,13 +166,15 @@ def base_for_count(n: int, alpha_degrees: float) -> float:
     return best
 
 
-def sloped_positions(base: float, alpha_degrees: float, diameter: float = 1.0) -> np.ndarray:
+def sloped_positions(base: float, alpha_degrees: float, diameter: float = 1.0,
+                     top: tuple[float, float] | None = None) -> np.ndarray:
     """`[n, 2]` centres of the pile standing on y = 0 with its left foot at x = 0,
     bottom row first, left to right. Neighbours touch (no overlap, no gap).
-    `base` is in diameters; positions are in length units (times `diameter`)."""
+    `base` is in diameters; positions are in length units (times `diameter`);
+    `top`: a tent's (`row_lengths`)."""
     if not (diameter > 0 and math.isfinite(diameter)):
         raise InputError(f"diameter must be positive and finite; got {diameter!r}.")
-    rows = row_lengths(base, alpha_degrees)
+    rows = row_lengths(base, alpha_degrees, top)
     if not rows:
         raise InputError(f"a pile of base {base!r} diameters at {alpha_degrees!r} deg holds no disk; "
                          "use a larger base.")
@@ -152,9 +187,9 @@ def sloped_positions(base: float, alpha_degrees: float, diameter: float = 1.0) -
 
 
 def sloped_pile(base: float, alpha_degrees: float, *, diameter: float = 1.0, mass: float = 1.0,
-                dtype=None) -> tuple[Particles, Boundaries]:
-    """Particles and boundaries (ground only, side walls off) of the pile."""
-    position = sloped_positions(base, alpha_degrees, diameter)
+                dtype=None, top: tuple[float, float] | None = None) -> tuple[Particles, Boundaries]:
+    """Particles and boundaries (ground only, side walls off) of the pile (a tent's with `top`)."""
+    position = sloped_positions(base, alpha_degrees, diameter, top)
     particles = make_particles(position, 0.5 * diameter, mass=mass, dtype=dtype)
     return particles, make_boundaries(dtype=particles.position.dtype)
 
@@ -170,20 +205,22 @@ def setup(o: SlopedOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     """
     from jaxpile.measure import theory
 
-    alpha, base = check_alpha(o.alpha_degrees), o.base
+    alpha, base, top = check_alpha(o.alpha_degrees), o.base, o.top
     if base is None:
         budget.check(o.n, dtype or "float64", what="a sloped pile")  # the search for B is slow for a count far too big
-        base = base_for_count(o.n, alpha)
+        base = base_for_count(o.n, alpha, top)
     base = check_base(base)
     # counting the rows takes time and memory in B: refuse a base far too big from the
-    # continuum count first (within ~1% of the lattice's), then check the exact count
-    budget.check(math.ceil(base * base * math.tan(math.radians(alpha)) / (2.0 * SQRT3)), dtype or "float64",
+    # continuum count first (within ~1% of the lattice's; a tent's at its steeper slope), then the exact count
+    steepest = alpha if top is None else max(alpha, top[0])
+    budget.check(math.ceil(base * base * math.tan(math.radians(steepest)) / (2.0 * SQRT3)), dtype or "float64",
                  what="a sloped pile")
-    budget.check(pile_count(base, alpha), dtype or "float64", what="a sloped pile")
-    particles, boundaries = sloped_pile(base, alpha, dtype=dtype)
-    rows = row_lengths(base, alpha)
+    budget.check(pile_count(base, alpha, top), dtype or "float64", what="a sloped pile")
+    particles, boundaries = sloped_pile(base, alpha, dtype=dtype, top=top)
+    rows = row_lengths(base, alpha, top)
     info = {
         "alpha_degrees": alpha,
+        **({} if top is None else {"top_alpha_degrees": top[0], "knee": top[1]}),
         "base": base,
         "rows": rows,
         "n_particles": int(particles.count),
@@ -214,4 +251,4 @@ eqs. 54-59 (`m["central_slope_horizontal"]` against `m["theory_central_slope_hor
 
 
 __all__ = ["PAPER_PILES", "SETTING", "SPEC", "SlopedOptions", "base_for_count", "compare_with_theory",
-           "law_and_params", "pile_count", "row_lengths", "setup", "sloped_pile", "sloped_positions"]
+           "law_and_params", "pile_count", "row_lengths", "setup", "sloped_pile", "sloped_positions", "tent_width"]
