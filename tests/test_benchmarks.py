@@ -471,3 +471,14 @@ def test_the_1997_voidage_study_reads_the_poured_disks_packing_under_the_apex():
     assert 0.0 < heap["edges"] < 1.0 and heap["height"] > 5 and heap["base_width"] > 2 * heap["height"]
     s = bv.summarise([heap, {**heap, "bands": [b - 0.01 for b in heap["bands"]]}])
     assert s["heaps"] == 2 and s["base_minus_middle"]["mean"] == pytest.approx(heap["bands"][0] - heap["bands"][2])
+
+
+def test_baxter_readings_one_heap_writes_the_row_the_papers_table_reads(tmp_path):
+    """`baxter_readings.one_heap` (the heaps poured one at a time) writes the
+    row its batched twin writes: the heap's summary, `run` and `setup`."""
+    import baxter_readings as br
+
+    row = br.one_heap("contact-point/hold", 0, 12, str(tmp_path / "h_seed0.json"), None)
+    saved = json.loads((tmp_path / "h_seed0.json").read_text())
+    assert saved["run"]["at_rest"] and saved["run"]["steps"] == row["run"]["steps"] > 0
+    assert saved["counts"]["poured"] == 12 and saved["setup"]["n_poured"] == 12 and "angle_of_repose" in saved

@@ -106,7 +106,7 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
     """Pours one heap in `setting` and writes its measurements to `out`."""
     import jaxpile
     jaxpile.configure()  # float64 and the commands' XLA settings
-    from jaxpile.measure import heap
+    from jaxpile.measure import heap, poured_heap
     from jaxpile.protocols import pour
 
     spec = setting_of(setting)
@@ -122,8 +122,12 @@ def one_heap(setting: str, seed: int, n: int, out: str, insert_height: float | N
     _, result = pour.SPEC.run(spec["law"], n, seed=seed, insert_height=insert_height, params=spec["params"] or None,
                               **dt, law_options=spec["law_options"], progress=False,
                               checkpoint=(state_file, checkpoint_every), resume=resume, **spec["pour"])
+    run = {"steps": result["steps"], "at_rest": result["at_rest"], "max_speed": result["final_max_speed"],
+           **{k: result[k] for k in ("wall_seconds", "compile_seconds", "total_seconds", "neighbor_reallocations")}}
+    setup = {k: v for k, v in result["info"].items() if k != "law_options"}
     row = {"setting": setting, "seed": seed, "n": n, "insert_height": insert_height,
-           "seconds": time.perf_counter() - t0, **result["summary"], "device": device()}
+           "seconds": time.perf_counter() - t0, **poured_heap.summary(result), "run": run, "setup": setup,
+           "device": device()}
     pathlib.Path(out).write_text(json.dumps(row, indent=1))
     return row
 
