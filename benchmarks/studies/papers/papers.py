@@ -674,6 +674,7 @@ def rows_1997() -> list[list[str]]:
     rows.extend(_rows_mu(heaps))
     rows.extend(_rows_n144(heaps))
     rows.extend(_rows_voidage())
+    rows.extend(_rows_arch())
     rows.extend(_rows_spacing())
     return rows
 
@@ -709,6 +710,29 @@ def _voidage(n: int) -> dict:
     """`baxter_voidage.py`'s summary of the n-disk heaps, by setting (file prefix)."""
     found = _load(HEAPS / f"n{n}" / "voidage.json")
     return {} if found is None else found["settings"]
+
+
+ARCH = RESULTS / "baxter_readings" / "n1334" / "arch_contact-point_hold.json"
+"""The arch under the apex (Fig. 3a), read off the 1334-disk heaps' saved states (`baxter_arch.py`)."""
+
+
+def _rows_arch() -> list[list[str]]:
+    """Fig. 3a as a measured statement: the disks' pressure (the trace of their
+    stress) in the column under the apex over the columns beside it, at the same
+    heights, in the heap's lower half; an arch makes it less than 1."""
+    arch = _load(ARCH)
+    if arch is None:
+        return [["1997", "1334-disk heaps: the arch under the apex (Fig. 3a)", "stresses smaller beneath the arch",
+                 "not run yet (`python benchmarks/studies/papers/baxter_arch.py`, on the heaps' saved states)", "—"]]
+    s = arch["summary"]
+    at, over = s["lower_pressure_centre_over_sides"], s["lower_centre_over_sides"]
+    return [["1997", f"1334-disk heaps ({s['count']}): the arch under the apex (Fig. 3a): disks' pressure under the "
+                     "apex (within 0.1 B of it) over 0.15–0.3 B beside it, lower half of the heap",
+             "lines of principal stress meet below the apex in an arch, the stresses beneath it smaller",
+             f"{_pm(at, 2, '')} at the same heights (the column under the apex is deeper); over the depth above each "
+             f"disk {_pm(over, 2, '')}",
+             _sign(1.0 - at["mean"], _se(at), agree="agrees: an arch", differ="differs: no arch, the centre carries "
+                                                                               "more (as the base force, no M)")]]
 
 
 def _rows_voidage() -> list[list[str]]:
