@@ -2,7 +2,7 @@
 
     python benchmarks/studies/papers/papers.py             # rewrite docs/papers.md's table and the docs/ figures from the results JSON
     python benchmarks/studies/papers/papers.py --check     # exit 1 when docs/papers.md's table is not the one the JSON gives
-    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,networks,tilt,flux,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage,height,width]
+    python benchmarks/studies/papers/papers.py --run [--only lattice,sloped,sloped_angles,networks,tilt,flux,vcut,kn_gamma,drop,heap,heap1000,heap1000_n36,spacing,voidage,height,width]
                                             # first run what is missing (resumable; hours on 2 cores)
 
 Every number in the table is read from a results file that a committed command
@@ -264,6 +264,10 @@ FLUX = RESULTS / "lee_herrmann_1993" / "flux_w4"
 FLUX_SWEEP = ["sweep", "--protocol", "flux", "--n", "300", "--mu", "0.2", "--seeds", str(PILES),
               "--checkpoint-every", "200000", "--no-progress"]
 """Fig. 5's setting (W = 4, v_cut = 0.1 cm/s, the paper's law at mu = 0.2), 300 disks fed, one pile a seed."""
+VCUT = RESULTS / "lee_herrmann_1993" / "flux_w4_vcut"
+"""The same flux piles at v_cut = 0.01 and 0.001 cm/s (sec. 5: "no essential difference")."""
+VCUT_SWEEP = ["sweep", "--protocol", "flux", "--n", "300", "--mu", "0.2", "--seeds", str(PILES), "--vary",
+              "v_cut=0.01,0.001", "--checkpoint-every", "200000", "--no-progress"]
 
 
 def rows_1993() -> list[list[str]]:
@@ -312,6 +316,7 @@ def rows_1993() -> list[list[str]]:
          below_ms("theta_r_plus_theta_t")],
         row_linear_in_mu({float(m): s[m]["theta_r"] for m in mus}),
         row_flux(at_02),
+        row_vcut(),
         *rows_kn_gamma(),
         row_height(),
         *rows_width(),
@@ -546,6 +551,32 @@ def rows_kn_gamma() -> list[list[str]]:
                  f"{_pm(d23)}",
                  f"(1) > (2): {order[0]}; (2) > (3): {order[1]}"])
     return rows
+
+
+def row_vcut() -> list[str]:
+    """Sec. 5: the flux pile's steady level at v_cut = 0.1, 0.01 and 0.001 cm/s
+    ("no essential difference"), each smaller v_cut against 0.1 at two
+    standard errors."""
+    import csv
+
+    from baxter_readings import mean_stderr
+
+    quantity = "flux pile (sec. 5): the steady level against v_cut = 0.1, 0.01, 0.001 cm/s, W = 4, μ = 0.2, 300 disks"
+    paper = "no essential difference"
+    if not (FLUX / "sweep.csv").exists() or not (VCUT / "sweep.csv").exists():
+        return ["1993", quantity, paper, _missing("vcut"), "—"]  # a run under way resumes from its checkpoint
+    levels = {}
+    for folder in (FLUX, VCUT):
+        with open(folder / "sweep.csv") as fh:
+            for r in csv.DictReader(fh):
+                v = float(r.get("v_cut") or 0.1)
+                if r["steady_mean"] not in ("", "None", "nan"):
+                    levels.setdefault(v, []).append(float(r["steady_mean"]))
+    stats = {v: mean_stderr(levels[v]) for v in sorted(levels, reverse=True)}
+    base = stats[0.1]
+    verdicts = [f"{v:g}: " + _close(s["mean"] - base["mean"], _se(s), _se(base)) for v, s in stats.items() if v != 0.1]
+    return ["1993", f"{quantity}, {min(s['count'] for s in stats.values())} piles each", paper,
+            ", ".join(f"v_cut {v:g}: {_pm(s)}" for v, s in stats.items()), "; ".join(verdicts)]
 
 
 def row_flux(theta_r: dict | None) -> list[str]:
@@ -1154,6 +1185,8 @@ def run(studies: list[str]) -> None:
                  "--figure", str(ROOT / "docs" / "lee_herrmann1993_tilt_ensemble.png")])
     if "flux" in studies:
         _sweep_into(FLUX, FLUX_SWEEP)
+    if "vcut" in studies:
+        _sweep_into(VCUT, VCUT_SWEEP)
     if "height" in studies:
         _sweep_into(HEIGHT, HEIGHT_SWEEP)
     if "width" in studies:
@@ -1191,7 +1224,7 @@ def run(studies: list[str]) -> None:
         bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "networks", "tilt", "flux", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage", "height", "width")
+STUDIES = ("lattice", "sloped", "sloped_angles", "networks", "tilt", "flux", "vcut", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "voidage", "height", "width")
 
 
 def main(argv=None) -> int:
