@@ -706,6 +706,7 @@ def rows_1997() -> list[list[str]]:
     rows.extend(_rows_n144(heaps))
     rows.extend(_rows_voidage())
     rows.extend(_rows_arch())
+    rows.extend(_rows_banding())
     rows.extend(_rows_spacing())
     return rows
 
@@ -764,6 +765,42 @@ def _rows_arch() -> list[list[str]]:
              f"disk {_pm(over, 2, '')}",
              _sign(1.0 - at["mean"], _se(at), agree="agrees: an arch", differ="differs: no arch, the centre carries "
                                                                                "more (as the base force, no M)")]]
+
+
+BANDING = RESULTS / "baxter_readings" / "n1000" / "banding.json"
+"""The density maps' contrast of the 1000-disk heaps (Figs. 2, 6), from their saved states (`baxter_banding.py`)."""
+
+
+def _rows_banding() -> list[list[str]]:
+    """Figs. 2 and 6 as a measured statement: shear bands are lines of low
+    density in the map, so they raise its contrast (the cells' spread of
+    packing fraction, and the share of cells 0.05 looser than the median);
+    n = 144 with the short tail against n = 36 at two standard errors."""
+    out = _load(BANDING)
+    what = "1000-disk heaps: shear banding (Figs. 2, 6) as the density map's contrast (2 σ cells inside the heap)"
+    if out is None:
+        return [["1997", what, "banding with n = 36; largely gone with n = 144, r0 = 1.047 σ",
+                 "not run yet (`python benchmarks/studies/papers/baxter_banding.py`, on the heaps' saved states)", "—"]]
+    s = out["settings"]
+    n36, short, long_, hooke = (s.get(k) for k in ("contact-point_hold", "n144-r1.047", "n144-r1.2", "hooke-k500"))
+    if not (n36 and short):
+        return [["1997", what, "banding with n = 36; largely gone with n = 144, r0 = 1.047 σ", "—", "—"]]
+
+    def text(name, x):
+        return f"{name} {_pm(x['std'], 4, '')} (looser cells {_pm(x['looser_share'], 3, '')})"
+
+    parts = [text("n = 36", n36), text("n = 144, r0 = 1.047 σ", short)]
+    parts += [text(name, x) for name, x in (("n = 144, r0 = 1.2 σ", long_), ("Hooke k = 500", hooke)) if x]
+    verdict = ("spread lower with n = 144, r0 = 1.047 σ: " + _sign(n36["std"]["mean"] - short["std"]["mean"],
+                                                                 _se(n36["std"]), _se(short["std"]))
+               + "; fewer loose cells: " + _sign(n36["looser_share"]["mean"] - short["looser_share"]["mean"],
+                                                 _se(n36["looser_share"]), _se(short["looser_share"])))
+    if hooke:
+        verdict += "; its spread as the Hooke law's: " + _close(short["std"]["mean"] - hooke["std"]["mean"],
+                                                              _se(short["std"]), _se(hooke["std"]))
+    return [["1997", f"{what}, {n36['heaps']} heaps a setting", "banding with n = 36; largely gone with n = 144, "
+             "r0 = 1.047 σ (the map then resembles the Hooke law's)", "spread of the cells' packing fraction: "
+             + "; ".join(parts), verdict]]
 
 
 def _rows_voidage() -> list[list[str]]:
