@@ -110,7 +110,7 @@ def resume_point(args) -> tuple[str | None, int]:
 
 
 def checkpoint_spec(args):
-    """`(path, every, extra)` for `Simulator.run(checkpoint=...)`, or None. A new
+    """The run's `Checkpoint` (OUT/checkpoint.npz, every --checkpoint-every steps, the argv with each save), or None. A new
     run notes the checkpoints of an earlier run in OUT (`args.stale_checkpoints`)
     for `replacing_earlier` to remove: they must not be taken for its own."""
     if args.checkpoint_every is None:
@@ -122,7 +122,7 @@ def checkpoint_spec(args):
     path = os.path.join(folder, "checkpoint.npz")
     if args.resume is None:
         args.stale_checkpoints = [stale for stale in [path, *checkpoint.stage_files(path)] if os.path.exists(stale)]
-    return path, args.checkpoint_every, {"argv": args.argv}
+    return checkpoint.Checkpoint(path, args.checkpoint_every, {"argv": args.argv})
 
 
 @contextlib.contextmanager

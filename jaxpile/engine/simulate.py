@@ -23,6 +23,7 @@ import numpy as np
 from jax import lax
 
 from jaxpile.engine import blocks, host_lists
+from jaxpile.engine.checkpoint import Checkpoint
 from jaxpile.engine import transfer
 from jaxpile.engine.compile import jit_one_off
 from jaxpile.engine import neighbors as nb
@@ -509,7 +510,8 @@ class Simulator:
           info: a `RunInfo` to accumulate timings into.
           until: optional host predicate checked after each chunk; the run stops
             early when it returns True.
-          checkpoint: optional `(path, every)` or `(path, every, extra)`: the
+          checkpoint: optional `Checkpoint(path, every, facts)` (or the tuple
+            `(path, every[, facts])`): the
             state is saved with `jaxpile.engine.checkpoint.save` at the first chunk
             boundary at or past each multiple of `every` of the step count, and
             at the end of the run. `path` may hold `{step}` (one file per checkpoint); otherwise
@@ -546,15 +548,15 @@ class Simulator:
                           observe=lambda s: _observe(s, self.dt), known_pairs=self._block_pairs)
 
     def checkpointer(self, params, checkpoint) -> "Checkpointer | None":
-        """The saver for `run(checkpoint=(path, every[, extra]))`, or None."""
+        """The saver for `run(checkpoint=...)` (a `Checkpoint`, or its tuple
+        `(path, every[, facts])`), or None."""
+        checkpoint = Checkpoint.of(checkpoint)
         if checkpoint is None:
             return None
-        if not isinstance(checkpoint, tuple) or len(checkpoint) not in (2, 3):
-            raise InputError(f"checkpoint must be (path, every) or (path, every, extra); got {checkpoint!r}.")
-        path, every, extra = (*checkpoint, {})[:3]
+        every = checkpoint.every
         if int(every) != every or every < 1:
             raise InputError(f"the checkpoint interval must be a whole number of steps >= 1; got {every!r}.")
-        return Checkpointer(str(path), int(every), dict(extra), self.law, params)
+        return Checkpointer(str(checkpoint.path), int(every), dict(checkpoint.facts), self.law, params)
 
     def run_until_rest(
         self,

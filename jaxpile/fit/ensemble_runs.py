@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxpile import batches, budget
 from jaxpile.batches import batch_of
+from jaxpile.engine.checkpoint import Checkpoint
 from jaxpile.errors import InputError
 from jaxpile.fit.profiles import base_load, smooth_base_profile
 from jaxpile.measure.base_reading import profile_at_points
@@ -219,7 +220,7 @@ def run_saved(runner, points: Sequence[dict], seeds, statistics: Statistics, bat
                       "removed, and the batch starts afresh.", stacklevel=2)
         os.remove(path)
         resume = None
-    out = runner.run(points, seeds, statistics, progress=progress, checkpoint=(path, every, {"fit_batch": batch}),
+    out = runner.run(points, seeds, statistics, progress=progress, checkpoint=Checkpoint(path, every, {"fit_batch": batch}),
                      resume=resume)
     if os.path.exists(path):  # the batch is measured: the next one starts afresh
         os.remove(path)
