@@ -38,7 +38,7 @@ def fit_estimator(args) -> str:
 def fit_runs_batches(args) -> bool:
     """Whether a `fit` runs batches (an ensemble estimator), not the pathwise
     gradient through one pile, which is faster on one XLA thread
-    (docs/performance.md, "The command line")."""
+    (docs/choices.md, "The command line")."""
     return fit_estimator(args) != "pathwise"
 
 

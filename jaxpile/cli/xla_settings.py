@@ -13,7 +13,7 @@ from jaxpile.cli.fit import fit_runs_batches
 
 THREADED_PILE_DISKS = 2000
 """From this many disks one pile's kernels are large enough to split over
-XLA's threads (docs/performance.md, "The command line")."""
+XLA's threads (docs/choices.md, "The command line")."""
 
 
 def pile_disks(args) -> int | None:
@@ -82,7 +82,7 @@ def compile_cache_dir(environ, configured: str | None = None) -> str | None:
 def use_compile_cache() -> str | None:
     """Keeps XLA's compiled programs on disk between commands (JAX's
     persistent compilation cache), so a command that runs what an earlier one
-    compiled skips most of its compiling (docs/performance.md, "The command line").
+    compiled skips most of its compiling (docs/choices.md, "The command line").
 
     The folder is `compile_cache_dir`'s, at most `COMPILE_CACHE_MAX_BYTES`, the
     least recently used programs evicted first; `JAXPILE_COMPILE_CACHE=off`

@@ -217,7 +217,7 @@ class Stopping(NamedTuple):
         wander by more than these standard errors, which leave out the
         finite-difference Jacobian's own noise, so on the pour recovery it
         stopped early with an interval that missed the truth (docs/fitting.md,
-        "Fitting built piles"; docs/performance.md, "Stopping an ensemble fit
+        "Stopping on the noise"; docs/choices.md, "Stopping an ensemble fit
         on its noise"). Every entry records `step_stderr` either way, and the
         verdict judges the last step against it.
     """

@@ -174,7 +174,7 @@ three passes (forward, recomputation, transpose) whatever the count; forward
 mode's memory is also flat in the horizon. At 4 values the two cost about the
 same without XLA:CPU's multi-output fusion, and 4 is the most at which forward
 mode wins on a 465-disk pile with it (`jaxpile fit` runs with it); the
-measurements are in docs/performance.md, "Forward or reverse mode"."""
+measurements are in docs/choices.md, "Forward or reverse mode"."""
 
 
 def _check_mode(mode: str) -> None:
@@ -283,7 +283,7 @@ def descend(loss_fn: Callable[[Any], Array], params, names: str | Sequence[str],
         `"forward"` (one `jax.jvp` per fitted value, batched: no stored
         trajectory, so no memory that grows with the rollout), or `"auto"`:
         forward for up to `FORWARD_MODE_MAX` fitted values, where it is the
-        cheaper (docs/performance.md, "Forward or reverse mode"), else reverse.
+        cheaper (docs/choices.md, "Forward or reverse mode"), else reverse.
 
     Returns:
       `FitResult` with the best params found.

@@ -194,7 +194,7 @@ def interp_without_scatter(x, xp, fp) -> Array:
     neighbours picked by a select over xp instead of gathers: the gathers'
     derivative is a scatter-add whose multi-output fusion aborts XLA:CPU's
     newer emitters (see `jaxpile.configure`, and docs/
-    performance.md, "Multi-output fusion"), and xp holds a few
+    choices.md, "Multi-output fusion"), and xp holds a few
     dozen points, so a [len(x), len(xp)] select costs nothing. Same formula as
     jnp.interp: the same values to round-off."""
     i = jnp.clip(jnp.searchsorted(xp, x, side="right"), 1, xp.shape[0] - 1)
