@@ -47,6 +47,7 @@ PYTHON = {
     "unknown parameter": (lambda: hooke.make_params(mux=0.3), "unknown hooke parameter"),
     "unknown integrator": (lambda: Simulator(hooke.law(), 1e-4, integrator="rk4"), "unknown integrator 'rk4'"),
     "no disks to pour": (lambda: pour.SPEC.set_up(size=0), "positive whole number of disks"),
+    "an unknown floor": (lambda: pour.SPEC.set_up(size=10, floor="sand"), "floor must be one of .'row', 'flat'.; got 'sand'"),
     "no disks in the box": (lambda: box.SPEC.set_up(size=0), "n must be"),
     # what the law, its model or the set-up does not use is refused, not ignored
     "a rolling parameter without a rolling model": (

@@ -398,3 +398,34 @@ def test_block_sizes_step_by_two_then_finer_and_each_must_save_enough():
     assert [size(k, 10**6) for k in (513, 769, 1025, 1537, 2049, 3073)] == [768, 1024, 1536, 2048, 3072, 4096]
     assert size(48, 83) is None and size(100, 145) is None  # 64 and 128 would save too little
     assert size(600, 800) is None and size(600, 878) == 768  # 768 <= 7/8 of the disks
+
+
+def test_a_flat_floor_carries_the_disks_on_the_ground_and_loses_those_past_its_ends(baxter_heap):
+    """Sec. II's first attempt, `floor="flat"`: the row switched off (its disks
+    mark the span), the ground wall under it; a disk resting on it is carried
+    (its base force is its weight), one whose centre passes an end is lost."""
+    sim, params, row_setup, _, _, _ = baxter_heap
+    o = pour.PourOptions(n=N, release_height=RELEASE, floor="flat")
+    flat = pour.setup(o, law="baxter", seed=1, dt=sim.dt)
+    rows = flat.info["n_substrate"]
+    assert flat.info["floor"] == "flat" and row_setup.info["floor"] == "row"
+    assert not np.asarray(flat.particles.active)[:rows].any() and np.asarray(flat.particles.fixed)[:rows].all()
+    assert bool(flat.boundaries.wall_active[0]) and not bool(row_setup.boundaries.wall_active[0])
+    ends = np.asarray(flat.protocol_state.ends)
+    x_row = np.asarray(flat.particles.position)[:rows, 0]
+    np.testing.assert_array_equal(ends, [x_row[0] - 0.5, x_row[-1] + 0.5])
+    assert np.isinf(np.asarray(row_setup.protocol_state.ends)).all()
+
+    state = sim.init(params, flat.particles, flat.boundaries, protocol_state=flat.protocol_state)
+    rest, leaving = rows + N - 1, rows + N - 2  # two of the last disks to pour: released long after these steps
+    p = state.particles
+    middle = float(flat.info["centre_x"])
+    p = p.set(position=p.position.at[rest].set(jnp.array([middle, 0.5])).at[leaving].set(jnp.array([ends[1] - 0.01, 0.5])),
+              velocity=p.velocity.at[leaving].set(jnp.array([1.0, 0.0])),
+              active=p.active.at[rest].set(True).at[leaving].set(True))
+    state = sim.run(params, state.set(particles=p), 20, progress=False)
+    m = poured_heap.measure(sim, params, state)
+    assert m["counts"]["lost"] == 1 and bool(state.protocol_state.lost[leaving])
+    on_floor = m["substrate_forces"]
+    assert rest in on_floor.particle.tolist() and (on_floor.substrate == -1).all()
+    np.testing.assert_allclose(on_floor.normal[on_floor.particle.tolist().index(rest)], 1.0, rtol=1e-9)

@@ -13,7 +13,8 @@ import numpy as np
 from jaxpile import budget
 from jaxpile.engine.state import SimState
 from jaxpile.errors import InputError
-from jaxpile.measure.forces import force_unit, substrate_forces
+from jaxpile.engine.boundaries import GROUND
+from jaxpile.measure.forces import SubstrateForces, base_forces, force_unit, substrate_forces
 from jaxpile.measure.surface import apex_x, mid_flank_angle, repose_angles, surface_profile, SurfaceProfile
 from jaxpile.measure.voidage import packing_fraction, voidage_map, voidage_map_bytes
 from jaxpile.measure.heap import (DIP_BINS, base_profile, central_dip, dip_below_flanks, flank_over_centre, m_shape,
@@ -23,6 +24,17 @@ from jaxpile.measure.heap import (DIP_BINS, base_profile, central_dip, dip_below
 def heap_mask(state: SimState) -> np.ndarray:
     """`[n]` bool: the poured disks in play (active and not fixed)."""
     return np.asarray(state.particles.movable)
+
+
+def floor_forces(sim, params, state: SimState) -> SubstrateForces:
+    """The forces the heap stands on: its contacts with the substrate row, or
+    with the ground wall on a flat floor (`pour`'s `floor="flat"`; `substrate`
+    then -1 and x the disk centre's)."""
+    if not bool(np.asarray(state.boundaries.wall_active)[GROUND]):
+        return substrate_forces(sim, params, state)
+    ground = base_forces(sim, params, state, base="ground")
+    return SubstrateForces(x=ground.x, normal=ground.normal, horizontal=ground.horizontal, particle=ground.particle,
+                           substrate=np.full(ground.particle.shape, -1))
 
 
 def _contiguous_columns(profile: SurfaceProfile) -> tuple[float, float]:
@@ -45,7 +57,7 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
     Returns a dict with:
       `counts`: poured, in play (on the substrate), lost (fell off an end), still
         parked, and `strays` (in play but outside the heap's contiguous columns);
-      `substrate_forces` (`SubstrateForces`), `base_profile` (`BaseProfile` over
+      `substrate_forces` (`floor_forces`: the row's, or a flat floor's), `base_profile` (`BaseProfile` over
         the heap's base), `m_shape` (`MShape`), `dip_profile` (the same in
         `heap.DIP_BINS` bins, which `heap.dip_below_flanks` reads; only when
         each bin is at least a substrate spacing wide);
@@ -76,7 +88,7 @@ def measure(sim, params, state: SimState, *, bins: int | None = None, voidage_ce
 
     out: dict = {"counts": {"poured": poured, "in_play": int(in_play.sum()), "lost": lost, "parked": parked,
                             "total": int(p.count) - first}}
-    forces = substrate_forces(sim, params, state)
+    forces = floor_forces(sim, params, state)
     unit = force_unit(state)
     weight = float(np.asarray(p.mass)[in_play].sum() * np.linalg.norm(np.asarray(state.boundaries.gravity)) / unit)
     total = float(forces.normal.sum())

@@ -34,6 +34,11 @@ at that height moving down at the speed of the fall from `release_height`, so
 each hits the heap as released from there (uniform gravity, no drag); only the
 arrival times shift, all by the same amount.
 
+`floor="flat"` pours onto the ground wall instead, under the row's span (its
+disks stay, switched off, as markers), with the law's wall contact: the paper's
+first attempt, "a flat smooth structureless surface", is baxter's with
+`wall_mu=0`. A disk whose centre passes an end of that floor is lost.
+
 Measurements (`measure`): the forces between heap and substrate (the paper's
 base force F_B/mg of Figs. 3(b), 5(b), 7), their binned normalised profile
 (x/B, F/F_max) and its M shape (flank maxima over the centre; the paper: 20-30%
@@ -121,6 +126,12 @@ PAPER_SETTING = {
 }
 
 
+FLOORS = ("row", "flat")
+"""What a heap is poured on: the paper's row of fixed disks, or a flat wall of
+the row's length (sec. II: "a flat smooth structureless surface" gave no stable
+heap)."""
+
+
 # ------------------------------------------------------------------ options
 @dataclass(frozen=True)
 class PourOptions(Options):
@@ -151,8 +162,13 @@ class PourOptions(Options):
     bins: int | None = option(None, range=Range(low=3, whole=True),
                               help="bins of the base-force profile (made odd; default about one per 4 spacings)")
     voidage_cell: float = option(3.0, range=SIZE, unit="sigma", help="side of the voidage map's cells")
+    floor: str = option("row", help="what the heap lands on: row (the paper's fixed disks) or flat (the ground "
+                                    "wall under the row's span, the law's wall contact; smooth with baxter's "
+                                    "wall_mu=0: the paper's first attempt)")
 
     def validate(self):
+        if self.floor not in FLOORS:
+            raise InputError(f"floor must be one of {list(FLOORS)}; got {self.floor!r}.")
         smallest = 1.0 - self.polydispersity
         if not (1.0 <= self.spacing < 1.0 + smallest):
             raise InputError(
@@ -178,6 +194,8 @@ class PourState(NamedTuple):
       park_position: `[n, 2]` where each disk waits (and returns to when lost).
       lost: `[n]` bool, disks that fell off the substrate's ends.
       lost_below: scalar, the centre height below which a disk is lost.
+      ends: `[2]` x beyond which a disk's centre has left a flat floor and is
+        lost (-inf, inf on a row, which disks leave by falling).
     """
 
     poured: Array
@@ -189,20 +207,22 @@ class PourState(NamedTuple):
     park_position: Array
     lost: Array
     lost_below: Array
+    ends: Array
 
 
 def driver(state: SimState) -> SimState:
     """The pouring driver (run before every step inside the compiled loop).
 
     Takes out of play every active disk whose centre fell below `lost_below`
-    (it falls off an end of the substrate row: parked again, inactive, counted in
-    `lost`), then on steps `0, interval, 2 interval, ...` releases the next disk
+    (it falls off an end of the substrate row) or passed one of a flat floor's
+    `ends` (parked again, inactive, counted in `lost`), then on steps `0, interval, 2 interval, ...` releases the next disk
     at its `release_position` with `release_velocity` and with its force set to
     its weight, so the first half kick is the free fall's.
     """
     ps: PourState = state.protocol_state
     p = state.particles
-    fell = p.active & ~p.fixed & (p.position[:, 1] < ps.lost_below)
+    x = p.position[:, 0]
+    fell = p.active & ~p.fixed & ((p.position[:, 1] < ps.lost_below) | (x < ps.ends[0]) | (x > ps.ends[1]))
     due = (state.step % ps.interval == 0) & (ps.poured < ps.total)
 
     def act(state: SimState) -> SimState:
@@ -297,12 +317,15 @@ def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     position = np.concatenate([np.stack([x_substrate, np.full(rows, base_y)], axis=1), park])
     radius = np.concatenate([np.full(rows, 0.5), 0.5 * diameter])
     fixed = np.arange(rows + n) < rows
-    particles = make_particles(position, radius, fixed=fixed, active=fixed, dtype=dtype)
+    flat = o.floor == "flat"
+    # on a flat floor the row stays, switched off, to mark its span and the columns the surface is read in
+    particles = make_particles(position, radius, fixed=fixed, active=fixed & (not flat), dtype=dtype)
     dtype = particles.position.dtype
 
-    boundaries = make_boundaries(dtype=dtype)
-    for wall in (GROUND, LEFT_WALL, RIGHT_WALL):
+    boundaries = make_boundaries(dtype=dtype)  # the ground y = 0: where the row's disks stand
+    for wall in (GROUND, LEFT_WALL, RIGHT_WALL) if not flat else (LEFT_WALL, RIGHT_WALL):
         boundaries = set_wall(boundaries, wall, active=False)
+    ends = (float(x_substrate[0]) - 0.5, float(x_substrate[-1]) + 0.5) if flat else (-math.inf, math.inf)
 
     release = np.concatenate([np.zeros((rows, 2)),
                               np.stack([drop_x, np.full(n, base_y + insert_height)], axis=1)])
@@ -316,9 +339,11 @@ def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
         park_position=jnp.asarray(position, dtype),
         lost=jnp.zeros(rows + n, bool),
         lost_below=jnp.asarray(base_y - LOST_DEPTH, dtype),
+        ends=jnp.asarray(ends, dtype),
     )
     info = {
         "protocol": "pour",
+        "floor": o.floor,
         "n_poured": n,
         "n_substrate": rows,
         "spacing": float(spacing),

@@ -14,7 +14,8 @@ Settings (`--settings`, comma-separated; see SETTINGS):
 - the row's length, which the paper does not print: `row35`, `row30`, rows
   just long enough for a heap of the n disks at 35 / 30 deg, which a flatter
   heap spills over (the default row holds a 15 deg heap and 5 sigma more);
-- the row's spacing S (the paper's 1.1 sigma): `S1.0`, `S1.05`, `S1.2`, `S1.3`.
+- the row's spacing S (the paper's 1.1 sigma): `S1.0`, `S1.05`, `S1.2`, `S1.3`;
+- a flat floor instead of the row (sec. II): `flat-smooth` (wall_mu = 0), `flat-rough`.
 The paper: angle of repose 35 +- 5 deg (1334 disks; 31 deg for n = 36 beside
 35 deg for n = 144, 1000 disks), base force M-shaped with flank maxima 20-30%
 above the centre for n = 36, r0 = 1.2; no clear M for n = 144 short tail and
@@ -92,6 +93,10 @@ SETTINGS = {
     "S1.05": {"pour": {"spacing": 1.05}},
     "S1.2": {"pour": {"spacing": 1.2}},
     "S1.3": {"pour": {"spacing": 1.3}},
+    # sec. II: on "a flat smooth structureless surface" no stable heap formed: the ground wall under the row's
+    # span, smooth (wall_mu = 0) and rough (wall_mu = mu); 500 time units after the pour to come to rest
+    "flat-smooth": {"pour": {"floor": "flat", "max_settle_steps": 500_000}, "params": {"wall_mu": 0.0}},
+    "flat-rough": {"pour": {"floor": "flat", "max_settle_steps": 500_000}},
 }
 READINGS = tuple(SETTINGS)[:5]
 ANGLE_METHODS = ("mid_flank", "endpoints", "least_squares", "cumulative_parabola")
@@ -272,6 +277,11 @@ def mean_stderr(values) -> dict:
     return {"mean": mean, "stderr": spread / math.sqrt(k) if k > 1 else None, "count": k}
 
 
+def _one(value) -> str:
+    """A progress line's angle: one decimal, or "—" for a heap with none (no heap formed)."""
+    return "—" if value is None else f"{value:.1f}"
+
+
 def summarise(rows: list[dict]) -> dict:
     out = {}
     for name in dict.fromkeys(name_of(r) for r in rows):
@@ -423,7 +433,7 @@ def main(argv=None) -> dict:
                 for row in future.result():
                     keep_heaps(folder)
                     print(f"  {name_of(row):28s} seed {row['seed']}: mid flank {angle(row, 'mid_flank')}, "
-                          f"atan(2h/B) {row.get('angle_height_base'):.1f}, at rest {row['run']['at_rest']}, "
+                          f"atan(2h/B) {_one(row.get('angle_height_base'))}, at rest {row['run']['at_rest']}, "
                           f"batch of {row['run']['batch_members']}: {row['seconds']:.0f} s", flush=True)
         todo = []
     with concurrent.futures.ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -432,8 +442,9 @@ def main(argv=None) -> dict:
             row = future.result()
             keep_heaps(folder)  # a study stopped early keeps the heaps it finished
             print(f"  {name_of(row):28s} seed {row['seed']}: angle (least squares) "
-                  f"{angle(row, 'least_squares'):.1f}, mid flank {angle(row, 'mid_flank')}, atan(2h/B) {row.get('angle_height_base'):.1f}, "
-                  f"M ratio {(row.get('m_shape') or {}).get('ratio')}, {row['seconds']:.0f} s", flush=True)
+                  f"{_one(angle(row, 'least_squares'))}, mid flank {angle(row, 'mid_flank')}, "
+                  f"atan(2h/B) {_one(row.get('angle_height_base'))}, M ratio {(row.get('m_shape') or {}).get('ratio')}, "
+                  f"lost {row['counts']['lost']}, {row['seconds']:.0f} s", flush=True)
 
     every = heap_rows(folder)
     wanted = {(r, s) for r, s, _ in jobs}
