@@ -21,6 +21,8 @@ from jaxpile.engine.simulate import Simulator
 
 LMP = shutil.which("lmp")
 COLUMNS = ("x", "y", "vx", "vy", "omegaz", "fx", "fy", "tqz")
+COLUMNS_3D = ("x", "y", "z", "vx", "vy", "vz", "omegax", "omegay", "omegaz", "fx", "fy", "fz", "tqx", "tqy", "tqz")
+"""The dumped columns, disks and spheres."""
 
 
 def _num(x) -> str:
@@ -28,14 +30,21 @@ def _num(x) -> str:
 
 
 def write_data(path, position, radius, box) -> None:
-    """A LAMMPS data file of disks (`Atoms # sphere`: id type diameter density x y z);
-    masses are set in the input (`set atom`)."""
-    (xlo, xhi), (ylo, yhi) = box
+    """A LAMMPS data file of disks or spheres (`Atoms # sphere`: id type
+    diameter density x y z); masses are set in the input (`set atom`). `box`
+    holds (lo, hi) per axis; disks lie in z = 0 of a slab -0.5..0.5."""
+    position = np.asarray(position, float)
+    (xlo, xhi), (ylo, yhi), *z = box
+    zlo, zhi = z[0] if z else (-0.5, 0.5)
     lines = ["jaxpile rolling twin", "", f"{len(position)} atoms", "1 atom types", "",
-             f"{_num(xlo)} {_num(xhi)} xlo xhi", f"{_num(ylo)} {_num(yhi)} ylo yhi", "-0.5 0.5 zlo zhi",
+             f"{_num(xlo)} {_num(xhi)} xlo xhi", f"{_num(ylo)} {_num(yhi)} ylo yhi", f"{_num(zlo)} {_num(zhi)} zlo zhi",
              "", "Atoms # sphere", ""]
-    lines += [f"{i + 1} 1 {_num(2 * r)} 1.0 {_num(x)} {_num(y)} 0.0" for i, ((x, y), r) in
-              enumerate(zip(np.asarray(position, float), np.asarray(radius, float)))]
+    if position.shape[1] == 2:
+        lines += [f"{i + 1} 1 {_num(2 * r)} 1.0 {_num(x)} {_num(y)} 0.0" for i, ((x, y), r) in
+                  enumerate(zip(position, np.asarray(radius, float)))]
+    else:
+        lines += [f"{i + 1} 1 {_num(2 * r)} 1.0 {_num(x)} {_num(y)} {_num(z)}" for i, ((x, y, z), r) in
+                  enumerate(zip(position, np.asarray(radius, float)))]
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
 
@@ -69,6 +78,32 @@ def lammps_script(particles, *, model, dt, steps, every, gravity, ground=None, s
     return "\n".join(lines) + "\n"
 
 
+def lammps_script_3d(particles, *, pair, dt, steps, every, gravity, wall=None, ground=None, sides=None,
+                     ends=None, skin=0.3) -> str:
+    """The spheres' input: `pair` (a `pair_style` line and its `pair_coeff`),
+    walls `fix wall/gran <wall>` (`ground`: the floor's z; `sides`: x planes;
+    `ends`: y planes), `fix nve/sphere` (I = 2 m r^2 / 5), gravity along -z,
+    masses, velocities and spins per atom, one `run` dumped every `every` steps."""
+    mass = np.asarray(particles.mass, float)
+    velocity = np.asarray(particles.velocity, float)
+    spin = np.asarray(particles.angular_velocity, float)
+    lines = ["units lj", "dimension 3", "atom_style sphere", "atom_modify map array", "boundary f f f",
+             "comm_modify vel yes", "read_data disks.data"]
+    lines += [f"set atom {i + 1} mass {_num(m)} vx {_num(v[0])} vy {_num(v[1])} vz {_num(v[2])} "
+              f"omega {_num(w[0])} {_num(w[1])} {_num(w[2])}" for i, (m, v, w) in enumerate(zip(mass, velocity, spin))]
+    lines += [f"neighbor {_num(skin)} bin", "neigh_modify delay 0 every 1 check yes", *pair]
+    for name, plane, where in (("ground", "zplane", None if ground is None else (ground, None)),
+                               ("sides", "xplane", sides), ("ends", "yplane", ends)):
+        if where is not None:
+            lo, hi = ("NULL" if v is None else _num(v) for v in where)
+            lines.append(f"fix {name} all wall/gran {wall} {plane} {lo} {hi}")
+    lines += ["fix move all nve/sphere", f"fix grav all gravity {_num(gravity)} vector 0.0 0.0 -1.0",
+              f"timestep {_num(dt)}", "thermo 0",
+              f"dump out all custom {int(every)} out.dump id {' '.join(COLUMNS_3D)}",
+              "dump_modify out format float %.17g sort id", f"run {int(steps)}"]
+    return "\n".join(lines) + "\n"
+
+
 def read_snapshots(path) -> dict[int, dict]:
     """Every snapshot of a `dump custom` file by time step: columns by name, sorted by id."""
     with open(path) as f:
@@ -93,8 +128,9 @@ def read_snapshots(path) -> dict[int, dict]:
 def run_lammps(workdir, particles, box, **kwargs) -> dict[int, dict]:
     os.makedirs(workdir, exist_ok=True)
     write_data(os.path.join(workdir, "disks.data"), particles.position, particles.radius, box)
+    script = lammps_script if particles.dim == 2 else lammps_script_3d
     with open(os.path.join(workdir, "in.lmp"), "w") as f:
-        f.write(lammps_script(particles, **kwargs))
+        f.write(script(particles, **kwargs))
     done = subprocess.run([LMP, "-in", "in.lmp", "-log", "log.lammps", "-screen", "none"], cwd=workdir,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, (done.stdout + done.stderr)[-2000:]
@@ -113,8 +149,14 @@ def run_jaxpile(particles, boundaries, *, law, params, dt, steps, every, straine
         if k:
             state = sim.run(p, state, every, progress=False)
         q = state.particles
-        out[k] = dict(x=q.position[:, 0], y=q.position[:, 1], vx=q.velocity[:, 0], vy=q.velocity[:, 1],
-                      omegaz=q.angular_velocity, fx=q.force[:, 0], fy=q.force[:, 1], tqz=q.torque)
+        if q.dim == 2:
+            out[k] = dict(x=q.position[:, 0], y=q.position[:, 1], vx=q.velocity[:, 0], vy=q.velocity[:, 1],
+                          omegaz=q.angular_velocity, fx=q.force[:, 0], fy=q.force[:, 1], tqz=q.torque)
+        else:
+            fields = (("", q.position), ("v", q.velocity), ("omega", q.angular_velocity), ("f", q.force),
+                      ("tq", q.torque))
+            out[k] = {prefix + axis if prefix else axis: np.asarray(a)[:, c]
+                      for prefix, a in fields for c, axis in enumerate("xyz")}
         rolling += bool(np.any(np.asarray(state.contacts.history)[:, strained] != 0)
                         or np.any(np.asarray(state.contacts.wall_history)[..., strained] != 0))
     return out, rolling
@@ -125,7 +167,7 @@ def differences(ours: dict[int, dict], theirs: dict[int, dict], moving) -> dict:
     that / the column's largest magnitude over the run)."""
     assert sorted(ours) == sorted(theirs)
     out = {}
-    for name in COLUMNS:
+    for name in (COLUMNS if "z" not in next(iter(ours.values())) else COLUMNS_3D):
         a = np.stack([np.asarray(ours[step][name], float)[moving] for step in sorted(ours)])
         b = np.stack([np.asarray(theirs[step][name], float)[moving] for step in sorted(ours)])
         worst = float(np.max(np.abs(a - b)))

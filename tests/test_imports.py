@@ -292,8 +292,8 @@ def test_jaxpile_run_reaches_the_force_kernel_in_the_12_calls_the_layout_page_li
     kernel_over, seen = interactions._kernel_over, []
     package = os.path.dirname(jaxpile.__file__) + os.sep
 
-    def spy(law):
-        kernel = kernel_over(law)
+    def spy(law, *layout):
+        kernel = kernel_over(law, *layout)
 
         def traced(*args):
             stack = traceback.extract_stack()

@@ -250,7 +250,7 @@ class Ensemble:
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
         needed = nb.pairs_needed(state, overflowed)
-        pairs = max(nb.pair_capacity_for(f.idx, needed) for f in fresh)
+        pairs = max(nb.pair_capacity_for(f.idx, needed, dimension=state.particles.dim) for f in fresh)
         members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))
 

@@ -9,7 +9,7 @@ disks (measured: docs/choices.md#host-built-lists). The step loop keeps the trac
 `pair_count`); each function here returns what its twin returns
 (`tests/test_engine.py` compares the build, pair lists, count and carried
 history). The one exception is rounding: XLA may divide by a cell width as a
-product with its inverse and fuse dx*dx + dy*dy into one multiply-add, so a
+product with its inverse and fuse dx*dx + dy*dy (+ dz*dz) into multiply-adds, so a
 disk within a rounding unit of a cell's edge, or a pair within one of the
 reach (cutoff + skin), beyond any force, can fall on the other side here.
 """
@@ -22,7 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.engine import transfer
-from jaxpile.engine.cells import cell_index
+from jaxpile.engine.cells import (cell_count, cell_index, cell_key, grid_counts, row_offsets, rows_in_grid,
+                                  squared_distance)
 
 Array = Any
 
@@ -31,33 +32,41 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
     """`neighbors._build` on the host: `(idx [n, slots] int32, occupancy,
     window_overflow)`, each row the neighbours within `reach` in increasing
     index order (empty = n), the most neighbours any disk has, and whether a
-    run of three cells of a row held more than `window` disks."""
+    run of three cells of a row held more than `window` disks. `position`
+    is `[n, d]` on a grid of the same dimension; a disk reads the 3^(d-1)
+    rows of `cells.row_offsets(d)` around its own."""
     position = np.asarray(position)
     n = position.shape[0]
     if n == 0:
         return np.zeros((0, slots), np.int32), 0, False
-    nx, ny = grid[0], grid[1]
-    cx, cy = (c.astype(np.int64) for c in cell_index(position, grid, xp=np))
-    key = cy * nx + cx
+    counts = grid_counts(grid)
+    nx, cells = counts[0], cell_count(grid)
+    cell = [c.astype(np.int64) for c in cell_index(position, grid, xp=np)]
+    cx = cell[0]
+    key = cell_key(cell, grid)
     order = np.argsort(key, kind="stable").astype(np.int32)  # ties by index, as the traced sort of key n + index
     sorted_key = key[order]
-    padded_key = np.concatenate([sorted_key, np.full(window + 1, nx * ny)])
+    padded_key = np.concatenate([sorted_key, np.full(window + 1, cells)])
     padded_order = np.concatenate([order, np.full(window + 1, n, np.int32)])
     left, right = np.maximum(cx - 1, 0), np.minimum(cx + 1, nx - 1)
-    row = cy[None, :] + np.arange(-1, 2)[:, None]  # [3, n]: the rows dy = -1, 0, 1
-    row_ok = (row >= 0) & (row < ny)
-    lo, hi = row * nx + left, row * nx + right
+    offsets = np.array(row_offsets(len(counts)), np.int64).reshape(-1, len(counts) - 1)  # [R, d - 1]
+    rows = len(offsets)  # d = 2: the rows dy = -1, 0, 1
+    row = [c[None, :] + offsets[:, k, None] for k, c in enumerate(cell[1:])]  # each [R, n]
+    row_ok = rows_in_grid(row, grid)
+    if row_ok is None:  # d = 1: the one row
+        row_ok = np.ones((rows, n), bool)
+    lo = cell_key([np.broadcast_to(left, (rows, n))] + row, grid)
+    hi = cell_key([np.broadcast_to(right, (rows, n))] + row, grid)
     first = np.searchsorted(sorted_key, lo, side="left").astype(np.int32)
     at = first[..., None] + np.arange(window, dtype=np.int32)
     inside = row_ok[..., None] & (padded_key[at] <= hi[..., None])
     overflow = bool(np.any(row_ok & (padded_key[first + window] <= hi)))
-    candidate = np.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, 3 * window)
+    candidate = np.where(inside, padded_order[at], n).transpose(1, 0, 2).reshape(n, rows * window)
     partner = np.minimum(candidate, n - 1)
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite disks: the runner stops on them
-        dx = position[:, 0, None] - position[partner, 0]
-        dy = position[:, 1, None] - position[partner, 1]
-        keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & (dx * dx + dy * dy < reach * reach)
-    occupancy = int(keep.sum(axis=1).max(initial=0))  # int32 throughout: a window of n holds [3, n, n]
+        near = squared_distance(position, partner) < reach * reach
+        keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & near
+    occupancy = int(keep.sum(axis=1).max(initial=0))  # int32 throughout: a window of n holds [R, n, n]
     idx = np.sort(np.where(keep, candidate, n), axis=1)[:, :slots]
     if idx.shape[1] < slots:
         idx = np.concatenate([idx, np.full((n, slots - idx.shape[1]), n)], axis=1)

@@ -44,12 +44,20 @@ from jaxpile.engine.state import Particles
 Array = Any
 
 
+def per_spin(x, spin):
+    """A per-disk array (`[n]`, or `[m, n]` for a batch) laid out against a
+    spin-shaped one: as it is for disks (spins `[..., n]`), with a last axis
+    of 1 for spheres (spins `[..., n, 3]`)."""
+    return x if spin.ndim == x.ndim else x[..., None]
+
+
 def kick(p: Particles, force, torque, h, rotation: bool) -> Particles:
     """Velocities (and spins) of the movable disks advanced by h F / m (h tau / I)."""
     movable = p.movable
     p = p.set(velocity=p.velocity + h * force * jnp.where(movable, 1.0 / p.mass, 0.0)[:, None])
     if rotation:
-        p = p.set(angular_velocity=p.angular_velocity + h * torque * jnp.where(movable, 1.0 / p.inertia, 0.0))
+        p = p.set(angular_velocity=p.angular_velocity
+                  + h * torque * per_spin(jnp.where(movable, 1.0 / p.inertia, 0.0), torque))
     return p
 
 
@@ -58,7 +66,7 @@ def drift(p: Particles, dt, rotation: bool) -> Particles:
     movable = p.movable
     p = p.set(position=jnp.where(movable[:, None], p.position + dt * p.velocity, p.position))
     if rotation:
-        p = p.set(angle=jnp.where(movable, p.angle + dt * p.angular_velocity, p.angle))
+        p = p.set(angle=jnp.where(per_spin(movable, p.angle), p.angle + dt * p.angular_velocity, p.angle))
     return p
 
 
@@ -122,8 +130,8 @@ class GearDerivatives:
     dt * velocity and dt^2 / 2 * force / mass, read from `Particles`).
 
     Attributes:
-      position: `[3, n, 2]` r_3, r_4, r_5 of the centres.
-      angle: `[3, n]` the same for the rotation angles.
+      position: `[3, n, d]` r_3, r_4, r_5 of the centres.
+      angle: `[3, n]` the same for the rotation angles (`[3, n, 3]` for spheres).
     """
 
     position: Array
@@ -160,7 +168,8 @@ def gear(particles: Particles, extra: GearDerivatives, dt, rotation: bool, force
     """
     movable = particles.movable
     inv_m = jnp.where(movable, 1.0 / particles.mass, 0.0)
-    inv_i = jnp.where(movable, 1.0 / particles.inertia, 0.0)
+    inv_i = per_spin(jnp.where(movable, 1.0 / particles.inertia, 0.0), particles.angle)
+    spinning = per_spin(movable, particles.angle)
     h2 = 0.5 * dt * dt
 
     def predict(x, v, acc, higher):
@@ -171,8 +180,8 @@ def gear(particles: Particles, extra: GearDerivatives, dt, rotation: bool, force
     p = particles.set(position=jnp.where(movable[:, None], px[0], particles.position),
                       velocity=jnp.where(movable[:, None], px[1] / dt, particles.velocity))
     if rotation:
-        p = p.set(angle=jnp.where(movable, pa[0], particles.angle),
-                  angular_velocity=jnp.where(movable, pa[1] / dt, particles.angular_velocity))
+        p = p.set(angle=jnp.where(spinning, pa[0], particles.angle),
+                  angular_velocity=jnp.where(spinning, pa[1] / dt, particles.angular_velocity))
     force, torque, aux = forces_at(p)
 
     def correct(pred, acc, mask):
@@ -186,9 +195,9 @@ def gear(particles: Particles, extra: GearDerivatives, dt, rotation: bool, force
     higher_x = jnp.stack(cx[3:])
     higher_a = extra.angle
     if rotation:
-        ca = correct(pa, torque * inv_i, movable)
-        p = p.set(angle=jnp.where(movable, ca[0], particles.angle),
-                  angular_velocity=jnp.where(movable, ca[1] / dt, particles.angular_velocity), torque=torque)
+        ca = correct(pa, torque * inv_i, spinning)
+        p = p.set(angle=jnp.where(spinning, ca[0], particles.angle),
+                  angular_velocity=jnp.where(spinning, ca[1] / dt, particles.angular_velocity), torque=torque)
         higher_a = jnp.stack(ca[3:])
     else:
         p = p.set(torque=torque)
@@ -203,6 +212,7 @@ def _gear_start(particles: Particles, dt, rotation, force_fn):
     movable = particles.movable
     inv_m = jnp.where(movable, 1.0 / particles.mass, 0.0)
     inv_i = jnp.where(movable, 1.0 / particles.inertia, 0.0)
+    inv_i = per_spin(inv_i, particles.angle)
     acc = particles.force * inv_m[:, None]
     alpha = particles.torque * inv_i if rotation else jnp.zeros_like(particles.torque)
     _, (d_force, d_torque) = jax.jvp(
@@ -250,13 +260,13 @@ def implicit_midpoint_with(relaxation: float = 0.9, iterations: int = 10) -> Cal
         p0 = particles
         movable = p0.movable
         inv_m = jnp.where(movable, 1.0 / p0.mass, 0.0)[:, None]
-        inv_i = jnp.where(movable, 1.0 / p0.inertia, 0.0)
+        inv_i = per_spin(jnp.where(movable, 1.0 / p0.inertia, 0.0), p0.angle)
 
         def solve(force, torque):
             v1 = p0.velocity + dt * force * inv_m
             x1 = jnp.where(movable[:, None], p0.position + 0.5 * dt * (p0.velocity + v1), p0.position)
             w1 = p0.angular_velocity + dt * torque * inv_i if rotation else p0.angular_velocity
-            a1 = jnp.where(movable, p0.angle + 0.5 * dt * (p0.angular_velocity + w1), p0.angle)
+            a1 = jnp.where(per_spin(movable, p0.angle), p0.angle + 0.5 * dt * (p0.angular_velocity + w1), p0.angle)
             return x1, v1, a1, w1
 
         def evaluate(z):

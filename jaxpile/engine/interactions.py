@@ -38,8 +38,9 @@ class ContactForces(NamedTuple):
         in `torque_j`, on j. `in_slots` lays them out as the full list's
         `[n, k]` slots, each disk's view of its own contacts.
       wall: `PairForce` with leading axes `[n, w]` (force on i from wall w).
-      force: `[n, 2]` total contact force on each disk.
-      torque: `[n]` total contact torque (zero when the law's rotation is off).
+      force: `[n, d]` total contact force on each disk.
+      torque: `[n]` total contact torque (zero when the law's rotation is off);
+        `[n, 3]` for spheres.
     """
 
     pair: PairForce
@@ -48,13 +49,21 @@ class ContactForces(NamedTuple):
     torque: Array
 
 
-_GEOMETRY_AXES = PairGeometry(displacement=1, radius_i=0, radius_j=0, velocity=1, angular_velocity_i=0,
-                              angular_velocity_j=0, effective_mass=0, step_displacements=2, partner_fixed=0)
-_FORCE_AXES = PairForce(force=1, torque=0, history=1, normal=0, in_contact=0, torque_j=0)
+def _axes(spin_axis: int) -> tuple[PairGeometry, PairForce]:
+    """The kernel's batch axes, component-major; a spin is `[m]` (disks, axis
+    0) or `[3, m]` (spheres, axis 1), and so are the torques."""
+    geometry = PairGeometry(displacement=1, radius_i=0, radius_j=0, velocity=1, angular_velocity_i=spin_axis,
+                            angular_velocity_j=spin_axis, effective_mass=0, step_displacements=2, partner_fixed=0)
+    force = PairForce(force=1, torque=spin_axis, history=1, normal=0, in_contact=0, torque_j=spin_axis)
+    return geometry, force
 
 
-def _kernel_over(law: ContactLaw):
-    """The law's per-pair kernel over a component-major batch: vectors `[2, m]`,
+_AXES = {1: _axes(0), 2: _axes(1)}
+"""The kernel's batch axes by the number of axes a spin has per disk batch: 1 (disks), 2 (spheres)."""
+
+
+def _kernel_over(law: ContactLaw, spin_ndim: int = 1):
+    """The law's per-pair kernel over a component-major batch: vectors `[d, m]`,
     histories `[h, m]`, scalars `[m]`. The batch axis last keeps each component
     one contiguous row, so the law's component-by-component arithmetic fuses
     without transposes in its forward pass and without pads in its reverse pass
@@ -66,7 +75,8 @@ def _kernel_over(law: ContactLaw):
     `engine.compile`) away from the walls' kernel where it runs outside its
     `cond`, as a batched predicate makes it under `vmap` (measured:
     docs/choices.md#checkpointing-the-law-kernel)."""
-    return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, _GEOMETRY_AXES, 1, None), _FORCE_AXES)
+    geometry_axes, force_axes = _AXES[spin_ndim]
+    return jax.vmap(jax.checkpoint(law.pair_force, prevent_cse=False), (None, geometry_axes, 1, None), force_axes)
 
 
 def pair_ends(fields, i: Array, j: Array) -> tuple:
@@ -107,7 +117,7 @@ def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positi
     # inf * 0 in their (discarded) forces turns the gradient NaN
     m_eff = jnp.where(mask, m_eff, 1.0)
     r_i, r_j = p.radius[i], p.radius[j]
-    far = jnp.stack([FAR * (r_i + r_j), jnp.zeros_like(r_i)])
+    far = jnp.stack([FAR * (r_i + r_j)] + [jnp.zeros_like(r_i)] * (p.dim - 1))
 
     steps = () if step_positions is None else tuple(step_positions)
     (x_i, x_j), (v_i, v_j), (w_i, w_j), *step_ends = pair_ends((p.position, p.velocity, omega) + steps, i, j)
@@ -157,13 +167,16 @@ def evaluate(
     omega = p.angular_velocity if law.rotation else jnp.zeros_like(p.angular_velocity)
 
     geometry, i, j = _pair_geometry(p, contacts.pairs, omega, step_positions)
-    pair = _kernel_over(law)(params, geometry, contacts.history.T, dt)
+    spin_ndim = omega.ndim - p.position.ndim + 2  # 1 for disks, 2 for spheres
+    pair = _kernel_over(law, spin_ndim)(params, geometry, contacts.history.T, dt)
     # each pair once: +F on i, -F on j (and the law's torques on each)
     if law.rotation:
         force, torque = pair_sums((pair.force, pair.torque), (None, pair.torque_j), i, j, n)
     else:
         force, = pair_sums((pair.force,), (None,), i, j, n)
     pair = pair._replace(force=pair.force.T, history=pair.history.T)
+    if spin_ndim == 2:  # spheres: torques `[P, 3]`, as the forces
+        pair = pair._replace(torque=pair.torque.T, torque_j=pair.torque_j.T)
 
     wall, wall_force, wall_torque = _wall_forces(law, params, p, omega, contacts.wall_history, boundaries, dt,
                                                  step_positions)
@@ -210,15 +223,17 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
                 radius_i=p.radius,
                 radius_j=jnp.zeros_like(p.radius),
                 velocity=p.velocity.T,
-                angular_velocity_i=omega,
-                angular_velocity_j=jnp.zeros_like(omega),
+                angular_velocity_i=omega.T,
+                angular_velocity_j=jnp.zeros_like(omega.T),
                 effective_mass=jnp.where(mask, p.mass, 1.0),  # finite where masked (see _pair_geometry)
                 step_displacements=None if step_positions is None else jnp.stack(
                     [displacement(x, k, mask) for x in step_positions]),
                 partner_fixed=jnp.ones_like(mask),
             )
-            wall = _kernel_over(law)(wall_law, geometry, wall_history[:, k].T, dt)
-            return wall._replace(force=wall.force.T, history=wall.history.T)
+            spheres = omega.ndim == p.position.ndim
+            wall = _kernel_over(law, 2 if spheres else 1)(wall_law, geometry, wall_history[:, k].T, dt)
+            return wall._replace(force=wall.force.T, history=wall.history.T,
+                                 **({"torque": wall.torque.T, "torque_j": wall.torque_j.T} if spheres else {}))
 
         def off():
             return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(on))
@@ -228,7 +243,7 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
     walls = [one(k) for k in range(w)]
     stacked = jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *walls)
     force = sum(wall.force for wall in walls) if w else jnp.zeros_like(p.position)
-    torque = sum(wall.torque for wall in walls) if w else jnp.zeros_like(p.radius)
+    torque = sum(wall.torque for wall in walls) if w else jnp.zeros_like(omega)
     return stacked, force, torque
 
 
@@ -266,10 +281,11 @@ def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:
             v = v * flip.reshape(flip.shape + (1,) * (v.ndim - 2))
         return jnp.where(valid.reshape(valid.shape + (1,) * (v.ndim - 2)), v, jnp.zeros_like(v))
 
-    torque = jnp.where(lower, pair.torque[e], pair.torque_j[e])
+    spin = (1,) * (pair.torque.ndim - 1)  # a sphere's torque has a component axis
+    torque = jnp.where(lower.reshape(lower.shape + spin), pair.torque[e], pair.torque_j[e])
     return PairForce(
         force=take(pair.force, sign),
-        torque=jnp.where(valid, torque, 0.0),
+        torque=jnp.where(valid.reshape(valid.shape + spin), torque, 0.0),
         history=take(pair.history),
         normal=take(pair.normal),
         in_contact=pair.in_contact[e] & valid,

@@ -215,7 +215,9 @@ class Checkpointer:
 @jax.jit
 def non_finite_disks(p: Particles) -> Array:
     """`[n]` bool: disks with a non-finite position or velocity (one program, not op by op)."""
-    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & jnp.isfinite(p.angular_velocity))
+    spin = jnp.isfinite(p.angular_velocity)
+    spin = spin.all(-1) if spin.ndim == p.position.ndim else spin  # a sphere's spin is a vector
+    return ~(jnp.isfinite(p.position).all(-1) & jnp.isfinite(p.velocity).all(-1) & spin)
 
 
 def non_finite_on_host(p: Particles) -> np.ndarray:
@@ -225,7 +227,8 @@ def non_finite_on_host(p: Particles) -> np.ndarray:
     if jax.default_backend() != "cpu":
         return np.asarray(non_finite_disks(p))
     finite = np.isfinite(np.asarray(p.position)).all(-1) & np.isfinite(np.asarray(p.velocity)).all(-1)
-    return ~(finite & np.isfinite(np.asarray(p.angular_velocity)))
+    spin = np.isfinite(np.asarray(p.angular_velocity))
+    return ~(finite & (spin.all(-1) if spin.ndim == np.ndim(p.position) else spin))
 
 
 def check_finite(particles: Particles, *, step: int, last_good=None) -> None:

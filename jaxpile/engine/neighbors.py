@@ -13,6 +13,13 @@ temporary memory, by avoiding chains of small XLA kernels
 (docs/choices.md#neighbour-lists). The list keeps jax-md's `NeighborList` type
 and its overflow flags: `max_occupancy` is K, `cell_list_capacity` is W.
 
+The dimension d (2 or 3) is static: the length of the settings' box, the
+positions `[n, d]`. A row is a run of three cells along x; a disk reads the
+3^(d-1) rows around its own (d = 2: 3, d = 3: 9), in the order of
+`cells.row_offsets`. Where packings differ by dimension the constants do too
+(`PACKED_SLOTS_MAX_BY_DIMENSION`, `PAIRS_PER_PARTICLE`); d = 2 builds the same
+lists as before, bit for bit.
+
 The contact laws run on a *half* list instead, `pairs[P, 2]` with i < j, each
 pair once, compacted from the full list at each rebuild (sorted by i, so the
 gathers of x_i walk memory in order; empty entries (n, n)): the law is
@@ -38,6 +45,7 @@ the pair room by the pair demand (`pairs_needed`). `allocate` runs outside jit,
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from typing import Any, NamedTuple
 
@@ -48,7 +56,8 @@ from jax import lax
 from jaxpile._jax_md import partition
 
 from jaxpile.engine import host_lists, transfer
-from jaxpile.engine.cells import cell_grid, cell_index
+from jaxpile.engine.cells import (cell_count, cell_grid, cell_index, cell_key, grid_counts, grid_widths,
+                                  row_offsets, rows_in_grid, squared_distance)
 from jaxpile.engine.pairs import aligned, contacts_for, pair_capacity
 
 Array = Any
@@ -57,15 +66,21 @@ Array = Any
 class NeighborSettings(NamedTuple):
     """Everything a neighbour list is built from (hashable: a static field)."""
 
-    box: tuple[float, float]
+    box: tuple[float, ...]  # one extent per axis: its length is the dimension d
     cutoff: float
     skin: float
     capacity_multiplier: float
 
 
-def _grid(settings: NeighborSettings) -> tuple[int, int, float, float]:
-    """The settings' cell grid (`cells.cell_grid` of its box and reach)."""
+def _grid(settings: NeighborSettings) -> tuple:
+    """The settings' cell grid (`cells.cell_grid` of its box and reach):
+    `(n_0, .., n_{d-1}, w_0, .., w_{d-1})`, d = 2: `(nx, ny, wx, wy)`."""
     return cell_grid(settings.box, settings.cutoff + settings.skin)
+
+
+def dimension_of(settings: NeighborSettings) -> int:
+    """The dimension d of the settings (its box's length)."""
+    return len(settings.box)
 
 
 WINDOW_HEADROOM = 2.0
@@ -118,13 +133,15 @@ def _run_starts(sorted_key: Array, lo: Array, hi: Array, cells: int) -> Array:
 
 
 def _build(position: Array, grid, reach: float, window: int, slots: int):
-    """The full neighbour list of `position` (traceable).
+    """The full neighbour list of `position` `[n, d]` (traceable), on the cell
+    grid `grid` of the same dimension.
 
-    The disks are sorted by cell key `cy nx + cx`. The cells `cx - 1 .. cx + 1`
-    of one row are then one contiguous run of the sorted keys, so a disk finds
-    the candidates of each of its three rows where that run starts
-    (`_run_starts`) and reads `window` entries from there. Candidates within
-    `reach` (not itself) fill the row of `idx` in increasing index order.
+    The disks are sorted by cell key (`cells.cell_key`: d = 2 `cy nx + cx`).
+    The cells `cx - 1 .. cx + 1` of one row are then one contiguous run of
+    the sorted keys, so a disk finds the candidates of each of its 3^(d-1)
+    rows (`row_offsets`) where that run starts (`_run_starts`) and reads
+    `window` entries from there. Candidates within `reach` (not itself) fill
+    the row of `idx` in increasing index order.
 
     Returns:
       `(idx [n, slots], occupancy, window_overflow)`: idx empty = n; the most
@@ -133,31 +150,33 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
       held more than `window` disks.
     """
     n = position.shape[0]
-    nx, ny = grid[0], grid[1]
-    cx, cy = cell_index(position, grid)
-    key = cy * nx + cx
-    order, sorted_key = _sorted_by_cell(key, n, nx * ny)
-    beyond = jnp.int32(nx * ny)  # past every key: reads past the end stop there
+    counts = grid_counts(grid)
+    nx, cells = counts[0], cell_count(grid)
+    cell = cell_index(position, grid)
+    cx = cell[0]
+    key = cell_key(cell, grid)
+    order, sorted_key = _sorted_by_cell(key, n, cells)
+    beyond = jnp.int32(cells)  # past every key: reads past the end stop there
     padded_key = jnp.concatenate([sorted_key, jnp.full((window + 1,), beyond, jnp.int32)])
     padded_order = jnp.concatenate([order, jnp.full((window + 1,), n, jnp.int32)])
     left, right = jnp.maximum(cx - 1, 0), jnp.minimum(cx + 1, nx - 1)
     span = jnp.arange(window, dtype=jnp.int32)
     candidates, overflow = [], jnp.zeros((), bool)
-    for dy in (-1, 0, 1):
-        row = cy + dy
-        row_ok = (row >= 0) & (row < ny)
-        lo, hi = row * nx + left, row * nx + right
-        first = _run_starts(sorted_key, lo, hi, nx * ny)
+    for offset in row_offsets(len(counts)):
+        row = [c + o for c, o in zip(cell[1:], offset)]
+        row_ok = rows_in_grid(row, grid)
+        if row_ok is None:  # d = 1: the one row
+            row_ok = jnp.ones((n,), bool)
+        lo, hi = cell_key([left] + row, grid), cell_key([right] + row, grid)
+        first = _run_starts(sorted_key, lo, hi, cells)
         at = first[:, None] + span[None, :]
         inside = row_ok[:, None] & (padded_key[at] <= hi[:, None])
         candidates.append(jnp.where(inside, padded_order[at], n))
         overflow = overflow | jnp.any(row_ok & (padded_key[first + window] <= hi))
-    candidate = jnp.concatenate(candidates, axis=1)  # [n, 3 window]
+    candidate = jnp.concatenate(candidates, axis=1)  # [n, 3^(d-1) window]
     partner = jnp.minimum(candidate, n - 1)
-    dx = position[:, 0, None] - position[partner, 0]
-    dy_ = position[:, 1, None] - position[partner, 1]
     me = jnp.arange(n, dtype=jnp.int32)[:, None]
-    keep = (candidate < n) & (candidate != me) & (dx * dx + dy_ * dy_ < reach * reach)
+    keep = (candidate < n) & (candidate != me) & (squared_distance(position, partner) < reach * reach)
     occupancy = jnp.max(jnp.sum(keep, axis=1, dtype=jnp.int32), initial=0)
     # the row's lowest indices first, the neighbours (no disk is a candidate
     # twice: it lies in one cell), picked one slot at a time: each slot holds
@@ -208,9 +227,25 @@ def _make_list(settings: NeighborSettings, idx, position, window: int, error=Non
 
 
 PACKED_SLOTS_MAX = 16
-"""`packed_capacity` gives at most this many slots (`SELECT_SLOTS`: rebuilds stay
-slot by slot) and at most twice this window: a pile with disks far smaller than
-its largest gets these, and is re-allocated if it packs denser."""
+"""`packed_capacity` gives at most this many slots in 2D (`SELECT_SLOTS`: rebuilds
+stay slot by slot) and at most twice this window: a pile with disks far smaller
+than its largest gets these, and is re-allocated if it packs denser."""
+
+PACKED_SLOTS_MAX_BY_DIMENSION = {2: PACKED_SLOTS_MAX, 3: 32}
+"""`PACKED_SLOTS_MAX` per dimension. 3D: a packed fcc pile of equal spheres
+has 12 neighbours within a reach of 1.2 diameters, 18 slots with the usual
+multiplier of 1.5 (above 16), and a run of three cells 1.2 diameters wide
+holds up to 16 of them (two close-packed layers): 32 slots and a window of 64
+keep that head-room and cap smaller spheres. 18 slots are above `SELECT_SLOTS`:
+3D rebuilds fill their rows by a row sort."""
+
+
+def packed_slots_max(dimension: int) -> int:
+    """`PACKED_SLOTS_MAX_BY_DIMENSION[dimension]`."""
+    try:
+        return PACKED_SLOTS_MAX_BY_DIMENSION[int(dimension)]
+    except KeyError:
+        raise ValueError(f"packed lists are sized for d = 2 or 3, not d = {dimension}") from None
 
 
 @functools.lru_cache(maxsize=256)  # milliseconds a call, and an ensemble asks once per member with the same values
@@ -225,9 +260,17 @@ def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int
     most `PACKED_SLOTS_MAX` and twice it. A list sized so from the start is
     not re-allocated when its disks fall, flow or are pressed into a pile
     (each re-allocation compiles the step loop again and re-runs a chunk).
-    Equal disks, reach 1.2 diameters: 9 slots (multiplier 1.5), a window of 8."""
+    Equal disks, reach 1.2 diameters: 9 slots (multiplier 1.5), a window of 8.
+
+    In 3D (a box of three extents) the packing is fcc and the caps
+    `PACKED_SLOTS_MAX_BY_DIMENSION[3]` (`_packed_capacity_3d`): equal
+    spheres, reach 1.2 diameters: 18 slots (12 neighbours times 1.5)."""
     if not (radius > 0 and math.isfinite(radius)):
         return 1, 1
+    if dimension_of(settings) == 3:
+        return _packed_capacity_3d(settings, radius)
+    if dimension_of(settings) != 2:
+        raise ValueError(f"packed lists are sized for d = 2 or 3, not d = {dimension_of(settings)}")
     reach = settings.cutoff + settings.skin
     _, _, wx, wy = _grid(settings)
     spacing = 2.0 * radius
@@ -258,6 +301,60 @@ def packed_capacity(settings: NeighborSettings, radius: float) -> tuple[int, int
     return max(1, slots), max(1, window)
 
 
+FCC_CUBIC = np.array([[0.0, 0.5, 0.5], [0.5, 0.0, 0.5], [0.5, 0.5, 0.0]]) * math.sqrt(2.0)
+"""Primitive vectors (rows) of an fcc lattice of unit spacing, cube-aligned."""
+
+FCC_LAYERED = np.array([[1.0, 0.0, 0.0], [0.5, math.sqrt(3.0) / 2.0, 0.0],
+                        [0.5, math.sqrt(3.0) / 6.0, math.sqrt(2.0 / 3.0)]])
+"""Primitive vectors (rows) of an fcc lattice of unit spacing, its
+close-packed (111) layers normal to z (ABC stacking)."""
+
+
+def _packed_capacity_3d(settings: NeighborSettings, radius: float) -> tuple[int, int]:
+    """`packed_capacity` in 3D: the fcc packing of spacing 2 radius (12
+    neighbours at one spacing, the next 6 at sqrt 2); the window the most of
+    its points in a run of three cells over 8^3 offsets within a primitive
+    cell, the lattice cube-aligned and with its close-packed layers normal to
+    each of the three axes (either way along the run); at most
+    `PACKED_SLOTS_MAX_BY_DIMENSION[3]` and twice it."""
+    cap = packed_slots_max(3)
+    reach = settings.cutoff + settings.skin
+    wx, wy, wz = grid_widths(_grid(settings))
+    spacing = 2.0 * radius
+    per_volume = math.sqrt(2.0) / spacing**3  # points per unit volume
+    height = math.sqrt(2.0 / 3.0) * spacing  # the least distance between planes of a primitive cell
+
+    def lattice(basis, extent):  # the lattice's points within at least `extent` of the origin
+        m = int(math.ceil(extent / height)) + 2
+        ijk = np.stack(np.meshgrid(*(np.arange(-m, m + 1),) * 3, indexing="ij"), -1).reshape(-1, 3)
+        return ijk @ (basis * spacing)
+
+    if 4.0 / 3.0 * math.pi * reach**3 * per_volume > 4 * cap:  # spheres far smaller than the reach
+        neighbours = 4 * cap
+    else:
+        distance = np.linalg.norm(lattice(FCC_CUBIC, reach), axis=1)
+        neighbours = int(np.count_nonzero((distance > 0) & (distance <= reach)))
+    run = np.array([3 * wx, wy, wz])
+    if float(np.prod(run)) * per_volume > 4 * cap:  # wide cells or small spheres: the cap
+        most = 4 * cap
+    else:
+        fractions = np.linspace(0.0, 1.0, 8, endpoint=False)
+        grid = np.stack(np.meshgrid(fractions, fractions, fractions, indexing="ij"), -1).reshape(-1, 3)
+        orientations = [FCC_CUBIC] + [FCC_LAYERED[:, list(p)] for p in itertools.permutations(range(3))]
+        most = 0
+        for basis in orientations:
+            offsets = grid @ (basis * spacing)  # [512, 3], within one primitive cell
+            points = lattice(basis, float(np.linalg.norm(run)) + 3.0 * spacing)
+            low, high = -offsets.max(axis=0), run - offsets.min(axis=0)
+            points = points[np.all((points >= low) & (points < high), axis=1)]  # those some offset brings in
+            moved = points[None, :, :] + offsets[:, None, :]
+            inside = np.all((moved >= 0) & (moved < run), axis=2)
+            most = max(most, int(inside.sum(axis=1).max(initial=0)))
+    slots = min(cap, int(math.ceil(neighbours * settings.capacity_multiplier)))
+    window = min(2 * cap, most)
+    return max(1, slots), max(1, window)
+
+
 def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0,
              packed_radius: float | None = None, min_slots: int = 0, min_window: int = 0):
     """A new neighbour list (host-side), sized like jax-md's: the window W is
@@ -270,7 +367,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     pile they will make. `min_slots` and `min_window` are floors on K and W
     (a re-allocation's: see `slots_needed`).
 
-    One build, wide enough for every candidate (3 W slots), gives both the
+    One build, wide enough for every candidate (3^(d-1) W slots), gives both the
     occupancy and the list: its rows are in increasing index order, so their
     first K columns are what a build with K slots gives. Up to
     `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
@@ -280,16 +377,28 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     position = transfer.to_device(position)
     n = int(position.shape[0])
     grid = _grid(settings)
-    cx, cy = (a.astype(np.int64) for a in cell_index(host, grid, xp=np))
-    cells, counts = np.unique(cy * grid[0] + cx, return_counts=True)  # occupied cells only: O(n)
+    if host.ndim != 2 or host.shape[1] != len(settings.box):
+        raise ValueError(f"positions of shape {host.shape} for a neighbour box of {len(settings.box)} extents")
+    cell = [a.astype(np.int64) for a in cell_index(host, grid, xp=np)]
+    cells, counts = np.unique(cell_key(cell, grid), return_counts=True)  # occupied cells only: O(n)
 
     def count(key, ok):
         at = np.minimum(np.searchsorted(cells, key), len(cells) - 1)
         return np.where(ok & (cells[at] == key), counts[at], 0)
 
-    # the runs a disk reads are centred on its column in its own row and the rows above and below
-    nx, ny = grid[0], grid[1]
-    centres = np.unique(np.concatenate([cells, cells[cells >= nx] - nx, cells[cells < (ny - 1) * nx] + nx]))
+    # the runs a disk reads are centred on its column in its own row and the rows around it
+    # (d = 2: above and below)
+    sizes = grid_counts(grid)
+    nx = sizes[0]
+    strides = np.cumprod((1,) + sizes[:-1])  # each axis's step in the cell key
+    coords = [(cells // int(stride)) % size for stride, size in zip(strides, sizes)]
+    shifted = []
+    for offset in row_offsets(len(sizes)):
+        row = [c + o for c, o in zip(coords[1:], offset)]
+        ok = rows_in_grid(row, grid)
+        step = sum(int(o) * int(stride) for o, stride in zip(offset, strides[1:]))
+        shifted.append(cells + step if ok is None else cells[ok] + step)
+    centres = np.unique(np.concatenate([cells] + shifted))
     x = centres % nx
     runs = count(centres, True) + count(centres - 1, x > 0) + count(centres + 1, x < nx - 1)
     most = int(runs.max()) if n else 0
@@ -297,7 +406,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     packed_slots, packed_window = (0, 0) if packed_radius is None else packed_capacity(settings, packed_radius)
     window = max(int(math.ceil(most * headroom)) + int(extra_capacity), packed_window, int(min_window))
     window = max(1, min(n, window))
-    probe = max(1, min(n - 1, 3 * window))
+    probe = max(1, min(n - 1, len(row_offsets(len(sizes))) * window))
     on_host = host if n <= HOST_BUILD_MAX else position  # no second copy to the device above the switch
     wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
     slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots, int(min_slots))
@@ -344,9 +453,12 @@ def any_member(flag: Array, axis_name: str | None) -> Array:
 
 
 def needs_rebuild(neighbors, position: Array, skin: float) -> Array:
-    """Whether any particle moved more than skin / 2 since the last build."""
+    """Whether any particle moved more than skin / 2 since the last build
+    (the displacement over all d axes)."""
     d = position - neighbors.reference_position
-    moved = d[:, 0] ** 2 + d[:, 1] ** 2  # written out: a reduce over a size-2 axis is slow on CPU
+    moved = d[:, 0] ** 2
+    for k in range(1, d.shape[-1]):  # written out: a reduce over a size-2 axis is slow on CPU
+        moved = moved + d[:, k] ** 2
     return jnp.any(moved > (0.5 * skin) ** 2 * (1.0 - 1e-5))
 
 
@@ -385,8 +497,21 @@ def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_cap
 
 
 PAIRS_PER_DISK = 3.0
-"""Pair room allocated per disk at least: a close-packed 2D pile of equal disks
-has 3 pairs per disk, looser packings fewer."""
+"""Pair room allocated per disk at least in 2D: a close-packed 2D pile of equal
+disks has 3 pairs per disk, looser packings fewer."""
+
+PAIRS_PER_PARTICLE = {2: PAIRS_PER_DISK, 3: 6.0}
+"""`PAIRS_PER_DISK` per dimension: a close-packed (fcc or hcp) 3D pile of equal
+spheres has 12 contacts a sphere, 6 pairs."""
+
+
+def pairs_per_particle(dimension: int) -> float:
+    """`PAIRS_PER_PARTICLE[dimension]`."""
+    try:
+        return PAIRS_PER_PARTICLE[int(dimension)]
+    except KeyError:
+        raise ValueError(f"pair room is sized for d = 2 or 3, not d = {dimension}") from None
+
 
 PAIR_HEADROOM = 1.1
 """Pair room allocated over the pairs a list holds at allocation (the mean
@@ -454,13 +579,14 @@ def window_needed(state, overflowed) -> int:
     return window + max(4, int(state.neighbors.max_occupancy))
 
 
-def pair_capacity_for(idx: Array, at_least: int = 0) -> int:
+def pair_capacity_for(idx: Array, at_least: int = 0, dimension: int = 2) -> int:
     """Host-side: the pair capacity to allocate for the full list `idx`: the
-    more of `PAIRS_PER_DISK` per disk and `PAIR_HEADROOM` times its pairs, at
-    least `at_least`, at most `pair_capacity` (which holds them all), rounded
-    up to `PAIR_ALIGN`."""
+    more of `pairs_per_particle(dimension)` per disk (2D: `PAIRS_PER_DISK`)
+    and `PAIR_HEADROOM` times its pairs, at least `at_least`, at most
+    `pair_capacity` (which holds them all), rounded up to `PAIR_ALIGN`."""
     n, k = idx.shape
-    wanted = max(int(at_least), math.ceil(PAIRS_PER_DISK * n), math.ceil(PAIR_HEADROOM * host_lists.pair_count(idx)))
+    wanted = max(int(at_least), math.ceil(pairs_per_particle(dimension) * n),
+                 math.ceil(PAIR_HEADROOM * host_lists.pair_count(idx)))
     return min(pair_capacity(n, k), aligned(wanted))
 
 

@@ -162,7 +162,9 @@ class RunInfo:
 def max_speed(state: SimState) -> Array:
     """Largest translational or rim speed |v| + |omega| r over movable active disks."""
     p = state.particles
-    speed = jnp.linalg.norm(p.velocity, axis=-1) + jnp.abs(p.angular_velocity) * p.radius
+    spheres = p.angular_velocity.ndim == p.position.ndim  # a spin vector per sphere (any batch axes before)
+    spin = jnp.linalg.norm(p.angular_velocity, axis=-1) if spheres else jnp.abs(p.angular_velocity)
+    speed = jnp.linalg.norm(p.velocity, axis=-1) + spin * p.radius
     return jnp.max(jnp.where(p.movable, speed, 0.0), initial=0.0)
 
 
@@ -297,6 +299,18 @@ class Simulator:
                 f"lightest disk); use dt <= {limit:.3g}, or about {limit / 5:.3g} for accurate collisions."
             )
 
+    def check_dimension(self, particles: Particles, boundaries: Boundaries) -> None:
+        """Refuses disks and walls or gravity of different dimensions, and, for
+        spheres, a law of disks only or hard collisions (the 1992 paper's, 2D)."""
+        d = particles.dim
+        walls, gravity = boundaries.wall_normal.shape[-1], boundaries.gravity.shape[-1]
+        if walls != d or gravity != d:
+            raise InputError(f"the particles are {d}D but the walls are {walls}D and gravity {gravity}D: make the "
+                             f"boundaries with make_boundaries(dim={d}).")
+        self.law.history_for(d)  # a law of disks only refuses spheres
+        if d == 3 and self.hard_collisions is not None:
+            raise InputError("hard collisions (Liffman et al. 1992) are for disks only; spheres take a soft law.")
+
     def packed_radius(self, particles: Particles) -> float | None:
         """The radius lists are sized for a packed pile of (`neighbors.allocate`):
         the smallest disk's, or None with `packed_lists=False`."""
@@ -340,16 +354,18 @@ class Simulator:
         """`init` up to the forces: the checks, the neighbour list and zero
         history, on the host. `start(params, state)` finishes it (it is pure, so
         an ensemble maps it over its members in one call)."""
+        self.check_dimension(particles, boundaries)
         self.check_params(params, particles)
         check_walls_used(self.law.name, params, boundaries)
         check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
         neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles))
         n = neighbors.idx.shape[0]
-        h = self.law.history_size
+        h = self.law.history_for(particles.dim)
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, nb.pair_capacity_for(neighbors.idx)))
+        pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx,
+                                                         nb.pair_capacity_for(neighbors.idx, dimension=particles.dim)))
         contacts = Contacts(  # put on the device without compiling (see engine.transfer)
             pairs=pairs,
             demand=transfer.to_device(host_lists.pair_count(neighbors.idx), jnp.int32),
@@ -477,7 +493,8 @@ class Simulator:
                                 packed_radius=self.packed_radius(state.particles),
                                 min_slots=nb.slots_needed(state, overflowed),
                                 min_window=nb.window_needed(state, overflowed))
-        pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed))
+        pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed),
+                                     dimension=state.particles.dim)
         contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 

@@ -25,19 +25,24 @@ Array = Any
 
 @dataclasses.dataclass
 class Particles:
-    """The disks: kinematics, inertia and flags.
+    """The disks (or spheres): kinematics, inertia and flags. The dimension d
+    is the positions' last axis, static; a disk's spin is a number, a sphere's
+    a vector.
 
     Attributes:
-      position: `[n, 2]` centres.
-      velocity: `[n, 2]`.
-      angle: `[n]` rotation angle (rad), counter-clockwise.
-      angular_velocity: `[n]` (rad / time), counter-clockwise.
-      force: `[n, 2]` total force at the current positions (contacts + gravity);
+      position: `[n, d]` centres.
+      velocity: `[n, d]`.
+      angle: `[n]` rotation angle (rad), counter-clockwise; for spheres `[n, 3]`,
+        the spin integrated over time (spheres carry no orientation, as LAMMPS's
+        `nve/sphere`).
+      angular_velocity: `[n]` (rad / time), counter-clockwise; `[n, 3]` for spheres.
+      force: `[n, d]` total force at the current positions (contacts + gravity);
         the velocity-Verlet integrator reuses it for the next half kick.
-      torque: `[n]` total torque at the current positions.
+      torque: `[n]` total torque at the current positions; `[n, 3]` for spheres.
       radius: `[n]`.
       mass: `[n]` (finite even for fixed disks; `fixed` decides who moves).
-      inertia: `[n]` moment of inertia (m r^2 / 2 for a uniform disk).
+      inertia: `[n]` moment of inertia (m r^2 / 2 for a uniform disk, 2 m r^2 / 5
+        for a uniform sphere).
       fixed: `[n]` bool; fixed disks never move and count as infinitely heavy
         partners in the contact laws' effective mass.
       active: `[n]` bool; inactive disks exert and feel no force and do not move
@@ -59,6 +64,11 @@ class Particles:
     @property
     def count(self) -> int:
         return self.position.shape[-2]
+
+    @property
+    def dim(self) -> int:
+        """2 for disks, 3 for spheres (static: the positions' shape)."""
+        return self.position.shape[-1]
 
     @property
     def movable(self) -> Array:
@@ -164,14 +174,18 @@ def make_particles(
 ) -> Particles:
     """Builds `Particles` with checked inputs.
 
+    The dimension is the position's: `[n, 2]` disks, `[n, 3]` spheres.
+
     Args:
-      position: `[n, 2]` centres.
+      position: `[n, 2]` or `[n, 3]` centres.
       radius: `[n]` or a scalar.
-      mass: `[n]` or a scalar; default: disks of uniform areal density `density`
-        (default chosen so that a disk of diameter 1 has mass 1).
-      density: areal density used when `mass` is not given.
-      velocity: `[n, 2]`, default zero.
-      angular_velocity: `[n]`, default zero.
+      mass: `[n]` or a scalar; default: a uniform areal (disks) or volume
+        (spheres) density `density`, by default the one that gives diameter 1
+        mass 1.
+      density: the density used when `mass` is not given.
+      velocity: `[n, d]`, default zero.
+      angular_velocity: `[n]` (disks, counter-clockwise) or `[n, 3]` (spheres),
+        default zero.
       fixed: `[n]` bool, default all False.
       active: `[n]` bool, default all True.
       dtype: float dtype (default: that of `position` if floating, else
@@ -189,9 +203,9 @@ def make_particles(
                          "`import jaxpile` (or jax.config.update('jax_enable_x64', True)); for single precision "
                          "give dtype=numpy.float32.")
     position = np.asarray(position, dtype=dtype)
-    if position.ndim != 2 or position.shape[1] != 2:
-        raise InputError(f"position must have shape [n, 2]; got {position.shape}.")
-    n = position.shape[0]
+    if position.ndim != 2 or position.shape[1] not in (2, 3):
+        raise InputError(f"position must have shape [n, 2] (disks) or [n, 3] (spheres); got {position.shape}.")
+    n, dim = position.shape
     if n == 0:
         raise InputError("no particles: position is empty.")
 
@@ -208,8 +222,12 @@ def make_particles(
             f"radius must be positive and finite; particle {bad} has radius {float(radius[bad])}."
         )
     if mass is None:
-        rho = (4.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
-        mass = rho * np.pi * radius**2
+        if dim == 2:
+            rho = (4.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
+            mass = rho * np.pi * radius**2
+        else:
+            rho = (6.0 / np.pi) if density is None else float(density)  # diameter 1 -> mass 1
+            mass = rho * (4.0 / 3.0) * np.pi * radius**3
     mass = per_particle("mass", mass, dtype)
     if np.any(~np.isfinite(mass)) or np.any(mass <= 0):
         bad = int(np.flatnonzero(~(mass > 0) | ~np.isfinite(mass))[0])
@@ -217,14 +235,20 @@ def make_particles(
     velocity = np.zeros_like(position) if velocity is None else np.asarray(velocity, dtype=dtype)
     if velocity.shape != position.shape:
         raise InputError(f"velocity must have shape {position.shape}; got {velocity.shape}.")
-    omega = np.zeros(n, dtype) if angular_velocity is None else per_particle("angular_velocity", angular_velocity, dtype)
+    if dim == 2:
+        omega = np.zeros(n, dtype) if angular_velocity is None else per_particle("angular_velocity", angular_velocity,
+                                                                                  dtype)
+    else:  # a spin vector per sphere
+        omega = np.zeros((n, 3), dtype) if angular_velocity is None else np.asarray(angular_velocity, dtype=dtype)
+        if omega.shape != (n, 3):
+            raise InputError(f"angular_velocity of spheres must have shape {(n, 3)}; got {omega.shape}.")
     fixed = np.zeros(n, bool) if fixed is None else per_particle("fixed", fixed, bool)
     active = np.ones(n, bool) if active is None else per_particle("active", active, bool)
     for name, value in (("position", position), ("velocity", velocity), ("angular_velocity", omega)):
         if not np.all(np.isfinite(value)):
             bad = int(np.flatnonzero(~np.isfinite(value.reshape(n, -1)).all(axis=1))[0])
             raise InputError(f"{name} of particle {bad} is not finite: {value[bad].tolist()}.")
-    moving_fixed = fixed & ((np.abs(velocity).sum(axis=1) > 0) | (omega != 0))
+    moving_fixed = fixed & ((np.abs(velocity).sum(axis=1) > 0) | (omega.reshape(n, -1) != 0).any(axis=1))
     if moving_fixed.any():
         bad = int(np.flatnonzero(moving_fixed)[0])
         raise InputError(
@@ -234,13 +258,13 @@ def make_particles(
     return Particles(  # put on the device without compiling (see engine.transfer)
         position=transfer.to_device(position),
         velocity=transfer.to_device(velocity),
-        angle=transfer.zeros(n, dtype),
+        angle=transfer.zeros(omega.shape, dtype),
         angular_velocity=transfer.to_device(omega),
         force=transfer.zeros(position.shape, dtype),
-        torque=transfer.zeros(n, dtype),
+        torque=transfer.zeros(omega.shape, dtype),
         radius=transfer.to_device(radius),
         mass=transfer.to_device(mass),
-        inertia=transfer.to_device(0.5 * mass * radius**2),
+        inertia=transfer.to_device((0.5 if dim == 2 else 0.4) * mass * radius**2),  # a uniform disk, a uniform sphere
         fixed=transfer.to_device(fixed),
         active=transfer.to_device(active),
     )

@@ -22,13 +22,14 @@ Array = Any
 
 
 class PairGeometry(NamedTuple):
-    """One pair (i, j) as seen from particle i.
+    """One pair (i, j) as seen from particle i (disks: d = 2, spheres: d = 3).
 
     Attributes:
-      displacement: `[2]` x_i - x_j (for a wall: from the wall plane to x_i).
+      displacement: `[d]` x_i - x_j (for a wall: from the wall plane to x_i).
       radius_i, radius_j: radii (radius_j = 0 for a wall).
-      velocity: `[2]` v_i - v_j.
-      angular_velocity_i, angular_velocity_j: counter-clockwise spins.
+      velocity: `[d]` v_i - v_j.
+      angular_velocity_i, angular_velocity_j: counter-clockwise spins (disks),
+        `[3]` spin vectors (spheres).
       effective_mass: m_i m_j / (m_i + m_j), or m_i against a wall or fixed disk.
       step_displacements: `[2, 2]` the displacement at steps k and k + 1, given
         only by the implicit midpoint integrator (then `displacement` is their
@@ -54,13 +55,13 @@ class PairForce(NamedTuple):
     """What a kernel returns for one pair.
 
     Attributes:
-      force: `[2]` force on i.
-      torque: torque on i (z component).
+      force: `[d]` force on i.
+      torque: torque on i (z component; `[3]` for spheres).
       history: `[h]` the pair's new history (zero when not in contact).
       normal: the normal force magnitude along +n (repulsive > 0), for analysis
         and for Coulomb caps.
       in_contact: bool.
-      torque_j: torque on j (z component). The pair loop evaluates each pair
+      torque_j: torque on j (as `torque`). The pair loop evaluates each pair
         once, from its lower id i, and gives j the reaction -force and this
         torque (for a contact-point lever arm: torque * r_j / r_i, same sign).
     """
@@ -94,6 +95,8 @@ class ContactLaw:
       options: `((name, value), ...)`, the reading the law was built with
         beyond `rotation` (e.g. baxter's `lever_arm` and `slip`): recorded in
         checkpoints, so that a run is not resumed in another reading.
+      history_size_3d: h for spheres; None for a law of disks only (its
+        paper is 2D): `history_for(3)` refuses it.
     """
 
     name: str
@@ -106,6 +109,20 @@ class ContactLaw:
     validate: Callable[[Any], None]
     params_type: type
     options: tuple = ()
+    history_size_3d: int | None = None
+
+    def history_for(self, dim: int) -> int:
+        """The per-pair history length for disks (`dim` 2) or spheres (3).
+
+        Raises:
+          InputError: for spheres with a law of disks only.
+        """
+        if dim == 2:
+            return self.history_size
+        if self.history_size_3d is None:
+            raise InputError(f"the {self.name} law is for disks only (its paper is two-dimensional); spheres "
+                             "take hooke (with or without rolling resistance).")
+        return self.history_size_3d
 
 
 def with_set(params_class):

@@ -1,5 +1,7 @@
 """Linear spring-dashpot with a Cundall-Strack tangential spring: LAMMPS
-`pair_style gran/hooke/history` (and `fix wall/gran hooke/history`) in 2D.
+`pair_style gran/hooke/history` (and `fix wall/gran hooke/history`), for disks
+and spheres (one kernel: in 3D the spins, torques and the shear spring are
+vectors, and z x n below is w x n).
 
 For a pair i, j with overlap delta = r_i + r_j - r, unit normal n = (x_i - x_j)/r,
 relative velocity of the contact points v_tr (including spins), effective mass
@@ -47,7 +49,7 @@ from jaxpile._jax_md import dataclasses
 
 from jaxpile.errors import InputError
 from jaxpile.laws import rolling as rolling_
-from jaxpile.laws import tangential
+from jaxpile.laws import tangential, vec
 from jaxpile.laws.base import (ContactLaw, PairForce, PairGeometry, contact_result, param_arrays, ranges_doc,
                                validate_ranges, with_set)
 from jaxpile.ranges import NON_NEGATIVE, POSITIVE
@@ -132,36 +134,42 @@ def make_pair_force(rolling=None, pair_style: str = "gran/hooke/history"):
     granular = pair_style == "granular"
 
     def pair_force(p: Params, g: PairGeometry, shear: Array, dt) -> PairForce:
-        """One pair's force, torque and new shear history (see the module docstring).
+        """One pair's force, torque and new shear history (see the module docstring),
+        for disks or spheres (`shear` then `[d]` plus the rolling entries).
 
-        Written component by component (x, y scalars rather than 2-vectors): vmapped
-        over the slots every intermediate is then an `[n, k]` array, and XLA on CPU
-        computes the shared scalars (r, F_n, the Coulomb ratio) once instead of once
-        per vector component (measured: see benchmarks/profile_step.py)."""
-        nx, ny, r, radsum, in_contact, vn, vtx, vty = tangential.frame(g)
+        Written component by component (`jaxpile.laws.vec`: x, y [, z] scalars
+        rather than vectors): vmapped over the slots every intermediate is then
+        an `[n, k]` array, and XLA on CPU computes the shared scalars (r, F_n,
+        the Coulomb ratio) once instead of once per vector component
+        (measured: see benchmarks/profile_step.py)."""
+        f = tangential.contact_frame(g)
+        d = len(f.n)
 
-        fn = p.kn * (radsum - r) - g.effective_mass * p.gamma_n * vn
+        fn = p.kn * (f.radsum - f.r) - g.effective_mass * p.gamma_n * f.vn
 
         # the spring in this reading's frame (`jaxpile.laws.tangential`), capped at mu |F_n|
-        ftx, fty, sx, sy = tangential.spring(shear[0], shear[1], nx, ny, vtx, vty, p.kt,
-                                             g.effective_mass * p.gamma_t, p.mu * jnp.abs(fn), dt, granular)
+        ft, s = tangential.spring_vec(tuple(shear[k] for k in range(d)), f.n, f.vt, p.kt,
+                                      g.effective_mass * p.gamma_t, p.mu * jnp.abs(fn), dt, granular)
 
-        fx, fy = fn * nx + ftx, fn * ny + fty
-        n_cross_ft = nx * fty - ny * ftx
+        force = tuple(fn * nk + fk for nk, fk in zip(f.n, ft))
+        n_cross_ft = vec.cross(f.n, ft)
         if granular:  # the arm to the contact point (pair granular); a wall's is r_i (fix wall/gran granular)
-            half_overlap = 0.5 * (radsum - r)
-            torque = -jnp.where(g.radius_j > 0, g.radius_i - half_overlap, g.radius_i) * n_cross_ft
-            torque_j = -(g.radius_j - half_overlap) * n_cross_ft
+            half_overlap = 0.5 * (f.radsum - f.r)
+            torque = vec.scale(-jnp.where(g.radius_j > 0, g.radius_i - half_overlap, g.radius_i), n_cross_ft)
+            torque_j = vec.scale(-(g.radius_j - half_overlap), n_cross_ft)
         else:
-            torque = -g.radius_i * n_cross_ft
-            torque_j = -g.radius_j * n_cross_ft  # (r_j n) x (-F_t)
-        history = [sx, sy]
+            torque = vec.scale(-g.radius_i, n_cross_ft)
+            torque_j = vec.scale(-g.radius_j, n_cross_ft)  # (r_j n) x (-F_t)
+        history = list(s)
         if rolling is not None:
             roll_i, roll_j, carried = rolling_.resist(rolling, p, fn, g.radius_i, g.radius_j, g.angular_velocity_i,
-                                                      g.angular_velocity_j, g.effective_mass, shear[2], dt)
-            torque, torque_j = torque + roll_i, torque_j + roll_j
-            history.append(carried)
-        return contact_result(in_contact, jnp.stack([fx, fy]), torque, jnp.stack(history), fn, torque_j)
+                                                      g.angular_velocity_j, g.effective_mass,
+                                                      shear[d] if d == 2 else shear[d:d + 3], dt, f.n)
+            torque = vec.pack(torque) + roll_i
+            torque_j = vec.pack(torque_j) + roll_j
+            history.extend(vec.components(carried) if d == 3 else [carried])
+        return contact_result(f.in_contact, jnp.stack(force), vec.pack(torque), jnp.stack(history), fn,
+                              vec.pack(torque_j))
 
     return pair_force
 
@@ -239,4 +247,5 @@ def law(rotation: bool = True, rolling: str | None = None, pair_style: str = "gr
         validate=_VALIDATORS[rolling],
         params_type=Params,
         options=options,
+        history_size_3d=3 + rolling_.HISTORY_3D[rolling],
     )

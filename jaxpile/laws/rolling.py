@@ -193,11 +193,15 @@ def constant(mu_roll, normal, r_eff, effective_mass, omega_i, omega_j, f_e, dt):
     return capped, f_e
 
 
-def resist(rolling, params, normal, radius_i, radius_j, omega_i, omega_j, effective_mass, carried, dt):
+def resist(rolling, params, normal, radius_i, radius_j, omega_i, omega_j, effective_mass, carried, dt, n=None):
     """The rolling model `rolling` of one pair: (torque on i, torque on j, new
     history entry); `carried` is the entry from the last step (psi for `"sds"`,
-    f_e for `"constant"`)."""
+    f_e for `"constant"`). Disks' spins are numbers and these are eqs. 1-6;
+    spheres' spins are `[3]` (then `n`, the unit normal as a tuple, is needed)
+    and the history a `[3]` vector (`resist_3d`)."""
     r_eff = effective_radius(radius_i, radius_j)
+    if n is not None and len(n) == 3:  # spheres
+        return resist_3d(rolling, params, normal, r_eff, omega_i, omega_j, effective_mass, carried, dt, n)
     if rolling == "sds":
         f_r, carried = sds(params.k_roll, params.gamma_roll, params.mu_roll, normal, r_eff, omega_i, omega_j,
                            carried, dt)
@@ -205,6 +209,56 @@ def resist(rolling, params, normal, radius_i, radius_j, omega_i, omega_j, effect
         f_r, carried = constant(params.mu_roll, normal, r_eff, effective_mass, omega_i, omega_j, carried, dt)
     torque = r_eff * f_r  # (4)
     return torque, -torque, carried
+
+
+def resist_3d(rolling, params, normal, r_eff, omega_i, omega_j, effective_mass, carried, dt, n: tuple):
+    """Spheres: eqs. 1-6 with vectors, as LAMMPS `pair granular` (29Sep2021)
+    has `rolling sds` in 3D. v_roll = R_eff (omega_i - omega_j) x n; the
+    history vector (psi, or f_e for `"constant"`) is first turned into the
+    current tangent plane keeping its length (when |h . n| k > 1e-10 times the
+    cap, `tangential.turned`), then advanced; the cap rescales the vector
+    f_r to length mu_roll |F_n| (psi then so that k psi + gamma v_roll stays on
+    it; with psi = 0 there, f_r = 0); the torque on i is R_eff n x f_r, on j
+    its negative. Returns (torque on i, on j, new history), each `[3]`."""
+    from jaxpile.laws import tangential, vec
+
+    relative = tuple(a - b for a, b in zip(vec.components(omega_i), vec.components(omega_j)))
+    v_roll = vec.scale(r_eff, vec.cross(relative, n))  # (1)
+    history = vec.components(carried)
+    cap = mu_roll_cap = params.mu_roll * jnp.abs(normal)
+    if rolling == "sds":
+        k = params.k_roll
+        damping = 0.0 if params.gamma_roll is None else params.gamma_roll
+        history = tangential.turned(history, n, lambda hn: jnp.abs(hn) * k > tangential.FRAME_EPSILON * cap)
+        history = tuple(h + v * dt for h, v in zip(history, v_roll))
+        f_r = tuple(-(k * h + damping * v) for h, v in zip(history, v_roll))  # (2)
+        moved = vec.dot(history, history) > 0
+        has_k = k > 0
+        inv_k = jnp.where(has_k, 1.0 / jnp.where(has_k, k, 1.0), 0.0)
+    else:  # "constant": the stiff slider of eq. 5 on the spring's force f_e (eq. 6)
+        stepping = dt > 0
+        inv_dt = jnp.where(stepping, 1.0 / jnp.where(stepping, dt, 1.0), 0.0)
+        k_dt = STIFFNESS * effective_mass * inv_dt
+        damping = 2.0 * DAMPING_RATIO * effective_mass * (STIFFNESS ** 0.5) * inv_dt
+        history = tangential.turned(history, n, lambda hn: jnp.abs(hn) > tangential.FRAME_EPSILON * cap)
+        history = tuple(h - k_dt * v for h, v in zip(history, v_roll))
+        f_r = tuple(h - damping * v for h, v in zip(history, v_roll))
+    size2 = vec.dot(f_r, f_r)
+    sliding = size2 > mu_roll_cap * mu_roll_cap  # (3)
+    ratio = jnp.where(sliding, cap / jnp.where(sliding, jnp.sqrt(jnp.where(sliding, size2, 1.0)), 1.0), 1.0)
+    capped = tuple(ratio * f for f in f_r)
+    if rolling == "sds":
+        history = tuple(jnp.where(sliding & moved, -(c + damping * v) * inv_k, h)
+                        for c, v, h in zip(capped, v_roll, history))
+        capped = tuple(jnp.where(sliding & ~moved, 0.0, c) for c in capped)
+    else:
+        history = tuple(jnp.where(sliding, c + damping * v, h) for c, v, h in zip(capped, v_roll, history))
+    torque = jnp.stack(vec.scale(r_eff, vec.cross(n, capped)))  # (4)
+    return torque, -torque, jnp.stack(history)
+
+
+HISTORY_3D = {None: 0, "sds": 3, "constant": 3}
+"""For spheres: the history vector each model adds after the law's own."""
 
 
 def time_step_limits(params) -> tuple[float, float]:

@@ -93,6 +93,17 @@ def base_load(sim, params, state: SimState, *, base: str = "ground", wall: int =
     return _base_load_from(sim.contact_forces(params, state), state, base, int(wall))
 
 
+def _along_base(normal):
+    """The base's "horizontal" direction for a base of unit normal `normal`:
+    +x for the ground (z x n turned back, for disks); for spheres x's part
+    in the base's plane, normalised."""
+    if normal.shape[0] == 2:
+        return jnp.stack([normal[1], -normal[0]])
+    e = jnp.zeros_like(normal).at[0].set(1.0) - normal[0] * normal
+    size = jnp.sqrt(jnp.sum(e * e))
+    return jnp.where(size > 0, e / jnp.where(size > 0, size, 1.0), 0.0)
+
+
 @functools.partial(jax.jit, static_argnums=(2, 3))
 def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
     """`base_load` from the contact forces `cf`: one compiled program (inlined
@@ -110,7 +121,7 @@ def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
         contact = cf.wall.in_contact[:, wall]
         force = jnp.where(contact[:, None], cf.wall.force[:, wall], 0.0)  # wall on disk
         normal_dir = state.boundaries.wall_normal[wall]
-        along = jnp.stack([normal_dir[1], -normal_dir[0]])  # +x for the ground
+        along = _along_base(normal_dir)
         x = jnp.where(contact, p.position[:, 0], 0.0)
     else:
         idx = state.neighbors.idx
@@ -124,10 +135,11 @@ def _base_load_from(cf, state: SimState, base: str, wall: int) -> BaseLoad:
         x = jnp.where(contact, x_j + (x_i - x_j) * r_j / (r_i + r_j), 0.0)
         g = state.boundaries.gravity
         g2 = jnp.sum(g**2)
-        up = jnp.where(g2 > 0, -g / jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), jnp.array([0.0, 1.0], g.dtype))
+        vertical = jnp.zeros(g.shape, g.dtype).at[-1].set(1.0)  # +y for disks, +z for spheres
+        up = jnp.where(g2 > 0, -g / jnp.sqrt(jnp.where(g2 > 0, g2, 1.0)), vertical)
         normal_dir = up
-        along = jnp.stack([up[1], -up[0]])
-        contact, force, x = contact.reshape(-1), force.reshape(-1, 2), x.reshape(-1)
+        along = _along_base(up)
+        contact, force, x = contact.reshape(-1), force.reshape(-1, g.shape[0]), x.reshape(-1)
     normal = (force @ normal_dir) / unit
     horizontal = -(force @ along) / unit
     return BaseLoad(x=x, normal=normal, horizontal=horizontal, weight=contact.astype(force.dtype))
