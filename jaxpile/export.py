@@ -9,6 +9,8 @@ readers expect three components:
 
   species (X)  pos(x y z)  radius  velo(vx vy vz)  omega(z)  force(fx fy fz)  active
 
+and spheres with the spin vector, omega(x y z).
+
 `force` is the total force on the disk at its last step (contacts + gravity).
 Parked disks (not yet poured) are written with `active` = 0 so every frame of a
 trajectory has the same rows; filter on it in OVITO (Expression selection
@@ -33,6 +35,9 @@ from jaxpile.engine.state import SimState
 
 PROPERTIES = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:1:force:R:3:active:I:1"
 COLUMNS = ("pos", 3), ("radius", 1), ("velo", 3), ("omega", 1), ("force", 3), ("active", 1)
+PROPERTIES_3D = "species:S:1:pos:R:3:radius:R:1:velo:R:3:omega:R:3:force:R:3:active:I:1"
+COLUMNS_3D = ("pos", 3), ("radius", 1), ("velo", 3), ("omega", 3), ("force", 3), ("active", 1)
+"""Spheres: the same columns with the spin vector."""
 
 
 def _table(state: SimState):
@@ -42,13 +47,17 @@ def _table(state: SimState):
     scalar is "np.float64(...)")."""
     p = state.particles
     pos = np.asarray(p.position, float)
-    n = pos.shape[0]
+    n, d = pos.shape
     reach = float(np.asarray(p.radius).max()) if n else 0.5
-    lo = pos.min(0) - reach if n else np.zeros(2)
-    hi = np.maximum(pos.max(0) + reach if n else np.ones(2), lo + 1e-12)
+    lo = pos.min(0) - reach if n else np.zeros(d)
+    hi = np.maximum(pos.max(0) + reach if n else np.ones(d), lo + 1e-12)
     zero = np.zeros((n, 1))
-    table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
-                       np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
+    if d == 3:  # spheres: every column as it is, the spin a vector
+        table = np.hstack([pos, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float),
+                           np.asarray(p.angular_velocity, float), np.asarray(p.force, float)])
+    else:
+        table = np.hstack([pos, zero, np.asarray(p.radius, float)[:, None], np.asarray(p.velocity, float), zero,
+                           np.asarray(p.angular_velocity, float)[:, None], np.asarray(p.force, float), zero])
     rows = [" ".join(repr(float(v)) for v in row) for row in table]
     return rows, np.asarray(p.active).astype(int), [float(v) for v in lo], [float(v) for v in hi]
 
@@ -57,8 +66,11 @@ def frame_text(state: SimState, time: float | None = None) -> str:
     """One extended-XYZ frame of `state`."""
     rows, active, lo, hi = _table(state)
     size = [h - l for h, l in zip(hi, lo)]
-    header = (f'Lattice="{size[0]!r} 0.0 0.0 0.0 {size[1]!r} 0.0 0.0 0.0 1.0" Origin="{lo[0]!r} {lo[1]!r} -0.5" '
-              f'Properties={PROPERTIES} Step={int(state.step)} pbc="F F F"'
+    spheres = len(size) == 3
+    depth, bottom = (size[2], lo[2]) if spheres else (1.0, -0.5)
+    header = (f'Lattice="{size[0]!r} 0.0 0.0 0.0 {size[1]!r} 0.0 0.0 0.0 {depth!r}" '
+              f'Origin="{lo[0]!r} {lo[1]!r} {bottom!r}" '
+              f'Properties={PROPERTIES_3D if spheres else PROPERTIES} Step={int(state.step)} pbc="F F F"'
               + ("" if time is None else f" Time={float(time)!r}"))
     lines = [f"X {row} {a}" for row, a in zip(rows, active)]
     return f"{len(rows)}\n{header}\n" + "\n".join(lines) + ("\n" if lines else "")
@@ -85,12 +97,13 @@ def read_xyz(path) -> list[dict]:
         except ValueError as e:
             raise InputError(f"{path}, line {k + 1}: expected a particle count, got {lines[k]!r}.") from e
         header = dict(_pairs(lines[k + 1]))
-        if header.get("Properties") != PROPERTIES:
+        if header.get("Properties") not in (PROPERTIES, PROPERTIES_3D):
             raise InputError(f"{path}, line {k + 2}: not a jaxpile frame (Properties={header.get('Properties')}).")
+        columns = COLUMNS if header["Properties"] == PROPERTIES else COLUMNS_3D
         body = [line.split()[1:] for line in lines[k + 2:k + 2 + n]]
-        data = np.asarray(body, float).reshape(n, sum(width for _, width in COLUMNS))
+        data = np.asarray(body, float).reshape(n, sum(width for _, width in columns))
         frame, col = {}, 0
-        for name, width in COLUMNS:
+        for name, width in columns:
             frame[name] = data[:, col:col + width] if width > 1 else data[:, col]
             col += width
         frame["active"] = frame["active"].astype(bool)
@@ -102,6 +115,7 @@ def read_xyz(path) -> list[dict]:
 
 
 DUMP_COLUMNS = "id type x y z radius vx vy vz omegaz fx fy fz active"
+DUMP_COLUMNS_3D = "id type x y z radius vx vy vz omegax omegay omegaz fx fy fz active"
 
 
 def dump_text(state: SimState) -> str:
@@ -109,9 +123,11 @@ def dump_text(state: SimState) -> str:
     `read_dump` / `rerun` read): ids from 1, type 1, z = 0, and the box of the
     disks (`ff ff pp`, non-periodic in the plane)."""
     rows, active, lo, hi = _table(state)
+    spheres = len(lo) == 3
+    z = f"ff\n{lo[0]!r} {hi[0]!r}\n{lo[1]!r} {hi[1]!r}\n{lo[2]!r} {hi[2]!r}" if spheres else \
+        f"pp\n{lo[0]!r} {hi[0]!r}\n{lo[1]!r} {hi[1]!r}\n-0.5 0.5"
     head = (f"ITEM: TIMESTEP\n{int(state.step)}\nITEM: NUMBER OF ATOMS\n{len(rows)}\n"
-            f"ITEM: BOX BOUNDS ff ff pp\n{lo[0]!r} {hi[0]!r}\n{lo[1]!r} {hi[1]!r}\n"
-            f"-0.5 0.5\nITEM: ATOMS {DUMP_COLUMNS}\n")
+            f"ITEM: BOX BOUNDS ff ff {z}\nITEM: ATOMS {DUMP_COLUMNS_3D if spheres else DUMP_COLUMNS}\n")
     lines = [f"{k + 1} 1 {row} {a}" for k, (row, a) in enumerate(zip(rows, active))]
     return head + "\n".join(lines) + ("\n" if lines else "")
 

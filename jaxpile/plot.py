@@ -15,7 +15,8 @@ from matplotlib.collections import EllipseCollection, LineCollection
 def pile_figure(position, radius, network=None, *, active=None, title: str = "", path=None, max_width: float = 4.0,
                 length_unit: str = "diameters"):
     """Disks, with each disk-disk contact drawn as a line between centres whose
-    width (and colour) is the normal force.
+    width (and colour) is the normal force; spheres (`[n, 3]`) as
+    `spheres_figure` draws them.
 
     Args:
       position: `[n, 2]`; radius: `[n]`.
@@ -24,6 +25,8 @@ def pile_figure(position, radius, network=None, *, active=None, title: str = "",
       length_unit: the axes' unit label.
     """
     position, radius = np.asarray(position), np.asarray(radius)
+    if position.shape[1] == 3:  # spheres: from the side and from above
+        return spheres_figure(position, radius, active=active, title=title, path=path, length_unit=length_unit)
     active = np.ones(len(radius), bool) if active is None else np.asarray(active)
     pos, rad = position[active], radius[active]
     width = np.ptp(pos[:, 0]) + 2 * rad.max()
@@ -47,6 +50,39 @@ def pile_figure(position, radius, network=None, *, active=None, title: str = "",
     ax.set_ylabel(f"y ({length_unit})")
     if title:
         ax.set_title(_wrapped(title))
+    fig.tight_layout()
+    return _finish(fig, path)
+
+
+def spheres_figure(position, radius, *, active=None, title: str = "", path=None, length_unit: str = "diameters"):
+    """Spheres seen from the side (x, z; the nearer drawn over the farther,
+    shaded by depth) and from above (x, y, coloured by height): a heap as a
+    person looks at it."""
+    position, radius = np.asarray(position), np.asarray(radius)
+    active = np.ones(len(radius), bool) if active is None else np.asarray(active)
+    pos, rad = position[active], radius[active]
+    fig, (side, above) = plt.subplots(1, 2, figsize=(12.0, 5.2))
+    order = np.argsort(pos[:, 1])[::-1]  # the farthest (largest y) first, the nearest on top
+    depth = (pos[order, 1] - pos[:, 1].min()) / max(np.ptp(pos[:, 1]), 1e-9)
+    side.add_collection(EllipseCollection(2 * rad[order], 2 * rad[order], 0.0, units="xy", offsets=pos[order][:, [0, 2]],
+                                          offset_transform=side.transData, array=depth, cmap="Greys", clim=(-0.6, 1.4),
+                                          edgecolors="#6b6455", linewidths=0.2))
+    high = np.argsort(pos[:, 2])  # the highest drawn last
+    dots = above.add_collection(EllipseCollection(2 * rad[high], 2 * rad[high], 0.0, units="xy",
+                                                  offsets=pos[high][:, :2], offset_transform=above.transData,
+                                                  array=pos[high, 2], cmap="viridis", edgecolors="none"))
+    fig.colorbar(dots, ax=above, label=f"height z ({length_unit})", shrink=0.8)
+    reach = rad.max()
+    for ax, (a, b), labels in ((side, (0, 2), ("x", "z")), (above, (0, 1), ("x", "y"))):
+        ax.set_xlim(pos[:, a].min() - reach, pos[:, a].max() + reach)
+        ax.set_ylim(pos[:, b].min() - reach, pos[:, b].max() + reach)
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"{labels[0]} ({length_unit})")
+        ax.set_ylabel(f"{labels[1]} ({length_unit})")
+    side.set_title("from the side")
+    above.set_title("from above")
+    if title:
+        fig.suptitle(_wrapped(title))
     fig.tight_layout()
     return _finish(fig, path)
 

@@ -146,6 +146,8 @@ NON_NEGATIVE = Range(low=0)
 COUNT = Range(low=1, whole=True)
 DISKS = Range(low=1, whole=True, unit="disks")
 """A disk count (the memory check, `jaxpile.budget`, bounds it above)."""
+SPHERES = Range(low=1, whole=True, unit="spheres")
+"""A sphere count (as `DISKS`)."""
 STEPS = Range(low=1, high=2**31 - 1, whole=True, unit="steps", why="the step counter is 32-bit")
 SEED = Range(low=0, high=2**32 - 1, whole=True, why="numpy's random generators take 32-bit seeds")
 FRACTION = Range(low=0, high=1)

@@ -75,7 +75,8 @@ def test_a_set_up_has_the_same_shapes_for_every_seed():
     from jaxpile.protocols import PROTOCOLS
 
     cases = [("drop", 20, {}), ("box", 40, {"width": 1.6, "height": 1.2}), ("flux", 6, {"width": 1.0}),
-             ("flux", 50, {}), ("pour", 12, {"release_height": 8}), ("hopper", 60, {})]
+             ("flux", 50, {}), ("pour", 12, {"release_height": 8}), ("hopper", 60, {}),
+             ("cone", 20, {})]
     for name, size, options in cases:
         spec = PROTOCOLS[name]
         shapes = set()

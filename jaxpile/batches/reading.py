@@ -11,6 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from jaxpile.errors import InputError
+from jaxpile.measure.cone_heap import ROW_COLUMNS as CONE_ROW_COLUMNS
+from jaxpile.measure.cone_heap import sweep_row as cone_row
 from jaxpile.measure.poured_heap import ROW_COLUMNS as POUR_ROW_COLUMNS
 from jaxpile.measure.poured_heap import sweep_row as pour_row
 from jaxpile.measure.sloped_pile import COMPARED as SLOPED_COMPARED
@@ -113,6 +115,11 @@ BATCHES: dict[str, Batch] = {
         theory=marginal_stability_overlay, extent=heap_extent("substrate", "centre_x", "n_poured"),
         fit_statistics={"columns": ("repose_mean",), "bins": 9},
         readings={"angle_of_repose": "repose_mean", "packing_fraction": "core_packing_fraction"},
+        simulator_options=frozenset(), sequential=True),
+    "cone": Batch(
+        row=cone_row, row_columns=CONE_ROW_COLUMNS, angles=("angle", "angle_height_base", "central_dip"),
+        fit_statistics={"columns": ("angle", "central_dip")},
+        readings={"angle_of_repose": "angle", "packing_fraction": "packing_fraction"},
         simulator_options=frozenset(), sequential=True),
     "hopper": Batch(
         row=("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density",

@@ -126,7 +126,7 @@ def _protocol_figures(name, m, state, base, network, law_name, out) -> list:
 
     registered = presentation(name)
     p = state.particles
-    title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} disks"
+    title = f"{name} pile, {law_name} law, {int(np.asarray(p.active).sum())} {'spheres' if p.dim == 3 else 'disks'}"
     plot.pile_figure(p.position, p.radius, network, active=np.asarray(p.active), title=title,
                      length_unit="diameters" if registered.length_unit is None else registered.length_unit(law_name),
                      path=os.path.join(out, "pile.png"))

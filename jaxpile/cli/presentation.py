@@ -123,6 +123,39 @@ def heap_summary(measured: dict) -> dict:
     return {**poured_heap.summary(measured), "run": run, "setup": setup}
 
 
+def cone_figure(measured: dict, title: str, out: str) -> list[str]:
+    """cone.png: the base pressure p(r) over the mean pressure (Smid & Novosad's
+    measurement) and the azimuthally averaged surface h(r) with its angle."""
+    from jaxpile import plot
+
+    pressure, surface = measured.get("pressure"), measured.get("surface")
+    if pressure is None or surface is None:
+        return []
+    read = lambda prof: (np.asarray(prof["r"] if isinstance(prof, dict) else prof.r, float),
+                         np.asarray([np.nan if v is None else v for v in (prof["value"] if isinstance(prof, dict)
+                                                                         else prof.value)], float))
+    (r_p, p), (r_h, h) = read(pressure), read(surface)
+    radius = float(measured.get("base_radius") or r_p[-1])
+    angle = measured.get("angle")
+    plot.series_figure(r_p / radius, {"p(r) / mean pressure": p}, xlabel="r / R",
+                       ylabel="base pressure / mean", title=title + " (Smid & Novosad's p(r))",
+                       path=os.path.join(out, "cone_pressure.png"))
+    plot.series_figure(r_h, {"h(r)": h}, xlabel="r (diameters)", ylabel="surface height (diameters)",
+                       title=title + ("" if angle is None else f": angle of repose {angle:.1f}°"),
+                       path=os.path.join(out, "cone_surface.png"))
+    return ["cone_pressure.png", "cone_surface.png"]
+
+
+def cone_summary(measured: dict) -> dict:
+    """A cone's summary.json: `cone_heap.summary`, the run and the set-up."""
+    from jaxpile.measure import cone_heap
+
+    run = {"steps": measured["steps"], "at_rest": measured["at_rest"], "max_speed": measured["final_max_speed"],
+           **{k: measured[k] for k in ("wall_seconds", "compile_seconds", "total_seconds", "neighbor_reallocations")}}
+    setup = {k: v for k, v in measured["info"].items() if k != "law_options"}
+    return {**cone_heap.summary(measured), "run": run, "setup": setup}
+
+
 def sloped_theory(measured: dict, base) -> tuple | None:
     """The continuum N(x), H(x) of Liffman et al. 1992 eqs. 54-59 at the base's x,
     for the profile figure, with its label."""
@@ -222,6 +255,12 @@ PRESENTATIONS: dict[str, Presentation] = {
                   "m_shape.ratio", "m_shape.m_shaped", "dip_below_flanks"),
         base_forces=lambda sim, params, state, measured: measured["substrate_forces"],
         summary=heap_summary, figures=(heap_profile_figure,)),
+    "cone": Presentation(
+        order=7, help="a conical heap of spheres poured onto a rough plate (Smid & Novosad's experiment, 3D)",
+        flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
+        headline=("counts.in_play", "run.at_rest", "height", "base_radius", "angle", "angle_height_base",
+                  "central_dip", "packing_fraction"),
+        summary=cone_summary, figures=(cone_figure,)),
     "hopper": Presentation(
         order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", flags={"seed": "seed"},
         headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),

@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxpile._jax_md import dataclasses, partition
 
@@ -69,6 +70,12 @@ class Particles:
     def dim(self) -> int:
         """2 for disks, 3 for spheres (static: the positions' shape)."""
         return self.position.shape[-1]
+
+    @property
+    def spin_squared(self) -> Array:
+        """`[n]` |omega|^2: the spin squared (disks), the spin vector's square (spheres)."""
+        w = self.angular_velocity
+        return w**2 if w.ndim < self.position.ndim else jnp.sum(w**2, -1)
 
     @property
     def movable(self) -> Array:

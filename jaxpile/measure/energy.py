@@ -14,13 +14,14 @@ from jaxpile.measure.arrays import positive_number
 def kinetic_energy(state: SimState) -> float:
     """Translational plus rotational kinetic energy of the movable disks."""
     p = state.particles
-    e = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.angular_velocity**2
+    e = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.spin_squared
     return float(jnp.sum(jnp.where(p.movable, e, 0.0)))
 
 
 def _mean_kinetic_energy(mass, velocity, inertia, angular_velocity, movable):
     """Mean over movable disks of m v^2 / 2 + I w^2 / 2; arrays may carry a leading time axis."""
-    e = 0.5 * mass * np.sum(velocity**2, axis=-1) + 0.5 * inertia * angular_velocity**2
+    spin2 = angular_velocity**2 if np.ndim(angular_velocity) < np.ndim(velocity) else np.sum(angular_velocity**2, -1)
+    e = 0.5 * mass * np.sum(velocity**2, axis=-1) + 0.5 * inertia * spin2
     count = np.maximum(np.sum(movable, axis=-1), 1)
     return np.sum(np.where(movable, e, 0.0), axis=-1) / count
 

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxpile.errors import InputError
+from jaxpile.engine.integrators import per_spin
 from jaxpile.engine.state import SimState
 
 Array = Any
@@ -122,9 +123,9 @@ def park_where(state: SimState, out, park) -> SimState:
         active=p.active & ~out,
         position=jnp.where(out[:, None], park, p.position),
         velocity=jnp.where(out[:, None], 0.0, p.velocity),
-        angular_velocity=jnp.where(out, 0.0, p.angular_velocity),
+        angular_velocity=jnp.where(per_spin(out, p.angular_velocity), 0.0, p.angular_velocity),
         force=jnp.where(out[:, None], 0.0, p.force),
-        torque=jnp.where(out, 0.0, p.torque),
+        torque=jnp.where(per_spin(out, p.torque), 0.0, p.torque),
     ))
 
 

@@ -51,11 +51,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
 from jaxpile import budget, ranges
 from jaxpile.engine.boundaries import (
@@ -71,7 +70,7 @@ from jaxpile.measure.heap import steepest_heap_height, substrate_size
 
 # the heap's measurements, and the check of the options that read it (`jaxpile.measure.poured_heap`)
 from jaxpile.measure.poured_heap import check_options, measure
-from jaxpile.protocols import drivers, geometry
+from jaxpile.protocols import drivers
 from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.protocols.stages import Phase
@@ -179,77 +178,12 @@ class PourOptions(Options):
                              f"is narrower than the pouring interval +-{self.spread:g} sigma.")
 
 
-class PourState(NamedTuple):
-    """What the pouring driver carries (`SimState.protocol_state`).
-
-    Attributes:
-      poured: int scalar, disks released so far.
-      total: int scalar, disks to release.
-      first: int scalar, index of the first pourable disk (the substrate comes first).
-      interval: int scalar, steps between releases (the first at step 0).
-      release_position: `[n, 2]` where each disk is released (rows of the
-        substrate unused).
-      release_velocity: `[2]` velocity at release ((0, 0) unless `insert_height`
-        is used).
-      park_position: `[n, 2]` where each disk waits (and returns to when lost).
-      lost: `[n]` bool, disks that fell off the substrate's ends.
-      lost_below: scalar, the centre height below which a disk is lost.
-      ends: `[2]` x beyond which a disk's centre has left a flat floor and is
-        lost (-inf, inf on a row, which disks leave by falling).
-    """
-
-    poured: Array
-    total: Array
-    first: Array
-    interval: Array
-    release_position: Array
-    release_velocity: Array
-    park_position: Array
-    lost: Array
-    lost_below: Array
-    ends: Array
-
-
-def driver(state: SimState) -> SimState:
-    """The pouring driver (run before every step inside the compiled loop).
-
-    Takes out of play every active disk whose centre fell below `lost_below`
-    (it falls off an end of the substrate row) or passed one of a flat floor's
-    `ends` (parked again, inactive, counted in `lost`), then on steps `0, interval, 2 interval, ...` releases the next disk
-    at its `release_position` with `release_velocity` and with its force set to
-    its weight, so the first half kick is the free fall's.
-    """
-    ps: PourState = state.protocol_state
-    p = state.particles
-    x = p.position[:, 0]
-    fell = p.active & ~p.fixed & ((p.position[:, 1] < ps.lost_below) | (x < ps.ends[0]) | (x > ps.ends[1]))
-    due = (state.step % ps.interval == 0) & (ps.poured < ps.total)
-
-    def act(state: SimState) -> SimState:
-        state = geometry.park_where(state, fell, ps.park_position)
-        index = ps.first + jnp.minimum(ps.poured, ps.total - 1)
-        state = drivers.activate(state, index, ps.release_position[index], ps.release_velocity, when=due)
-        p = state.particles
-        hit = (jnp.arange(p.count) == index) & due
-        p = p.set(force=jnp.where(hit[:, None], p.mass[:, None] * state.boundaries.gravity[None, :], p.force))
-        return state.set(particles=p, protocol_state=ps._replace(poured=ps.poured + due.astype(ps.poured.dtype),
-                                                                 lost=ps.lost | fell))
-
-    # most steps neither release nor lose a disk: skip the writes over every disk
-    # (a cond; under vmap a select, which costs what the writes alone do). Both branches agree bit for bit then.
-    return lax.cond(due | jnp.any(fell), act, lambda s: s, state)
-
-
-def in_play(state: SimState, steps: int) -> int:
-    """Host-side: how many leading disks can be in play during the next `steps`
-    steps: the substrate and every disk released by then (disks are released in
-    index order, one at each multiple of the interval; lost disks are parked
-    at their own index). The `Simulator(in_play=...)` of a pour runs each chunk
-    on the smallest block that holds them (`jaxpile.engine.blocks`)."""
-    ps: PourState = state.protocol_state
-    step, interval = int(state.step), int(ps.interval)
-    releases = (step + int(steps) - 1) // interval - (step - 1) // interval
-    return int(ps.first) + min(int(ps.total), int(ps.poured) + max(releases, 0))
+PourState = drivers.Pouring
+"""What the pouring driver carries (`drivers.Pouring`, shared with the cone)."""
+driver = drivers.pouring
+"""The pouring driver (`drivers.pouring`): releases the next disk every interval, loses those off the row."""
+in_play = drivers.poured_in_play
+"""How many leading disks can be in play during the next steps (`drivers.poured_in_play`)."""
 
 
 def setup(o: PourOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:

@@ -184,7 +184,7 @@ def _sample(state):
     from jaxpile.engine.simulate import max_speed
 
     p = state.particles
-    energy = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.angular_velocity**2
+    energy = 0.5 * p.mass * jnp.sum(p.velocity**2, -1) + 0.5 * p.inertia * p.spin_squared
     count = jnp.maximum(jnp.sum(p.movable), 1)
     return state.step, jnp.sum(jnp.where(p.movable, energy, 0.0)) / count, max_speed(state)
 
