@@ -121,6 +121,10 @@ BATCHES: dict[str, Batch] = {
         fit_statistics={"columns": ("angle", "central_dip")},
         readings={"angle_of_repose": "angle", "packing_fraction": "packing_fraction"},
         simulator_options=frozenset(), sequential=True),
+    "lift": Batch(
+        row=cone_row, row_columns=CONE_ROW_COLUMNS, angles=("angle", "angle_height_base"),
+        fit_statistics={"columns": ("angle",)}, readings={"angle_of_repose": "angle"},
+        simulator_options=frozenset(), sequential=True),
     "hopper": Batch(
         row=("flow_rate", "beverloo_c", "discharged", "remaining", "clogged", "at_rest", "number_density",
              "dead_zone_angle", "dead_zone_left", "dead_zone_right"),

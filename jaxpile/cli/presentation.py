@@ -261,6 +261,12 @@ PRESENTATIONS: dict[str, Presentation] = {
         headline=("counts.in_play", "run.at_rest", "height", "base_radius", "angle", "angle_height_base",
                   "central_dip", "packing_fraction"),
         summary=cone_summary, figures=(cone_figure,)),
+    "lift": Presentation(
+        order=9, help="a cylinder of spheres on a rough plate, filled and lifted (the DEM calibration test, 3D)",
+        flags={"max_steps": "max_settle_steps", "speed_tol": "speed_tolerance", "seed": "seed"},
+        headline=("counts.in_play", "run.at_rest", "height", "base_radius", "angle", "angle_height_base",
+                  "packing_fraction"),
+        summary=cone_summary, figures=(cone_figure,)),
     "hopper": Presentation(
         order=8, help="a silo emptied through an orifice (Beverloo's law; not in the papers)", flags={"seed": "seed"},
         headline=("discharged", "remaining", "clogged", "flow_rate", "number_density", "beverloo_c"),

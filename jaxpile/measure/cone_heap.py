@@ -168,7 +168,12 @@ def measure(sim, params, state: SimState, *, axis, ring: float = 1.0, rings: int
         return out
     x, rad = np.asarray(p.position)[heap], np.asarray(p.radius)[heap]
     fixed = np.asarray(p.fixed)
-    base = float(np.max(np.asarray(p.position)[fixed, 2] + np.asarray(p.radius)[fixed])) if fixed.any() else 0.0
+    if fixed.any():  # the plate: the lowest layer of fixed spheres (a lifted cylinder's are fixed too)
+        z = np.asarray(p.position)[:, 2]
+        plate = fixed & (z <= z[fixed].min() + 1e-6)
+        base = float(np.max(z[plate] + np.asarray(p.radius)[plate]))
+    else:
+        base = 0.0
     h = surface(x, rad, axis, base=base, ring=ring)
     points, forces = base_contacts(sim, params, state)
     r = np.hypot(*(points - np.asarray(axis)[None, :]).T) if len(points) else np.zeros(0)

@@ -37,13 +37,13 @@ def get(name: str) -> ProtocolSpec:
     return registered(name)
 
 
-from jaxpile.protocols import box, cone, drop, flux, hopper, lattice, pour, sloped, tilt  # noqa: E402  (registered above)
+from jaxpile.protocols import box, cone, drop, flux, hopper, lattice, lift, pour, sloped, tilt  # noqa: E402  (registered above)
 
 __all__ = [
     # running one: `run` a registered protocol, or `run_setup` a set-up of your own through its phases
     "PROTOCOLS", "PileRun", "get", "run", "run_setup",
     # the protocols, one module each
-    "box", "cone", "drop", "flux", "hopper", "lattice", "pour", "sloped", "tilt",
+    "box", "cone", "drop", "flux", "hopper", "lattice", "lift", "pour", "sloped", "tilt",
     # writing one (docs/extending.md): its declaration, options, phases, set-up, and the shared pieces
     "Options", "Phase", "ProtocolSpec", "Setting", "Setup", "drivers", "geometry", "one_phase", "option",
 ]

@@ -37,7 +37,7 @@ from jaxpile.engine.boundaries import make_boundaries, set_wall, GROUND, LEFT_WA
 from jaxpile.engine.state import make_particles
 from jaxpile.errors import InputError
 from jaxpile.measure import cone_heap
-from jaxpile.protocols import drivers
+from jaxpile.protocols import drivers, geometry
 from jaxpile.protocols.base import Setting, Setup
 from jaxpile.protocols.spec import Options, ProtocolSpec, option
 from jaxpile.protocols.stages import Phase
@@ -115,17 +115,6 @@ def steepest_cone_height(n: int) -> float:
     return cone_volume_radius(n, 45.0)
 
 
-def plate(spacing: float, radius: float) -> np.ndarray:
-    """`[m, 2]` a triangular lattice `spacing` apart within `radius` of the origin."""
-    rows = int(math.ceil(radius / (spacing * math.sqrt(3) / 2))) + 1
-    cols = int(math.ceil(radius / spacing)) + 1
-    j, i = np.meshgrid(np.arange(-rows, rows + 1), np.arange(-cols, cols + 1), indexing="ij")
-    x = spacing * (i + 0.5 * (j % 2))
-    y = spacing * math.sqrt(3) / 2 * j
-    points = np.stack([x.ravel(), y.ravel()], 1)
-    return points[np.hypot(points[:, 0], points[:, 1]) <= radius]
-
-
 def setup(o: ConeOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
     """The cone's set-up: the plate (fixed spheres `0 .. m-1`), then `o.n`
     spheres to pour in release order. The axis is x = y = 0; heights are
@@ -153,7 +142,7 @@ def setup(o: ConeOptions, *, law, seed: int, dt: float, dtype=None) -> Setup:
                          f"{gap:.2f} sigma below it and they could touch in the air; leave at least "
                          f"{MIN_RELEASE_GAP} sigma (a lower insert_height gives the spheres speed, and room).")
     radius = cone_volume_radius(n, 20.0) + 3.0 if o.base_radius is None else float(o.base_radius)
-    base = plate(o.spacing, radius)
+    base = geometry.plate(o.spacing, radius)
     rows = len(base)
     budget.check(n + rows, dtype or "float64", what="a cone with its plate")
 
@@ -232,4 +221,4 @@ and measures its angle of repose, base pressure p(r) and dip."""
 
 
 __all__ = ["ConeOptions", "LAW_SETTING", "SETTING", "SPEC", "cone_volume_radius", "law_and_params", "measure",
-           "phases", "plate", "setup", "simulator", "steepest_cone_height"]
+           "phases", "setup", "simulator", "steepest_cone_height"]

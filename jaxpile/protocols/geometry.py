@@ -145,3 +145,15 @@ def bottom_row_extent(protocol):
     y, x, r = np.asarray(p.position[:, 1]), np.asarray(p.position[:, 0]), np.asarray(p.radius)
     row = np.abs(y - y.min()) < 0.25 * r.min()
     return "ground", float((x - r)[row].min()), float((x + r)[row].max())
+
+
+def plate(spacing: float, radius: float) -> np.ndarray:
+    """`[m, 2]` a triangular lattice `spacing` apart within `radius` of the origin: the rough plate of
+    the cone and the cylinder lift."""
+    rows = int(math.ceil(radius / (spacing * math.sqrt(3) / 2))) + 1
+    cols = int(math.ceil(radius / spacing)) + 1
+    j, i = np.meshgrid(np.arange(-rows, rows + 1), np.arange(-cols, cols + 1), indexing="ij")
+    x = spacing * (i + 0.5 * (j % 2))
+    y = spacing * math.sqrt(3) / 2 * j
+    points = np.stack([x.ravel(), y.ravel()], 1)
+    return points[np.hypot(points[:, 0], points[:, 1]) <= radius]
