@@ -148,8 +148,9 @@ def case_objective(case: str, args, runner, statistics, out: dict):
 def _save(out: dict, path: str) -> None:
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
     tmp = path + ".tmp"
-    with open(tmp, "w") as fh:
-        json.dump(out, fh, indent=1)
+    with open(tmp, "w") as fh:  # compact: its per-replicate records are read by scripts, its summary printed
+        json.dump(out, fh, separators=(",", ":"))
+        fh.write("\n")
     os.replace(tmp, path)
 
 

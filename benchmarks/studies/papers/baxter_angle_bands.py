@@ -19,7 +19,6 @@ one core for the eight 1334-disk heaps); its result here is committed.
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import pathlib
 
@@ -53,20 +52,21 @@ def mean_se(values) -> dict:
 
 
 def main(argv=None) -> dict:
+    from baxter_readings import saved_heap_arguments, saved_heaps
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--folder", default="benchmarks/results/baxter_readings/n1334")
-    parser.add_argument("--setting", default="contact-point_hold", help="file prefix of the saved heaps")
-    parser.add_argument("--out", default=None, help="JSON (default: <folder>/angle_bands_<setting>.json)")
+    saved_heap_arguments(parser, "angle_bands")
     args = parser.parse_args(argv)
     import jaxpile
 
     jaxpile.configure()  # float64 and the commands' XLA settings
 
-    files = sorted(glob.glob(f"{args.folder}/{args.setting}_seed*.npz"))
+    setting = args.setting.replace("/", "_")  # the file prefix
+    files = saved_heaps(args.folder, setting)
     if not files:
-        parser.error(f"no saved heaps {args.folder}/{args.setting}_seed*.npz")
+        parser.error(f"no saved heaps {args.folder}/{setting}_seed*.npz")
     heaps = {pathlib.Path(f).stem: heap_angles(f) for f in files}
-    out = {"folder": args.folder, "setting": args.setting, "bands": {}, "heaps": heaps}
+    out = {"folder": args.folder, "setting": setting, "bands": {}, "heaps": heaps}
     for name in BANDS:
         both = [np.mean([a for a in h[name] if a is not None]) for h in heaps.values() if any(h[name])]
         out["bands"][name] = mean_se(both)
@@ -74,13 +74,13 @@ def main(argv=None) -> dict:
     out["steeper_flank"] = mean_se([max(a) for a in main_band if a])
     out["shallower_flank"] = mean_se([min(a) for a in main_band if a])
 
-    print(f"{len(files)} heaps in {args.folder} ({args.setting}); the paper: 35 +- 5 deg")
+    print(f"{len(files)} heaps in {args.folder} ({setting}); the paper: 35 +- 5 deg")
     for name, r in out["bands"].items():
         print(f"  band {name} of the apex height, both flanks: {r['mean']:.1f} +- {r['se']:.1f} deg")
     for key in ("steeper_flank", "shallower_flank"):
         r = out[key]
         print(f"  {key.replace('_', ' ')} (band 0.2-0.8): {r['mean']:.1f} +- {r['se']:.1f} deg")
-    target = args.out or f"{args.folder}/angle_bands_{args.setting}.json"
+    target = args.out or f"{args.folder}/angle_bands_{setting}.json"
     pathlib.Path(target).write_text(json.dumps(out, indent=1))
     return out
 

@@ -24,7 +24,6 @@ simulation: about a minute for 8 heaps of 1334 disks.
 from __future__ import annotations
 
 import argparse
-import glob
 import json
 import pathlib
 import sys
@@ -99,18 +98,16 @@ def heap_arch(path: str, setting: str) -> dict:
 
 
 def main(argv=None) -> dict:
-    from baxter_readings import mean_stderr
+    from baxter_readings import mean_stderr, saved_heap_arguments, saved_heaps
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--folder", default="benchmarks/results/baxter_readings/n1334")
-    parser.add_argument("--setting", default="contact-point/hold", help="a baxter_readings setting")
-    parser.add_argument("--out", default=None, help="JSON (default: <folder>/arch_<setting>.json)")
+    saved_heap_arguments(parser, "arch")
     args = parser.parse_args(argv)
     import jaxpile
 
     jaxpile.configure()  # float64, as the heaps were saved
     stem = args.setting.replace("/", "_")
-    files = sorted(glob.glob(f"{args.folder}/{stem}_seed*.npz"))
+    files = saved_heaps(args.folder, args.setting)
     if not files:
         parser.error(f"no saved heaps of {args.setting} in {args.folder} (run baxter_readings.py with its "
                      "summary's command)")

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import glob
 import json
 import math
 import os
@@ -371,6 +372,27 @@ def heap_rows(folder) -> list[dict]:
     return study_rows(folder, "heaps", lambda row: (name_of(row), row["seed"]), "*_seed*.json")
 
 
+def saved_heap_arguments(parser, out_name: str) -> None:
+    """The flags of a study that reads the saved heaps of one setting: --folder, --setting, --out."""
+    parser.add_argument("--folder", default="benchmarks/results/baxter_readings/n1334")
+    parser.add_argument("--setting", default="contact-point/hold", help="a setting (or its file prefix)")
+    parser.add_argument("--out", default=None, help=f"JSON (default: <folder>/{out_name}_<setting>.json)")
+
+
+def saved_heaps(folder, setting: str) -> list[str]:
+    """The saved end states of `setting`'s heaps in `folder` (`<setting>_seed<k>.npz`, "/" as "_")."""
+    return sorted(glob.glob(f"{folder}/{setting.replace('/', '_')}_seed*.npz"))
+
+
+def write_summary(path, out: dict) -> None:
+    """A heap size's summary.json: its settings' table indented to read, each
+    heap's row on one line (the rows' profiles would otherwise take a line a number)."""
+    heaps = out.get("heaps", [])
+    head = json.dumps({k: v for k, v in out.items() if k != "heaps"}, indent=1)
+    rows = ",\n".join("  " + json.dumps(row, separators=(",", ":")) for row in heaps)
+    pathlib.Path(path).write_text(head[:-2] + (',\n "heaps": [\n' + rows + "\n ]\n}" if heaps else "\n}") + "\n")
+
+
 def keep_heaps(folder) -> int:
     """Writes every finished heap's row in `folder` into its summary.json
     (`heaps`), so that a study stopped before its end keeps what it has done
@@ -382,7 +404,7 @@ def keep_heaps(folder) -> int:
     out["heaps"] = heap_rows(folder)
     if out["n"] is None and out["heaps"]:
         out["n"] = out["heaps"][0]["n"]
-    summary_file.write_text(json.dumps(out, indent=1))
+    write_summary(summary_file, out)
     return len(out["heaps"])
 
 
@@ -466,7 +488,7 @@ def main(argv=None) -> dict:
     out = json.loads(summary_file.read_text()) if summary_file.exists() else {"n": args.n, "settings": {}}
     out["settings"].update(table)
     out["heaps"] = every
-    summary_file.write_text(json.dumps(out, indent=1))
+    write_summary(summary_file, out)
     if args.figure:
         figure(rows, args.figure, f"Baxter et al. 1997 heaps of {args.n} disks, poured onto S = 1.1 sigma")
         print(f"figure: {args.figure}")

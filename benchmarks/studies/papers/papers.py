@@ -124,7 +124,7 @@ def _rows_networks() -> list[list[str]]:
            and 0 < slip["tangential_velocity_after"] / slip["tangential_velocity_before"] < 1)
     kept = max(abs(c[k]) for c in (noslip, slip) for k in ("restitution_residual", "momentum_residual")) < 1e-12
     return [
-        ["1992", f"45-layer lattice (`liffman` law): the bottom row's sink into the ground (sec. 4, eqs. 42, 45–46)",
+        ["1992", "45-layer lattice (`liffman` law): the bottom row's sink into the ground (sec. 4, eqs. 42, 45–46)",
          "about 2.3e-3 σ", f"{lat['max_sink_sigma']:.3g} σ at most ({lat['centre_sink_sigma']:.3g} σ at the centre); "
          f"(k + 1)/2 mg / K_s = {lat['theory_max_sink_sigma']:.3g} σ",
          "agrees (within 5%)" if abs(sink_off) < 0.05 else f"differs ({100 * sink_off:+.0f}%)"],
