@@ -160,3 +160,30 @@ def test_packed_capacity_in_3d_is_the_fcc_packing_of_the_smallest_spheres():
     assert int(np.max(np.sum(np.asarray(pressed.idx) < len(packed), axis=1))) == 12
     assert nb.pair_capacity_for(np.asarray(pressed.idx), dimension=3) >= 6 * len(packed)
     assert nb.pair_capacity_for(np.asarray(pressed.idx)) >= 3 * len(packed)  # 2D default unchanged
+
+
+def test_a_heap_about_the_origin_gets_the_grid_from_its_lowest_corner():
+    """Spheres centred on x = y = 0 (the cone's plate) are not clamped into the
+    border cells of a grid from 0: `Simulator.neighbor_settings` puts the grid's
+    origin at the lowest position, so the list and its window are those of the
+    same spheres moved to positive coordinates."""
+    from jaxpile.engine import Simulator
+    from jaxpile.engine.state import make_particles
+    from jaxpile.laws import hooke
+
+    rng = np.random.default_rng(11)
+    position, radius = rng.uniform(0.0, 8.0, (300, 3)), rng.uniform(0.35, 0.5, 300)
+    centred = position - np.array([4.0, 4.0, 0.0])
+    sim = Simulator(hooke.law(), 1e-4)
+    params = hooke.Params(kn=1e4, kt=2e4 / 7, gamma_n=10.0, gamma_t=5.0, mu=0.5)
+    lists = {}
+    for name, where in (("positive", position), ("centred", centred)):
+        settings = sim.neighbor_settings(params, make_particles(where, radius))
+        assert (settings.origin is None) == (name == "positive")
+        lists[name] = nb.allocate(settings, where, packed_radius=float(radius.min()))
+        reach = settings.cutoff + settings.skin
+        assert _list_pairs(lists[name].idx) == _brute_pairs(where, reach)
+        rebuilt = nb.rebuild(lists[name], jnp.asarray(where), settings)
+        assert _list_pairs(rebuilt.idx) == _brute_pairs(where, reach)
+    assert lists["centred"].cell_list_capacity == lists["positive"].cell_list_capacity
+    assert np.array_equal(np.asarray(lists["centred"].idx), np.asarray(lists["positive"].idx))

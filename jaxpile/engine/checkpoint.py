@@ -329,6 +329,7 @@ def restore(path, template: SimState, law, params) -> SimState:
     # saved capacities): a save resumes whatever multiplier the resuming simulator asks for
     compared = [i for i, name in enumerate(nb.NeighborSettings._fields) if name != "capacity_multiplier"]
     saved, wanted = meta["neighbor_settings"], json.loads(json.dumps(list(template.neighbor_settings)))
+    saved = list(saved) + [None] * (len(wanted) - len(saved))  # a save from before the grid had an origin
     if [saved[i] for i in compared] != [wanted[i] for i in compared]:
         raise InputError(f"{path} was written with neighbour settings {meta['neighbor_settings']}; the set-up "
                          f"to resume has {list(template.neighbor_settings)}. Build the same set-up (box, skin).")

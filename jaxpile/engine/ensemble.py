@@ -159,10 +159,13 @@ class Ensemble:
             raise InputError("either every member's protocol gives a neighbour box or none does.")
         # one setting for all: the longest reach and skin, a box that covers every member
         each = [self.sim.neighbor_settings(prm, p.particles, p.box) for p, prm in zip(protocols, params_list)]
-        settings = nb.NeighborSettings(
-            box=tuple(float(b) for b in np.max([s.box for s in each], axis=0)),
-            cutoff=max(s.cutoff for s in each), skin=max(s.skin for s in each),
-            capacity_multiplier=each[0].capacity_multiplier)
+        box, origin = tuple(float(b) for b in np.max([s.box for s in each], axis=0)), None
+        if any(s.origin is not None for s in each):  # the grid from the lowest corner to the highest
+            low = np.min([s.origin or (0.0,) * len(s.box) for s in each], axis=0)
+            high = np.max([np.add(s.origin or 0.0, s.box) for s in each], axis=0)
+            box, origin = tuple(float(b) for b in high - low), tuple(float(v) for v in low)
+        settings = nb.NeighborSettings(box=box, cutoff=max(s.cutoff for s in each), skin=max(s.skin for s in each),
+                                       capacity_multiplier=each[0].capacity_multiplier, origin=origin)
         states = []
         for i, (p, prm) in enumerate(zip(protocols, params_list)):
             for name in ("driver", "schedule"):

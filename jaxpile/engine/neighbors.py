@@ -64,12 +64,24 @@ Array = Any
 
 
 class NeighborSettings(NamedTuple):
-    """Everything a neighbour list is built from (hashable: a static field)."""
+    """Everything a neighbour list is built from (hashable: a static field).
+
+    The cell grid covers `origin .. origin + box` (origin None: from 0); a
+    particle outside it is clamped into a border cell, which is correct but
+    crowds that cell (every clamped particle is read by its neighbours)."""
 
     box: tuple[float, ...]  # one extent per axis: its length is the dimension d
     cutoff: float
     skin: float
     capacity_multiplier: float
+    origin: tuple[float, ...] | None = None  # the grid's lower corner, one value per axis (None: 0)
+
+
+def _in_grid_frame(position, settings: NeighborSettings, xp=jnp):
+    """`position` measured from the grid's lower corner (itself when the origin is 0)."""
+    if settings.origin is None:
+        return position
+    return position - xp.asarray(settings.origin, dtype=position.dtype)
 
 
 def _grid(settings: NeighborSettings) -> tuple:
@@ -373,7 +385,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     `HOST_BUILD_MAX` disks the build runs on the host (`host_lists.build`, the
     traced `_build`'s list up to rounding at the reach): compiled, it would
     be an XLA program for every new pile size (docs/choices.md#host-built-lists)."""
-    host = np.asarray(position)
+    host = _in_grid_frame(np.asarray(position), settings, xp=np)
     position = transfer.to_device(position)
     n = int(position.shape[0])
     grid = _grid(settings)
@@ -407,7 +419,7 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     window = max(int(math.ceil(most * headroom)) + int(extra_capacity), packed_window, int(min_window))
     window = max(1, min(n, window))
     probe = max(1, min(n - 1, len(row_offsets(len(sizes))) * window))
-    on_host = host if n <= HOST_BUILD_MAX else position  # no second copy to the device above the switch
+    on_host = host if n <= HOST_BUILD_MAX else _in_grid_frame(position, settings)  # no second device copy below
     wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
     slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots, int(min_slots))
     slots = max(1, min(max(n - 1, 1), slots))
@@ -432,8 +444,9 @@ def rebuild(neighbors, position: Array, settings: NeighborSettings):
 def _rebuilt(neighbors, position: Array, settings: NeighborSettings):
     """`rebuild`, and the most neighbours any disk has (more than the list's
     slots when it overflowed: what a re-allocation must make room for)."""
-    idx, occupancy, over = _build(position, _grid(settings), float(settings.cutoff + settings.skin),
-                                  int(neighbors.cell_list_capacity), int(neighbors.max_occupancy))
+    idx, occupancy, over = _build(_in_grid_frame(position, settings), _grid(settings),
+                                  float(settings.cutoff + settings.skin), int(neighbors.cell_list_capacity),
+                                  int(neighbors.max_occupancy))
     error = neighbors.error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, occupancy > neighbors.max_occupancy)
     return neighbors.set(idx=idx, reference_position=position,
                          error=error.update(partition.PEC.CELL_LIST_OVERFLOW, over)), occupancy
@@ -490,8 +503,8 @@ def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_cap
     an overflow of either raises its error flag. Host-side (see `HOST_BUILD_MAX`)."""
     n = position.shape[0]
     window = n if cell_capacity is None else int(cell_capacity)
-    idx, occupancy, over = _build_outside_loop(position, _grid(settings), float(settings.cutoff + settings.skin),
-                                               window, int(max_occupancy))
+    idx, occupancy, over = _build_outside_loop(_in_grid_frame(position, settings), _grid(settings),
+                                               float(settings.cutoff + settings.skin), window, int(max_occupancy))
     return _make_list(settings, transfer.to_device(idx), transfer.to_device(position), window,
                       _error(occupancy > max_occupancy, over))
 

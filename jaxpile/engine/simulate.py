@@ -325,11 +325,15 @@ class Simulator:
         r_max = float(radius.max())
         cutoff = float(self.law.interaction_range(params, r_max, r_max))
         skin = 0.2 * 2 * r_max if self.skin is None else float(self.skin)
-        if box is None:
+        origin = None
+        if box is None:  # from 0, or from the lowest position where one is negative (a heap about x = 0)
             pos = np.asarray(particles.position)
-            extent = pos.max(axis=0) - np.minimum(pos.min(axis=0), 0.0)
+            low = np.minimum(pos.min(axis=0), 0.0)
+            extent = pos.max(axis=0) - low
             box = tuple(float(e) + 2 * (cutoff + skin) for e in extent)
-        return nb.NeighborSettings(tuple(float(b) for b in box), cutoff, skin, float(self.capacity_multiplier))
+            origin = tuple(float(v) for v in low) if np.any(low < 0) else None
+        return nb.NeighborSettings(tuple(float(b) for b in box), cutoff, skin, float(self.capacity_multiplier),
+                                   origin)
 
     def init(self, params, particles: Particles, boundaries: Boundaries, *, box=None,
              protocol_state=None, neighbor_settings: nb.NeighborSettings | None = None) -> SimState:
