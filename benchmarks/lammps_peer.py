@@ -16,7 +16,9 @@ How a jaxpile set-up maps onto LAMMPS (2D, `units lj`, `atom_style sphere`):
 * `simulate.gravity_ramp(R)`: `fix gravity` with the equal-style variable
   s(u) = u^2 (3 - 2u), u = min(step / R, 1), in one `run` for ramp and hold;
 * masses are set with `set ... mass` after `read_data` (LAMMPS turns a data
-  file's density into a mass with the sphere volume, even in 2D).
+  file's density into a mass with the sphere volume, even in 2D);
+* spheres (the cone's pour, `dimension=3`): `dimension 3`, `boundary f f f`,
+  `fix nve/sphere` (I = 2 m r^2 / 5), gravity along -z, no `enforce2d`.
 
 Timings come from the "Loop time of T on P procs for N steps" lines of the log
 (the integration only) and, separately, the whole process's wall time (start-up,
@@ -29,6 +31,7 @@ import os
 import re
 import shutil
 import subprocess
+import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -195,6 +198,46 @@ def startup_seconds(binary: str, workdir: str, launcher: list[str] | None = None
     return float(np.median([run(binary, "units lj\n", workdir, launcher).wall_seconds for _ in range(repeat)]))
 
 
+def open_race(workdir: str | None, prefix: str) -> tuple[str | None, str, str | None]:
+    """`(binary, root, version)` of a race: the LAMMPS binary (None: jaxpile
+    alone, said on stdout), the folder for its work files (`workdir`, or a
+    new temporary one) and the LAMMPS version its log header gives."""
+    binary = find_binary()
+    root = workdir or tempfile.mkdtemp(prefix=prefix)
+    os.makedirs(root, exist_ok=True)
+    if binary is None:
+        print(f"LAMMPS not found (no `lmp` on the PATH, ${BINARY_ENV} unset): jaxpile alone, LAMMPS fields null")
+        return None, root, None
+    version = run(binary, "units lj\n", os.path.join(root, "version")).version
+    print(f"LAMMPS {version} ({binary}); work files in {root}")
+    return binary, root, version
+
+
+def run_cases(cases, chosen, args, binary: str | None, root: str, keep: bool) -> dict:
+    """Runs each `(name, case)` of `cases` named in `chosen` (a case is
+    `(args, binary, root) -> (result, table rows)`), removes `root` after
+    unless `keep`, prints the table of rows, and returns `{"cases", "table",
+    "total_seconds"}`."""
+    out = {"cases": {}, "table": []}
+    t0 = time.perf_counter()
+    try:
+        for name, case in cases:
+            if name in chosen:
+                out["cases"][name], rows = case(args, binary, root)
+                out["table"] += rows
+    finally:
+        if not keep:
+            shutil.rmtree(root, ignore_errors=True)
+    out["total_seconds"] = time.perf_counter() - t0
+    width = max([len(row["case"]) for row in out["table"]] + [4])
+    print(f"\n{'case':{width}s} {'jaxpile':>9s} {'LAMMPS':>9s} {'ratio':>7s}")
+    for row in out["table"]:
+        lmp = "-" if row["lammps"] is None else f"{row['lammps']:.3g}"
+        r = "-" if row["ratio"] is None else f"{row['ratio']:.3g}"
+        print(f"{row['case']:{width}s} {row['jaxpile']:9.3g} {lmp:>9s} {r:>7s}")
+    return out
+
+
 # ------------------------------------------------------------------ files
 def _num(x) -> str:
     # repr of a Python float round-trips; numpy scalars would print as np.float64(...)
@@ -202,22 +245,25 @@ def _num(x) -> str:
 
 
 def write_data(path: str, position, diameter, box) -> None:
-    """A LAMMPS data file of disks (`Atoms # sphere`: id type diameter density x y z).
+    """A LAMMPS data file of disks or spheres (`Atoms # sphere`: id type diameter density x y z).
 
     Args:
-      position: `[n, 2]` centres; ids are 1..n in this order.
+      position: `[n, d]` centres (d = 2: disks in z = 0; d = 3: spheres); ids are 1..n in this order.
       diameter: `[n]`.
-      box: ((xlo, xhi), (ylo, yhi)).
+      box: ((xlo, xhi), (ylo, yhi)), and (zlo, zhi) for spheres.
     """
     position = np.asarray(position, float)
     diameter = np.broadcast_to(np.asarray(diameter, float), (len(position),))
-    (xlo, xhi), (ylo, yhi) = box
-    lines = ["jaxpile disks", "", f"{len(position)} atoms", "1 atom types", "",
-             f"{_num(xlo)} {_num(xhi)} xlo xhi", f"{_num(ylo)} {_num(yhi)} ylo yhi", "-0.5 0.5 zlo zhi",
-             "", "Atoms # sphere", ""]
+    (xlo, xhi), (ylo, yhi), *z = box
+    zlo, zhi = z[0] if z else (-0.5, 0.5)
+    flat = np.zeros((len(position), 3))
+    flat[:, :position.shape[1]] = position
+    lines = ["jaxpile disks" if position.shape[1] == 2 else "jaxpile spheres", "", f"{len(position)} atoms",
+             "1 atom types", "", f"{_num(xlo)} {_num(xhi)} xlo xhi", f"{_num(ylo)} {_num(yhi)} ylo yhi",
+             f"{_num(zlo)} {_num(zhi)} zlo zhi", "", "Atoms # sphere", ""]
     # density 1: the mass is set afterwards with `set` (see the module notes)
-    lines += [f"{i + 1} 1 {_num(d)} 1.0 {_num(x)} {_num(y)} 0.0" for i, ((x, y), d) in
-              enumerate(zip(position, diameter))]
+    lines += [f"{i + 1} 1 {_num(d)} 1.0 {_num(x)} {_num(y)} {_num(zz)}" for i, ((x, y, zz), d) in
+              enumerate(zip(flat, diameter))]
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n")
 
@@ -296,14 +342,14 @@ def wall_lines(boundaries, wall_coefficients: list[float], ground_fix: str = "gr
     return lines
 
 
-def _header(data_file: str, params, rotation: bool, skin: float) -> list[str]:
+def _header(data_file: str, params, rotation: bool, skin: float, dimension: int = 2) -> list[str]:
     disk, _ = hooke_coefficients(params)
     return [
         "units lj",
-        "dimension 2",
+        f"dimension {int(dimension)}",
         "atom_style sphere",
         "atom_modify map array",  # `set atom ID` on atoms created later
-        "boundary f f p",
+        "boundary f f p" if dimension == 2 else "boundary f f f",
         "comm_modify vel yes",  # granular pairs need the ghosts' velocities
         f"read_data {data_file}",
         f"neighbor {_num(skin)} bin",
@@ -313,8 +359,10 @@ def _header(data_file: str, params, rotation: bool, skin: float) -> list[str]:
     ]
 
 
-def _integrator(rotation: bool) -> str:
-    return "fix move all nve/sphere disc" if rotation else "fix move all nve"
+def _integrator(rotation: bool, dimension: int = 2) -> str:
+    if not rotation:
+        return "fix move all nve"
+    return "fix move all nve/sphere disc" if dimension == 2 else "fix move all nve/sphere"
 
 
 def _gravity(boundaries, magnitude: str) -> str:
@@ -372,41 +420,51 @@ def ground_forces(dump: dict[str, np.ndarray], gravity: float = 1.0):
 
 def pour_script(data_file: str, *, params, rotation: bool, mass, fixed_ids: int, releases, interval: int,
                 settle_steps: int, dt: float, gravity: float, dump_file: str, setup_each: bool = True,
-                skin: float = 0.2) -> str:
-    """jaxpile's pour (`protocols.pour`) replayed: disks created one by one.
+                skin: float = 0.2, dimension: int = 2) -> str:
+    """jaxpile's pour (`protocols.pour`, or the cone's in 3D) replayed: disks
+    or spheres created one by one.
 
-    The data file holds the substrate (ids 1..fixed_ids, frozen). Disk k of
-    `releases` (x, y, vx, vy, diameter, mass) is created at step k * interval at
-    its release point with its release velocity, then the run goes on for
-    `interval` steps; after the last one, `settle_steps` more. A disk that
-    leaves the box (below y = ylo, jaxpile's `lost_below`) is deleted, as
-    jaxpile parks it (`thermo_modify lost ignore`).
+    The data file holds the substrate or plate (ids 1..fixed_ids, frozen).
+    Particle k of `releases` (x, y, vx, vy, diameter, mass; in 3D x, y, z, vx,
+    vy, vz, diameter, mass) is created at step k * interval at its release
+    point with its release velocity, then the run goes on for `interval`
+    steps; after the last one, `settle_steps` more. Gravity is along -y (2D)
+    or -z (3D). A particle that leaves the box (below jaxpile's `lost_below`)
+    is deleted, as jaxpile parks it (`thermo_modify lost ignore`).
 
     Args:
       setup_each: `pre yes` on every segment (the set-up LAMMPS asks for when
         atoms were added between runs); False runs `pre no`, which skips the
         neighbour build and relies on the next distance check to pick the new
-        disk up.
+        particle up.
     """
-    lines = _header(data_file, params, rotation, skin) + mass_lines(mass)
+    lines = _header(data_file, params, rotation, skin, dimension) + mass_lines(mass)
+    down = "0.0 -1.0 0.0" if dimension == 2 else "0.0 0.0 -1.0"
     lines += [
         f"group base id 1:{int(fixed_ids)}",
-        _integrator(rotation),
-        "fix flat all enforce2d",
-        f"fix grav all gravity {_num(gravity)} vector 0.0 -1.0 0.0",
+        _integrator(rotation, dimension),
+        *(["fix flat all enforce2d"] if dimension == 2 else []),
+        f"fix grav all gravity {_num(gravity)} vector {down}",
         "fix frozen base freeze",  # after gravity: zeroes the substrate's force
         f"timestep {_num(dt)}",
         "thermo 0",
         "thermo_modify lost ignore",
     ]
     pre = "yes" if setup_each else "no"
-    for k, (x, y, vx, vy, d, m) in enumerate(releases):
+    for k, release in enumerate(releases):
         ident = int(fixed_ids) + k + 1  # create_atoms gives the next id
-        lines += [f"create_atoms 1 single {_num(x)} {_num(y)} 0.0 units box",
-                  f"set atom {ident} diameter {_num(d)} mass {_num(m)} vx {_num(vx)} vy {_num(vy)}",
+        if dimension == 2:
+            x, y, vx, vy, d, m = release
+            z, vz = 0.0, None
+        else:
+            x, y, z, vx, vy, vz, d, m = release
+        speed = f"vx {_num(vx)} vy {_num(vy)}" + ("" if vz is None else f" vz {_num(vz)}")
+        lines += [f"create_atoms 1 single {_num(x)} {_num(y)} {_num(z)} units box",
+                  f"set atom {ident} diameter {_num(d)} mass {_num(m)} {speed}",
                   f"run {int(interval)} pre {'yes' if k == 0 else pre} post no"]
+    columns = "id mass radius x y vx vy" if dimension == 2 else "id mass radius x y z vx vy vz"
     lines += [f"run {int(settle_steps)} pre {pre} post no",
-              f"dump out all custom 1 {dump_file} id mass radius x y vx vy",
+              f"dump out all custom 1 {dump_file} {columns}",
               "dump_modify out format float %.17g sort id",
               "run 0"]
     return "\n".join(lines) + "\n"

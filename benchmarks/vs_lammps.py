@@ -75,8 +75,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
-import tempfile
 import time
 
 import jax
@@ -595,32 +593,10 @@ def main(argv=None) -> dict:
     if unknown:
         parser.error(f"unknown case(s) {sorted(unknown)}")
 
-    binary = peer.find_binary()
-    root = args.workdir or tempfile.mkdtemp(prefix="vs_lammps-")
-    os.makedirs(root, exist_ok=True)
-    version = None
-    if binary is None:
-        print(f"LAMMPS not found (no `lmp` on the PATH, ${peer.BINARY_ENV} unset): jaxpile alone, LAMMPS fields null")
-    else:
-        version = peer.run(binary, "units lj\n", os.path.join(root, "version")).version
-        print(f"LAMMPS {version} ({binary}); work files in {root}")
+    binary, root, version = peer.open_race(args.workdir, "vs_lammps-")
     out = {"machine": describe(), "machine_details": details(), "jax_version": jax.__version__, "lammps_version": version, "lammps_binary": binary,
-           "cases": {}, "table": []}
-    t0 = time.perf_counter()
-    try:
-        for name, case in (("lattice", lattice_case), ("pour", pour_case), ("ensemble", ensemble_case)):
-            if name in cases:
-                out["cases"][name], rows = case(args, binary, root)
-                out["table"] += rows
-    finally:
-        if args.workdir is None:
-            shutil.rmtree(root, ignore_errors=True)
-    out["total_seconds"] = time.perf_counter() - t0
-    print(f"\n{'case':70s} {'jaxpile':>9s} {'LAMMPS':>9s} {'ratio':>7s}")
-    for row in out["table"]:
-        lmp = "-" if row["lammps"] is None else f"{row['lammps']:.3g}"
-        r = "-" if row["ratio"] is None else f"{row['ratio']:.3g}"
-        print(f"{row['case']:70s} {row['jaxpile']:9.3g} {lmp:>9s} {r:>7s}")
+           **peer.run_cases((("lattice", lattice_case), ("pour", pour_case), ("ensemble", ensemble_case)), cases,
+                            args, binary, root, keep=args.workdir is not None)}
     if args.out:
         io.write_json(args.out, out)
     return out

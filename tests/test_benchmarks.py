@@ -46,6 +46,41 @@ def test_lammps_twin_script_is_the_hooke_law_with_the_gravity_ramp(tmp_path):
     assert f"{particles.count} atoms" in data
 
 
+def test_the_cone_replay_is_a_3d_pour_of_the_same_spheres_with_the_plate_frozen(tmp_path):
+    """`cone_vs_lammps.py`'s LAMMPS input: spheres (no enforce2d, nve/sphere
+    without `disc`, gravity along -z), one `create_atoms` per poured sphere at
+    its release point and speed, the plate's spheres in the data file; and,
+    with LAMMPS present, a short replay that keeps every sphere over the plate."""
+    import argparse
+
+    import cone_vs_lammps as race
+    from jaxpile.protocols import cone
+
+    args = argparse.Namespace(n=6, interval=0.2, release_height=30.0, settle=500, seed=0)
+    setup = race.set_up(args, 0)
+    _, _, params = cone.law_and_params("hooke")
+    script, workdir = race.lammps_job(args, setup, str(tmp_path / "cone"), params, skin=0.2)
+    lines = script.splitlines()
+    assert "dimension 3" in lines and "boundary f f f" in lines and "fix move all nve/sphere" in lines
+    assert not any("enforce2d" in line for line in lines)
+    assert "fix grav all gravity 1.0 vector 0.0 0.0 -1.0" in lines
+    creates = [line.split() for line in lines if line.startswith("create_atoms")]
+    release = np.asarray(setup.protocol_state.release_position)[int(setup.protocol_state.first):]
+    assert np.allclose([[float(v) for v in c[3:6]] for c in creates], release)
+    speeds = [line for line in lines if line.startswith("set atom") and " vz " in line]
+    assert len(speeds) == 6 and all(float(line.split()[-1]) == -setup.info["insert_speed"] for line in speeds)
+    rows = int(setup.protocol_state.first)
+    assert f"{rows} atoms" in (tmp_path / "cone" / "plate.data").read_text()
+    stats = race.cone_stats(np.array([[3.0, 4.0, 1.5], [0.0, 0.0, 0.5]]), np.zeros((2, 3)), base_z=0.5)
+    assert stats["on_plate"] == 2 and stats["centroid_height"] == 0.5 and stats["height"] == 1.0
+    assert stats["rms_radius"] == pytest.approx(np.sqrt(12.5))
+    if peer.find_binary() is not None:
+        run = peer.run(peer.find_binary(), script, workdir)
+        assert run.ok, run.error
+        theirs = race.lammps_stats(run, rows, setup.info["base_z"])
+        assert theirs["on_plate"] == 6 and 0.0 < theirs["centroid_height"] < 3.0
+
+
 @pytest.mark.skipif(peer.find_binary() is None, reason="LAMMPS (lmp) is not installed")
 def test_lammps_and_jaxpile_give_the_same_base_forces_on_a_small_lattice_pile(tmp_path):
     particles, boundaries = lattice.equilateral_pile(LAYERS)
