@@ -503,6 +503,12 @@ def test_smid_novosad_declares_the_dip_and_the_angle_of_repose_liffman1992_fig17
                      "--dry-run",
                      "--out", str(tmp_path)]) == 0
     assert "statistics ['central_dip', 'repose_mean']" in capsys.readouterr().out
+    # the cone, Smid & Novosad's own heap, reads its angle of repose as `angle` (from h(r))
+    assert ef.smid_novosad_target(["central_dip", "angle"]).mean.tolist() == [0.25, 32.6]
+    assert cli.main(["fit", "--protocol", "cone", "--n", "60", "--params", "mu_roll", "--target", "smid-novosad",
+                     "--statistics", "central_dip,angle", *rolling[:2], *rolling[4:], "--dry-run",
+                     "--out", str(tmp_path)]) == 0
+    assert "spheres a pile" in capsys.readouterr().out
     assert cli.main(["fit", "--protocol", "pour", "--params", "mu", "--target", "smid-novosad", "--statistics",
                      "central_dip,height", "--estimator", "central", "--dry-run", "--out", str(tmp_path)]) == 2
     assert "declares central_dip, dip_below_flanks, repose_mean" in capsys.readouterr().err

@@ -96,7 +96,10 @@ def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:
       heaps whose base is at least 15 substrate spacings) at the same 0.25 with
       the same spread: the reading that does not average a narrow dip away;
     - `repose_mean` (the pour's angle of repose, degrees) at the reported 32.6
-      (`fit.SMID_NOVOSAD_ANGLE_DEGREES`), spread `SMID_NOVOSAD_ANGLE_SPREAD_DEGREES`.
+      (`fit.SMID_NOVOSAD_ANGLE_DEGREES`), spread `SMID_NOVOSAD_ANGLE_SPREAD_DEGREES`;
+    - `angle` (the cone's angle of repose from its azimuthally averaged
+      surface, degrees, `jaxpile.measure.cone_heap`) at the same 32.6 and spread:
+      the heap Smid & Novosad measured was such a cone.
 
     With one statistic the spread only scales the loss; with both it weighs
     the angle against the dip."""
@@ -108,6 +111,8 @@ def smid_novosad_target(labels=("central_dip",)) -> EnsembleTarget:
                              f"centre {low:.2f}-{high:.2f} below the flanks", "Introduction"),
         "repose_mean": (SMID_NOVOSAD_ANGLE_DEGREES, SMID_NOVOSAD_ANGLE_SPREAD_DEGREES,
                         f"angle of repose, {SMID_NOVOSAD_ANGLE_DEGREES} deg", "text of Fig. 17"),
+        "angle": (SMID_NOVOSAD_ANGLE_DEGREES, SMID_NOVOSAD_ANGLE_SPREAD_DEGREES,
+                  f"cone's angle of repose, {SMID_NOVOSAD_ANGLE_DEGREES} deg", "text of Fig. 17"),
     }
     labels = list(labels)
     unknown = [lab for lab in labels if lab not in declared]
