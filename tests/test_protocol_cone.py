@@ -66,6 +66,10 @@ def test_a_small_cone_rests_on_its_plate_which_carries_its_weight(heap):
     assert 0.3 < m["packing_fraction"] < 0.8
     s = cone_heap.summary(m)
     assert s["counts"] == m["counts"] and len(s["pressure"]["value"]) == len(p.value)
+    # a sweep row reads p at the ten default rings' centres (r / R = 0.05 .. 0.95): the rings' own values
+    row = cone_heap.sweep_row(m)
+    assert set(row) == set(cone_heap.ROW_COLUMNS)
+    np.testing.assert_allclose([row[c] for c in cone_heap.PRESSURE_COLUMNS], p.value, rtol=1e-12, atol=1e-12)
 
 
 def test_the_surface_and_its_angle_read_a_cone_of_known_slope():

@@ -139,7 +139,7 @@ def _print_summary(result, by: str, summaries: dict) -> None:
         value = f"{m:.4g}" + (f" +- {e:.2g}" if c > 1 else "") + (f" {unit}" if unit else "")
         print(f"  {by} = {x:g}: {value}  ({c} pile{'s' if c != 1 else ''}"
               + (f", {miss} not measurable)" if miss else ")"))
-    print(f"jaxpile: {result.info['members']} members x {result.info['n_particles']} disks, "
+    print(f"jaxpile: {result.info['members']} members x {result.info['n_particles']} particles, "
           f"{result.info['batch_steps']} batch steps in {result.info['run_seconds']:.1f} s "
           f"(+ {result.info['compile_seconds']:.1f} s compile): "
           f"{result.info['particle_steps_per_second']:.3g} particle-steps/s")

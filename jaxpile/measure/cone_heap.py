@@ -208,17 +208,32 @@ def summary(measured: dict) -> dict:
     return out
 
 
+PRESSURE_AT = tuple(round(0.05 + 0.1 * k, 2) for k in range(10))
+"""r / R where a sweep row reads p(r): the centres of ten rings out to R (the
+default rings exactly; other ring counts interpolated), so that heaps of
+different R average ring by ring."""
+
+PRESSURE_COLUMNS = tuple(f"pressure_{round(100 * x):02d}" for x in PRESSURE_AT)
+
 ROW_COLUMNS = ("in_play", "lost", "height", "base_radius", "angle", "angle_height_base", "central_dip",
-               "packing_fraction", "load_balance")
-"""The keys of every cone's sweep row (NaN where it cannot be read)."""
+               "packing_fraction", "load_balance") + PRESSURE_COLUMNS
+"""The keys of every cone's sweep row (NaN where it cannot be read): `pressure_05` is p at r = 0.05 R."""
 
 
 def sweep_row(measured: dict) -> dict:
-    """A cone's sweep row: its counts, size, angles, dip and the base's load over the weight - 1."""
+    """A cone's sweep row: its counts, size, angles, dip, the base's load over
+    the weight - 1, and p(r) at `PRESSURE_AT` r / R."""
     m = summary(measured)
     row = {"in_play": m["counts"]["in_play"], "lost": m["counts"]["lost"]}
-    for key in ROW_COLUMNS[2:-1]:
+    for key in ROW_COLUMNS[2:ROW_COLUMNS.index("load_balance")]:
         value = m.get(key)
         row[key] = float("nan") if value is None else value
     row["load_balance"] = m["base_load"] / m["weight"] - 1.0 if m.get("weight") else float("nan")
+    pressure = measured.get("pressure")
+    radius = m.get("base_radius")
+    if pressure is None or not radius:
+        values = [float("nan")] * len(PRESSURE_AT)
+    else:
+        values = np.interp(np.asarray(PRESSURE_AT) * radius, pressure.r, pressure.value).tolist()
+    row.update(zip(PRESSURE_COLUMNS, (float(v) for v in values)))
     return row
