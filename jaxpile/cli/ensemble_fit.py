@@ -175,7 +175,7 @@ def run_ensemble_fit(args, estimator: str) -> dict:
     if args.dry_run:
         setup = batches.first_setup(a, law, 0, a.default_dt(law), options)
         print(f"jaxpile: dry run of an ensemble fit of {start} ({law} law, {args.protocol}, "
-              f"{setup.particles.count} {'spheres' if setup.particles.position.shape[-1] == 3 else 'disks'} a pile): {b} piles per ensemble, at most {steps} iterations of "
+              f"{setup.particles.count} {'spheres' if setup.particles.dim == 3 else 'disks'} a pile): {b} piles per ensemble, at most {steps} iterations of "
               f"{per_iteration} ensembles ({per_iteration * b} piles in one batch), statistics "
               f"{statistics.labels()}; runs nothing")
         return {"start": start, "statistics": statistics.labels(), "piles_per_iteration": per_iteration * b}
