@@ -128,6 +128,10 @@ def test_a_sweep_resumed_mid_batch_keeps_the_measured_rows_and_ends_with_the_sam
     assert extra["rows"] == whole.rows[:1] and checkpoint.read_metadata(mid)["batch"] == 1
     resumed = sweeps.sweep("box", "hooke", resume=str(mid), **kw)
     assert resumed.rows == whole.rows
+    # its record says its timings start at the checkpoint, not at step 0
+    assert "resumed" not in whole.info
+    assert resumed.info["resumed"] == {"checkpoint": str(mid), "step": checkpoint.read_metadata(mid)["step"],
+                                       "batch_start": 1}
     # a sweep still running is not drawn as one pile: `jaxpile show` says what it holds
     from jaxpile.cli import main
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import itertools
 import numbers
+import os
 import time
 from dataclasses import dataclass
 from typing import Callable, NamedTuple, Sequence
@@ -308,6 +309,11 @@ def sweep(protocol="box", law: str | None = None, *, vary: dict[str, Sequence[fl
         record["gather_seconds"] = gather_seconds  # the rows' gather, waiting for the slowest process included
     if points is not None:
         record["points"] = points
+    if resume is not None:  # the timings and batch steps above are this run's, from the checkpoint on
+        from jaxpile.engine import checkpoint as ckpt
+
+        record["resumed"] = {"checkpoint": os.fspath(resume), "step": int(ckpt.read_metadata(resume)["step"]),
+                             "batch_start": int(saved.get("batch_start", 0))}
     return SweepResult(rows, record)
 
 

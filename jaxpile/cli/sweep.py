@@ -142,4 +142,5 @@ def _print_summary(result, by: str, summaries: dict) -> None:
     print(f"jaxpile: {result.info['members']} members x {result.info['n_particles']} particles, "
           f"{result.info['batch_steps']} batch steps in {result.info['run_seconds']:.1f} s "
           f"(+ {result.info['compile_seconds']:.1f} s compile): "
-          f"{result.info['particle_steps_per_second']:.3g} particle-steps/s")
+          f"{result.info['particle_steps_per_second']:.3g} particle-steps/s"
+          + (f", since the resume at step {result.info['resumed']['step']}" if "resumed" in result.info else ""))
