@@ -7,12 +7,15 @@ kernel (fusion) per step. Kernels are grouped by the jaxpile code they come
 from (read from the HLO's stack-frame tables): the contact law, the geometry and force
 sums around it, the neighbour list, the integrator. Also prints XLA's own cost analysis of one step (flops, bytes).
 
+With `--case cone`, the same for cone_vs_lammps.py's cone of `--pour-n`
+spheres (3D) at its half-way point.
+
 With `--case pour` the step profiled is a pour's (hooke, vs_lammps.py's
 pour of `--pour-n` disks at its half-way point, on the block of disks in
 play, as `Simulator.run` runs it): where a small, changing pile spends its
 step.
 
-    python benchmarks/profile_step.py [--case lattice|pour] [--layers 45] [--pour-n 1000] [--steps 500]
+    python benchmarks/profile_step.py [--case lattice|pour|cone] [--layers 45] [--pour-n 1000] [--steps 500]
                                       [--precision float64] [--top 12] [--out FILE]
 """
 
@@ -114,22 +117,46 @@ def pour_at_half_way(n: int, steps: int):
                                 f"block of {state.particles.count} of {total}")
 
 
+def cone_at_half_way(n: int, steps: int):
+    """`(sim, params, state, title)`: cone_vs_lammps.py's cone of n spheres
+    (hooke, the cone's own set-up) run to half its pour steps, cut to the
+    block of spheres in play over the next `steps` steps, as `Simulator.run`
+    would run them."""
+    from jaxpile.engine import blocks
+    from jaxpile.protocols import cone
+
+    setup = cone.SPEC.set_up("hooke", n, seed=0)
+    _, _, params = cone.law_and_params("hooke")
+    sim = cone.simulator(cone.SPEC.make_options({"n": n}), law="hooke", dt=setup.info["dt"], chunk_steps=2000)
+    state = sim.init(params, setup.particles, setup.boundaries, protocol_state=setup.protocol_state)
+    state = sim.run(params, state, setup.info["pour_steps"] // 2, progress=False)
+    total = state.particles.count
+    block = sim._block_for(state, steps, {})
+    if block is not None:
+        state = blocks.take_jit(state, *block)
+    in_play = int(jnp.sum(state.particles.active & ~state.particles.fixed))
+    return sim, params, state, (f"cone of {n} spheres (hooke) half-way: {in_play} poured in play, "
+                                f"block of {state.particles.count} of {total}")
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--case", default="lattice", choices=["lattice", "pour"])
+    parser.add_argument("--case", default="lattice", choices=["lattice", "pour", "cone"])
     parser.add_argument("--layers", type=int, default=45)
-    parser.add_argument("--pour-n", type=int, default=1000, help="pour: disks poured")
+    parser.add_argument("--pour-n", type=int, default=1000, help="pour: disks poured; cone: spheres poured")
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--precision", default="float64", choices=["float32", "float64"])
     parser.add_argument("--top", type=int, default=12)
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
-    if args.case == "pour" and args.precision != "float64":
-        parser.error("--case pour runs vs_lammps.py's pour, in float64")
+    if args.case in ("pour", "cone") and args.precision != "float64":
+        parser.error(f"--case {args.case} runs its race's set-up, in float64")
 
     dtype = jnp.float32 if args.precision == "float32" else jnp.float64
     if args.case == "pour":
         sim, params, state, title = pour_at_half_way(args.pour_n, args.steps)
+    elif args.case == "cone":
+        sim, params, state, title = cone_at_half_way(args.pour_n, args.steps)
     else:
         params = hooke.make_params(dtype=dtype, **lattice.PAPER_SETTING["params"]["hooke"])
         sim = Simulator(hooke.law(rotation=False), lattice.PAPER_SETTING["dt"], schedule=gravity_ramp(20_000))

@@ -225,9 +225,9 @@ def test_members_one_after_another_give_the_side_by_side_states_bit_for_bit(batc
 
     traced, update = [], nb.update_with_contacts
 
-    def recorded(neighbors, contacts, position, settings, axis_name=None):
+    def recorded(neighbors, contacts, position, settings, axis_name=None, fixed=None):
         traced.append(axis_name)
-        return update(neighbors, contacts, position, settings, axis_name)
+        return update(neighbors, contacts, position, settings, axis_name, fixed)
 
     monkeypatch.setattr(nb, "update_with_contacts", recorded)
     sim, _, _, params, state = batch

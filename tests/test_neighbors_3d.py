@@ -187,3 +187,71 @@ def test_a_heap_about_the_origin_gets_the_grid_from_its_lowest_corner():
         assert _list_pairs(rebuilt.idx) == _brute_pairs(where, reach)
     assert lists["centred"].cell_list_capacity == lists["positive"].cell_list_capacity
     assert np.array_equal(np.asarray(lists["centred"].idx), np.asarray(lists["positive"].idx))
+
+
+def _fixed_base(rng, dimension):
+    """A heap's set-up in miniature: a close layer of fixed particles (spacing
+    0.95 of a diameter: each overlaps its neighbours) under two layers of free
+    ones on the same sites, jittered, overlapping it and each other."""
+    side = np.arange(8 if dimension == 3 else 24) * 0.95
+    base = np.array(list(itertools.product(side, repeat=dimension - 1)), float)
+    base = np.concatenate([base, np.zeros((len(base), 1))], axis=1)
+    free = np.concatenate([base + np.eye(dimension)[-1] * height for height in (0.9, 1.8)])
+    free += rng.uniform(-0.05, 0.05, free.shape)
+    position = np.concatenate([base, free])
+    fixed = np.arange(len(position)) < len(base)
+    return position, np.full(len(position), 0.5), fixed
+
+
+@pytest.mark.parametrize("dimension", [3, 2])
+def test_two_fixed_particles_are_never_neighbours(dimension):
+    """With `fixed` given, the host build, `allocate` and the traced rebuild
+    all hold exactly the pairs within the reach less those of two fixed
+    particles; the pair room is sized by the free particles only."""
+    position, radius, fixed = _fixed_base(np.random.default_rng(12), dimension)
+    settings = _settings(position, radius)
+    reach = settings.cutoff + settings.skin
+    everything = _brute_pairs(position, reach)
+    expected = {(i, j) for i, j in everything if not (fixed[i] and fixed[j])}
+    assert len(everything) - len(expected) >= int(fixed.sum()) - 1  # the base's own pairs are many
+    allocated = nb.allocate(settings, position, fixed=fixed)
+    assert _list_pairs(allocated.idx) == expected
+    assert _list_pairs(nb.rebuild(allocated, jnp.asarray(position), settings, jnp.asarray(fixed)).idx) == expected
+    idx = host_lists.build(position, cell_grid(settings.box, reach), reach, int(allocated.cell_list_capacity),
+                           position.shape[0] - 1, fixed)[0]
+    assert _list_pairs(idx) == expected
+    assert _list_pairs(nb.allocate(settings, position).idx) == everything  # no `fixed`: every pair
+    free = int((~fixed).sum())
+    room = nb.pair_capacity_for(np.asarray(allocated.idx), dimension=dimension, fixed=fixed)
+    assert nb.pairs_per_particle(dimension) * free <= room < nb.pairs_per_particle(dimension) * len(position)
+
+
+@pytest.mark.parametrize("dimension", [3, 2])
+def test_the_forces_are_the_same_bit_for_bit_without_the_pairs_of_two_fixed_particles(dimension):
+    """Two fixed particles exert nothing on each other, so leaving their pairs
+    out of the list changes no force and no torque, not by a rounding unit:
+    the forces of `evaluate` on the list with them and without them."""
+    from jaxpile.engine import Simulator, host_lists
+    from jaxpile.engine.interactions import evaluate
+    from jaxpile.engine.boundaries import make_boundaries
+    from jaxpile.engine.state import make_particles
+    from jaxpile.laws import hooke
+
+    rng = np.random.default_rng(13)
+    position, radius, fixed = _fixed_base(rng, dimension)
+    spin = rng.normal(0.0, 1.0, (len(position),) + ((3,) if dimension == 3 else ()))
+    velocity = np.where(fixed[:, None], 0.0, rng.normal(0.0, 0.5, position.shape))
+    particles = make_particles(position, radius, velocity=velocity, fixed=fixed,
+                               angular_velocity=np.where(fixed[(...,) + (None,) * (spin.ndim - 1)], 0.0, spin))
+    params = hooke.Params(kn=1e4, kt=2e4 / 7, gamma_n=10.0, gamma_t=5.0, mu=0.5)
+    sim = Simulator(hooke.law(), 1e-4, max_initial_overlap=0.3)
+    state = sim.init(params, particles, make_boundaries(dim=dimension))
+    every = nb.allocate(state.neighbor_settings, position)  # the list with the fixed particles' own pairs
+    room = nb.pair_capacity_for(np.asarray(every.idx), dimension=dimension)
+    with_them = host_lists.contacts_for(state.contacts, state.neighbors.idx, every.idx, room)
+    assert int(with_them.demand) > int(state.contacts.demand)
+    a = evaluate(sim.law, params, state.particles, state.contacts, state.boundaries, 1e-4)
+    b = evaluate(sim.law, params, state.particles, with_them, state.boundaries, 1e-4)
+    assert float(jnp.max(jnp.abs(a.force))) > 0 and float(jnp.max(jnp.abs(a.torque))) > 0
+    np.testing.assert_array_equal(np.asarray(a.force), np.asarray(b.force))
+    np.testing.assert_array_equal(np.asarray(a.torque), np.asarray(b.torque))

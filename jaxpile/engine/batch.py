@@ -88,7 +88,7 @@ def at_capacity(state: SimState, max_occupancy: int, cell_capacity: int | None, 
     if _capacity(state) == (max_occupancy, cell_capacity, pairs):
         return state
     neighbors = nb.rebuild_at_capacity(state.neighbors, state.particles.position, max_occupancy, cell_capacity,
-                                       state.neighbor_settings)
+                                       state.neighbor_settings, state.particles.fixed)
     return state.set(neighbors=neighbors,
                      contacts=host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs))
 

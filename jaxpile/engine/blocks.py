@@ -103,10 +103,12 @@ def _renumber(x: Array, old: int, new: int) -> Array:
 
 def pair_room(state: SimState, size: int, at_least: int = 0) -> int:
     """The pair entries of a block of `size` disks: `neighbors.pairs_per_particle`
-    per disk (or sphere), the pairs the state holds now and `at_least`, rounded
-    up to `PAIR_ALIGN`, and never more than the full list's."""
+    per disk (or sphere) of the block that is not fixed (two fixed ones are
+    never a pair), the pairs the state holds now and `at_least`, rounded up to
+    `PAIR_ALIGN`, and never more than the full list's."""
     held = int(np.sum(np.asarray(state.contacts.pairs[:, 0]) < state.particles.count))
-    wanted = max(int(np.ceil(nb.pairs_per_particle(state.particles.dim) * size)), held, int(at_least))
+    free = size - int(np.sum(np.asarray(state.particles.fixed[:size])))
+    wanted = max(int(np.ceil(nb.pairs_per_particle(state.particles.dim) * free)), held, int(at_least))
     return min(int(state.contacts.pairs.shape[0]), pair_list.aligned(wanted))
 
 

@@ -260,7 +260,7 @@ def _at_saved_capacity(template: SimState, slots: int, cells: int | None, pairs:
         members = [batch.member(template, i) for i in range(batch_of(template))]
         return batch.stack([batch.at_capacity(m, slots, cells, pairs) for m in members])
     neighbors = nb.rebuild_at_capacity(template.neighbors, template.particles.position, slots, cells,
-                                       template.neighbor_settings)
+                                       template.neighbor_settings, template.particles.fixed)
     c = template.contacts
     pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, pairs))
     contacts = c.set(pairs=pairs, history=transfer.zeros(pairs.shape[:1] + c.history.shape[1:], c.history.dtype))

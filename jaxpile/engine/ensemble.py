@@ -248,12 +248,14 @@ class Ensemble:
         least_slots, least_window = nb.slots_needed(state, overflowed), nb.window_needed(state, overflowed)
         members = [member(state, i) for i in range(batch_size(state))]
         fresh = [nb.allocate(settings, m.particles.position, packed_radius=self.sim.packed_radius(m.particles),
-                             min_slots=least_slots, min_window=least_window) for m in members]
+                             min_slots=least_slots, min_window=least_window, fixed=m.particles.fixed)
+                 for m in members]
         slots = max(f.max_occupancy for f in fresh)
         cells = None if fresh[0].cell_list_capacity is None else max(
             max(f.cell_list_capacity for f in fresh), state.neighbors.cell_list_capacity or 0)
         needed = nb.pairs_needed(state, overflowed)
-        pairs = max(nb.pair_capacity_for(f.idx, needed, dimension=state.particles.dim) for f in fresh)
+        pairs = max(nb.pair_capacity_for(f.idx, needed, dimension=state.particles.dim, fixed=m.particles.fixed)
+                    for f, m in zip(fresh, members))
         members = [at_capacity(m, slots, cells, pairs) for m in members]
         return self.shard(stack(members))
 

@@ -28,13 +28,14 @@ from jaxpile.engine.cells import (cell_count, cell_index, cell_key, grid_counts,
 Array = Any
 
 
-def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.ndarray, int, bool]:
+def build(position, grid, reach: float, window: int, slots: int, fixed=None) -> tuple[np.ndarray, int, bool]:
     """`neighbors._build` on the host: `(idx [n, slots] int32, occupancy,
     window_overflow)`, each row the neighbours within `reach` in increasing
     index order (empty = n), the most neighbours any disk has, and whether a
     run of three cells of a row held more than `window` disks. `position`
     is `[n, d]` on a grid of the same dimension; a disk reads the 3^(d-1)
-    rows of `cells.row_offsets(d)` around its own."""
+    rows of `cells.row_offsets(d)` around its own. Two `fixed` particles
+    (`[n]` bool, or None) are never neighbours."""
     position = np.asarray(position)
     n = position.shape[0]
     if n == 0:
@@ -66,6 +67,9 @@ def build(position, grid, reach: float, window: int, slots: int) -> tuple[np.nda
     with np.errstate(invalid="ignore", over="ignore"):  # non-finite disks: the runner stops on them
         near = squared_distance(position, partner) < reach * reach
         keep = (candidate < n) & (candidate != np.arange(n)[:, None]) & near
+    if fixed is not None:
+        fixed = np.asarray(fixed, bool)
+        keep &= ~(fixed[:, None] & fixed[partner])
     occupancy = int(keep.sum(axis=1).max(initial=0))  # int32 throughout: a window of n holds [R, n, n]
     idx = np.sort(np.where(keep, candidate, n), axis=1)[:, :slots]
     if idx.shape[1] < slots:

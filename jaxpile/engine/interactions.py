@@ -88,15 +88,26 @@ def pair_ends(fields, i: Array, j: Array) -> tuple:
 def pair_sums(at_i, at_j, i: Array, j: Array, n: int) -> tuple:
     """Per-pair values (component-major, `[P]` or `[c, P]`) summed onto the
     disks, each `[n]` or `[n, c]`: `at_i[k]` at i plus `at_j[k]` at j, where
-    `at_j[k]` None stands for the reaction, `-at_i[k]` at j. Two scatters per
-    field: a concatenated [F, -F] would be a fusion of its own that evaluates
-    the law a second time."""
-    sums = []
-    for a, b in zip(at_i, at_j):
-        rows = a.T
-        on_i = jax.ops.segment_sum(rows, i, n, indices_are_sorted=True)
-        sums.append(on_i - jax.ops.segment_sum(rows, j, n) if b is None else on_i + jax.ops.segment_sum(b.T, j, n))
-    return tuple(sums)
+    `at_j[k]` None stands for the reaction, `-at_i[k]` at j.
+
+    Vector fields all of one width (a sphere's force and torques, `[3, P]`
+    each) are stacked side by side into one `[P, 3 m]` scatter onto i and one
+    onto j; any other fields (a disk's `[2, P]` force and `[P]` torque) take a
+    scatter each onto i and onto j. On a CPU each way is the faster one for
+    its shapes (docs/choices.md#pair-sums). Either way each column is summed
+    in the same order, so the sums agree bit for bit. (Stacking the i and j
+    ends along P instead would be a fusion of its own that evaluates the law
+    a second time.)"""
+    reaction = [-a if b is None else b for a, b in zip(at_i, at_j)]
+    widths = {a.shape[0] if a.ndim == 2 else None for a in at_i}
+    if len(at_i) > 1 and len(widths) == 1 and None not in widths:
+        w = widths.pop()
+        stacked = lambda fields: jnp.concatenate(fields, 0).T  # noqa: E731  [P, w m]
+        total = (jax.ops.segment_sum(stacked(at_i), i, n, indices_are_sorted=True)
+                 + jax.ops.segment_sum(stacked(reaction), j, n))
+        return tuple(total[:, k * w:(k + 1) * w] for k in range(len(at_i)))
+    return tuple(jax.ops.segment_sum(a.T, i, n, indices_are_sorted=True) + jax.ops.segment_sum(b.T, j, n)
+                 for a, b in zip(at_i, reaction))
 
 
 def _pair_geometry(particles: Particles, pairs: Array, omega: Array, step_positions=None):

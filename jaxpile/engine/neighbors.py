@@ -26,8 +26,11 @@ gathers of x_i walk memory in order; empty entries (n, n)): the law is
 evaluated once per pair and the reaction on j added by a scatter, as LAMMPS
 does with its half list, on about a third of the full list's slots.
 
-The half list's capacity P (`pair_capacity_for`) is room for 3 pairs per disk
-(the most any packing of equal disks has in 2D) or 10% over the pairs at
+Two fixed particles are never each other's neighbours: they exert nothing
+on each other (docs/choices.md#pairs-of-two-fixed-particles).
+
+The half list's capacity P (`pair_capacity_for`) is room for 3 pairs per free
+disk (the most any packing of equal disks has in 2D) or 10% over the pairs at
 allocation, whichever is more, and never more than ceil(n K / 2); K carries
 head-room for the densest row, P only for the mean, so its padding costs far
 less. A pour's list is sized for its whole heap from the start, so it is not
@@ -144,9 +147,12 @@ def _run_starts(sorted_key: Array, lo: Array, hi: Array, cells: int) -> Array:
     return start
 
 
-def _build(position: Array, grid, reach: float, window: int, slots: int):
+def _build(position: Array, grid, reach: float, window: int, slots: int, fixed: Array | None = None):
     """The full neighbour list of `position` `[n, d]` (traceable), on the cell
-    grid `grid` of the same dimension.
+    grid `grid` of the same dimension. Two `fixed` particles (`[n]` bool, or
+    None: none) are never each other's neighbours: they exert nothing on each
+    other, and a rough base of fixed spheres would otherwise fill most of a
+    small heap's pair list.
 
     The disks are sorted by cell key (`cells.cell_key`: d = 2 `cy nx + cx`).
     The cells `cx - 1 .. cx + 1` of one row are then one contiguous run of
@@ -189,6 +195,8 @@ def _build(position: Array, grid, reach: float, window: int, slots: int):
     partner = jnp.minimum(candidate, n - 1)
     me = jnp.arange(n, dtype=jnp.int32)[:, None]
     keep = (candidate < n) & (candidate != me) & (squared_distance(position, partner) < reach * reach)
+    if fixed is not None:
+        keep = keep & ~(fixed[:, None] & fixed[partner])
     occupancy = jnp.max(jnp.sum(keep, axis=1, dtype=jnp.int32), initial=0)
     # the row's lowest indices first, the neighbours (no disk is a candidate
     # twice: it lies in one cell), picked one slot at a time: each slot holds
@@ -217,12 +225,13 @@ larger ones by the compiled `_build`, the faster there even with its compile
 _build_jit = jax.jit(_build, static_argnums=(1, 2, 3, 4))
 
 
-def _build_outside_loop(position, grid, reach: float, window: int, slots: int):
+def _build_outside_loop(position, grid, reach: float, window: int, slots: int, fixed=None):
     """`(idx, occupancy, window_overflow)` of a list built outside the step
     loop, the occupancy and overflow as host values (see `HOST_BUILD_MAX`)."""
     if position.shape[0] <= HOST_BUILD_MAX:
-        return host_lists.build(position, grid, reach, window, slots)
-    idx, occupancy, over = _build_jit(jnp.asarray(position), grid, reach, window, slots)
+        return host_lists.build(position, grid, reach, window, slots, fixed)
+    fixed = None if fixed is None else jnp.asarray(fixed)
+    idx, occupancy, over = _build_jit(jnp.asarray(position), grid, reach, window, slots, fixed)
     return idx, int(occupancy), bool(over)
 
 
@@ -368,7 +377,7 @@ def _packed_capacity_3d(settings: NeighborSettings, radius: float) -> tuple[int,
 
 
 def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 0,
-             packed_radius: float | None = None, min_slots: int = 0, min_window: int = 0):
+             packed_radius: float | None = None, min_slots: int = 0, min_window: int = 0, fixed=None):
     """A new neighbour list (host-side), sized like jax-md's: the window W is
     the most disks in any run of three cells of a row times the capacity
     multiplier (at most `WINDOW_HEADROOM`), the slots K the most neighbours of
@@ -377,7 +386,8 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     close-packed pile of such disks needs (`packed_capacity`), so disks that
     start apart (parked, poured, dropped, a loose fill) get a list for the
     pile they will make. `min_slots` and `min_window` are floors on K and W
-    (a re-allocation's: see `slots_needed`).
+    (a re-allocation's: see `slots_needed`). `fixed` (`[n]` bool): particles
+    never listed as each other's neighbours (`_build`).
 
     One build, wide enough for every candidate (3^(d-1) W slots), gives both the
     occupancy and the list: its rows are in increasing index order, so their
@@ -420,7 +430,9 @@ def allocate(settings: NeighborSettings, position: Array, extra_capacity: int = 
     window = max(1, min(n, window))
     probe = max(1, min(n - 1, len(row_offsets(len(sizes))) * window))
     on_host = host if n <= HOST_BUILD_MAX else _in_grid_frame(position, settings)  # no second device copy below
-    wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe)
+    fixed = None if fixed is None else np.asarray(fixed)
+    wide, occupancy, over = _build_outside_loop(on_host, grid, float(settings.cutoff + settings.skin), window, probe,
+                                                fixed)
     slots = max(int(occupancy * settings.capacity_multiplier) + int(extra_capacity), packed_slots, int(min_slots))
     slots = max(1, min(max(n - 1, 1), slots))
     idx = wide[:, :slots] if slots <= probe else jnp.pad(wide, ((0, 0), (0, slots - probe)), constant_values=n)
@@ -435,18 +447,19 @@ def _error(overflowed: bool, window_overflowed: bool):
     return partition.PartitionError(transfer.to_device(np.uint8(code)))
 
 
-def rebuild(neighbors, position: Array, settings: NeighborSettings):
+def rebuild(neighbors, position: Array, settings: NeighborSettings, fixed: Array | None = None):
     """`neighbors` rebuilt from `position` with its own capacities (traceable);
-    an overflow of its slots or window is or-ed into its error flag."""
-    return _rebuilt(neighbors, position, settings)[0]
+    an overflow of its slots or window is or-ed into its error flag. Two
+    `fixed` particles are never neighbours (`_build`)."""
+    return _rebuilt(neighbors, position, settings, fixed)[0]
 
 
-def _rebuilt(neighbors, position: Array, settings: NeighborSettings):
+def _rebuilt(neighbors, position: Array, settings: NeighborSettings, fixed: Array | None = None):
     """`rebuild`, and the most neighbours any disk has (more than the list's
     slots when it overflowed: what a re-allocation must make room for)."""
     idx, occupancy, over = _build(_in_grid_frame(position, settings), _grid(settings),
                                   float(settings.cutoff + settings.skin), int(neighbors.cell_list_capacity),
-                                  int(neighbors.max_occupancy))
+                                  int(neighbors.max_occupancy), fixed)
     error = neighbors.error.update(partition.PEC.NEIGHBOR_LIST_OVERFLOW, occupancy > neighbors.max_occupancy)
     return neighbors.set(idx=idx, reference_position=position,
                          error=error.update(partition.PEC.CELL_LIST_OVERFLOW, over)), occupancy
@@ -476,35 +489,39 @@ def needs_rebuild(neighbors, position: Array, skin: float) -> Array:
 
 
 def _rebuilt_where_needed(neighbors, position: Array, settings: NeighborSettings, need: Array,
-                          axis_name: str | None):
+                          axis_name: str | None, fixed: Array | None = None):
     """The rebuilt list and its occupancy (`_rebuilt`); in a batch, members
     that did not move keep theirs and count 0 (each member's list, and what
     it records, is exactly what it would be alone)."""
-    new, occupancy = _rebuilt(neighbors, position, settings)
+    new, occupancy = _rebuilt(neighbors, position, settings, fixed)
     if axis_name is None:
         return new, occupancy
     return jax.tree.map(lambda a, b: jnp.where(need, a, b), new, neighbors), jnp.where(need, occupancy, 0)
 
 
-def update(neighbors, position: Array, settings: NeighborSettings, axis_name: str | None = None):
+def update(neighbors, position: Array, settings: NeighborSettings, axis_name: str | None = None,
+           fixed: Array | None = None):
     """The list rebuilt when some disk moved more than skin / 2, decided once
     for a whole batch when `axis_name` names the batch's `vmap` axis (a cond
     under vmap would become a select: every member rebuilding at every step)."""
     own = needs_rebuild(neighbors, position, settings.skin)
     return lax.cond(any_member(own, axis_name),
-                    lambda: _rebuilt_where_needed(neighbors, position, settings, own, axis_name)[0],
+                    lambda: _rebuilt_where_needed(neighbors, position, settings, own, axis_name, fixed)[0],
                     lambda: neighbors)
 
 
 def rebuild_at_capacity(neighbors, position: Array, max_occupancy: int, cell_capacity: int | None,
-                        settings: NeighborSettings):
+                        settings: NeighborSettings, fixed=None):
     """The list rebuilt from `position` with `max_occupancy` slots per particle
     and a window of `cell_capacity` (so lists of a batch share their shapes);
-    an overflow of either raises its error flag. Host-side (see `HOST_BUILD_MAX`)."""
+    an overflow of either raises its error flag. Two `fixed` particles are
+    never neighbours. Host-side (see `HOST_BUILD_MAX`)."""
     n = position.shape[0]
     window = n if cell_capacity is None else int(cell_capacity)
+    fixed = None if fixed is None else np.asarray(fixed)
     idx, occupancy, over = _build_outside_loop(_in_grid_frame(position, settings), _grid(settings),
-                                               float(settings.cutoff + settings.skin), window, int(max_occupancy))
+                                               float(settings.cutoff + settings.skin), window, int(max_occupancy),
+                                               fixed)
     return _make_list(settings, transfer.to_device(idx), transfer.to_device(position), window,
                       _error(occupancy > max_occupancy, over))
 
@@ -592,19 +609,23 @@ def window_needed(state, overflowed) -> int:
     return window + max(4, int(state.neighbors.max_occupancy))
 
 
-def pair_capacity_for(idx: Array, at_least: int = 0, dimension: int = 2) -> int:
+def pair_capacity_for(idx: Array, at_least: int = 0, dimension: int = 2, fixed=None) -> int:
     """Host-side: the pair capacity to allocate for the full list `idx`: the
-    more of `pairs_per_particle(dimension)` per disk (2D: `PAIRS_PER_DISK`)
-    and `PAIR_HEADROOM` times its pairs, at least `at_least`, at most
-    `pair_capacity` (which holds them all), rounded up to `PAIR_ALIGN`."""
+    more of `pairs_per_particle(dimension)` per particle that is not `fixed`
+    (2D: `PAIRS_PER_DISK`; all of them when `fixed` is None) and
+    `PAIR_HEADROOM` times its pairs, at least `at_least`, at most
+    `pair_capacity` (which holds them all), rounded up to `PAIR_ALIGN`. Two
+    fixed particles are never a pair (`_build`), so a pile's fixed base needs
+    no room of its own."""
     n, k = idx.shape
-    wanted = max(int(at_least), math.ceil(pairs_per_particle(dimension) * n),
+    free = n if fixed is None else n - int(np.sum(np.asarray(fixed)))
+    wanted = max(int(at_least), math.ceil(pairs_per_particle(dimension) * free),
                  math.ceil(PAIR_HEADROOM * host_lists.pair_count(idx)))
     return min(pair_capacity(n, k), aligned(wanted))
 
 
 def update_with_contacts(neighbors, contacts, position: Array, settings: NeighborSettings,
-                         axis_name: str | None = None):
+                         axis_name: str | None = None, fixed: Array | None = None):
     """`update` and, when the list was rebuilt, the contacts re-laid on its
     half pairs, in one branch: the steps with no rebuild pay for neither. More
     pairs than the pair capacity raise the list's overflow flag. The contacts
@@ -613,7 +634,7 @@ def update_with_contacts(neighbors, contacts, position: Array, settings: Neighbo
     own = needs_rebuild(neighbors, position, settings.skin)
 
     def rebuild():
-        new, occupancy = _rebuilt_where_needed(neighbors, position, settings, own, axis_name)
+        new, occupancy = _rebuilt_where_needed(neighbors, position, settings, own, axis_name, fixed)
         laid = contacts_for(contacts, neighbors.idx, new.idx)
         demand = jnp.maximum(contacts.demand, laid.demand)
         over = demand > contacts.pairs.shape[0]

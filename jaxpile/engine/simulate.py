@@ -77,7 +77,7 @@ def make_step(law: ContactLaw, dt: float, schedule: Callable | None = None,
 
         def forces_at(p: Particles, step_positions=None):
             neighbors, contacts = nb.update_with_contacts(state.neighbors, state.contacts, p.position,
-                                                          state.neighbor_settings, axis_name)
+                                                          state.neighbor_settings, axis_name, p.fixed)
             cf = evaluate(law, params, p, contacts, boundaries, dt, step_positions)
             contacts = contacts.set(history=cf.pair.history, wall_history=cf.wall.history)
             force = cf.force + external_force(p, boundaries)
@@ -363,13 +363,14 @@ class Simulator:
         check_walls_used(self.law.name, params, boundaries)
         check_finite(particles, step=0)
         settings = self.neighbor_settings(params, particles, box) if neighbor_settings is None else neighbor_settings
-        neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles))
+        neighbors = nb.allocate(settings, particles.position, packed_radius=self.packed_radius(particles),
+                                fixed=particles.fixed)
         n = neighbors.idx.shape[0]
         h = self.law.history_for(particles.dim)
         w = boundaries.wall_normal.shape[0]
         dtype = particles.position.dtype
-        pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx,
-                                                         nb.pair_capacity_for(neighbors.idx, dimension=particles.dim)))
+        capacity = nb.pair_capacity_for(neighbors.idx, dimension=particles.dim, fixed=particles.fixed)
+        pairs = transfer.to_device(host_lists.half_pairs(neighbors.idx, capacity))
         contacts = Contacts(  # put on the device without compiling (see engine.transfer)
             pairs=pairs,
             demand=transfer.to_device(host_lists.pair_count(neighbors.idx), jnp.int32),
@@ -496,9 +497,9 @@ class Simulator:
         neighbors = nb.allocate(state.neighbor_settings, state.particles.position,
                                 packed_radius=self.packed_radius(state.particles),
                                 min_slots=nb.slots_needed(state, overflowed),
-                                min_window=nb.window_needed(state, overflowed))
+                                min_window=nb.window_needed(state, overflowed), fixed=state.particles.fixed)
         pairs = nb.pair_capacity_for(neighbors.idx, at_least=nb.pairs_needed(state, overflowed),
-                                     dimension=state.particles.dim)
+                                     dimension=state.particles.dim, fixed=state.particles.fixed)
         contacts = host_lists.contacts_for(state.contacts, state.neighbors.idx, neighbors.idx, pairs)
         return state.set(neighbors=neighbors, contacts=contacts)
 
