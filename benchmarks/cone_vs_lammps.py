@@ -5,7 +5,8 @@ jaxpile take per sphere?
 Both codes run the `hooke` law, LAMMPS's `pair gran/hooke/history`, with
 rotation (`fix nve/sphere`, I = 2 m r^2 / 5) and velocity Verlet in float64,
 the cone's own parameters and dt. The plate's fixed spheres are frozen (`fix
-freeze`). The cone has no wall: a sphere that rolls off the plate falls below
+freeze`), and neither code lists a pair of two of them (`neigh_modify exclude
+group base base`; jaxpile never lists two fixed particles). The cone has no wall: a sphere that rolls off the plate falls below
 `lost_below` and leaves play (jaxpile parks it; LAMMPS deletes it at the
 box's floor, `thermo_modify lost ignore`), so no `fix wall/gran` is needed.
 LAMMPS replays the protocol as `vs_lammps.py`'s 2D pour does: each sphere is
@@ -14,10 +15,12 @@ segment per sphere (`pre yes`), then the heap settles for `--settle` steps. A
 pour is chaotic, so the heaps are held to each other statistically: spheres on
 the plate, the heap's centroid height and rms radius within 10 %.
 
-Two cases:
+Three cases:
 
 1. `one`: one cone, jaxpile against LAMMPS serial (its loop time).
-2. `ensemble`: B cones (seeds 0..B-1) in one vmapped jaxpile call against the
+2. `large`: the same for a cone of `--large-n` spheres, one every
+   `--large-interval` (not run by default).
+3. `ensemble`: B cones (seeds 0..B-1) in one vmapped jaxpile call against the
    same B replays in LAMMPS, one after another (the sum of their loop times)
    and two processes at once (the wall time of the set, start-up included:
    what two cores do with independent members). Run with
@@ -30,7 +33,7 @@ contact history, neighbour list) and XLA's temporaries of the compiled chunk.
 Without a LAMMPS binary jaxpile is reported alone.
 
     python benchmarks/cone_vs_lammps.py [--n 200] [--interval 0.2] [--settle 20000]
-        [--cases one,ensemble] [--members 8] [--out FILE]
+        [--cases one,large,ensemble] [--large-n 1000] [--large-interval 0.25] [--members 8] [--out FILE]
 """
 
 from __future__ import annotations
@@ -140,7 +143,7 @@ def agreement(ours: dict, theirs: dict | None) -> dict:
     return {"checked": list(HEAP_CHECKS), "figures": figures, "agree": agree}
 
 
-def one_case(args, binary, root) -> tuple[dict, list]:
+def one_case(args, binary, root, folder: str = "one") -> tuple[dict, list]:
     setup = set_up(args, args.seed)
     info = setup.info
     rows = int(setup.protocol_state.first)
@@ -177,7 +180,7 @@ def one_case(args, binary, root) -> tuple[dict, list]:
     title = f"cone {args.n} spheres (plate {rows}), hooke, {steps} steps"
     if binary is None:
         return out, [{"case": title, "jaxpile": jax_rate, "lammps": None, "ratio": None, "note": "no LAMMPS binary"}]
-    run = peer.run(binary, *lammps_job(args, setup, os.path.join(root, "one"), params, skin))
+    run = peer.run(binary, *lammps_job(args, setup, os.path.join(root, folder), params, skin))
     theirs = lammps_stats(run, rows, info["base_z"])
     lmp_rate = rate(work, run.loop_seconds) if run.ok else None
     agree = agreement(ours, theirs)
@@ -251,6 +254,13 @@ def ensemble_case(args, binary, root) -> tuple[dict, list]:
                                                       "included)"}]
 
 
+def large_case(args, binary, root) -> tuple[dict, list]:
+    """`one` for a cone of `--large-n` spheres: how the ratio moves with the
+    heap's size (a step's fixed costs weigh less on more spheres)."""
+    larger = {**vars(args), "n": args.large_n, "interval": args.large_interval}
+    return one_case(argparse.Namespace(**larger), binary, root, folder="large")
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default="one,ensemble")
@@ -259,17 +269,22 @@ def main(argv=None) -> dict:
     parser.add_argument("--release-height", type=float, default=cone.SETTING["release_height"])
     parser.add_argument("--settle", type=int, default=20_000, help="steps after the last release")
     parser.add_argument("--members", type=int, default=8, help="ensemble: cones in the batch")
+    parser.add_argument("--large-n", type=int, default=1000, help="large: spheres poured in the larger cone")
+    parser.add_argument("--large-interval", type=float, default=0.25,
+                        help="large: time between releases (a taller cone falls further: 0.2 is too short)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workdir", default=None, help="keep LAMMPS inputs, logs and dumps here")
     parser.add_argument("--out", default=None, help="JSON file for the figures")
     args = parser.parse_args(argv)
     cases = [c for c in args.cases.split(",") if c]
-    if set(cases) - {"one", "ensemble"}:
-        parser.error(f"unknown case(s) {sorted(set(cases) - {'one', 'ensemble'})}")
+    known = {"one", "large", "ensemble"}
+    if set(cases) - known:
+        parser.error(f"unknown case(s) {sorted(set(cases) - known)}; choose from {', '.join(sorted(known))}")
     binary, root, version = peer.open_race(args.workdir, "cone_vs_lammps-")
     out = {"machine": describe(), "machine_details": details(), "jax_version": jax.__version__,
            "lammps_version": version, "lammps_binary": binary, "argv": sys.argv[1:] if argv is None else list(argv),
-           **peer.run_cases((("one", one_case), ("ensemble", ensemble_case)), cases, args, binary, root,
+           **peer.run_cases((("one", one_case), ("large", large_case), ("ensemble", ensemble_case)), cases, args,
+                            binary, root,
                             keep=args.workdir is not None)}
     if args.out:
         io.write_json(args.out, out)

@@ -12,7 +12,9 @@ How a jaxpile set-up maps onto LAMMPS (2D, `units lj`, `atom_style sphere`):
   `fix nve` without (spins are never integrated and stay 0), and `fix enforce2d`;
 * fixed disks: integrated with the rest but frozen with `fix freeze`, which
   zeroes their force (so velocity 0 keeps them in place) and makes pair gran use
-  m_eff = m_i against them, as jaxpile does;
+  m_eff = m_i against them, as jaxpile does; in the pours, the pairs of two
+  frozen particles are left out of the neighbour list (`neigh_modify exclude
+  group base base`), as jaxpile leaves them out of its own;
 * `simulate.gravity_ramp(R)`: `fix gravity` with the equal-style variable
   s(u) = u^2 (3 - 2u), u = min(step / R, 1), in one `run` for ramp and hold;
 * masses are set with `set ... mass` after `read_data` (LAMMPS turns a data
@@ -442,6 +444,8 @@ def pour_script(data_file: str, *, params, rotation: bool, mass, fixed_ids: int,
     down = "0.0 -1.0 0.0" if dimension == 2 else "0.0 0.0 -1.0"
     lines += [
         f"group base id 1:{int(fixed_ids)}",
+        # two frozen particles exert nothing on each other: no pair for them, as jaxpile lists none
+        "neigh_modify exclude group base base",
         _integrator(rotation, dimension),
         *(["fix flat all enforce2d"] if dimension == 2 else []),
         f"fix grav all gravity {_num(gravity)} vector {down}",

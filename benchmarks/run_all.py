@@ -34,7 +34,7 @@ BENCHMARKS = {
     "vs_lammps_ensemble": ("vs_lammps.py", ["--small", "--cases", "ensemble"], ["--cases", "ensemble"]),
     # the 3D cone pour, one cone and a batch of 4, against LAMMPS replaying its insertion
     "cone_vs_lammps": ("cone_vs_lammps.py", ["--n", "100", "--settle", "5000", "--members", "4"],
-                       ["--n", "200", "--members", "4"]),
+                       ["--n", "200", "--members", "4", "--cases", "one,large,ensemble"]),
     "scaling": ("scaling.py", ["--sizes", "1000,10000,100000", "--steps", "200"], ["--steps", "2000"]),
     "gradient": ("gradient_cost.py", ["--horizons", "250,1000", "--no-horizon"],
                  ["--horizons", "250,1000,4000,16000", "--no-horizon"]),

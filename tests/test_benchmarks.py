@@ -63,6 +63,7 @@ def test_the_cone_replay_is_a_3d_pour_of_the_same_spheres_with_the_plate_frozen(
     lines = script.splitlines()
     assert "dimension 3" in lines and "boundary f f f" in lines and "fix move all nve/sphere" in lines
     assert not any("enforce2d" in line for line in lines)
+    assert "neigh_modify exclude group base base" in lines  # no plate-plate pairs, as jaxpile lists none
     assert "fix grav all gravity 1.0 vector 0.0 0.0 -1.0" in lines
     creates = [line.split() for line in lines if line.startswith("create_atoms")]
     release = np.asarray(setup.protocol_state.release_position)[int(setup.protocol_state.first):]
