@@ -113,8 +113,11 @@ its disks: the table would cost more than it saves)."""
 
 CELL_TABLE_MIN = 4096
 
-SELECT_SLOTS = 16
-"""Up to this many slots a rebuild fills each row slot by slot; more, by a row sort."""
+SELECT_SLOTS_BY_DIMENSION = {2: 16, 3: 24}
+"""Up to this many slots a rebuild fills each row slot by slot; more, by a row
+sort. The sort's cost grows with the candidates a row reads (3 W in 2D, 9 W in
+3D), the picks' with the slots too, so in 3D picking pays for more slots
+(measured: docs/choices.md#neighbour-lists)."""
 
 
 def _sorted_by_cell(key: Array, n: int, cells: int) -> tuple[Array, Array]:
@@ -203,7 +206,7 @@ def _build(position: Array, grid, reach: float, window: int, slots: int, fixed: 
     # the least candidate above the slot before. For the few slots of a 2D list
     # that costs less than a row sort (a cumsum, scatter and sort: more again)
     value = jnp.where(keep, candidate, n)
-    if slots <= SELECT_SLOTS:
+    if slots <= SELECT_SLOTS_BY_DIMENSION[position.shape[1]]:
         columns, last = [], jnp.full((n,), -1, jnp.int32)
         for _ in range(slots):
             last = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
@@ -248,8 +251,8 @@ def _make_list(settings: NeighborSettings, idx, position, window: int, error=Non
 
 
 PACKED_SLOTS_MAX = 16
-"""`packed_capacity` gives at most this many slots in 2D (`SELECT_SLOTS`: rebuilds
-stay slot by slot) and at most twice this window: a pile with disks far smaller
+"""`packed_capacity` gives at most this many slots in 2D (`SELECT_SLOTS_BY_DIMENSION`:
+rebuilds stay slot by slot) and at most twice this window: a pile with disks far smaller
 than its largest gets these, and is re-allocated if it packs denser."""
 
 PACKED_SLOTS_MAX_BY_DIMENSION = {2: PACKED_SLOTS_MAX, 3: 32}
@@ -257,8 +260,8 @@ PACKED_SLOTS_MAX_BY_DIMENSION = {2: PACKED_SLOTS_MAX, 3: 32}
 has 12 neighbours within a reach of 1.2 diameters, 18 slots with the usual
 multiplier of 1.5 (above 16), and a run of three cells 1.2 diameters wide
 holds up to 16 of them (two close-packed layers): 32 slots and a window of 64
-keep that head-room and cap smaller spheres. 18 slots are above `SELECT_SLOTS`:
-3D rebuilds fill their rows by a row sort."""
+keep that head-room and cap smaller spheres. Equal spheres' 18 slots are
+filled slot by slot, the cap's 32 by a row sort (`SELECT_SLOTS_BY_DIMENSION`)."""
 
 
 def packed_slots_max(dimension: int) -> int:
