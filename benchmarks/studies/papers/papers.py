@@ -806,20 +806,27 @@ def _rows_flat() -> list[list[str]]:
 
 
 SPACINGS = {1.0: "S1.0", 1.05: "S1.05", 1.1: "contact-point/hold", 1.2: "S1.2", 1.3: "S1.3"}
-"""The substrate spacings S (sigma) of the 300-disk heaps, by their setting (1.1: the paper's)."""
+"""The substrate spacings S (sigma) of the heaps, by their setting (1.1: the paper's)."""
+
+SPACING_SIZES = (1000, 300)
+"""The heap sizes the spacing row reads, largest first: the first with `PILES` heaps at every S."""
 
 
 def _rows_spacing() -> list[list[str]]:
     """Sec. III: "the angle of repose was found to decrease with increasing
     substrate particle spacing S, with a local plateau in the range S >= 1.1
-    sigma": the 300-disk heaps' mid-flank angle at each S."""
+    sigma": the mid-flank angle at each S, of the largest heaps of
+    `SPACING_SIZES` with `PILES` at every S (a study still running is not read)."""
     import baxter_readings as br
 
-    heaps = _heaps(300)
-    what = "300-disk heaps: the angle against the substrate's spacing S (sec. III)"
     says = "falls as S grows, a plateau for S ≥ 1.1 σ"
-    if not all(heaps.get(name) for name in SPACINGS.values()):
-        return [["1997", what, says, _missing("spacing"), "—"]]
+    for n in SPACING_SIZES:
+        heaps = _heaps(n)
+        if all(len(heaps.get(name, ())) >= PILES for name in SPACINGS.values()):
+            break
+    else:
+        return [["1997", "the angle against the substrate's spacing S (sec. III)", says, _missing("spacing"), "—"]]
+    what = f"{n}-disk heaps: the angle against the substrate's spacing S (sec. III)"
     angle = {S: br.summarise(heaps[name])[name]["angle"]["mid_flank"] for S, name in SPACINGS.items()}
     shown = ", ".join(f"{S:g}: {_pm(a)}" for S, a in angle.items())
     falls = angle[1.3]["mean"] - angle[1.0]["mean"]
@@ -1384,10 +1391,10 @@ def run(studies: list[str]) -> None:
         import baxter_readings as br
 
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "contact-point/hold", "--workers", "2"])
-    if "spacing" in studies:  # sec. III: the angle against the substrate's spacing S (300-disk heaps, ~2 min each)
+    if "spacing" in studies:  # sec. III: the angle against the substrate's spacing S (1000-disk heaps, ~4 min each)
         import baxter_readings as br
 
-        br.main(["--n", "300", "--seeds", str(PILES), "--settings", "S1.0,S1.05,S1.2,S1.3", "--workers", "2"])
+        br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "S1.0,S1.05,S1.2,S1.3", "--workers", "1"])
     if "flat" in studies:  # sec. II: a flat floor instead of the row (300-disk pours, ~3 min each)
         import baxter_readings as br
 
