@@ -365,6 +365,9 @@ def test_dry_run_prints_the_set_up_the_estimate_and_the_steps_and_runs_nothing(t
     assert not out.exists()  # nothing written, not even the folder
     assert main(["pile", "--protocol", "lattice", "--layers", "30000", "--dry-run", "--out", str(out)]) == 2
     assert "would fit" in capsys.readouterr().err
+    assert main(["pile", "--protocol", "cone", "--n", "40", "--dry-run", "--out", str(out)]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "dry run of a cone pile" in first and " spheres (" in first and "disks" not in first
 
 
 def test_fit_dry_run_reports_the_pile_the_start_and_the_differentiated_steps(tmp_path, capsys):

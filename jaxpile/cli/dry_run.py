@@ -20,7 +20,8 @@ def dry_run_report(what: str, particles, info: dict, precision: str, steps: dict
                if isinstance(v, (int, float)) and not isinstance(v, bool)}
     # the phases run one after another; the other step facts (intervals, hold times) are rules inside them
     bound = sum(v for k, v in planned.items() if k in PHASE_STEPS)
-    print(f"jaxpile: dry run of {what}: {total:,} disks ({movable:,} movable at the start), {precision}")
+    noun = "spheres" if particles.dim == 3 else "disks"
+    print(f"jaxpile: dry run of {what}: {total:,} {noun} ({movable:,} movable at the start), {precision}")
     print(f"jaxpile: {budget.describe(total, precision)}")
     if planned:
         print("jaxpile: steps: " + ", ".join(f"{k} {v:,}" for k, v in planned.items())
