@@ -736,8 +736,9 @@ def rows_1997() -> list[list[str]]:
     return rows
 
 
-AVALANCHES = HEAPS / "n300" / "avalanches.json"
-"""How the 300-disk heaps grow while fed, the paper's law against its Hooke law (`baxter_avalanches.py`)."""
+AVALANCHE_SIZES = (1000, 300)
+"""The heap sizes the avalanche row reads, largest first: the first with `PILES` heaps of each law
+(`baxter_avalanches.py`'s `n<N>/avalanches.json`; a study still running is not read)."""
 
 
 def _rows_avalanches() -> list[list[str]]:
@@ -748,11 +749,16 @@ def _rows_avalanches() -> list[list[str]]:
     heap's samples, within 3-4 diameters at 2 s.e.; the contrast: more disks
     moving at once under the paper's law than under Hooke's, at 2 s.e.; and
     Hooke's "small numbers": two or fewer at once, at 2 s.e."""
-    what = "300-disk heaps while fed: avalanches in a surface layer against single rolling grains (sec. III)"
     says = "baxter: avalanches in a layer ~3–4 disks thick, the interior static; Hooke: small numbers of grains roll"
-    found = _load(AVALANCHES)
-    if found is None or not {"baxter", "hooke-k500"} <= set(found["summary"]):
-        return [["1997", what, says, "not run yet (`python benchmarks/studies/papers/baxter_avalanches.py`)", "—"]]
+    for n in AVALANCHE_SIZES:
+        found = _load(HEAPS / f"n{n}" / "avalanches.json")
+        if found is not None and all(found["summary"].get(law, {}).get("heaps", 0) >= PILES
+                                     for law in ("baxter", "hooke-k500")):
+            break
+    else:
+        return [["1997", "heaps while fed: avalanches in a surface layer against single rolling grains (sec. III)",
+                 says, _missing("avalanches"), "—"]]
+    what = f"{n}-disk heaps while fed: avalanches in a surface layer against single rolling grains (sec. III)"
     b, h = found["summary"]["baxter"], found["summary"]["hooke-k500"]
     layer = b["thickness_p90"]
     low, high = 3.0 - 2 * _se(layer), 4.0 + 2 * _se(layer)
@@ -771,21 +777,29 @@ def _rows_avalanches() -> list[list[str]]:
 
 
 FLATS = {"flat-smooth": "smooth (wall_mu = 0)", "flat-rough": "rough (wall_mu = mu = 0.5)"}
-"""The flat floors of the 300-disk pours (`pour`'s `floor="flat"`), by their setting."""
+"""The flat floors of the pours (`pour`'s `floor="flat"`), by their setting."""
+
+FLAT_SIZES = (1000, 300)
+"""The pour sizes the flat-floor row reads, largest first: the first with `PILES` heaps on each
+floor and on the row."""
 
 
 def _rows_flat() -> list[list[str]]:
     """Sec. II: on "a flat smooth structureless surface ... a stable heap could
-    not be formed": the share of the 300 poured disks still on a flat floor of
-    the row's length 500 time units after the pour, against the row's; no
-    stable heap when under half stay (2 s.e.) or none came to rest."""
+    not be formed": the share of the poured disks still on a flat floor of
+    the row's length 500 time units after the pour, against the row's, for the
+    largest pours of `FLAT_SIZES` with `PILES` on each; no stable heap when
+    under half stay (2 s.e.) or none came to rest."""
     import baxter_readings as br
 
-    heaps = _heaps(300)
-    what = "300-disk pours on a flat floor, the row's length (sec. II)"
     says = "no stable heap on a flat smooth surface; stable heaps on the row"
-    if not all(heaps.get(name) for name in (*FLATS, "contact-point/hold")):
-        return [["1997", what, says, _missing("flat"), "—"]]
+    for n in FLAT_SIZES:
+        heaps = _heaps(n)
+        if all(len(heaps.get(name, ())) >= PILES for name in (*FLATS, "contact-point/hold")):
+            break
+    else:
+        return [["1997", "pours on a flat floor, the row's length (sec. II)", says, _missing("flat"), "—"]]
+    what = f"{n}-disk pours on a flat floor, the row's length (sec. II)"
     kept, shown = {}, []
     for name in (*FLATS, "contact-point/hold"):
         rows = heaps[name]
@@ -1395,10 +1409,14 @@ def run(studies: list[str]) -> None:
         import baxter_readings as br
 
         br.main(["--n", "1000", "--seeds", str(PILES), "--settings", "S1.0,S1.05,S1.2,S1.3", "--workers", "1"])
-    if "flat" in studies:  # sec. II: a flat floor instead of the row (300-disk pours, ~3 min each)
+    if "flat" in studies:  # sec. II: a flat floor instead of the row (1000-disk pours, ~4 min each)
         import baxter_readings as br
 
-        br.main(["--n", "300", "--seeds", str(PILES), "--settings", ",".join(FLATS), "--workers", "2"])
+        br.main(["--n", "1000", "--seeds", str(PILES), "--settings", ",".join(FLATS), "--workers", "1"])
+    if "avalanches" in studies:  # sec. III: how the heaps grow while fed (1000-disk pours, sampled)
+        import baxter_avalanches as ba
+
+        ba.main(["--n", "1000", "--seeds", str(PILES)])
     if "voidage" in studies:  # from the saved states of the heap studies' runs (seconds)
         import baxter_voidage as bv
 
@@ -1406,7 +1424,7 @@ def run(studies: list[str]) -> None:
         bv.main(["--folder", str(HEAPS / "n1000")])
 
 
-STUDIES = ("lattice", "sloped", "sloped_angles", "networks", "tilt", "flux", "vcut", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "flat", "voidage", "height", "width")
+STUDIES = ("lattice", "sloped", "sloped_angles", "networks", "tilt", "flux", "vcut", "kn_gamma", "drop", "heap", "heap1000", "heap1000_n36", "spacing", "flat", "avalanches", "voidage", "height", "width")
 
 
 def main(argv=None) -> int:
