@@ -1235,8 +1235,9 @@ def figures(folder: pathlib.Path = ROOT / "docs", papers: tuple[str, ...] = ("19
 
         drawn.append(str(folder / "baxter1997_voidage_n1334.png"))
         bv.figure(voids, drawn[-1])
+    elsewhere = set(FLATS) | {name for S, name in SPACINGS.items() if S != 1.1}  # not on the paper's row
     for n in ((1334, 1000) if "1997" in papers else ()):
-        if heaps := br.heap_rows(HEAPS / f"n{n}"):
+        if heaps := [h for h in br.heap_rows(HEAPS / f"n{n}") if br.name_of(h) not in elsewhere]:
             drawn.append(str(folder / f"baxter1997_n{n}.png"))
             br.figure(heaps, drawn[-1], f"Baxter et al. 1997 heaps of {n} disks, poured onto S = 1.1 sigma")
     return drawn
