@@ -20,11 +20,13 @@ Three cases:
 1. `one`: one cone, jaxpile against LAMMPS serial (its loop time).
 2. `large`: the same for a cone of `--large-n` spheres, one every
    `--large-interval` (not run by default).
-3. `ensemble`: B cones (seeds 0..B-1) in one vmapped jaxpile call against the
-   same B replays in LAMMPS, one after another (the sum of their loop times)
-   and two processes at once (the wall time of the set, start-up included:
-   what two cores do with independent members). Run with
-   `JAXPILE_HOST_DEVICES=2` to give jaxpile both cores as two devices.
+3. `ensemble`: B cones (seeds 0..B-1) in one jaxpile batch, run as `jaxpile
+   sweep` runs it (on one CPU device the members one after another inside each
+   compiled chunk, each deciding its own rebuilds), against the same B replays
+   in LAMMPS, one after another (the sum of their loop times) and two processes
+   at once (the wall time of the set, start-up included: what two cores do
+   with independent members). Run with `JAXPILE_HOST_DEVICES=2` to give
+   jaxpile both cores as two devices (the members then run side by side).
 
 The work counted for both codes is (plate + poured spheres) x steps; LAMMPS
 carries only the spheres created so far, jaxpile each chunk's block of those
@@ -47,6 +49,7 @@ import numpy as np
 
 import jaxpile
 from jaxpile import io
+from jaxpile.batches import batch_of
 from jaxpile.engine import RunInfo, ensemble
 from jaxpile.protocols import cone
 
@@ -208,7 +211,9 @@ def ensemble_case(args, binary, root) -> tuple[dict, list]:
     member_work = float(total) * steps
     _, law, params = cone.law_and_params("hooke")
     sim = cone.simulator(cone.SPEC.make_options({"n": args.n}), law="hooke", dt=info["dt"], chunk_steps=CHUNK)
-    ens = ensemble.Ensemble(sim)
+    # as `jaxpile sweep --protocol cone` runs a batch: on one CPU device the members one after another,
+    # each with its own rebuilds (side by side, every member rebuilds whenever one needs it)
+    ens = ensemble.Ensemble(sim, sequential=batch_of("cone").sequential)
     state = ens.init(params, setups)
     run_info = RunInfo()
     state = ens.run(params, state, info["pour_steps"], progress=False, info=run_info)
@@ -216,6 +221,7 @@ def ensemble_case(args, binary, root) -> tuple[dict, list]:
     jax_rate = count * member_work / run_info.wall_seconds
     ours = [cone_stats(*in_play(ensemble.member(state, k), s), base_z=info["base_z"]) for k, s in enumerate(setups)]
     out = {"members": count, "spheres_per_member": total, "steps": steps, "devices": len(jax.devices()),
+           "members_one_after_another": ens.sequential,
            "jaxpile": {"run_seconds": run_info.wall_seconds, "compile_seconds": run_info.compile_seconds,
                        "reallocations": run_info.reallocations, "particle_steps_per_s": jax_rate,
                        "heaps": ours}, "lammps": None}
