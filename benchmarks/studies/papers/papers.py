@@ -736,9 +736,19 @@ def rows_1997() -> list[list[str]]:
     return rows
 
 
-AVALANCHE_SIZES = (1000, 300)
-"""The heap sizes the avalanche row reads, largest first: the first with `PILES` heaps of each law
-(`baxter_avalanches.py`'s `n<N>/avalanches.json`; a study still running is not read)."""
+READ_SIZES = (1000, 300)
+"""The heap sizes the spacing, flat-floor and avalanche rows read, largest first: the first with
+`PILES` heaps of every setting the row compares (a study still running is not read)."""
+
+
+def _largest_heaps(names) -> tuple[int, dict[str, list[dict]]] | None:
+    """`(n, heaps by setting)` of the largest size of `READ_SIZES` whose
+    `baxter_readings` heaps hold `PILES` of each setting in `names`, or None."""
+    for n in READ_SIZES:
+        heaps = _heaps(n)
+        if all(len(heaps.get(name, ())) >= PILES for name in names):
+            return n, heaps
+    return None
 
 
 def _rows_avalanches() -> list[list[str]]:
@@ -750,7 +760,7 @@ def _rows_avalanches() -> list[list[str]]:
     moving at once under the paper's law than under Hooke's, at 2 s.e.; and
     Hooke's "small numbers": two or fewer at once, at 2 s.e."""
     says = "baxter: avalanches in a layer ~3–4 disks thick, the interior static; Hooke: small numbers of grains roll"
-    for n in AVALANCHE_SIZES:
+    for n in READ_SIZES:
         found = _load(HEAPS / f"n{n}" / "avalanches.json")
         if found is not None and all(found["summary"].get(law, {}).get("heaps", 0) >= PILES
                                      for law in ("baxter", "hooke-k500")):
@@ -779,26 +789,19 @@ def _rows_avalanches() -> list[list[str]]:
 FLATS = {"flat-smooth": "smooth (wall_mu = 0)", "flat-rough": "rough (wall_mu = mu = 0.5)"}
 """The flat floors of the pours (`pour`'s `floor="flat"`), by their setting."""
 
-FLAT_SIZES = (1000, 300)
-"""The pour sizes the flat-floor row reads, largest first: the first with `PILES` heaps on each
-floor and on the row."""
-
 
 def _rows_flat() -> list[list[str]]:
     """Sec. II: on "a flat smooth structureless surface ... a stable heap could
     not be formed": the share of the poured disks still on a flat floor of
     the row's length 500 time units after the pour, against the row's, for the
-    largest pours of `FLAT_SIZES` with `PILES` on each; no stable heap when
+    largest pours of `READ_SIZES` with `PILES` on each; no stable heap when
     under half stay (2 s.e.) or none came to rest."""
     import baxter_readings as br
 
     says = "no stable heap on a flat smooth surface; stable heaps on the row"
-    for n in FLAT_SIZES:
-        heaps = _heaps(n)
-        if all(len(heaps.get(name, ())) >= PILES for name in (*FLATS, "contact-point/hold")):
-            break
-    else:
+    if (found := _largest_heaps((*FLATS, "contact-point/hold"))) is None:
         return [["1997", "pours on a flat floor, the row's length (sec. II)", says, _missing("flat"), "—"]]
+    n, heaps = found
     what = f"{n}-disk pours on a flat floor, the row's length (sec. II)"
     kept, shown = {}, []
     for name in (*FLATS, "contact-point/hold"):
@@ -822,24 +825,18 @@ def _rows_flat() -> list[list[str]]:
 SPACINGS = {1.0: "S1.0", 1.05: "S1.05", 1.1: "contact-point/hold", 1.2: "S1.2", 1.3: "S1.3"}
 """The substrate spacings S (sigma) of the heaps, by their setting (1.1: the paper's)."""
 
-SPACING_SIZES = (1000, 300)
-"""The heap sizes the spacing row reads, largest first: the first with `PILES` heaps at every S."""
-
 
 def _rows_spacing() -> list[list[str]]:
     """Sec. III: "the angle of repose was found to decrease with increasing
     substrate particle spacing S, with a local plateau in the range S >= 1.1
     sigma": the mid-flank angle at each S, of the largest heaps of
-    `SPACING_SIZES` with `PILES` at every S (a study still running is not read)."""
+    `READ_SIZES` with `PILES` at every S (a study still running is not read)."""
     import baxter_readings as br
 
     says = "falls as S grows, a plateau for S ≥ 1.1 σ"
-    for n in SPACING_SIZES:
-        heaps = _heaps(n)
-        if all(len(heaps.get(name, ())) >= PILES for name in SPACINGS.values()):
-            break
-    else:
+    if (found := _largest_heaps(SPACINGS.values())) is None:
         return [["1997", "the angle against the substrate's spacing S (sec. III)", says, _missing("spacing"), "—"]]
+    n, heaps = found
     what = f"{n}-disk heaps: the angle against the substrate's spacing S (sec. III)"
     angle = {S: br.summarise(heaps[name])[name]["angle"]["mid_flank"] for S, name in SPACINGS.items()}
     shown = ", ".join(f"{S:g}: {_pm(a)}" for S, a in angle.items())
