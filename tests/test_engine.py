@@ -133,6 +133,22 @@ def test_cell_table_and_binary_search_find_the_same_sorted_rows_and_a_full_row_k
     np.testing.assert_array_equal(short, idx[:, :2])
 
 
+def test_slot_picks_stop_at_the_fullest_row_and_list_as_before():
+    """A sparse pile's rows hold fewer neighbours than its slots: the traced
+    build picks only as many slots as its fullest row needs, and its list is
+    the host build's (which fills every slot), the slots past the fullest row
+    empty; its half pairs read by `sorted_half_pairs` are `half_pairs`'."""
+    rng = np.random.default_rng(5)
+    pos = rng.uniform(0.0, 15.0, (60, 2))
+    grid, reach, slots = nb._grid(nb.NeighborSettings((15.0, 15.0), 1.0, 0.2, 1.5)), 1.2, 12
+    idx, occupancy, _ = jax.jit(nb._build, static_argnums=(1, 2, 3, 4))(jnp.asarray(pos), grid, reach, 64, slots)
+    assert 1 <= int(occupancy) < slots // 2
+    np.testing.assert_array_equal(idx, host_lists.build(pos, grid, reach, 64, slots)[0])
+    assert np.all(np.asarray(idx)[:, int(occupancy):] == 60)
+    for capacity in (16, 64):
+        np.testing.assert_array_equal(pair_list.sorted_half_pairs(idx, capacity), half_pairs(idx, capacity))
+
+
 def test_half_pairs_hold_each_pair_once_and_history_follows_its_pair():
     # full lists of 4 disks (empty = 4): pairs (0,1) (0,3) (0,2)->gone (1,2) new ...
     old_idx = jnp.array([[3, 1, 2], [0, 4, 4], [0, 4, 4], [0, 4, 4]])
@@ -186,6 +202,7 @@ def test_host_lists_equal_their_traced_twins(monkeypatch):
         for capacity in (64, 512):
             pairs = host_lists.half_pairs(idx, capacity)
             np.testing.assert_array_equal(pairs, half_pairs(jnp.asarray(idx), capacity))
+            np.testing.assert_array_equal(pairs, pair_list.sorted_half_pairs(jnp.asarray(idx), capacity))
             assert pairs.dtype == np.int32
     old_history = rng.normal(size=(64, 2))  # room for the first 64 of the old pairs only
     new_pairs = host_lists.half_pairs(new, 512)

@@ -210,7 +210,8 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
     loses a wall). Walls that are off give exactly zero either way (the law's
     out-of-contact branch), so both branches agree bit for bit; under `vmap`
     with a wall differing between members its cond becomes a select and costs
-    what the kernel alone did."""
+    what the kernel alone did. With no wall on, one cond skips them all
+    (measured: docs/choices.md#walls)."""
     w = boundaries.wall_normal.shape[0]
     mass_free = (p.active & ~p.fixed)
     wall_law = law.wall_params(params)
@@ -251,11 +252,15 @@ def _wall_forces(law: ContactLaw, params, p: Particles, omega, wall_history, bou
 
         return lax.cond(boundaries.wall_active[k], on, off)
 
-    walls = [one(k) for k in range(w)]
-    stacked = jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *walls)
-    force = sum(wall.force for wall in walls) if w else jnp.zeros_like(p.position)
-    torque = sum(wall.torque for wall in walls) if w else jnp.zeros_like(omega)
-    return stacked, force, torque
+    def every_wall():
+        walls = [one(k) for k in range(w)]
+        stacked = jax.tree.map(lambda *xs: jnp.stack(xs, axis=1), *walls)
+        return stacked, sum(wall.force for wall in walls), sum(wall.torque for wall in walls)
+
+    def no_wall():
+        return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(every_wall))
+
+    return lax.cond(jnp.any(boundaries.wall_active), every_wall, no_wall)
 
 
 def in_slots(pair: PairForce, pairs: Array, idx: Array) -> PairForce:

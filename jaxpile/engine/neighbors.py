@@ -207,11 +207,16 @@ def _build(position: Array, grid, reach: float, window: int, slots: int, fixed: 
     # that costs less than a row sort (a cumsum, scatter and sort: more again)
     value = jnp.where(keep, candidate, n)
     if slots <= SELECT_SLOTS_BY_DIMENSION[position.shape[1]]:
-        columns, last = [], jnp.full((n,), -1, jnp.int32)
-        for _ in range(slots):
+        # only as many picks as the fullest row has neighbours, the slots past it left empty: a list
+        # sized for a whole heap is mostly empty while it is poured (docs/choices.md#neighbour-lists)
+        def pick(carry):
+            k, last, idx = carry
             last = jnp.min(jnp.where(value > last[:, None], value, n), axis=1)
-            columns.append(last)
-        idx = jnp.stack(columns, axis=1)
+            return k + 1, last, lax.dynamic_update_slice_in_dim(idx, last[:, None], k, axis=1)
+
+        picks = jnp.minimum(occupancy, slots)
+        start = (jnp.zeros((), jnp.int32), jnp.full((n,), -1, jnp.int32), jnp.full((n, slots), n, jnp.int32))
+        idx = lax.while_loop(lambda carry: carry[0] < picks, pick, start)[2]
     else:
         idx = jnp.sort(value, axis=1)[:, :slots]
         if idx.shape[1] < slots:

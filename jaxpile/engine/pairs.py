@@ -16,6 +16,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 Array = Any
 
@@ -90,6 +91,33 @@ def half_pairs(idx: Array, capacity: int | None = None) -> Array:
     return jnp.stack([i, j], axis=1)
 
 
+def sorted_half_pairs(idx: Array, capacity: int | None = None) -> Array:
+    """`half_pairs` of a full list whose rows hold their neighbours in
+    increasing index order, empty entries last, as every list the builders
+    make (`neighbors._build`, `host_lists.build`). A row's pairs, its
+    neighbours above it, are then one run of its slots: each entry of the
+    half list is read by a gather from where its row's run starts, instead of
+    laid by a scatter over all n K slots, which made most of a rebuild's
+    `half_pairs` (measured: docs/choices.md#neighbour-lists). The same pairs.
+    """
+    n, k = idx.shape
+    capacity = pair_capacity(n, k) if capacity is None else int(capacity)
+    me = jnp.arange(n, dtype=jnp.int32)
+    valid = idx < n
+    keep = valid & (idx > me[:, None].astype(idx.dtype))
+    count = jnp.sum(keep, axis=1, dtype=jnp.int32)
+    below = jnp.sum(valid & ~keep, axis=1, dtype=jnp.int32)  # the row's neighbours below it come first
+    above = jnp.cumsum(count, dtype=jnp.int32) - count  # the row's first entry
+    # each row that has pairs marks its first entry; an entry's row is the last mark at or before it
+    marks = jnp.full((capacity + 1,), -1, jnp.int32).at[jnp.where(count > 0, above, capacity)].max(me, mode="drop")
+    entry = jnp.arange(capacity, dtype=jnp.int32)
+    row = jnp.clip(lax.cummax(marks[:capacity]), 0, n - 1)
+    used = entry < above[-1] + count[-1]
+    slot = jnp.clip(below[row] + entry - above[row], 0, k - 1)
+    j = idx.reshape(-1)[row * k + slot].astype(jnp.int32)
+    return jnp.stack([jnp.where(used, row, n), jnp.where(used, j, n)], axis=1)
+
+
 def _history_at(old_history: Array, found: Array, valid: Array) -> Array:
     """Each new pair's history: the old entry `found` (-1: none, a new pair),
     zero where `found` is -1 or the new entry is empty (`valid` False)."""
@@ -147,11 +175,12 @@ def carry_history_from_pairs(old_pairs: Array, old_history: Array, new_pairs: Ar
 
 def contacts_for(contacts, old_idx: Array, new_idx: Array, capacity: int | None = None):
     """`contacts` (a `state.Contacts`) re-laid on the half pairs of `new_idx`
-    (`capacity` entries; default: as many as now), history carried pair by
+    (`capacity` entries; default: as many as now; its rows in increasing
+    order, as `sorted_half_pairs` needs), history carried pair by
     pair from the pairs it was laid on (`contacts.pairs`, the half pairs of
     `old_idx`); the demands restart from the new list's pairs and its fullest row."""
     capacity = contacts.pairs.shape[0] if capacity is None else int(capacity)
-    pairs = half_pairs(new_idx, capacity)
+    pairs = sorted_half_pairs(new_idx, capacity)
     n, k = old_idx.shape
     history = carry_history_from_pairs(contacts.pairs, contacts.history, pairs, n, k)
     return contacts.set(pairs=pairs, history=history,
@@ -166,4 +195,4 @@ def pair_entry(pairs, i: int, j: int) -> int | None:
 
 
 __all__ = ["PAIR_ALIGN", "aligned", "carry_history", "carry_history_from_pairs", "contacts_for", "half_pairs",
-           "half_slots", "pair_capacity", "pair_count", "pair_entry", "slot_count"]
+           "half_slots", "pair_capacity", "pair_count", "pair_entry", "slot_count", "sorted_half_pairs"]
